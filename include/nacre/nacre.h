@@ -1,0 +1,529 @@
+/*
+ * nacre.h: the public C API of nacre, a CPU renderer for translucent materials (jade, marble,
+ * milk, skin, wax) and participating media, with a reference path tracer as ground truth.
+ *
+ * STEP BY STEP (this compiles; see examples/minimal.c)
+ *
+ *     nacre_context *ctx = NULL;
+ *     nacre_context_create(NULL, &ctx);                 // NULL desc: malloc/free, all cores
+ *     nacre_scene *scene = NULL;
+ *     nacre_scene_create(ctx, &scene);
+ *
+ *     nacre_mesh_data sphere = {0};
+ *     nacre_shape_desc shape = nacre_shape_desc_defaults(NACRE_SHAPE_SPHERE);
+ *     nacre_mesh_make_shape(ctx, &shape, &sphere);     // library allocates, you free
+ *     nacre_mesh mesh;
+ *     nacre_scene_add_mesh(scene, &sphere, &mesh);     // copied: free yours now
+ *     nacre_mesh_data_free(ctx, &sphere);
+ *
+ *     nacre_material_desc md = nacre_material_desc_defaults(NACRE_MATERIAL_OPAQUE);
+ *     nacre_material mat;
+ *     nacre_scene_add_material(scene, &md, &mat);
+ *     nacre_object_desc od = nacre_object_desc_defaults();
+ *     od.mesh = mesh; od.material = mat;
+ *     nacre_object obj;
+ *     nacre_scene_add_object(scene, &od, &obj);
+ *
+ *     nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
+ *     nacre_light light;
+ *     nacre_scene_add_light(scene, &ld, &light);
+ *     nacre_camera_desc cam = nacre_camera_desc_defaults();
+ *     nacre_scene_set_camera(scene, &cam);
+ *
+ *     nacre_scene_commit(scene, 0.0);                   // evaluates deformers at time 0
+ *     nacre_render_settings rs = nacre_render_settings_defaults();
+ *     nacre_image img = {0};
+ *     if (nacre_render(scene, &rs, &img, NULL) != NACRE_OK)
+ *         fprintf(stderr, "%s\n", nacre_context_last_error(ctx));
+ *     nacre_image_write(ctx, &img, "out.exr", NULL);
+ *     nacre_image_free(ctx, &img);
+ *     nacre_scene_destroy(scene);
+ *     nacre_context_destroy(ctx);
+ *
+ * UNITS AND CONVENTIONS
+ *   - Scene units are millimetres unless the scene says otherwise; absorption and scattering
+ *     coefficients (sigma_a, sigma_s) are per scene unit.
+ *   - Right-handed coordinates, y up by default (the camera's up vector decides). Triangles wind
+ *     counter-clockwise seen from outside (the front face).
+ *   - Colours are linear Rec.709 RGB. A directional light's strength is irradiance (W/m^2, per unit
+ *     area perpendicular to the light); a point or spot light's strength is intensity (W/sr).
+ *     The environment colour is a radiance. Rendered images hold radiance.
+ *   - Angles in descs are degrees unless a field says otherwise.
+ *   - Images are row-major, top row first, `channels` interleaved floats per pixel.
+ *
+ * OWNERSHIP
+ *   - Objects made by nacre_X_create are freed by nacre_X_destroy; destroy(NULL) does nothing.
+ *   - Plain data (nacre_image, nacre_mesh_data) filled by the library is allocated with the
+ *     context's allocator and freed with nacre_image_free / nacre_mesh_data_free.
+ *   - Descs and arrays passed in are copied unless a field says "borrowed".
+ *   - Scene elements are typed index handles; id 0 is never valid, so a zeroed handle is invalid.
+ *
+ * THREADING
+ *   - Contexts are independent. The library has no global mutable state.
+ *   - A scene has one writer at a time. Between nacre_scene_commit and the next edit, a scene may
+ *     be rendered from several threads at once, each with its own nacre_renderer.
+ *   - Each render uses OpenMP with the context's thread count; results do not depend on it.
+ *
+ * ERRORS
+ *   Functions that act return nacre_result (NACRE_OK = 0). On failure the context keeps a one-line
+ *   message, "file:line:col: field: problem" where those are known, readable with
+ *   nacre_context_last_error() until the next failure on that context. The library never prints;
+ *   an optional log callback in the context desc receives the same messages.
+ *
+ * nacre DOES NOT (yet)
+ *   - run on a GPU: everything is CPU code (OpenMP + AVX2 where the compiler targets it);
+ *   - implement the render methods whose issues are still open: NACRE_METHOD_DIFFUSION,
+ *     NACRE_METHOD_LAYERED and NACRE_METHOD_PATHTRACE return NACRE_ERROR_UNSUPPORTED;
+ *   - animate anything but deformers (time-dependent) and edits between commits.
+ */
+#ifndef NACRE_NACRE_H
+#define NACRE_NACRE_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#if defined(NACRE_BUILDING) && defined(__GNUC__)
+#define NACRE_API __attribute__((visibility("default")))
+#else
+#define NACRE_API
+#endif
+
+/* ------------------------------------------------------------------------------------------ */
+/* Version, results                                                                          */
+/* ------------------------------------------------------------------------------------------ */
+
+#define NACRE_VERSION_MAJOR 0
+#define NACRE_VERSION_MINOR 1
+#define NACRE_VERSION_PATCH 0
+
+/* Result codes and their names come from this one list. */
+#define NACRE_RESULT_LIST(X)                                                                   \
+    X(NACRE_OK, 0, "ok")                                                                       \
+    X(NACRE_ERROR_INVALID_ARGUMENT, 1, "invalid argument")                                     \
+    X(NACRE_ERROR_IO, 2, "input/output error")                                                 \
+    X(NACRE_ERROR_PARSE, 3, "parse error")                                                     \
+    X(NACRE_ERROR_OUT_OF_MEMORY, 4, "out of memory")                                           \
+    X(NACRE_ERROR_UNSUPPORTED, 5, "not supported")                                             \
+    X(NACRE_ERROR_CANCELLED, 6, "cancelled")                                                   \
+    X(NACRE_ERROR_INVALID_OPERATION, 7, "invalid operation")
+
+typedef enum nacre_result {
+#define NACRE_RESULT_ENUM_(name, value, text) name = value,
+    NACRE_RESULT_LIST(NACRE_RESULT_ENUM_)
+#undef NACRE_RESULT_ENUM_
+} nacre_result;
+
+/* Version string "MAJOR.MINOR.PATCH". */
+NACRE_API const char *nacre_version(void);
+/* Short English name of a result code ("parse error"). */
+NACRE_API const char *nacre_result_string(nacre_result result);
+
+/* ------------------------------------------------------------------------------------------ */
+/* Context: allocator, threads, error messages                                               */
+/* ------------------------------------------------------------------------------------------ */
+
+typedef struct nacre_context nacre_context;
+
+typedef enum nacre_log_level { NACRE_LOG_ERROR = 0, NACRE_LOG_WARNING, NACRE_LOG_INFO } nacre_log_level;
+
+/* Reentrant: may be called from several threads at once. */
+typedef void (*nacre_log_fn)(void *user, nacre_log_level level, const char *message);
+
+typedef struct nacre_allocator {
+    void *(*alloc_fn)(size_t size, void *user); /* NULL with free_fn NULL: malloc */
+    void (*free_fn)(void *ptr, void *user);     /* must accept NULL */
+    void *user;
+} nacre_allocator;
+
+typedef struct nacre_context_desc {
+    nacre_allocator allocator; /* zero: malloc/free */
+    int threads;               /* 0: all hardware threads; 1: serial (debugging) */
+    nacre_log_fn log_fn;       /* optional */
+    void *log_user;
+} nacre_context_desc;
+
+/* Create a context. desc may be NULL (defaults). */
+NACRE_API nacre_result nacre_context_create(const nacre_context_desc *desc, nacre_context **out);
+/* Destroy a context; every scene and renderer made from it must be destroyed first. */
+NACRE_API void nacre_context_destroy(nacre_context *ctx);
+/* Message of the latest failure on this context ("" if none). Valid until the next failure. */
+NACRE_API const char *nacre_context_last_error(const nacre_context *ctx);
+/* Result code of the latest failure on this context (NACRE_OK if none). */
+NACRE_API nacre_result nacre_context_last_result(const nacre_context *ctx);
+/* Forget the latest failure. */
+NACRE_API void nacre_context_clear_error(nacre_context *ctx);
+/* Number of threads renders use (resolved from the desc). */
+NACRE_API int nacre_context_threads(const nacre_context *ctx);
+
+/* ------------------------------------------------------------------------------------------ */
+/* Images                                                                                     */
+/* ------------------------------------------------------------------------------------------ */
+
+/* A float image: `channels` floats per pixel, rows `stride` floats apart, top row first. */
+typedef struct nacre_image {
+    int32_t width, height, channels;
+    size_t stride; /* floats from one row to the next, >= width * channels */
+    float *pixels;
+} nacre_image;
+
+typedef enum nacre_exr_pixel { NACRE_EXR_HALF = 0, NACRE_EXR_FLOAT } nacre_exr_pixel;
+
+typedef struct nacre_image_write_options {
+    float exposure;           /* PNG: pixels are scaled by 2^exposure before sRGB encoding */
+    nacre_exr_pixel exr_type; /* EXR: half (default) or float */
+} nacre_image_write_options;
+
+/* Image comparison metrics over all pixels and channels (see nacre_image_compare). */
+typedef struct nacre_image_metrics {
+    double rmse;          /* sqrt(mean((a-b)^2)) */
+    double rel_mse;       /* mean((a-b)^2 / (b^2 + 1e-2)), b = reference */
+    double psnr;          /* 10 log10(peak^2 / mse), peak = max reference value; inf if equal */
+    double mean_rel_err;  /* mean(|a-b| / |b|) over values with b != 0 */
+    double max_abs_err;   /* max |a-b| */
+    uint64_t count;       /* values compared (pixels * channels) */
+    uint64_t nonzero_ref; /* values with b != 0 */
+} nacre_image_metrics;
+
+/* Allocate a zeroed image (stride = width * channels). 1 <= width, height <= 65536. */
+NACRE_API nacre_result nacre_image_alloc(nacre_context *ctx, int32_t width, int32_t height,
+                                         int32_t channels, nacre_image *out);
+/* Free pixels allocated by the library and zero the struct. */
+NACRE_API void nacre_image_free(nacre_context *ctx, nacre_image *image);
+/* Write by extension: .png (8-bit sRGB, exposure-scaled, RGB or RGBA) or .exr (linear).
+ * Written to a temporary file in the same folder, then renamed: no partial file is left.
+ * options may be NULL (exposure 0, half EXR). */
+NACRE_API nacre_result nacre_image_write(nacre_context *ctx, const nacre_image *image,
+                                         const char *path, const nacre_image_write_options *options);
+NACRE_API nacre_result nacre_image_write_png(nacre_context *ctx, const nacre_image *image,
+                                             const char *path, float exposure);
+NACRE_API nacre_result nacre_image_write_exr(nacre_context *ctx, const nacre_image *image,
+                                             const char *path, nacre_exr_pixel type);
+/* Read .png (sRGB decoded to linear, 8 or 16 bit) or .exr (R, G, B and A if present). The
+ * result has 3 or 4 channels. */
+NACRE_API nacre_result nacre_image_read(nacre_context *ctx, const char *path, nacre_image *out);
+/* Compare `test` against `reference` (same size and channel count). */
+NACRE_API nacre_result nacre_image_compare(nacre_context *ctx, const nacre_image *test,
+                                           const nacre_image *reference, nacre_image_metrics *out);
+
+/* ------------------------------------------------------------------------------------------ */
+/* Mesh data: plain arrays, owned by whoever allocated them                                   */
+/* ------------------------------------------------------------------------------------------ */
+
+typedef struct nacre_mesh_data {
+    uint32_t vertex_count;
+    uint32_t triangle_count;
+    float *positions; /* 3 floats per vertex */
+    float *normals;   /* 3 per vertex, unit length, or NULL */
+    float *uvs;       /* 2 per vertex, or NULL */
+    float *tangents;  /* 4 per vertex: unit xyz + handedness w = +-1 (bitangent = w n x t), or NULL */
+    uint32_t *indices; /* 3 per triangle, counter-clockwise seen from outside */
+} nacre_mesh_data;
+
+/* What mesh analysis reports. Edges are counted after welding exactly coincident positions. */
+typedef struct nacre_mesh_info {
+    uint32_t vertex_count, triangle_count;
+    uint32_t welded_vertex_count;     /* distinct positions among referenced vertices */
+    uint32_t unreferenced_vertices;   /* vertices no triangle uses */
+    uint32_t degenerate_triangles;    /* zero area after welding (repeated vertex or collinear) */
+    uint64_t edge_count;              /* undirected edges after welding */
+    uint64_t boundary_edges;          /* used by one triangle */
+    uint64_t nonmanifold_edges;       /* used by three or more triangles */
+    bool closed;                      /* no boundary and no non-manifold edges */
+    float bounds_min[3], bounds_max[3];
+    double surface_area;
+} nacre_mesh_info;
+
+typedef enum nacre_shape_type {
+    NACRE_SHAPE_SPHERE = 0, /* radius, segments (around) x rings */
+    NACRE_SHAPE_BOX,        /* size[3], centred at the origin, per-face UVs */
+    NACRE_SHAPE_PLANE,      /* size[0] x size[2] in the xz plane, normal +y */
+    NACRE_SHAPE_TORUS       /* radius (major), minor_radius, in the xz plane */
+} nacre_shape_type;
+
+typedef struct nacre_shape_desc {
+    nacre_shape_type type;
+    float radius;        /* sphere radius; torus major radius */
+    float minor_radius;  /* torus tube radius */
+    float size[3];       /* box extents; plane uses size[0] and size[2] */
+    uint32_t segments;   /* subdivisions around (sphere, torus) or per side (box, plane) */
+    uint32_t rings;      /* subdivisions from pole to pole (sphere) or around the tube (torus) */
+} nacre_shape_desc;
+
+/* Defaults: sphere r=1 64x32, box 1x1x1, plane 10x10, torus 1/0.25 64x32. */
+NACRE_API nacre_shape_desc nacre_shape_desc_defaults(nacre_shape_type type);
+/* Build a shape with positions, normals, UVs and tangents. Closed shapes are watertight (shared
+ * vertices along seams are exactly coincident). */
+NACRE_API nacre_result nacre_mesh_make_shape(nacre_context *ctx, const nacre_shape_desc *desc,
+                                             nacre_mesh_data *out);
+/* Load OBJ, PLY (ASCII/binary) or glTF 2.0 (.gltf/.glb); all meshes in the file are merged,
+ * with node transforms applied. Polygons are triangulated. Normals and tangents are computed
+ * when missing (tangents need UVs; without UVs a tangent is chosen perpendicular to the normal).
+ * Fails on empty meshes, non-finite positions and out-of-range indices. */
+NACRE_API nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_data *out);
+/* Free arrays allocated by the library and zero the struct. */
+NACRE_API void nacre_mesh_data_free(nacre_context *ctx, nacre_mesh_data *mesh);
+/* Check sizes, indices and finiteness; names the first problem. */
+NACRE_API nacre_result nacre_mesh_validate(nacre_context *ctx, const nacre_mesh_data *mesh,
+                                           const char *name);
+/* (Re)compute area- and angle-weighted smooth normals across exactly coincident positions. */
+NACRE_API nacre_result nacre_mesh_compute_normals(nacre_context *ctx, nacre_mesh_data *mesh);
+/* (Re)compute tangents from UVs (MikkTSpace-like per-vertex accumulation), orthogonalised
+ * against the normals; needs normals. Without UVs, an arbitrary perpendicular frame. */
+NACRE_API nacre_result nacre_mesh_compute_tangents(nacre_context *ctx, nacre_mesh_data *mesh);
+/* Topology and size report. */
+NACRE_API nacre_result nacre_mesh_analyze(nacre_context *ctx, const nacre_mesh_data *mesh,
+                                          nacre_mesh_info *out);
+
+/* ------------------------------------------------------------------------------------------ */
+/* Scene description                                                                          */
+/* ------------------------------------------------------------------------------------------ */
+
+typedef struct nacre_scene nacre_scene;
+typedef struct { uint32_t id; } nacre_mesh;
+typedef struct { uint32_t id; } nacre_material;
+typedef struct { uint32_t id; } nacre_object;
+typedef struct { uint32_t id; } nacre_light;
+
+/* Materials. Opaque: Lambert diffuse + normalized Blinn-Phong specular. Translucent: a
+ * homogeneous scattering medium bounded by the surface (sigma_a, sigma_s per scene unit,
+ * Henyey-Greenstein g, relative index of refraction eta); the phong method shades it as Lambert
+ * with the albedo of its diffuse reflectance (dipole Rd); later methods use the medium. */
+typedef enum nacre_material_type { NACRE_MATERIAL_OPAQUE = 0, NACRE_MATERIAL_TRANSLUCENT } nacre_material_type;
+
+typedef struct nacre_material_desc {
+    nacre_material_type type;
+    float diffuse[3];  /* opaque: Lambert albedo in [0,1] */
+    float specular[3]; /* Blinn-Phong specular albedo (both types) */
+    float shininess;   /* Blinn-Phong exponent, >= 0 */
+    float sigma_a[3];  /* translucent: absorption per scene unit, >= 0 */
+    float sigma_s[3];  /* translucent: scattering per scene unit, >= 0 */
+    float g;           /* Henyey-Greenstein anisotropy, in (-1, 1) */
+    float eta;         /* relative index of refraction, > 0 */
+} nacre_material_desc;
+
+/* Defaults: opaque grey 0.8, specular 0.04, shininess 64; translucent: the seed's jade
+ * (sigma_a, sigma_s of Blanchard 2012 table 5.5 scaled to mm), g 0, eta 1.5. */
+NACRE_API nacre_material_desc nacre_material_desc_defaults(nacre_material_type type);
+
+/* Look up a named measured material (Jensen et al. 2001: "marble", "skimmilk", "wholemilk",
+ * "cream", "ketchup", "apple", "potato", "chicken", "skin1", "skin2"; Blanchard 2012:
+ * "jade", "aquamarine"), coefficients per millimetre, eta 1.3 for Jensen's. The
+ * result is a translucent desc. Returns false if the name is unknown. */
+NACRE_API bool nacre_material_preset(const char *name, nacre_material_desc *out);
+
+typedef struct nacre_transform {
+    float translate[3];
+    float rotate[3]; /* Euler angles in degrees, applied about x, then y, then z */
+    float scale[3];
+} nacre_transform;
+
+typedef enum nacre_deformer_type {
+    NACRE_DEFORM_NONE = 0,
+    NACRE_DEFORM_SCALE, /* non-uniform scale by `scale` about `center` */
+    NACRE_DEFORM_TWIST, /* rotation about `axis` through `center` by angle * (s / length), s =
+                           signed distance along the axis from the centre */
+    NACRE_DEFORM_BEND   /* bends the `axis` direction into an arc of total `angle` over `length`,
+                           towards `direction` (perpendicular to axis), starting at `center` */
+} nacre_deformer_type;
+
+/* A deformer acts on the mesh's own (rest-pose) coordinates before the object transform.
+ * Time-dependent: the effective angle is angle + angle_rate * time, and the effective scale is
+ * scale + scale_rate * time, so a scene can animate by committing at successive times. */
+typedef struct nacre_deformer {
+    nacre_deformer_type type;
+    float center[3];
+    float axis[3];      /* unit after normalisation; default +y */
+    float direction[3]; /* bend: where the axis bends towards; default +x */
+    float angle;        /* twist, bend: degrees */
+    float angle_rate;   /* degrees per second */
+    float length;       /* twist, bend: scene units over which `angle` accrues; default 1 */
+    float scale[3];     /* scale deformer */
+    float scale_rate[3];
+} nacre_deformer;
+
+#define NACRE_MAX_DEFORMERS 4
+
+NACRE_API nacre_deformer nacre_deformer_defaults(nacre_deformer_type type);
+
+typedef struct nacre_object_desc {
+    const char *name;   /* copied; optional */
+    nacre_mesh mesh;
+    nacre_material material;
+    nacre_transform transform;
+    uint32_t deformer_count;
+    nacre_deformer deformers[NACRE_MAX_DEFORMERS]; /* applied in order */
+    bool cast_shadows;  /* default true */
+    bool double_sided;  /* default false: back faces are culled */
+} nacre_object_desc;
+
+NACRE_API nacre_object_desc nacre_object_desc_defaults(void);
+
+typedef enum nacre_light_type { NACRE_LIGHT_DIRECTIONAL = 0, NACRE_LIGHT_POINT, NACRE_LIGHT_SPOT } nacre_light_type;
+
+typedef struct nacre_light_desc {
+    nacre_light_type type;
+    float direction[3];      /* directional, spot: the way the light travels (normalised) */
+    float position[3];       /* point, spot */
+    float strength[3];       /* directional: irradiance (W/m^2); point, spot: intensity (W/sr) */
+    float inner_angle;       /* spot: full strength inside this half-angle (degrees) */
+    float outer_angle;       /* spot: zero outside this half-angle (degrees) */
+    float radius;            /* point, spot: emitter radius (path tracer), 0 = a point */
+    float angular_radius;    /* directional: apparent radius in degrees (default the sun, 0.27) */
+    bool cast_shadows;       /* default true */
+} nacre_light_desc;
+
+NACRE_API nacre_light_desc nacre_light_desc_defaults(nacre_light_type type);
+
+typedef enum nacre_projection { NACRE_PERSPECTIVE = 0, NACRE_ORTHOGRAPHIC } nacre_projection;
+
+typedef struct nacre_camera_desc {
+    nacre_projection projection;
+    float position[3];
+    float target[3];
+    float up[3];
+    float fov_y;       /* perspective: vertical field of view, degrees */
+    float ortho_height; /* orthographic: height of the view in scene units */
+    float near_clip, far_clip; /* 0: chosen from the scene bounds */
+} nacre_camera_desc;
+
+NACRE_API nacre_camera_desc nacre_camera_desc_defaults(void);
+
+/* Create an empty scene (units: millimetres). */
+NACRE_API nacre_result nacre_scene_create(nacre_context *ctx, nacre_scene **out);
+NACRE_API void nacre_scene_destroy(nacre_scene *scene);
+NACRE_API nacre_context *nacre_scene_context(const nacre_scene *scene);
+
+/* Add a mesh (arrays copied, validated; normals and tangents computed when missing). */
+NACRE_API nacre_result nacre_scene_add_mesh(nacre_scene *scene, const nacre_mesh_data *data,
+                                            nacre_mesh *out);
+/* The mesh's rest-pose data as stored by the scene (borrowed until the scene is destroyed). */
+NACRE_API const nacre_mesh_data *nacre_scene_mesh_data(const nacre_scene *scene, nacre_mesh mesh);
+NACRE_API nacre_result nacre_scene_add_material(nacre_scene *scene, const nacre_material_desc *desc,
+                                                nacre_material *out);
+NACRE_API nacre_result nacre_scene_set_material(nacre_scene *scene, nacre_material material,
+                                                const nacre_material_desc *desc);
+NACRE_API nacre_result nacre_scene_add_object(nacre_scene *scene, const nacre_object_desc *desc,
+                                              nacre_object *out);
+/* Replace an object's transform, deformers and flags (mesh and material may change too). */
+NACRE_API nacre_result nacre_scene_set_object(nacre_scene *scene, nacre_object object,
+                                              const nacre_object_desc *desc);
+NACRE_API nacre_result nacre_scene_add_light(nacre_scene *scene, const nacre_light_desc *desc,
+                                             nacre_light *out);
+NACRE_API nacre_result nacre_scene_set_light(nacre_scene *scene, nacre_light light,
+                                             const nacre_light_desc *desc);
+NACRE_API nacre_result nacre_scene_set_camera(nacre_scene *scene, const nacre_camera_desc *desc);
+/* Uniform environment radiance: the ambient term of phong, the sky of the path tracer. */
+NACRE_API nacre_result nacre_scene_set_environment(nacre_scene *scene, const float radiance[3]);
+/* Scene length unit in millimetres (1 = mm, 1000 = m). Informational; coefficients are per unit. */
+NACRE_API nacre_result nacre_scene_set_unit_mm(nacre_scene *scene, float unit_mm);
+
+NACRE_API uint32_t nacre_scene_object_count(const nacre_scene *scene);
+NACRE_API uint32_t nacre_scene_light_count(const nacre_scene *scene);
+
+/* Evaluate deformers at `time` (seconds) and transforms: world-space geometry for rendering.
+ * Needed after any edit and before rendering. */
+NACRE_API nacre_result nacre_scene_commit(nacre_scene *scene, double time);
+/* World-space bounds of the committed scene. */
+NACRE_API nacre_result nacre_scene_bounds(const nacre_scene *scene, float min[3], float max[3]);
+
+/* ------------------------------------------------------------------------------------------ */
+/* Rendering                                                                                  */
+/* ------------------------------------------------------------------------------------------ */
+
+typedef enum nacre_method {
+    NACRE_METHOD_PHONG = 0, /* ambient + Lambert + Blinn-Phong, shadow maps with PCF */
+    NACRE_METHOD_DIFFUSION, /* Blanchard 2012 voxel diffusion (not implemented yet) */
+    NACRE_METHOD_LAYERED,   /* Francois et al. 2006 subsurface texture mapping (not yet) */
+    NACRE_METHOD_PATHTRACE, /* reference volumetric path tracer (not yet) */
+    NACRE_METHOD_COUNT
+} nacre_method;
+
+/* "phong", "diffusion", "layered", "pathtrace". */
+NACRE_API const char *nacre_method_name(nacre_method method);
+/* Parse a method name; false if unknown. */
+NACRE_API bool nacre_method_from_name(const char *name, nacre_method *out);
+/* Whether this build implements the method. */
+NACRE_API bool nacre_method_available(nacre_method method);
+
+typedef struct nacre_render_settings {
+    nacre_method method;
+    int32_t width, height;    /* default 640 x 480; 1..16384 */
+    float exposure;           /* EV stops applied when writing PNG (informational here) */
+    int32_t shadow_map_size;  /* texels per side, default 2048; 0 disables shadows */
+    float pcf_radius;         /* PCF kernel radius in shadow texels, default 1.5 */
+    float shadow_bias;        /* depth bias in shadow texels, default 1.5 */
+    uint32_t seed;            /* stochastic methods */
+    uint32_t spp;             /* stochastic methods: samples per pixel */
+} nacre_render_settings;
+
+NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
+
+/* Timed stages. A stage that did not run (cached or not used) reports 0 and ran = false. */
+#define NACRE_STAGE_LIST(X)                                                                    \
+    X(NACRE_STAGE_SETUP, "setup")                                                              \
+    X(NACRE_STAGE_RASTER, "raster")                                                            \
+    X(NACRE_STAGE_GBUFFER, "gbuffer")                                                          \
+    X(NACRE_STAGE_SHADOW, "shadow")                                                            \
+    X(NACRE_STAGE_SHADE, "shade")
+
+typedef enum nacre_stage {
+#define NACRE_STAGE_ENUM_(name, text) name,
+    NACRE_STAGE_LIST(NACRE_STAGE_ENUM_)
+#undef NACRE_STAGE_ENUM_
+    NACRE_STAGE_COUNT
+} nacre_stage;
+
+NACRE_API const char *nacre_stage_name(nacre_stage stage);
+
+typedef struct nacre_render_stats {
+    uint64_t stage_us[NACRE_STAGE_COUNT];
+    bool stage_ran[NACRE_STAGE_COUNT];
+    uint64_t total_us;
+    uint64_t triangles;          /* submitted to the camera rasterizer */
+    uint64_t triangles_drawn;    /* after culling (back faces, off-screen, no pixel centre) */
+    uint32_t shadow_maps;        /* rendered (not cached) this frame */
+    int threads;
+} nacre_render_stats;
+
+/* A renderer keeps the buffers and results of previous frames (G-buffer, shadow maps) and
+ * recomputes only the stages whose inputs changed since its last render of the same scene:
+ * changing only a material re-shades; moving only a light redraws its shadow map and re-shades;
+ * moving the camera redraws the G-buffer. One renderer per thread. */
+typedef struct nacre_renderer nacre_renderer;
+
+NACRE_API nacre_result nacre_renderer_create(nacre_context *ctx, nacre_renderer **out);
+NACRE_API void nacre_renderer_destroy(nacre_renderer *renderer);
+/* Render a committed scene into `out` (3 channels, radiance). If out->pixels is NULL the image
+ * is allocated (free with nacre_image_free); otherwise it must already be width x height x 3.
+ * stats may be NULL. */
+NACRE_API nacre_result nacre_renderer_render(nacre_renderer *renderer, const nacre_scene *scene,
+                                             const nacre_render_settings *settings,
+                                             nacre_image *out, nacre_render_stats *stats);
+/* One-shot render with a temporary renderer. */
+NACRE_API nacre_result nacre_render(const nacre_scene *scene, const nacre_render_settings *settings,
+                                    nacre_image *out, nacre_render_stats *stats);
+
+/* ------------------------------------------------------------------------------------------ */
+/* Scene files (JSON; format in docs/scene-format.md)                                         */
+/* ------------------------------------------------------------------------------------------ */
+
+/* Load a scene file: builds the scene (not yet committed) and fills `settings` from its "render"
+ * block (defaults otherwise); settings may be NULL. Paths inside are relative to the file.
+ * Errors name the file and the field path, or line and column for malformed JSON. */
+NACRE_API nacre_result nacre_scene_load_file(nacre_context *ctx, const char *path,
+                                             nacre_scene **out, nacre_render_settings *settings);
+/* Same, from a string; `name` is used in messages and `base_dir` resolves relative paths. */
+NACRE_API nacre_result nacre_scene_load_json(nacre_context *ctx, const char *json, size_t length,
+                                             const char *name, const char *base_dir,
+                                             nacre_scene **out, nacre_render_settings *settings);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* NACRE_NACRE_H */

@@ -1,0 +1,194 @@
+/*
+ * core.c: context lifetime, the error message slot, allocation hooks, result and version names.
+ * No global mutable state: everything lives in the nacre_context.
+ */
+#include "core/core.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
+static void *default_alloc(size_t size, void *user)
+{
+    (void)user;
+    return malloc(size);
+}
+
+static void default_free(void *ptr, void *user)
+{
+    (void)user;
+    free(ptr);
+}
+
+const char *nacre_version(void) { return NACRE_VERSION_STRING; }
+
+const char *nacre_result_string(nacre_result result)
+{
+    switch (result) {
+#define NACRE_RESULT_CASE_(name, value, text) case name: return text;
+        NACRE_RESULT_LIST(NACRE_RESULT_CASE_)
+#undef NACRE_RESULT_CASE_
+    }
+    return "unknown result";
+}
+
+nacre_result nacre_context_create(const nacre_context_desc *desc, nacre_context **out)
+{
+    if (!out)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    *out = NULL;
+    nacre_context_desc d = {0};
+    if (desc)
+        d = *desc;
+    if ((d.allocator.alloc_fn == NULL) != (d.allocator.free_fn == NULL))
+        return NACRE_ERROR_INVALID_ARGUMENT; /* both hooks or neither */
+    if (!d.allocator.alloc_fn) {
+        d.allocator.alloc_fn = default_alloc;
+        d.allocator.free_fn = default_free;
+    }
+    if (d.threads < 0)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    nacre_context *ctx = d.allocator.alloc_fn(sizeof(*ctx), d.allocator.user);
+    if (!ctx)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    memset(ctx, 0, sizeof(*ctx));
+    ctx->allocator = d.allocator;
+    ctx->log_fn = d.log_fn;
+    ctx->log_user = d.log_user;
+    int threads = d.threads;
+#ifdef _OPENMP
+    if (threads == 0)
+        threads = omp_get_max_threads();
+#else
+    threads = 1;
+#endif
+    ctx->threads = threads < 1 ? 1 : threads;
+    pthread_mutex_init(&ctx->lock, NULL);
+    *out = ctx;
+    return NACRE_OK;
+}
+
+void nacre_context_destroy(nacre_context *ctx)
+{
+    if (!ctx)
+        return;
+    pthread_mutex_destroy(&ctx->lock);
+    ctx->allocator.free_fn(ctx, ctx->allocator.user);
+}
+
+const char *nacre_context_last_error(const nacre_context *ctx)
+{
+    return ctx ? ctx->last_error : "no context";
+}
+
+nacre_result nacre_context_last_result(const nacre_context *ctx)
+{
+    return ctx ? ctx->last_result : NACRE_ERROR_INVALID_ARGUMENT;
+}
+
+void nacre_context_clear_error(nacre_context *ctx)
+{
+    if (!ctx)
+        return;
+    pthread_mutex_lock(&ctx->lock);
+    ctx->last_result = NACRE_OK;
+    ctx->last_error[0] = '\0';
+    pthread_mutex_unlock(&ctx->lock);
+}
+
+int nacre_context_threads(const nacre_context *ctx) { return ctx ? ctx->threads : 1; }
+
+nacre_result nc_failv(nacre_context *ctx, nacre_result code, const char *fmt, va_list ap)
+{
+    if (!ctx)
+        return code;
+    char msg[NC_ERROR_MAX];
+    vsnprintf(msg, sizeof(msg), fmt, ap);
+    pthread_mutex_lock(&ctx->lock);
+    ctx->last_result = code;
+    memcpy(ctx->last_error, msg, sizeof(msg));
+    pthread_mutex_unlock(&ctx->lock);
+    if (ctx->log_fn)
+        ctx->log_fn(ctx->log_user, NACRE_LOG_ERROR, msg);
+    return code;
+}
+
+nacre_result nc_fail(nacre_context *ctx, nacre_result code, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    nc_failv(ctx, code, fmt, ap);
+    va_end(ap);
+    return code;
+}
+
+void nc_warn(nacre_context *ctx, const char *fmt, ...)
+{
+    if (!ctx || !ctx->log_fn)
+        return;
+    char msg[NC_ERROR_MAX];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof(msg), fmt, ap);
+    va_end(ap);
+    ctx->log_fn(ctx->log_user, NACRE_LOG_WARNING, msg);
+}
+
+void *nc_alloc(nacre_context *ctx, size_t size)
+{
+    void *p = ctx->allocator.alloc_fn(size ? size : 1, ctx->allocator.user);
+    if (!p)
+        nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "out of memory (%zu bytes)", size);
+    return p;
+}
+
+void *nc_calloc(nacre_context *ctx, size_t count, size_t size)
+{
+    size_t bytes;
+    if (!nc_mul_size_ok(count, size, &bytes)) {
+        nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "allocation size overflows (%zu x %zu)", count, size);
+        return NULL;
+    }
+    void *p = nc_alloc(ctx, bytes);
+    if (p)
+        memset(p, 0, bytes);
+    return p;
+}
+
+void nc_free(nacre_context *ctx, void *ptr)
+{
+    if (ptr)
+        ctx->allocator.free_fn(ptr, ctx->allocator.user);
+}
+
+void *nc_realloc(nacre_context *ctx, void *ptr, size_t old_size, size_t new_size)
+{
+    void *p = nc_alloc(ctx, new_size);
+    if (!p)
+        return NULL;
+    if (ptr) {
+        memcpy(p, ptr, old_size < new_size ? old_size : new_size);
+        nc_free(ctx, ptr);
+    }
+    return p;
+}
+
+char *nc_strdup(nacre_context *ctx, const char *s)
+{
+    size_t n = strlen(s) + 1;
+    char *p = nc_alloc(ctx, n);
+    if (p)
+        memcpy(p, s, n);
+    return p;
+}
+
+uint64_t nc_now_us(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000u + (uint64_t)ts.tv_nsec / 1000u;
+}

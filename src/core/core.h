@@ -1,0 +1,60 @@
+/*
+ * core.h: the context (allocator, thread count, error message), checked size arithmetic and
+ * timing shared by every module. Private to the library (prefix nc_).
+ *
+ * Error convention: a failing function calls nc_fail() once with the most specific message it
+ * has ("file:line:col: field: problem"), and callers pass the code up without adding text.
+ */
+#ifndef NACRE_CORE_H
+#define NACRE_CORE_H
+
+#include <nacre/nacre.h>
+
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdint.h>
+
+#define NC_ERROR_MAX 1024
+
+struct nacre_context {
+    nacre_allocator allocator;
+    int threads;
+    nacre_log_fn log_fn;
+    void *log_user;
+    pthread_mutex_t lock; /* guards the error fields when several threads fail at once */
+    nacre_result last_result;
+    char last_error[NC_ERROR_MAX];
+};
+
+/* Record a failure and return its code. printf-style message. */
+nacre_result nc_fail(nacre_context *ctx, nacre_result code, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+nacre_result nc_failv(nacre_context *ctx, nacre_result code, const char *fmt, va_list ap);
+/* Warning through the log callback only (no error state). */
+void nc_warn(nacre_context *ctx, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+
+/* Allocation through the context's allocator. nc_alloc returns NULL on failure (and records
+ * NACRE_ERROR_OUT_OF_MEMORY); sizes are checked for overflow. */
+void *nc_alloc(nacre_context *ctx, size_t size);
+void *nc_calloc(nacre_context *ctx, size_t count, size_t size);
+void nc_free(nacre_context *ctx, void *ptr);
+/* Grow or shrink: copies min(old_size, new_size) bytes. */
+void *nc_realloc(nacre_context *ctx, void *ptr, size_t old_size, size_t new_size);
+char *nc_strdup(nacre_context *ctx, const char *s);
+
+/* a * b without overflow; false if it would overflow. */
+static inline bool nc_mul_size_ok(size_t a, size_t b, size_t *out)
+{
+    if (a != 0 && b > SIZE_MAX / a)
+        return false;
+    *out = a * b;
+    return true;
+}
+
+/* Monotonic clock in microseconds. */
+uint64_t nc_now_us(void);
+
+/* Resolved OpenMP thread count for this context. */
+static inline int nc_threads(const nacre_context *ctx) { return ctx->threads; }
+
+#endif /* NACRE_CORE_H */

@@ -1,0 +1,133 @@
+/*
+ * math.h: small inline vector and matrix helpers for setup code (cameras, transforms, lights).
+ * Hot loops work on flat float arrays instead.
+ *
+ * Conventions: column vectors, p' = M p; nc_mat4 is row-major storage m[row][col]. Right-handed
+ * view space looking down -z. Projections map to clip space with w = -z_view (perspective) and
+ * NDC x, y in [-1, 1] (y up), NDC z in [0, 1] from near to far.
+ */
+#ifndef NACRE_MATH_H
+#define NACRE_MATH_H
+
+#include <math.h>
+#include <stdbool.h>
+
+#define NC_PI 3.14159265358979323846f
+#define NC_DEG2RAD (NC_PI / 180.0f)
+
+typedef struct nc_vec3 { float x, y, z; } nc_vec3;
+typedef struct nc_vec4 { float x, y, z, w; } nc_vec4;
+typedef struct nc_mat4 { float m[4][4]; } nc_mat4;
+
+static inline nc_vec3 nc_v3(float x, float y, float z) { nc_vec3 r = {x, y, z}; return r; }
+static inline nc_vec3 nc_v3a(const float *a) { nc_vec3 r = {a[0], a[1], a[2]}; return r; }
+static inline void nc_v3store(nc_vec3 v, float *a) { a[0] = v.x; a[1] = v.y; a[2] = v.z; }
+static inline nc_vec3 nc_add(nc_vec3 a, nc_vec3 b) { return nc_v3(a.x + b.x, a.y + b.y, a.z + b.z); }
+static inline nc_vec3 nc_sub(nc_vec3 a, nc_vec3 b) { return nc_v3(a.x - b.x, a.y - b.y, a.z - b.z); }
+static inline nc_vec3 nc_mul(nc_vec3 a, nc_vec3 b) { return nc_v3(a.x * b.x, a.y * b.y, a.z * b.z); }
+static inline nc_vec3 nc_scale(nc_vec3 a, float s) { return nc_v3(a.x * s, a.y * s, a.z * s); }
+static inline float nc_dot(nc_vec3 a, nc_vec3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+static inline nc_vec3 nc_cross(nc_vec3 a, nc_vec3 b)
+{
+    return nc_v3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
+}
+static inline float nc_length(nc_vec3 a) { return sqrtf(nc_dot(a, a)); }
+static inline nc_vec3 nc_normalize(nc_vec3 a)
+{
+    float l = nc_length(a);
+    return l > 0.0f ? nc_scale(a, 1.0f / l) : a;
+}
+static inline nc_vec3 nc_vmin(nc_vec3 a, nc_vec3 b)
+{
+    return nc_v3(fminf(a.x, b.x), fminf(a.y, b.y), fminf(a.z, b.z));
+}
+static inline nc_vec3 nc_vmax(nc_vec3 a, nc_vec3 b)
+{
+    return nc_v3(fmaxf(a.x, b.x), fmaxf(a.y, b.y), fmaxf(a.z, b.z));
+}
+/* A unit vector perpendicular to unit n (Duff et al. 2017 branchless frame). */
+static inline void nc_basis(nc_vec3 n, nc_vec3 *t, nc_vec3 *b)
+{
+    float s = copysignf(1.0f, n.z);
+    float a = -1.0f / (s + n.z);
+    float c = n.x * n.y * a;
+    *t = nc_v3(1.0f + s * n.x * n.x * a, s * c, -s * n.x);
+    *b = nc_v3(c, s + n.y * n.y * a, -n.y);
+}
+
+static inline nc_mat4 nc_mat4_identity(void)
+{
+    nc_mat4 r = {{{1, 0, 0, 0}, {0, 1, 0, 0}, {0, 0, 1, 0}, {0, 0, 0, 1}}};
+    return r;
+}
+static inline nc_mat4 nc_mat4_mul(nc_mat4 a, nc_mat4 b)
+{
+    nc_mat4 r;
+    for (int i = 0; i < 4; i++)
+        for (int j = 0; j < 4; j++)
+            r.m[i][j] = a.m[i][0] * b.m[0][j] + a.m[i][1] * b.m[1][j] + a.m[i][2] * b.m[2][j] +
+                        a.m[i][3] * b.m[3][j];
+    return r;
+}
+static inline nc_mat4 nc_mat4_transpose(nc_mat4 a)
+{
+    nc_mat4 r;
+    for (int i = 0; i < 4; i++)
+        for (int j = 0; j < 4; j++)
+            r.m[i][j] = a.m[j][i];
+    return r;
+}
+static inline nc_vec3 nc_mat4_point(const nc_mat4 *a, nc_vec3 p)
+{
+    return nc_v3(a->m[0][0] * p.x + a->m[0][1] * p.y + a->m[0][2] * p.z + a->m[0][3],
+                 a->m[1][0] * p.x + a->m[1][1] * p.y + a->m[1][2] * p.z + a->m[1][3],
+                 a->m[2][0] * p.x + a->m[2][1] * p.y + a->m[2][2] * p.z + a->m[2][3]);
+}
+static inline nc_vec3 nc_mat4_dir(const nc_mat4 *a, nc_vec3 d)
+{
+    return nc_v3(a->m[0][0] * d.x + a->m[0][1] * d.y + a->m[0][2] * d.z,
+                 a->m[1][0] * d.x + a->m[1][1] * d.y + a->m[1][2] * d.z,
+                 a->m[2][0] * d.x + a->m[2][1] * d.y + a->m[2][2] * d.z);
+}
+static inline nc_vec4 nc_mat4_apply(const nc_mat4 *a, nc_vec4 p)
+{
+    nc_vec4 r;
+    r.x = a->m[0][0] * p.x + a->m[0][1] * p.y + a->m[0][2] * p.z + a->m[0][3] * p.w;
+    r.y = a->m[1][0] * p.x + a->m[1][1] * p.y + a->m[1][2] * p.z + a->m[1][3] * p.w;
+    r.z = a->m[2][0] * p.x + a->m[2][1] * p.y + a->m[2][2] * p.z + a->m[2][3] * p.w;
+    r.w = a->m[3][0] * p.x + a->m[3][1] * p.y + a->m[3][2] * p.z + a->m[3][3] * p.w;
+    return r;
+}
+static inline nc_mat4 nc_mat4_translate(nc_vec3 t)
+{
+    nc_mat4 r = nc_mat4_identity();
+    r.m[0][3] = t.x; r.m[1][3] = t.y; r.m[2][3] = t.z;
+    return r;
+}
+static inline nc_mat4 nc_mat4_scale(nc_vec3 s)
+{
+    nc_mat4 r = nc_mat4_identity();
+    r.m[0][0] = s.x; r.m[1][1] = s.y; r.m[2][2] = s.z;
+    return r;
+}
+/* Rotation by `radians` about unit `axis` (right-hand rule). */
+static inline nc_mat4 nc_mat4_rotate(nc_vec3 axis, float radians)
+{
+    nc_vec3 a = nc_normalize(axis);
+    float c = cosf(radians), s = sinf(radians), t = 1.0f - c;
+    nc_mat4 r = nc_mat4_identity();
+    r.m[0][0] = t * a.x * a.x + c;       r.m[0][1] = t * a.x * a.y - s * a.z; r.m[0][2] = t * a.x * a.z + s * a.y;
+    r.m[1][0] = t * a.x * a.y + s * a.z; r.m[1][1] = t * a.y * a.y + c;       r.m[1][2] = t * a.y * a.z - s * a.x;
+    r.m[2][0] = t * a.x * a.z - s * a.y; r.m[2][1] = t * a.y * a.z + s * a.x; r.m[2][2] = t * a.z * a.z + c;
+    return r;
+}
+/* General inverse by cofactors; returns false (and identity) if singular. */
+bool nc_mat4_inverse(nc_mat4 a, nc_mat4 *out);
+/* World-to-view for a camera at `eye` looking at `target`. */
+nc_mat4 nc_mat4_look_at(nc_vec3 eye, nc_vec3 target, nc_vec3 up);
+/* View-to-clip, vertical fov in radians, NDC z in [0, 1]. */
+nc_mat4 nc_mat4_perspective(float fov_y, float aspect, float znear, float zfar);
+/* View-to-clip for a box [l,r]x[b,t] and depths [znear, zfar] in front of the eye. */
+nc_mat4 nc_mat4_ortho(float l, float r, float b, float t, float znear, float zfar);
+
+#endif /* NACRE_MATH_H */

@@ -1,0 +1,138 @@
+/*
+ * raster.h: the tiled, multithreaded software rasterizer (private API).
+ *
+ * Stage 1 (nc_raster_visibility): world-space triangles -> a visibility buffer (per pixel: depth
+ * and the id of the nearest triangle). Fixed-point edge functions with the top-left rule, so a
+ * pixel centre on an edge shared by two triangles is drawn exactly once. Near-plane clipping.
+ * Stage 2 (nc_gbuffer_resolve): per pixel, the camera ray is intersected with the visible
+ * triangle's plane, which gives perspective-correct barycentrics independent of clipping; they
+ * interpolate position, normal, UV and tangent.
+ * Depth-only rendering (nc_raster_depth) serves shadow maps (src/raster/shadow.c).
+ *
+ * Conventions: pixel (x, y) has its centre at (x + 0.5, y + 0.5); row 0 is the top of the image.
+ * Matrices follow core/math.h (NDC z in [0, 1], y up). Front faces wind counter-clockwise on
+ * screen.
+ */
+#ifndef NACRE_RASTER_H
+#define NACRE_RASTER_H
+
+#include "core/core.h"
+#include "core/math.h"
+
+#define NC_NO_OBJECT UINT32_MAX
+
+/* One draw: an object's world-space triangles (borrowed for the call). */
+typedef struct nc_raster_mesh {
+    const float *positions;   /* world space, 3 floats per vertex */
+    const uint32_t *indices;  /* 3 per triangle */
+    uint32_t vertex_count, triangle_count;
+    uint32_t object_index;    /* written to the visibility buffer */
+    bool double_sided;        /* false: back faces are culled */
+} nc_raster_mesh;
+
+typedef struct nc_raster_view {
+    nc_mat4 view;        /* world -> view */
+    nc_mat4 proj;        /* view -> clip */
+    int32_t width, height;
+    bool orthographic;
+} nc_raster_view;
+
+/* Per pixel: depth = NDC z of the nearest surface (1 where empty, i.e. cleared to far), object =
+ * object_index (NC_NO_OBJECT where empty), triangle = triangle index within the object. */
+typedef struct nc_vis_buffer {
+    int32_t width, height;
+    float *depth;
+    uint32_t *object;
+    uint32_t *triangle;
+} nc_vis_buffer;
+
+typedef struct nc_raster_counts {
+    uint64_t triangles;       /* submitted */
+    uint64_t triangles_drawn; /* survived culling and covered at least one pixel centre bbox */
+} nc_raster_counts;
+
+/* Scratch memory (bins, clip buffers) kept between frames. */
+typedef struct nc_rasterizer nc_rasterizer;
+
+nacre_result nc_rasterizer_create(nacre_context *ctx, nc_rasterizer **out);
+void nc_rasterizer_destroy(nc_rasterizer *r);
+
+/* Allocate or resize a visibility buffer (owned by the caller, freed with nc_vis_buffer_free). */
+nacre_result nc_vis_buffer_resize(nacre_context *ctx, nc_vis_buffer *vb, int32_t width, int32_t height);
+void nc_vis_buffer_free(nacre_context *ctx, nc_vis_buffer *vb);
+
+/* Clear and draw all meshes. Deterministic: the result does not depend on the thread count
+ * (equal depths resolve to the earlier draw / lower triangle index). */
+nacre_result nc_raster_visibility(nc_rasterizer *r, const nc_raster_view *view,
+                                  const nc_raster_mesh *meshes, uint32_t mesh_count,
+                                  nc_vis_buffer *out, nc_raster_counts *counts);
+
+/* Depth only, into depth[width*height] (cleared to 1). cull_back_faces as for the camera. */
+nacre_result nc_raster_depth(nc_rasterizer *r, const nc_raster_view *view,
+                             const nc_raster_mesh *meshes, uint32_t mesh_count,
+                             bool cull_back_faces, float *depth);
+
+/* Attributes of one object for the G-buffer resolve (borrowed). */
+typedef struct nc_gbuffer_source {
+    const float *positions; /* world, 3 per vertex */
+    const float *normals;   /* world, 3 per vertex */
+    const float *tangents;  /* world, 4 per vertex, or NULL */
+    const float *uvs;       /* 2 per vertex, or NULL */
+    const uint32_t *indices;
+    uint32_t material_index;
+} nc_gbuffer_source;
+
+/* The G-buffer: one flat array per attribute, pixel-major, interleaved components. Pixels with
+ * object == NC_NO_OBJECT hold zeros (and view_depth = +inf). Normals face the camera side the
+ * triangle was seen from (flipped for back faces of double-sided objects). */
+typedef struct nc_gbuffer {
+    int32_t width, height;
+    float *position;   /* 3: world position */
+    float *normal;     /* 3: unit world shading normal (interpolated) */
+    float *geo_normal; /* 3: unit world geometric (face) normal, same side as `normal` */
+    float *uv;         /* 2 */
+    float *tangent;    /* 4: world tangent xyz + handedness */
+    float *view_depth; /* 1: distance along the view axis (scene units) */
+    uint32_t *object;  /* object index or NC_NO_OBJECT */
+    uint32_t *material;/* material index */
+    uint32_t *triangle;/* triangle index in the object */
+} nc_gbuffer;
+
+nacre_result nc_gbuffer_resize(nacre_context *ctx, nc_gbuffer *gb, int32_t width, int32_t height);
+void nc_gbuffer_free(nacre_context *ctx, nc_gbuffer *gb);
+/* Fill the G-buffer from a visibility buffer. sources[object_index] describes each object. */
+nacre_result nc_gbuffer_resolve(nacre_context *ctx, const nc_raster_view *view, const nc_vis_buffer *vis,
+                                const nc_gbuffer_source *sources, uint32_t source_count,
+                                nc_gbuffer *out);
+
+/* ---- Shadow maps (shadow.c) ---- */
+
+typedef enum nc_shadow_kind { NC_SHADOW_ORTHO = 0, NC_SHADOW_PERSPECTIVE, NC_SHADOW_CUBE } nc_shadow_kind;
+
+/* A depth map from a light: directional -> one orthographic map fitted to the bounds of the
+ * shadow casters and receivers; spot -> one perspective map covering the cone; point -> a cube
+ * of six 90-degree perspective faces. */
+typedef struct nc_shadow_map {
+    nc_shadow_kind kind;
+    int32_t size;               /* texels per side (per face for cubes) */
+    int32_t face_count;         /* 1 or 6 */
+    nc_raster_view views[6];
+    nc_mat4 world_to_clip[6];
+    float *depth;               /* face_count * size * size, NDC z */
+    float texel_world[6];       /* approximate world size of one texel at unit distance (persp.) or absolute (ortho) */
+    float light_pos[3];         /* point/spot */
+    float light_dir[3];         /* directional/spot: direction of travel */
+} nc_shadow_map;
+
+/* Build (allocate if needed) and render the shadow map of one light. Scene bounds are the world
+ * bounds of all objects (casters and receivers). */
+nacre_result nc_shadow_render(nc_rasterizer *r, nacre_context *ctx, const nacre_light_desc *light,
+                              const float bounds_min[3], const float bounds_max[3], int32_t size,
+                              const nc_raster_mesh *casters, uint32_t caster_count,
+                              nc_shadow_map *sm);
+void nc_shadow_free(nacre_context *ctx, nc_shadow_map *sm);
+/* Fraction of light reaching world point p (1 = lit) with PCF over a disc of `pcf_radius`
+ * texels; `bias` in texels, scaled by the slope between the normal n and the light. */
+float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_radius, float bias);
+
+#endif /* NACRE_RASTER_H */

@@ -1,0 +1,74 @@
+/*
+ * scene.h: the scene's storage (private). Elements live in flat arrays indexed by handle id - 1.
+ * Meshes keep their rest-pose data; nacre_scene_commit() evaluates each object's deformers and
+ * transform into world-space arrays that the render stages read.
+ *
+ * Change tracking: every edit bumps one of the version counters below, so a renderer can tell
+ * which of its cached stages are stale (see src/render/render.c).
+ */
+#ifndef NACRE_SCENE_H
+#define NACRE_SCENE_H
+
+#include "core/core.h"
+#include "core/math.h"
+
+typedef struct nc_mesh_rec {
+    nacre_mesh_data data; /* rest pose, object space; owned */
+} nc_mesh_rec;
+
+typedef struct nc_object_rec {
+    nacre_object_desc desc; /* desc.name points at `name` */
+    char *name;             /* owned, may be NULL */
+    /* Committed world-space geometry (owned; vertex_count of the mesh each). UVs are the mesh's. */
+    float *world_positions; /* 3 per vertex */
+    float *world_normals;   /* 3 per vertex, unit */
+    float *world_tangents;  /* 4 per vertex */
+    uint32_t world_capacity; /* vertices allocated */
+    float bounds_min[3], bounds_max[3];
+    nc_mat4 object_to_world;
+} nc_object_rec;
+
+typedef struct nc_light_rec {
+    nacre_light_desc desc; /* normalised direction */
+} nc_light_rec;
+
+typedef struct nc_versions {
+    uint64_t geometry;  /* meshes, objects, transforms, deformers, commit time */
+    uint64_t materials;
+    uint64_t lights;
+    uint64_t camera;
+    uint64_t environment;
+} nc_versions;
+
+struct nacre_scene {
+    nacre_context *ctx;
+    uint64_t uid; /* distinguishes scenes for renderer caches (address reuse is possible) */
+    nc_mesh_rec *meshes;
+    uint32_t mesh_count, mesh_capacity;
+    nacre_material_desc *materials;
+    uint32_t material_count, material_capacity;
+    nc_object_rec *objects;
+    uint32_t object_count, object_capacity;
+    nc_light_rec *lights;
+    uint32_t light_count, light_capacity;
+    nacre_camera_desc camera;
+    bool has_camera;
+    float environment[3];
+    float unit_mm;
+    nc_versions versions;       /* bumped by every edit */
+    nc_versions committed;      /* versions at the last commit */
+    bool committed_valid;       /* commit done and nothing edited since */
+    double time;                /* time of the last commit */
+    float bounds_min[3], bounds_max[3]; /* world, committed */
+};
+
+/* Lookup helpers: NULL when the handle is invalid. */
+const nc_mesh_rec *nc_scene_mesh(const nacre_scene *scene, nacre_mesh mesh);
+const nacre_material_desc *nc_scene_material(const nacre_scene *scene, nacre_material material);
+
+/* Evaluate the deformer chain at a rest-pose point (exposed for tests and the voxelizer). */
+nc_vec3 nc_deform_point(const nacre_deformer *deformers, uint32_t count, double time, nc_vec3 p);
+/* Object transform matrix from translate / rotate (degrees, x then y then z) / scale. */
+nc_mat4 nc_transform_matrix(const nacre_transform *t);
+
+#endif /* NACRE_SCENE_H */
