@@ -12,6 +12,10 @@
 #include <omp.h>
 #endif
 
+#ifndef NACRE_VERSION_STRING /* set by the build; the fallback keeps stand-alone syntax checks working */
+#define NACRE_VERSION_STRING "0.1.0"
+#endif
+
 static void *default_alloc(size_t size, void *user)
 {
     (void)user;

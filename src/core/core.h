@@ -24,6 +24,7 @@ struct nacre_context {
     pthread_mutex_t lock; /* guards the error fields when several threads fail at once */
     nacre_result last_result;
     char last_error[NC_ERROR_MAX];
+    uint64_t scene_serial; /* identifies scenes for renderer caches (addresses get reused) */
 };
 
 /* Record a failure and return its code. printf-style message. */

@@ -1,0 +1,31 @@
+# Top-level entry points. `make run`: install dependencies, build (release), render the demo.
+# `make test`: install dependencies, build with ASan+UBSan, run the whole test suite.
+JOBS ?= $(shell nproc 2>/dev/null || echo 2)
+RELEASE_DIR ?= build/release
+TEST_DIR ?= build/test
+
+.PHONY: run test deps build build-test bench clean
+
+deps:
+	@bash scripts/install-deps.sh
+
+build: deps
+	cmake -S . -B $(RELEASE_DIR) -DCMAKE_BUILD_TYPE=Release -DNACRE_BUILD_TESTS=OFF
+	cmake --build $(RELEASE_DIR) -j $(JOBS)
+
+run: build
+	./$(RELEASE_DIR)/nacre render -o nacre.png --stats
+	@echo "wrote nacre.png"
+
+build-test: deps
+	cmake -S . -B $(TEST_DIR) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DNACRE_SANITIZE=ON -DNACRE_WERROR=ON
+	cmake --build $(TEST_DIR) -j $(JOBS)
+
+test: build-test
+	cd $(TEST_DIR) && ctest --output-on-failure -j $(JOBS)
+
+bench: build
+	./$(RELEASE_DIR)/nacre bench raster
+
+clean:
+	rm -rf build

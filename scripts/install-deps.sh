@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Installs the Debian 12 packages nacre needs to build and test. Idempotent: installs only what
+# is missing; through sudo when not root. If it cannot install, it names the packages.
+set -euo pipefail
+
+packages=(build-essential cmake pkg-config libcjson-dev libspng-dev libopenexr-dev libassimp-dev zlib1g-dev)
+
+missing=()
+for p in "${packages[@]}"; do
+    if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+        missing+=("$p")
+    fi
+done
+[ ${#missing[@]} -eq 0 ] && exit 0
+
+echo "install-deps: installing ${missing[*]}"
+if [ "$(id -u)" -eq 0 ]; then
+    sudo_cmd=()
+elif command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then
+    sudo_cmd=(sudo -n)
+else
+    echo "install-deps: need root to install these Debian packages; run as root:" >&2
+    echo "  apt-get install -y ${missing[*]}" >&2
+    exit 1
+fi
+export DEBIAN_FRONTEND=noninteractive
+if ! "${sudo_cmd[@]}" apt-get install -y -q "${missing[@]}"; then
+    # A fresh machine may have no package lists yet.
+    "${sudo_cmd[@]}" apt-get update -q || true
+    "${sudo_cmd[@]}" apt-get install -y -q "${missing[@]}" || {
+        echo "install-deps: could not install: ${missing[*]}" >&2
+        exit 1
+    }
+fi

@@ -1,0 +1,41 @@
+/*
+ * shade.h: deferred shading passes that turn a G-buffer into radiance (private API).
+ * Every render method shares the G-buffer of src/raster; each method adds its own pass here.
+ */
+#ifndef NACRE_SHADE_H
+#define NACRE_SHADE_H
+
+#include "raster/raster.h"
+#include "scene/scene.h"
+
+/* Lights resolved for shading: one per scene light, with its shadow map (NULL = unshadowed). */
+typedef struct nc_shade_light {
+    const nacre_light_desc *desc;
+    const nc_shadow_map *shadow;
+} nc_shade_light;
+
+typedef struct nc_shade_params {
+    nc_vec3 eye;             /* camera position (perspective) */
+    nc_vec3 view_dir;        /* camera forward direction (orthographic: every view ray) */
+    bool orthographic;
+    float pcf_radius, shadow_bias;
+} nc_shade_params;
+
+/* Effective Lambert albedo the phong method uses for a material: the diffuse colour of an
+ * opaque material; for a translucent one, its total diffuse reflectance from the classical
+ * diffusion dipole (Jensen et al. 2001, eq. for Rd), per channel. */
+void nc_material_albedo(const nacre_material_desc *m, float out[3]);
+
+/* Total diffuse reflectance Rd of a semi-infinite medium, reduced albedo `alpha_p`, relative
+ * index `eta` (Jensen et al. 2001; A from the Groenhuis et al. polynomial for Fdr). */
+double nc_dipole_rd(double alpha_p, double eta);
+/* Diffuse Fresnel reflectance Fdr (polynomial fit, Egan and Hilgeman 1973). */
+double nc_fresnel_fdr(double eta);
+
+/* Ambient + Lambert + normalized Blinn-Phong with shadow maps, into rgb (width*height*3, row
+ * stride `stride` floats). Empty pixels get the environment radiance. */
+void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_shade_light *lights,
+                    uint32_t light_count, const nc_shade_params *params, float *rgb, size_t stride,
+                    int threads);
+
+#endif /* NACRE_SHADE_H */

@@ -1,0 +1,477 @@
+/*
+ * main.c: the `nacre` command-line tool. Subcommands: render, info, compare, bench.
+ *
+ * Exit status: 0 on success, 2 on any error (bad arguments, bad input files, failed writes).
+ * Errors are one line on stderr: "nacre: <message>". The library returns errors; this file is
+ * the only place that prints them.
+ */
+#include "cli.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "demo_scene.h"
+
+#define EXIT_BAD 2
+
+static void print_main_help(FILE *f)
+{
+    fprintf(f,
+            "usage: nacre <command> [options]\n"
+            "\n"
+            "commands:\n"
+            "  render [SCENE.json]   render a scene (no scene: the built-in demo) to PNG or EXR\n"
+            "  info MESH             mesh counts, bounds, open and non-manifold edges\n"
+            "  compare A B           error metrics of image A against reference B\n"
+            "  bench raster          rasterizer benchmark (medians)\n"
+            "\n"
+            "  nacre <command> --help   options of a command\n"
+            "  nacre --version          version\n");
+}
+
+static int cli_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static int cli_error(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fputs("nacre: ", stderr);
+    vfprintf(stderr, fmt, ap);
+    fputc('\n', stderr);
+    va_end(ap);
+    return EXIT_BAD;
+}
+
+int nc_cli_fail(nacre_context *ctx) { return cli_error("%s", nacre_context_last_error(ctx)); }
+
+int nc_cli_usage(const char *command, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fprintf(stderr, "nacre %s: ", command);
+    vfprintf(stderr, fmt, ap);
+    fprintf(stderr, " (see nacre %s --help)\n", command);
+    va_end(ap);
+    return EXIT_BAD;
+}
+
+bool nc_cli_parse_int(const char *s, long lo, long hi, long *out)
+{
+    char *end = NULL;
+    errno = 0;
+    long v = strtol(s, &end, 10);
+    if (errno || end == s || *end != '\0' || v < lo || v > hi)
+        return false;
+    *out = v;
+    return true;
+}
+
+bool nc_cli_parse_float(const char *s, double *out)
+{
+    char *end = NULL;
+    errno = 0;
+    double v = strtod(s, &end);
+    if (errno || end == s || *end != '\0' || !isfinite(v))
+        return false;
+    *out = v;
+    return true;
+}
+
+bool nc_cli_common_flag(const char *command, const char *arg, const char *help, int *exit_code)
+{
+    if (strcmp(arg, "--help") == 0 || strcmp(arg, "-h") == 0) {
+        fputs(help, stdout);
+        *exit_code = 0;
+        return true;
+    }
+    if (strcmp(arg, "--version") == 0) {
+        printf("nacre %s %s\n", command, nacre_version());
+        *exit_code = 0;
+        return true;
+    }
+    return false;
+}
+
+nacre_context *nc_cli_context(int threads)
+{
+    nacre_context_desc desc = {0};
+    desc.threads = threads;
+    nacre_context *ctx = NULL;
+    if (nacre_context_create(&desc, &ctx) != NACRE_OK) {
+        cli_error("cannot create a context (out of memory?)");
+        return NULL;
+    }
+    return ctx;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* render                                                                                   */
+/* ---------------------------------------------------------------------------------------- */
+
+static const char render_help[] =
+    "usage: nacre render [SCENE.json] [options]\n"
+    "Render a scene file (default: the built-in demo scene) to an image.\n"
+    "\n"
+    "  -o, --output FILE   output .png (sRGB, exposure-scaled) or .exr (linear); default nacre.png\n"
+    "  --method M          phong | diffusion | layered | pathtrace (default: the scene's, else phong)\n"
+    "  --size WxH          image size (default: the scene's)\n"
+    "  --exposure EV       PNG exposure in stops (default: the scene's, else 0)\n"
+    "  --time T            time in seconds at which deformers are evaluated (default 0)\n"
+    "  --threads N         worker threads (default: all cores)\n"
+    "  --exr-float         write 32-bit float EXR instead of half\n"
+    "  --stats             print one JSON object with per-stage timings in microseconds\n"
+    "  --help, --version\n";
+
+static void print_stats(const char *scene_name, const nacre_render_settings *rs, const nacre_render_stats *st,
+                        uint64_t load_us, uint64_t commit_us, uint64_t write_us, uint64_t total_us)
+{
+    printf("{\"scene\":\"");
+    for (const char *c = scene_name; *c; c++) {
+        if (*c == '"' || *c == '\\')
+            putchar('\\');
+        if ((unsigned char)*c >= 0x20)
+            putchar(*c);
+    }
+    printf("\",\"method\":\"%s\",\"width\":%d,\"height\":%d,\"threads\":%d,\"load_us\":%llu,\"commit_us\":%llu",
+           nacre_method_name(rs->method), rs->width, rs->height, st->threads, (unsigned long long)load_us,
+           (unsigned long long)commit_us);
+    for (int i = 0; i < NACRE_STAGE_COUNT; i++)
+        printf(",\"%s_us\":%llu", nacre_stage_name((nacre_stage)i), (unsigned long long)st->stage_us[i]);
+    printf(",\"render_us\":%llu,\"write_us\":%llu,\"total_us\":%llu,\"triangles\":%llu,\"triangles_drawn\":%llu,"
+           "\"shadow_maps\":%u}\n",
+           (unsigned long long)st->total_us, (unsigned long long)write_us, (unsigned long long)total_us,
+           (unsigned long long)st->triangles, (unsigned long long)st->triangles_drawn, st->shadow_maps);
+}
+
+static bool has_suffix(const char *s, const char *suffix)
+{
+    size_t n = strlen(s), m = strlen(suffix);
+    if (n < m)
+        return false;
+    for (size_t i = 0; i < m; i++)
+        if ((s[n - m + i] | 0x20) != (suffix[i] | 0x20))
+            return false;
+    return true;
+}
+
+static int cmd_render(int argc, char **argv)
+{
+    const char *scene_path = NULL, *out_path = "nacre.png", *method_name = NULL;
+    long width = 0, height = 0, threads = 0;
+    double exposure = NAN, time = 0;
+    bool stats = false, exr_float = false;
+    int code;
+    for (int i = 0; i < argc; i++) {
+        const char *a = argv[i];
+        if (nc_cli_common_flag("render", a, render_help, &code))
+            return code;
+        bool has_value = i + 1 < argc;
+        if ((strcmp(a, "-o") == 0 || strcmp(a, "--output") == 0)) {
+            if (!has_value)
+                return nc_cli_usage("render", "%s needs a file name", a);
+            out_path = argv[++i];
+        } else if (strcmp(a, "--method") == 0) {
+            if (!has_value)
+                return nc_cli_usage("render", "--method needs a name");
+            method_name = argv[++i];
+        } else if (strcmp(a, "--size") == 0) {
+            if (!has_value)
+                return nc_cli_usage("render", "--size needs WxH");
+            const char *v = argv[++i];
+            char wbuf[32];
+            const char *x = strchr(v, 'x');
+            if (!x || (size_t)(x - v) >= sizeof(wbuf))
+                return nc_cli_usage("render", "--size '%s': expected WxH, e.g. 640x480", v);
+            memcpy(wbuf, v, (size_t)(x - v));
+            wbuf[x - v] = '\0';
+            if (!nc_cli_parse_int(wbuf, 1, 16384, &width) || !nc_cli_parse_int(x + 1, 1, 16384, &height))
+                return nc_cli_usage("render", "--size '%s': width and height must be integers in 1..16384", v);
+        } else if (strcmp(a, "--exposure") == 0) {
+            if (!has_value || !nc_cli_parse_float(argv[++i], &exposure))
+                return nc_cli_usage("render", "--exposure needs a finite number");
+        } else if (strcmp(a, "--time") == 0) {
+            if (!has_value || !nc_cli_parse_float(argv[++i], &time))
+                return nc_cli_usage("render", "--time needs a finite number of seconds");
+        } else if (strcmp(a, "--threads") == 0) {
+            if (!has_value || !nc_cli_parse_int(argv[++i], 1, 1024, &threads))
+                return nc_cli_usage("render", "--threads needs an integer in 1..1024");
+        } else if (strcmp(a, "--stats") == 0) {
+            stats = true;
+        } else if (strcmp(a, "--exr-float") == 0) {
+            exr_float = true;
+        } else if (a[0] == '-' && a[1] != '\0') {
+            return nc_cli_usage("render", "unknown option '%s'", a);
+        } else if (!scene_path) {
+            scene_path = a;
+        } else {
+            return nc_cli_usage("render", "unexpected argument '%s'", a);
+        }
+    }
+    if (!has_suffix(out_path, ".png") && !has_suffix(out_path, ".exr"))
+        return nc_cli_usage("render", "output '%s': use a .png or .exr file name", out_path);
+    nacre_method method = NACRE_METHOD_PHONG;
+    if (method_name && !nacre_method_from_name(method_name, &method))
+        return nc_cli_usage("render", "unknown method '%s' (phong, diffusion, layered, pathtrace)", method_name);
+
+    nacre_context *ctx = nc_cli_context((int)threads);
+    if (!ctx)
+        return EXIT_BAD;
+    int rc = EXIT_BAD;
+    nacre_scene *scene = NULL;
+    nacre_image img = {0};
+    nacre_render_settings rs = nacre_render_settings_defaults();
+    uint64_t t_start = nc_cli_now_us();
+    nacre_result res;
+    if (scene_path)
+        res = nacre_scene_load_file(ctx, scene_path, &scene, &rs);
+    else
+        res = nacre_scene_load_json(ctx, (const char *)nacre_demo_scene_json, strlen((const char *)nacre_demo_scene_json),
+                                    "<built-in demo>", ".", &scene, &rs);
+    if (res != NACRE_OK) {
+        nc_cli_fail(ctx);
+        goto out;
+    }
+    uint64_t load_us = nc_cli_now_us() - t_start;
+    if (method_name)
+        rs.method = method;
+    if (!method_name && scene_path == NULL) {
+        /* The demo shows the best method this build has. */
+        for (int m = NACRE_METHOD_COUNT - 1; m >= 0; m--)
+            if (m != NACRE_METHOD_PATHTRACE && nacre_method_available((nacre_method)m)) {
+                rs.method = (nacre_method)m;
+                break;
+            }
+    }
+    if (width) {
+        rs.width = (int32_t)width;
+        rs.height = (int32_t)height;
+    }
+    if (!isnan(exposure))
+        rs.exposure = (float)exposure;
+    if (!nacre_method_available(rs.method)) {
+        cli_error("method '%s' is not implemented yet (available: phong)", nacre_method_name(rs.method));
+        goto out;
+    }
+    uint64_t t0 = nc_cli_now_us();
+    if (nacre_scene_commit(scene, time) != NACRE_OK) {
+        nc_cli_fail(ctx);
+        goto out;
+    }
+    uint64_t commit_us = nc_cli_now_us() - t0;
+    nacre_render_stats st;
+    if (nacre_render(scene, &rs, &img, &st) != NACRE_OK) {
+        nc_cli_fail(ctx);
+        goto out;
+    }
+    t0 = nc_cli_now_us();
+    nacre_image_write_options wo = {.exposure = rs.exposure, .exr_type = exr_float ? NACRE_EXR_FLOAT : NACRE_EXR_HALF};
+    if (nacre_image_write(ctx, &img, out_path, &wo) != NACRE_OK) {
+        nc_cli_fail(ctx);
+        goto out;
+    }
+    uint64_t write_us = nc_cli_now_us() - t0;
+    if (stats)
+        print_stats(scene_path ? scene_path : "<built-in demo>", &rs, &st, load_us, commit_us, write_us,
+                    nc_cli_now_us() - t_start);
+    rc = 0;
+out:
+    nacre_image_free(ctx, &img);
+    nacre_scene_destroy(scene);
+    nacre_context_destroy(ctx);
+    return rc;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* info                                                                                     */
+/* ---------------------------------------------------------------------------------------- */
+
+static const char info_help[] =
+    "usage: nacre info MESH [--json]\n"
+    "Load a mesh (OBJ, PLY, glTF) and report vertex and triangle counts, bounds, surface area,\n"
+    "and its topology after welding exactly coincident vertices: boundary (open) edges,\n"
+    "non-manifold edges, degenerate triangles, closedness.\n"
+    "\n"
+    "  --json   one JSON object\n"
+    "  --help, --version\n";
+
+static int cmd_info(int argc, char **argv)
+{
+    const char *path = NULL;
+    bool json = false;
+    int code;
+    for (int i = 0; i < argc; i++) {
+        if (nc_cli_common_flag("info", argv[i], info_help, &code))
+            return code;
+        if (strcmp(argv[i], "--json") == 0)
+            json = true;
+        else if (argv[i][0] == '-')
+            return nc_cli_usage("info", "unknown option '%s'", argv[i]);
+        else if (!path)
+            path = argv[i];
+        else
+            return nc_cli_usage("info", "unexpected argument '%s'", argv[i]);
+    }
+    if (!path)
+        return nc_cli_usage("info", "missing MESH");
+    nacre_context *ctx = nc_cli_context(0);
+    if (!ctx)
+        return EXIT_BAD;
+    nacre_mesh_data mesh = {0};
+    nacre_mesh_info info;
+    int rc = EXIT_BAD;
+    uint64_t t0 = nc_cli_now_us();
+    if (nacre_mesh_load(ctx, path, &mesh) != NACRE_OK) {
+        nc_cli_fail(ctx);
+        goto out;
+    }
+    uint64_t load_us = nc_cli_now_us() - t0;
+    if (nacre_mesh_analyze(ctx, &mesh, &info) != NACRE_OK) {
+        nc_cli_fail(ctx);
+        goto out;
+    }
+    if (json) {
+        printf("{\"file\":\"");
+        for (const char *c = path; *c; c++) {
+            if (*c == '"' || *c == '\\')
+                putchar('\\');
+            putchar(*c);
+        }
+        printf("\",\"vertices\":%u,\"triangles\":%u,\"welded_vertices\":%u,\"unreferenced_vertices\":%u,"
+               "\"degenerate_triangles\":%u,\"edges\":%llu,\"boundary_edges\":%llu,\"nonmanifold_edges\":%llu,"
+               "\"closed\":%s,\"bounds\":{\"min\":[%.9g,%.9g,%.9g],\"max\":[%.9g,%.9g,%.9g]},\"surface_area\":%.9g,"
+               "\"has_normals\":%s,\"has_uvs\":%s,\"load_ms\":%.3f}\n",
+               info.vertex_count, info.triangle_count, info.welded_vertex_count, info.unreferenced_vertices,
+               info.degenerate_triangles, (unsigned long long)info.edge_count, (unsigned long long)info.boundary_edges,
+               (unsigned long long)info.nonmanifold_edges, info.closed ? "true" : "false", info.bounds_min[0],
+               info.bounds_min[1], info.bounds_min[2], info.bounds_max[0], info.bounds_max[1], info.bounds_max[2],
+               info.surface_area, mesh.normals ? "true" : "false", mesh.uvs ? "true" : "false", load_us / 1000.0);
+    } else {
+        printf("%s\n", path);
+        printf("  vertices              %u (%u after welding, %u unreferenced)\n", info.vertex_count,
+               info.welded_vertex_count, info.unreferenced_vertices);
+        printf("  triangles             %u (%u degenerate)\n", info.triangle_count, info.degenerate_triangles);
+        printf("  edges                 %llu (%llu boundary, %llu non-manifold)\n", (unsigned long long)info.edge_count,
+               (unsigned long long)info.boundary_edges, (unsigned long long)info.nonmanifold_edges);
+        printf("  closed                %s\n", info.closed ? "yes" : "no");
+        printf("  bounds                (%g, %g, %g) .. (%g, %g, %g)\n", info.bounds_min[0], info.bounds_min[1],
+               info.bounds_min[2], info.bounds_max[0], info.bounds_max[1], info.bounds_max[2]);
+        printf("  surface area          %g\n", info.surface_area);
+        printf("  load                  %.1f ms\n", load_us / 1000.0);
+    }
+    rc = 0;
+out:
+    nacre_mesh_data_free(ctx, &mesh);
+    nacre_context_destroy(ctx);
+    return rc;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+/* compare                                                                                  */
+/* ---------------------------------------------------------------------------------------- */
+
+static const char compare_help[] =
+    "usage: nacre compare TEST REFERENCE [--json]\n"
+    "Compare two images (.exr or .png, same size) over all pixels and channels:\n"
+    "  rmse           sqrt(mean((t - r)^2))\n"
+    "  rel_mse        mean((t - r)^2 / (r^2 + 0.01))\n"
+    "  psnr           10 log10(peak^2 / mse), peak = max reference value (dB)\n"
+    "  mean_rel_err   mean(|t - r| / |r|) over values where the reference is non-zero\n"
+    "  max_abs_err    max |t - r|\n"
+    "\n"
+    "  --json   one JSON object\n"
+    "  --help, --version\n";
+
+static void print_number(double v)
+{
+    if (isfinite(v))
+        printf("%.9g", v);
+    else
+        printf("null"); /* JSON has no infinity: identical images have psnr null */
+}
+
+static int cmd_compare(int argc, char **argv)
+{
+    const char *paths[2] = {NULL, NULL};
+    int npaths = 0, code;
+    bool json = false;
+    for (int i = 0; i < argc; i++) {
+        if (nc_cli_common_flag("compare", argv[i], compare_help, &code))
+            return code;
+        if (strcmp(argv[i], "--json") == 0)
+            json = true;
+        else if (argv[i][0] == '-')
+            return nc_cli_usage("compare", "unknown option '%s'", argv[i]);
+        else if (npaths < 2)
+            paths[npaths++] = argv[i];
+        else
+            return nc_cli_usage("compare", "unexpected argument '%s'", argv[i]);
+    }
+    if (npaths != 2)
+        return nc_cli_usage("compare", "needs two images");
+    nacre_context *ctx = nc_cli_context(0);
+    if (!ctx)
+        return EXIT_BAD;
+    nacre_image a = {0}, b = {0};
+    nacre_image_metrics m;
+    int rc = EXIT_BAD;
+    if (nacre_image_read(ctx, paths[0], &a) != NACRE_OK || nacre_image_read(ctx, paths[1], &b) != NACRE_OK ||
+        nacre_image_compare(ctx, &a, &b, &m) != NACRE_OK) {
+        nc_cli_fail(ctx);
+        goto out;
+    }
+    if (json) {
+        printf("{\"rmse\":");
+        print_number(m.rmse);
+        printf(",\"rel_mse\":");
+        print_number(m.rel_mse);
+        printf(",\"psnr\":");
+        print_number(m.psnr);
+        printf(",\"mean_rel_err\":");
+        print_number(m.mean_rel_err);
+        printf(",\"max_abs_err\":");
+        print_number(m.max_abs_err);
+        printf(",\"values\":%llu,\"nonzero_reference_values\":%llu}\n", (unsigned long long)m.count,
+               (unsigned long long)m.nonzero_ref);
+    } else {
+        printf("rmse          %.6g\nrel_mse       %.6g\npsnr          %.3f dB\nmean_rel_err  %.6g\nmax_abs_err   %.6g\n",
+               m.rmse, m.rel_mse, m.psnr, m.mean_rel_err, m.max_abs_err);
+    }
+    rc = 0;
+out:
+    nacre_image_free(ctx, &a);
+    nacre_image_free(ctx, &b);
+    nacre_context_destroy(ctx);
+    return rc;
+}
+
+/* ---------------------------------------------------------------------------------------- */
+
+int main(int argc, char **argv)
+{
+    if (argc < 2) {
+        print_main_help(stderr);
+        return EXIT_BAD;
+    }
+    const char *cmd = argv[1];
+    if (strcmp(cmd, "--help") == 0 || strcmp(cmd, "-h") == 0 || strcmp(cmd, "help") == 0) {
+        print_main_help(stdout);
+        return 0;
+    }
+    if (strcmp(cmd, "--version") == 0) {
+        printf("nacre %s\n", nacre_version());
+        return 0;
+    }
+    if (strcmp(cmd, "render") == 0)
+        return cmd_render(argc - 2, argv + 2);
+    if (strcmp(cmd, "info") == 0)
+        return cmd_info(argc - 2, argv + 2);
+    if (strcmp(cmd, "compare") == 0)
+        return cmd_compare(argc - 2, argv + 2);
+    if (strcmp(cmd, "bench") == 0)
+        return nc_cli_bench(argc - 2, argv + 2);
+    fprintf(stderr, "nacre: unknown command '%s'\n", cmd);
+    print_main_help(stderr);
+    return EXIT_BAD;
+}
