@@ -1,0 +1,58 @@
+/*
+ * image_private.h: what the image files (image.c, image_png.c, image_exr.c) share: argument
+ * checks, size limits for files, the sRGB transfer functions and the temporary-file writer that
+ * guarantees no partial output. Private to the library.
+ */
+#ifndef NACRE_IMAGE_PRIVATE_H
+#define NACRE_IMAGE_PRIVATE_H
+
+#include "core/core.h"
+
+#include <math.h>
+
+#define NC_IMAGE_MAX_SIDE 65536
+/* Files claiming more pixels than this are rejected before anything is allocated: 2^28 pixels
+ * is 4 GiB of RGBA floats, far beyond any image this renderer makes. */
+#define NC_IMAGE_MAX_PIXELS ((uint64_t)1 << 28)
+
+/* Check that `image` is usable as input (sizes, channels, stride, pixels). `what` prefixes the
+ * message, normally the path. */
+nacre_result nc_image_check(nacre_context *ctx, const nacre_image *image, const char *what);
+
+/* Check sizes read from a file header against the limits above; fails with
+ * NACRE_ERROR_PARSE naming the path. */
+nacre_result nc_image_check_file_size(nacre_context *ctx, const char *path, int64_t width,
+                                      int64_t height);
+
+/* The piecewise sRGB transfer (IEC 61966-2-1), not a plain 2.2 gamma. */
+static inline float nc_srgb_to_linear(float v)
+{
+    return v <= 0.04045f ? v / 12.92f : powf((v + 0.055f) / 1.055f, 2.4f);
+}
+
+static inline float nc_linear_to_srgb(float v)
+{
+    return v <= 0.0031308f ? v * 12.92f : 1.055f * powf(v, 1.0f / 2.4f) - 0.055f;
+}
+
+/* A file being written under a temporary name next to its final path. */
+typedef struct nc_tmpfile {
+    const char *path; /* final path (borrowed) */
+    char *tmp_path;   /* path + ".tmpXXXXXX", allocated */
+    int fd;           /* -1 once closed */
+} nc_tmpfile;
+
+/* Create the temporary file in the folder of `path`. */
+nacre_result nc_tmpfile_open(nacre_context *ctx, const char *path, nc_tmpfile *tmp);
+/* Write all of `data` at the current position; errno-style message on failure. */
+nacre_result nc_tmpfile_write(nacre_context *ctx, nc_tmpfile *tmp, const void *data, size_t size);
+/* Close and rename into place. On failure the temporary file is removed. Always releases tmp. */
+nacre_result nc_tmpfile_commit(nacre_context *ctx, nc_tmpfile *tmp);
+/* Close and remove the temporary file (after a failed write). Always releases tmp. */
+void nc_tmpfile_abort(nacre_context *ctx, nc_tmpfile *tmp);
+
+/* Format readers and writers; paths and images are already validated by the callers. */
+nacre_result nc_image_read_png(nacre_context *ctx, const char *path, nacre_image *out);
+nacre_result nc_image_read_exr(nacre_context *ctx, const char *path, nacre_image *out);
+
+#endif /* NACRE_IMAGE_PRIVATE_H */

@@ -1,0 +1,611 @@
+/*
+ * mesh_load.c: nacre_mesh_load: OBJ, PLY (ASCII and binary) and glTF 2.0 (.gltf, .glb) through
+ * assimp's C API.
+ *
+ * Every mesh instance in the node tree is merged into one nacre_mesh_data with its node's global
+ * transform applied: points by M, normals by the inverse transpose of M's 3x3 part, tangents and
+ * bitangents by M (the handedness w is re-derived after the transform). A mirroring transform
+ * (det < 0) reverses the corner order so triangles stay counter-clockwise seen from outside.
+ * aiProcess_Triangulate fans polygons into triangles and aiProcess_SortByPType splits points and
+ * lines off into meshes of their own, which are skipped. JoinIdenticalVertices is deliberately not
+ * asked for: it costs seconds on million-triangle scans, and the normal and analysis code weld
+ * exact duplicates themselves. So OBJ files come out with one vertex per face corner.
+ *
+ * Missing or unusable normals and tangents (zero length, non-finite, or absent in some of the
+ * merged meshes) are computed by nacre_mesh_compute_normals / _tangents for those vertices only;
+ * authored ones are kept. Bad positions, UVs or indices fail the load with NACRE_ERROR_PARSE.
+ *
+ * assimp keeps its last error in one process-wide string (aiGetErrorString), so two threads
+ * loading broken files at the same time may read each other's message; nacre keeps no global
+ * state of its own.
+ */
+#include "core/core.h"
+#include "core/math.h"
+#include "scene/mesh_private.h"
+
+#include <assimp/cimport.h>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* assimp's own post-processing recurses over nodes too; a file nested deeper than this is not a
+ * mesh anyone meant to write. */
+#define LOAD_MAX_NODE_DEPTH 1024
+
+typedef struct load_instance {
+    const struct aiMesh *mesh;
+    nc_mat4 xf;             /* node's global transform */
+    uint32_t first_vertex;  /* in the merged mesh */
+    uint32_t first_triangle;
+    uint32_t triangles;     /* faces with three corners */
+} load_instance;
+
+typedef struct load_state {
+    nacre_context *ctx;
+    const char *path;
+    const struct aiScene *scene;
+    load_instance *inst;
+    uint32_t count, capacity;
+    uint64_t vertices, triangles;
+} load_state;
+
+static nc_mat4 from_ai(const struct aiMatrix4x4 *a)
+{
+    nc_mat4 m = {{{(float)a->a1, (float)a->a2, (float)a->a3, (float)a->a4},
+                  {(float)a->b1, (float)a->b2, (float)a->b3, (float)a->b4},
+                  {(float)a->c1, (float)a->c2, (float)a->c3, (float)a->c4},
+                  {(float)a->d1, (float)a->d2, (float)a->d3, (float)a->d4}}};
+    return m;
+}
+
+static bool mesh_is_all_triangles(const struct aiMesh *mesh)
+{
+    return (mesh->mPrimitiveTypes & ~(unsigned)aiPrimitiveType_NGONEncodingFlag) ==
+           aiPrimitiveType_TRIANGLE;
+}
+
+static nacre_result collect(load_state *s, const struct aiNode *node, nc_mat4 parent, int depth)
+{
+    if (depth > LOAD_MAX_NODE_DEPTH)
+        return nc_fail(s->ctx, NACRE_ERROR_PARSE, "%s: node hierarchy deeper than %d", s->path,
+                       LOAD_MAX_NODE_DEPTH);
+    nc_mat4 local = from_ai(&node->mTransformation);
+    nc_mat4 xf = nc_mat4_mul(parent, local);
+    for (unsigned k = 0; k < node->mNumMeshes; k++) {
+        unsigned mi = node->mMeshes[k];
+        if (mi >= s->scene->mNumMeshes)
+            return nc_fail(s->ctx, NACRE_ERROR_PARSE, "%s: node references mesh %u of %u",
+                           s->path, mi, s->scene->mNumMeshes);
+        const struct aiMesh *mesh = s->scene->mMeshes[mi];
+        if (!mesh || !(mesh->mPrimitiveTypes & aiPrimitiveType_TRIANGLE) ||
+            mesh->mNumVertices == 0 || !mesh->mVertices || !mesh->mFaces)
+            continue;
+        uint32_t tris = 0;
+        if (mesh_is_all_triangles(mesh)) {
+            tris = mesh->mNumFaces;
+        } else {
+            for (unsigned f = 0; f < mesh->mNumFaces; f++)
+                tris += mesh->mFaces[f].mNumIndices == 3;
+        }
+        if (tris == 0)
+            continue;
+        if (s->count == s->capacity) {
+            uint32_t cap = s->capacity ? s->capacity * 2 : 16;
+            load_instance *grown = nc_realloc(s->ctx, s->inst, s->capacity * sizeof(*grown),
+                                              cap * sizeof(*grown));
+            if (!grown)
+                return NACRE_ERROR_OUT_OF_MEMORY;
+            s->inst = grown;
+            s->capacity = cap;
+        }
+        if (s->vertices + mesh->mNumVertices > UINT32_MAX)
+            return nc_fail(s->ctx, NACRE_ERROR_UNSUPPORTED, "%s: more than %u vertices", s->path,
+                           (unsigned)UINT32_MAX);
+        if (s->triangles + tris > NC_MESH_MAX_TRIANGLES)
+            return nc_fail(s->ctx, NACRE_ERROR_UNSUPPORTED, "%s: more than %u triangles", s->path,
+                           (unsigned)NC_MESH_MAX_TRIANGLES);
+        load_instance *in = &s->inst[s->count++];
+        in->mesh = mesh;
+        in->xf = xf;
+        in->first_vertex = (uint32_t)s->vertices;
+        in->first_triangle = (uint32_t)s->triangles;
+        in->triangles = tris;
+        s->vertices += mesh->mNumVertices;
+        s->triangles += tris;
+    }
+    for (unsigned c = 0; c < node->mNumChildren; c++) {
+        if (!node->mChildren[c])
+            continue;
+        nacre_result r = collect(s, node->mChildren[c], xf, depth + 1);
+        if (r != NACRE_OK)
+            return r;
+    }
+    return NACRE_OK;
+}
+
+static bool is_identity(const nc_mat4 *m)
+{
+    nc_mat4 id = nc_mat4_identity();
+    return memcmp(m, &id, sizeof(id)) == 0;
+}
+
+/* Inverse transpose of the 3x3 part (cofactor matrix; the 1/det scale is irrelevant because
+ * normals are renormalised, but its sign matters, so it is kept). */
+static nc_mat4 normal_matrix(const nc_mat4 *m, float *det_out)
+{
+    const float(*a)[4] = m->m;
+    nc_mat4 c = nc_mat4_identity();
+    c.m[0][0] = a[1][1] * a[2][2] - a[1][2] * a[2][1];
+    c.m[0][1] = a[1][2] * a[2][0] - a[1][0] * a[2][2];
+    c.m[0][2] = a[1][0] * a[2][1] - a[1][1] * a[2][0];
+    c.m[1][0] = a[0][2] * a[2][1] - a[0][1] * a[2][2];
+    c.m[1][1] = a[0][0] * a[2][2] - a[0][2] * a[2][0];
+    c.m[1][2] = a[0][1] * a[2][0] - a[0][0] * a[2][1];
+    c.m[2][0] = a[0][1] * a[1][2] - a[0][2] * a[1][1];
+    c.m[2][1] = a[0][2] * a[1][0] - a[0][0] * a[1][2];
+    c.m[2][2] = a[0][0] * a[1][1] - a[0][1] * a[1][0];
+    float det = a[0][0] * c.m[0][0] + a[0][1] * c.m[0][1] + a[0][2] * c.m[0][2];
+    *det_out = det;
+    if (det < 0.0f)
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                c.m[i][j] = -c.m[i][j];
+    return c;
+}
+
+/* Unit vector or NaN: NaN marks "compute this one" for the repair pass. */
+static inline nc_vec3 unit_or_nan(nc_vec3 v)
+{
+    float len = nc_length(v);
+    if (len > 0.0f && isfinite(len))
+        return nc_scale(v, 1.0f / len);
+    return nc_v3(NAN, NAN, NAN);
+}
+
+/* Copy one instance's vertices (transformed) into the merged arrays. */
+static void fill_vertices(const load_state *s, const load_instance *in, nacre_mesh_data *m)
+{
+    const struct aiMesh *mesh = in->mesh;
+    const size_t n = mesh->mNumVertices, v0 = in->first_vertex;
+    const bool identity = is_identity(&in->xf);
+    float det;
+    const nc_mat4 nm = normal_matrix(&in->xf, &det);
+    const nc_mat4 xf = in->xf;
+    const struct aiVector3D *uv = mesh->mTextureCoords[0];
+    const bool uv2 = mesh->mNumUVComponents[0] >= 2;
+    const bool has_tangents = mesh->mTangents && mesh->mBitangents && mesh->mNormals;
+
+#pragma omp parallel for num_threads(s->ctx->threads) if (n > NC_MESH_PARALLEL_MIN) \
+    schedule(static)
+    for (size_t i = 0; i < n; i++) {
+        size_t v = v0 + i;
+        nc_vec3 p = nc_v3((float)mesh->mVertices[i].x, (float)mesh->mVertices[i].y,
+                          (float)mesh->mVertices[i].z);
+        if (!identity)
+            p = nc_mat4_point(&xf, p);
+        nc_v3store(p, m->positions + v * 3);
+
+        nc_vec3 n3 = nc_v3(NAN, NAN, NAN);
+        if (m->normals) {
+            if (mesh->mNormals) {
+                n3 = nc_v3((float)mesh->mNormals[i].x, (float)mesh->mNormals[i].y,
+                           (float)mesh->mNormals[i].z);
+                n3 = unit_or_nan(identity ? n3 : nc_mat4_dir(&nm, n3));
+            }
+            nc_v3store(n3, m->normals + v * 3);
+        }
+        if (m->uvs) {
+            m->uvs[v * 2] = uv ? (float)uv[i].x : 0.0f;
+            m->uvs[v * 2 + 1] = uv && uv2 ? (float)uv[i].y : 0.0f;
+        }
+        if (m->tangents) {
+            float *t4 = m->tangents + v * 4;
+            nc_vec3 t = nc_v3(NAN, NAN, NAN);
+            float w = 1.0f;
+            if (has_tangents && isfinite(n3.x)) {
+                nc_vec3 ta = nc_v3((float)mesh->mTangents[i].x, (float)mesh->mTangents[i].y,
+                                   (float)mesh->mTangents[i].z);
+                nc_vec3 bi = nc_v3((float)mesh->mBitangents[i].x, (float)mesh->mBitangents[i].y,
+                                   (float)mesh->mBitangents[i].z);
+                if (!identity) {
+                    ta = nc_mat4_dir(&xf, ta);
+                    bi = nc_mat4_dir(&xf, bi);
+                }
+                /* Authored tangents are not always perpendicular to the authored normal. */
+                t = unit_or_nan(nc_sub(ta, nc_scale(n3, nc_dot(n3, ta))));
+                w = nc_dot(nc_cross(n3, t), bi) < 0.0f ? -1.0f : 1.0f;
+            }
+            t4[0] = t.x;
+            t4[1] = t.y;
+            t4[2] = t.z;
+            t4[3] = w;
+        }
+    }
+}
+
+/* Copy one instance's triangles; fails on an out-of-range corner. */
+static nacre_result fill_indices(const load_state *s, const load_instance *in, nacre_mesh_data *m)
+{
+    const struct aiMesh *mesh = in->mesh;
+    const uint32_t nvm = mesh->mNumVertices, v0 = in->first_vertex;
+    float det;
+    normal_matrix(&in->xf, &det);
+    /* A mirrored instance would turn inside out: swap two corners to keep outward winding. */
+    const int c1 = det < 0.0f ? 2 : 1, c2 = det < 0.0f ? 1 : 2;
+    uint32_t *out = m->indices + (size_t)in->first_triangle * 3;
+    uint64_t bad = UINT64_MAX;
+
+    if (mesh_is_all_triangles(mesh)) {
+        const size_t nf = mesh->mNumFaces;
+#pragma omp parallel for num_threads(s->ctx->threads) if (nf > NC_MESH_PARALLEL_MIN) \
+    schedule(static) reduction(min : bad)
+        for (size_t f = 0; f < nf; f++) {
+            const struct aiFace *face = &mesh->mFaces[f];
+            uint32_t *o = out + f * 3;
+            if (face->mNumIndices != 3 || !face->mIndices) {
+                o[0] = o[1] = o[2] = v0; /* cannot happen for a triangle-only mesh */
+                continue;
+            }
+            const unsigned *ix = face->mIndices;
+            if ((ix[0] >= nvm || ix[1] >= nvm || ix[2] >= nvm) && f < bad)
+                bad = f;
+            o[0] = v0 + ix[0];
+            o[1] = v0 + ix[c1];
+            o[2] = v0 + ix[c2];
+        }
+    } else {
+        size_t t = 0;
+        for (unsigned f = 0; f < mesh->mNumFaces; f++) {
+            const struct aiFace *face = &mesh->mFaces[f];
+            if (face->mNumIndices != 3 || !face->mIndices)
+                continue;
+            const unsigned *ix = face->mIndices;
+            if ((ix[0] >= nvm || ix[1] >= nvm || ix[2] >= nvm) && bad == UINT64_MAX)
+                bad = t;
+            out[t * 3] = v0 + ix[0];
+            out[t * 3 + 1] = v0 + ix[c1];
+            out[t * 3 + 2] = v0 + ix[c2];
+            t++;
+        }
+    }
+    if (bad == UINT64_MAX)
+        return NACRE_OK;
+    /* Report the file's own numbers: the triangle in the merged mesh, the raw index and the
+     * vertex count of the mesh it belongs to. */
+    const uint32_t *o = out + bad * 3;
+    uint32_t raw = 0;
+    for (int k = 2; k >= 0; k--)
+        if (o[k] - v0 >= nvm)
+            raw = o[k] - v0; /* unsigned wrap-around gives back the file's index */
+    return nc_fail(s->ctx, NACRE_ERROR_PARSE,
+                   "%s: triangle %llu: index %u out of range (vertex_count %u)", s->path,
+                   (unsigned long long)(in->first_triangle + bad), (unsigned)raw, (unsigned)nvm);
+}
+
+/* Replace the NaN-marked entries of `dst` (dim floats per vertex) by those of `src`; true if
+ * any entry is marked. With src NULL only reports. */
+static bool repair(const nacre_context *ctx, float *dst, const float *src, size_t nv, int dim)
+{
+    int any = 0;
+#pragma omp parallel for num_threads(ctx->threads) if (nv > NC_MESH_PARALLEL_MIN) \
+    schedule(static) reduction(| : any)
+    for (size_t v = 0; v < nv; v++) {
+        float *d = dst + v * (size_t)dim;
+        if (!isnan(d[0]))
+            continue;
+        any = 1;
+        if (src)
+            memcpy(d, src + v * (size_t)dim, (size_t)dim * sizeof(float));
+    }
+    return any != 0;
+}
+
+/* Compute normals (which = 0) or tangents (which = 1) into a scratch copy and patch the
+ * vertices the file left without a usable one. */
+static nacre_result complete_attribute(nacre_context *ctx, nacre_mesh_data *m, int which)
+{
+    float *dst = which == 0 ? m->normals : m->tangents;
+    const int dim = which == 0 ? 3 : 4;
+    if (!repair(ctx, dst, NULL, m->vertex_count, dim))
+        return NACRE_OK;
+    nacre_mesh_data tmp = *m;
+    nacre_result r;
+    if (which == 0) {
+        tmp.normals = NULL;
+        r = nacre_mesh_compute_normals(ctx, &tmp);
+    } else {
+        tmp.tangents = NULL;
+        r = nacre_mesh_compute_tangents(ctx, &tmp);
+    }
+    if (r != NACRE_OK)
+        return r;
+    float *computed = which == 0 ? tmp.normals : tmp.tangents;
+    repair(ctx, dst, computed, m->vertex_count, dim);
+    nc_free(ctx, computed);
+    return NACRE_OK;
+}
+
+/* Size in bytes of a PLY scalar type name, 0 if unknown. */
+static unsigned ply_type_size(const char *t, size_t n)
+{
+    static const struct { const char *name; unsigned size; } types[] = {
+        {"char", 1},   {"uchar", 1},  {"int8", 1},    {"uint8", 1},   {"short", 2},
+        {"ushort", 2}, {"int16", 2},  {"uint16", 2},  {"int", 4},     {"uint", 4},
+        {"int32", 4},  {"uint32", 4}, {"float", 4},   {"float32", 4}, {"double", 8},
+        {"float64", 8},
+    };
+    for (size_t i = 0; i < sizeof(types) / sizeof(types[0]); i++)
+        if (strlen(types[i].name) == n && memcmp(types[i].name, t, n) == 0)
+            return types[i].size;
+    return 0;
+}
+
+/* Split the next whitespace-separated word off [*p, end). */
+static bool next_word(const char **p, const char *end, const char **w, size_t *n)
+{
+    const char *s = *p;
+    while (s < end && (*s == ' ' || *s == '\t' || *s == '\r'))
+        s++;
+    const char *e = s;
+    while (e < end && *e != ' ' && *e != '\t' && *e != '\r')
+        e++;
+    *w = s;
+    *n = (size_t)(e - s);
+    *p = e;
+    return e > s;
+}
+
+static bool word_is(const char *w, size_t n, const char *lit)
+{
+    return strlen(lit) == n && memcmp(w, lit, n) == 0;
+}
+
+/* Binary PLY carries no end marker, and assimp reads a truncated file's missing tail as garbage
+ * (whose indices then crash its triangulation), so the size the header promises is checked
+ * first. Vertex index lists count as at least 3 items (a face), which is exact for triangle
+ * meshes and a lower bound otherwise; other lists as at least 0. Headers this cannot read are
+ * left to assimp. */
+static nacre_result check_binary_ply(nacre_context *ctx, const char *path, const char *head,
+                                     size_t len, uint64_t file_size)
+{
+    const char *p = head, *end = head + len;
+    bool binary = false;
+    uint64_t need = 0, count = 0, record = 0;
+    int line = 0;
+    while (p < end) {
+        const char *eol = memchr(p, '\n', (size_t)(end - p));
+        if (!eol)
+            return NACRE_OK; /* header longer than what was read */
+        const char *q = p, *w;
+        size_t n;
+        line++;
+        bool has = next_word(&q, eol, &w, &n);
+        if (line == 1 && !(has && (word_is(w, n, "ply") || word_is(w, n, "PLY"))))
+            return NACRE_OK;
+        if (has && word_is(w, n, "format")) {
+            if (!next_word(&q, eol, &w, &n))
+                return NACRE_OK;
+            binary = word_is(w, n, "binary_little_endian") || word_is(w, n, "binary_big_endian");
+            if (!binary)
+                return NACRE_OK;
+        } else if (has && word_is(w, n, "element")) {
+            need += count * record; /* count <= 2^40, record <= 4096: no overflow */
+            char num[32];
+            if (!next_word(&q, eol, &w, &n) || !next_word(&q, eol, &w, &n) || n >= sizeof(num))
+                return NACRE_OK;
+            memcpy(num, w, n);
+            num[n] = '\0';
+            char *stop;
+            errno = 0;
+            unsigned long long c = strtoull(num, &stop, 10);
+            if (*stop != '\0' || errno)
+                return NACRE_OK;
+            count = c;
+            record = 0;
+            /* Any count beyond this cannot fit in a file, let alone in 32-bit indices. */
+            if (count > ((uint64_t)1 << 40))
+                return nc_fail(ctx, NACRE_ERROR_PARSE, "%s:%d: element count %llu too large",
+                               path, line, (unsigned long long)count);
+        } else if (has && word_is(w, n, "property")) {
+            if (!next_word(&q, eol, &w, &n))
+                return NACRE_OK;
+            if (word_is(w, n, "list")) {
+                const char *ct, *it, *name;
+                size_t cn, in, nn;
+                if (!next_word(&q, eol, &ct, &cn) || !next_word(&q, eol, &it, &in) ||
+                    !next_word(&q, eol, &name, &nn))
+                    return NACRE_OK;
+                unsigned cs = ply_type_size(ct, cn), is = ply_type_size(it, in);
+                if (!cs || !is)
+                    return NACRE_OK;
+                bool corners = word_is(name, nn, "vertex_indices") ||
+                               word_is(name, nn, "vertex_index");
+                record += cs + (corners ? 3u * is : 0u);
+            } else {
+                unsigned sz = ply_type_size(w, n);
+                if (!sz)
+                    return NACRE_OK;
+                record += sz;
+            }
+            if (record > 4096)
+                return NACRE_OK;
+        } else if (has && word_is(w, n, "end_header")) {
+            if (!binary)
+                return NACRE_OK;
+            need += count * record + (uint64_t)(eol + 1 - head);
+            if (file_size < need)
+                return nc_fail(ctx, NACRE_ERROR_PARSE,
+                               "%s: truncated binary PLY: the header needs at least %llu bytes, "
+                               "the file has %llu",
+                               path, (unsigned long long)need, (unsigned long long)file_size);
+            return NACRE_OK;
+        }
+        p = eol + 1;
+    }
+    return NACRE_OK;
+}
+
+/* Before any post-processing: assimp's triangulation indexes vertices through the faces without
+ * checking, so a corrupt face must be caught here. Reports the file's own face numbers. */
+static nacre_result check_faces(nacre_context *ctx, const char *path, const struct aiScene *scene)
+{
+    for (unsigned mi = 0; mi < scene->mNumMeshes; mi++) {
+        const struct aiMesh *mesh = scene->mMeshes[mi];
+        if (!mesh || mesh->mNumFaces == 0)
+            continue;
+        if (!mesh->mFaces || (mesh->mNumVertices > 0 && !mesh->mVertices))
+            return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: mesh %u: missing vertex or face data",
+                           path, mi);
+        const uint32_t nvm = mesh->mNumVertices;
+        const size_t nf = mesh->mNumFaces;
+        uint64_t bad = UINT64_MAX;
+#pragma omp parallel for num_threads(ctx->threads) if (nf > NC_MESH_PARALLEL_MIN) \
+    schedule(static) reduction(min : bad)
+        for (size_t f = 0; f < nf; f++) {
+            const struct aiFace *face = &mesh->mFaces[f];
+            bool ok = face->mNumIndices > 0 && face->mIndices;
+            for (unsigned k = 0; ok && k < face->mNumIndices; k++)
+                ok = face->mIndices[k] < nvm;
+            if (!ok && f < bad)
+                bad = f;
+        }
+        if (bad == UINT64_MAX)
+            continue;
+        const struct aiFace *face = &mesh->mFaces[bad];
+        char where[32] = "";
+        if (scene->mNumMeshes > 1)
+            snprintf(where, sizeof(where), "mesh %u: ", mi);
+        if (face->mNumIndices == 0 || !face->mIndices)
+            return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: %sface %llu: no vertices", path, where,
+                           (unsigned long long)bad);
+        unsigned k = 0;
+        while (face->mIndices[k] < nvm)
+            k++;
+        return nc_fail(ctx, NACRE_ERROR_PARSE,
+                       "%s: %sface %llu: index %u out of range (vertex_count %u)", path, where,
+                       (unsigned long long)bad, face->mIndices[k], (unsigned)nvm);
+    }
+    return NACRE_OK;
+}
+
+nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_data *out)
+{
+    if (!ctx)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    if (!path || !out)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "mesh load: %s is NULL",
+                       path ? "output mesh" : "path");
+    memset(out, 0, sizeof(*out));
+
+    /* assimp's own message for a missing file is vague; ask the OS first. */
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot open: %s", path, strerror(errno));
+    char head[8192];
+    size_t head_len = fread(head, 1, sizeof(head), f);
+    uint64_t file_size = 0;
+    if (fseek(f, 0, SEEK_END) == 0) {
+        long end = ftell(f);
+        file_size = end > 0 ? (uint64_t)end : 0;
+    }
+    fclose(f);
+    if (head_len == 0)
+        return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: empty file", path);
+    nacre_result r = check_binary_ply(ctx, path, head, head_len, file_size);
+    if (r != NACRE_OK)
+        return r;
+
+    /* Import without post-processing, check the faces, then triangulate (see check_faces). */
+    const struct aiScene *scene = aiImportFile(path, 0);
+    if (!scene) {
+        const char *msg = aiGetErrorString();
+        size_t len = msg ? strlen(msg) : 0;
+        while (len > 0 && (msg[len - 1] == '\n' || msg[len - 1] == '\r' || msg[len - 1] == ' '))
+            len--;
+        return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: %.*s", path, (int)len,
+                       len ? msg : "cannot parse");
+    }
+    if ((r = check_faces(ctx, path, scene)) != NACRE_OK) {
+        aiReleaseImport(scene);
+        return r;
+    }
+    scene = aiApplyPostProcessing(scene, aiProcess_Triangulate | aiProcess_SortByPType);
+    if (!scene)
+        return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: triangulation failed", path);
+
+    load_state s = {ctx, path, scene, NULL, 0, 0, 0, 0};
+    nacre_mesh_data m;
+    memset(&m, 0, sizeof(m));
+    if (scene->mRootNode)
+        r = collect(&s, scene->mRootNode, nc_mat4_identity(), 0);
+    if (r != NACRE_OK)
+        goto fail;
+    if (s.count == 0 || s.triangles == 0) {
+        r = nc_fail(ctx, NACRE_ERROR_PARSE, "%s: mesh has no triangles", path);
+        goto fail;
+    }
+
+    bool any_normals = false, any_uvs = false, any_tangents = false;
+    for (uint32_t i = 0; i < s.count; i++) {
+        const struct aiMesh *mesh = s.inst[i].mesh;
+        any_normals |= mesh->mNormals != NULL;
+        any_uvs |= mesh->mTextureCoords[0] != NULL;
+        any_tangents |= mesh->mTangents && mesh->mBitangents && mesh->mNormals;
+    }
+    const size_t nv = (size_t)s.vertices, nt = (size_t)s.triangles;
+    m.vertex_count = (uint32_t)nv;
+    m.triangle_count = (uint32_t)nt;
+    m.positions = nc_alloc(ctx, nv * 3 * sizeof(float));
+    m.indices = nc_alloc(ctx, nt * 3 * sizeof(uint32_t));
+    if (any_normals)
+        m.normals = nc_alloc(ctx, nv * 3 * sizeof(float));
+    if (any_uvs)
+        m.uvs = nc_alloc(ctx, nv * 2 * sizeof(float));
+    if (any_tangents)
+        m.tangents = nc_alloc(ctx, nv * 4 * sizeof(float));
+    if (!m.positions || !m.indices || (any_normals && !m.normals) || (any_uvs && !m.uvs) ||
+        (any_tangents && !m.tangents)) {
+        r = NACRE_ERROR_OUT_OF_MEMORY;
+        goto fail;
+    }
+    for (uint32_t i = 0; i < s.count; i++) {
+        fill_vertices(&s, &s.inst[i], &m);
+        if ((r = fill_indices(&s, &s.inst[i], &m)) != NACRE_OK)
+            goto fail;
+    }
+    aiReleaseImport(scene);
+    scene = NULL;
+    nc_free(ctx, s.inst);
+    s.inst = NULL;
+
+    /* Indices were checked per instance; this checks finite positions and UVs. */
+    r = nc_mesh_check_geometry(ctx, &m, path, NACRE_ERROR_PARSE);
+    if (r != NACRE_OK)
+        goto fail;
+    if (!m.normals)
+        r = nacre_mesh_compute_normals(ctx, &m);
+    else
+        r = complete_attribute(ctx, &m, 0);
+    if (r != NACRE_OK)
+        goto fail;
+    if (!m.tangents)
+        r = nacre_mesh_compute_tangents(ctx, &m);
+    else
+        r = complete_attribute(ctx, &m, 1);
+    if (r != NACRE_OK)
+        goto fail;
+    *out = m;
+    return NACRE_OK;
+
+fail:
+    if (scene)
+        aiReleaseImport(scene);
+    nc_free(ctx, s.inst);
+    nacre_mesh_data_free(ctx, &m);
+    return r;
+}

@@ -1,0 +1,294 @@
+/*
+ * shadow.c: shadow maps (depth from the light, rendered with nc_raster_depth) and their
+ * percentage-closer lookup.
+ *
+ * Directional lights get one orthographic map fitted to the scene bounds projected into light
+ * space (a tight box, 2 texels of margin). Spot lights get one perspective map with fov =
+ * 2 * outer angle plus a small margin. Point lights get six 90-degree faces (widened by 4 texels
+ * so that PCF kernels near a face border stay on that face). Perspective near/far come from the
+ * bounds, with near >= far / 1000 so float NDC depth stays well resolved. Back faces are not
+ * culled: open meshes and single planes cast shadows from either side.
+ *
+ * Lookup: a box filter of half-width pcf_radius texels centred on the projected point; each texel
+ * it overlaps contributes its comparison result weighted by the overlap area. The receiver is
+ * treated as the plane through p with normal n, so each texel compares the stored depth against
+ * that plane's depth at the texel centre (receiver-plane depth bias): planar receivers need only a
+ * small constant bias, given in texels and scaled with the slope of n against the light. Depths
+ * are compared linearly (distance along the map's view axis), in scene units.
+ */
+#include "raster/raster.h"
+
+#include <string.h>
+
+/* Extra texels around a cube face (see the file comment). */
+#define CUBE_MARGIN_TEXELS 4.0f
+/* Perspective maps keep far / near <= this. */
+#define MAX_DEPTH_RATIO 1000.0f
+/* Largest slope (tangent of the angle between n and the light) the bias and plane follow. */
+#define MAX_SLOPE 10.0f
+
+static void corners(const float lo[3], const float hi[3], nc_vec3 out[8])
+{
+    for (int i = 0; i < 8; i++)
+        out[i] = nc_v3((i & 1) ? hi[0] : lo[0], (i & 2) ? hi[1] : lo[1], (i & 4) ? hi[2] : lo[2]);
+}
+
+static nc_vec3 up_for(nc_vec3 f)
+{
+    return fabsf(f.y) < 0.99f ? nc_v3(0, 1, 0) : nc_v3(1, 0, 0);
+}
+
+/* Near and far view depths (along f from eye) covering the bounds, or false if all behind. */
+static bool depth_range(const nc_vec3 c[8], nc_vec3 eye, nc_vec3 f, float *near_out, float *far_out)
+{
+    float dmin = INFINITY, dmax = -INFINITY;
+    for (int i = 0; i < 8; i++) {
+        float d = nc_dot(nc_sub(c[i], eye), f);
+        dmin = fminf(dmin, d);
+        dmax = fmaxf(dmax, d);
+    }
+    if (!(dmax > 0.0f))
+        return false;
+    float far_d = dmax * 1.01f;
+    float near_d = fmaxf(dmin * 0.99f, far_d / MAX_DEPTH_RATIO);
+    *near_out = near_d;
+    *far_out = far_d;
+    return true;
+}
+
+static void set_face(nc_shadow_map *sm, int face, nc_mat4 view, nc_mat4 proj, bool ortho, float texel)
+{
+    nc_raster_view *v = &sm->views[face];
+    v->view = view;
+    v->proj = proj;
+    v->width = v->height = sm->size;
+    v->orthographic = ortho;
+    sm->world_to_clip[face] = nc_mat4_mul(proj, view);
+    sm->texel_world[face] = texel;
+}
+
+nacre_result nc_shadow_render(nc_rasterizer *r, nacre_context *ctx, const nacre_light_desc *light,
+                              const float bounds_min[3], const float bounds_max[3], int32_t size,
+                              const nc_raster_mesh *casters, uint32_t caster_count,
+                              nc_shadow_map *sm)
+{
+    if (!r || !light || !bounds_min || !bounds_max || !sm)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "shadow map: missing argument");
+    if (size < 1 || size > 16384)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "shadow map: size %d out of range", (int)size);
+    for (int i = 0; i < 3; i++)
+        if (!isfinite(bounds_min[i]) || !isfinite(bounds_max[i]) || bounds_min[i] > bounds_max[i])
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "shadow map: invalid scene bounds");
+    nc_shadow_kind kind;
+    switch (light->type) {
+    case NACRE_LIGHT_DIRECTIONAL: kind = NC_SHADOW_ORTHO; break;
+    case NACRE_LIGHT_SPOT: kind = NC_SHADOW_PERSPECTIVE; break;
+    case NACRE_LIGHT_POINT: kind = NC_SHADOW_CUBE; break;
+    default:
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "shadow map: unknown light type %d",
+                       (int)light->type);
+    }
+    nc_vec3 dir = nc_v3a(light->direction), pos = nc_v3a(light->position);
+    if (kind != NC_SHADOW_CUBE) {
+        float len = nc_length(dir);
+        if (!(len > 0.0f) || !isfinite(len))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "shadow map: light direction is zero");
+        dir = nc_scale(dir, 1.0f / len);
+    }
+    int faces = kind == NC_SHADOW_CUBE ? 6 : 1;
+    size_t texels = (size_t)size * (size_t)size * (size_t)faces;
+    if (!sm->depth || sm->size != size || sm->face_count != faces) {
+        nc_free(ctx, sm->depth);
+        sm->depth = nc_alloc(ctx, texels * sizeof(float));
+        if (!sm->depth) {
+            memset(sm, 0, sizeof(*sm));
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        }
+    }
+    sm->kind = kind;
+    sm->size = size;
+    sm->face_count = faces;
+    nc_v3store(pos, sm->light_pos);
+    nc_v3store(dir, sm->light_dir);
+
+    nc_vec3 c[8];
+    corners(bounds_min, bounds_max, c);
+    nc_vec3 lo = nc_v3a(bounds_min), hi = nc_v3a(bounds_max);
+    float scale = fmaxf(nc_length(nc_sub(hi, lo)), 1e-6f * (1.0f + nc_length(lo) + nc_length(hi)));
+    if (kind == NC_SHADOW_ORTHO) {
+        nc_vec3 centre = nc_scale(nc_add(lo, hi), 0.5f);
+        nc_vec3 eye = nc_sub(centre, nc_scale(dir, scale));
+        nc_mat4 view = nc_mat4_look_at(eye, nc_add(eye, dir), up_for(dir));
+        float l = INFINITY, rr = -INFINITY, b = INFINITY, t = -INFINITY, dn = INFINITY, df = -INFINITY;
+        for (int i = 0; i < 8; i++) {
+            nc_vec3 q = nc_mat4_point(&view, c[i]);
+            l = fminf(l, q.x); rr = fmaxf(rr, q.x);
+            b = fminf(b, q.y); t = fmaxf(t, q.y);
+            dn = fminf(dn, -q.z); df = fmaxf(df, -q.z);
+        }
+        /* Non-zero extents and 2 texels of margin, so PCF at the border sees the casters. */
+        float ex = fmaxf(rr - l, 1e-4f * scale), ey = fmaxf(t - b, 1e-4f * scale);
+        float mx = 2.0f * ex / (float)size, my = 2.0f * ey / (float)size;
+        float cx = 0.5f * (l + rr), cy = 0.5f * (b + t);
+        l = cx - 0.5f * ex - mx; rr = cx + 0.5f * ex + mx;
+        b = cy - 0.5f * ey - my; t = cy + 0.5f * ey + my;
+        float mz = 0.01f * (df - dn) + 1e-4f * scale;
+        nc_mat4 proj = nc_mat4_ortho(l, rr, b, t, dn - mz, df + mz);
+        set_face(sm, 0, view, proj, true, fmaxf(rr - l, t - b) / (float)size);
+    } else if (kind == NC_SHADOW_PERSPECTIVE) {
+        float outer = fminf(fmaxf(light->outer_angle, 0.0f), 85.0f);
+        /* One degree plus two texels of margin around the cone. */
+        float half = (outer + 1.0f) * NC_DEG2RAD;
+        half = atanf(tanf(half) * (1.0f + 4.0f / (float)size));
+        float near_d = 1.0f, far_d = 2.0f;
+        if (!depth_range(c, pos, dir, &near_d, &far_d)) {
+            near_d = 1e-3f * scale;
+            far_d = scale;
+        }
+        nc_mat4 view = nc_mat4_look_at(pos, nc_add(pos, dir), up_for(dir));
+        nc_mat4 proj = nc_mat4_perspective(2.0f * half, 1.0f, near_d, far_d);
+        set_face(sm, 0, view, proj, false, 2.0f * tanf(half) / (float)size);
+    } else {
+        static const float axes[6][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
+        static const float ups[6][3] = {{0, 1, 0}, {0, 1, 0}, {0, 0, 1}, {0, 0, 1}, {0, 1, 0}, {0, 1, 0}};
+        float tan_half = (float)size / ((float)size - 2.0f * CUBE_MARGIN_TEXELS);
+        if (!(tan_half > 0.0f) || tan_half > 2.0f)
+            tan_half = 2.0f; /* tiny maps */
+        for (int f = 0; f < 6; f++) {
+            nc_vec3 fa = nc_v3a(axes[f]);
+            float near_d = 1.0f, far_d = 2.0f;
+            if (!depth_range(c, pos, fa, &near_d, &far_d)) {
+                near_d = 1e-3f * scale;
+                far_d = scale;
+            }
+            nc_mat4 view = nc_mat4_look_at(pos, nc_add(pos, fa), nc_v3a(ups[f]));
+            nc_mat4 proj = nc_mat4_perspective(2.0f * atanf(tan_half), 1.0f, near_d, far_d);
+            set_face(sm, f, view, proj, false, 2.0f * tan_half / (float)size);
+        }
+    }
+    size_t face_texels = (size_t)size * (size_t)size;
+    for (int f = 0; f < faces; f++) {
+        nacre_result res = nc_raster_depth(r, &sm->views[f], casters, caster_count, false,
+                                           sm->depth + (size_t)f * face_texels);
+        if (res != NACRE_OK)
+            return res;
+    }
+    return NACRE_OK;
+}
+
+void nc_shadow_free(nacre_context *ctx, nc_shadow_map *sm)
+{
+    if (!sm)
+        return;
+    nc_free(ctx, sm->depth);
+    memset(sm, 0, sizeof(*sm));
+}
+
+/* Stored NDC depth -> distance along the view axis. */
+static inline float linear_depth(const nc_raster_view *v, float ndc)
+{
+    const nc_mat4 *p = &v->proj;
+    if (v->orthographic)
+        return (p->m[2][3] - ndc) / p->m[2][2];
+    return p->m[2][3] / (ndc + p->m[2][2]);
+}
+
+float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_radius, float bias)
+{
+    if (!sm || !sm->depth || sm->size < 1)
+        return 1.0f;
+    int face = 0;
+    if (sm->kind == NC_SHADOW_CUBE) {
+        nc_vec3 d = nc_sub(p, nc_v3a(sm->light_pos));
+        float ax = fabsf(d.x), ay = fabsf(d.y), az = fabsf(d.z);
+        if (ax >= ay && ax >= az)
+            face = d.x >= 0.0f ? 0 : 1;
+        else if (ay >= az)
+            face = d.y >= 0.0f ? 2 : 3;
+        else
+            face = d.z >= 0.0f ? 4 : 5;
+    }
+    const nc_raster_view *v = &sm->views[face];
+    const nc_mat4 *vm = &v->view, *pm = &v->proj;
+    bool ortho = v->orthographic;
+    nc_vec3 pv = nc_mat4_point(vm, p);
+    float d = -pv.z; /* receiver depth along the view axis */
+    float near_d = linear_depth(v, 0.0f), far_d = linear_depth(v, 1.0f);
+    if (!(d >= near_d) || !(d <= far_d))
+        return 1.0f; /* nothing in the map can be in front of it */
+    float w = ortho ? 1.0f : d;
+    nc_vec4 clip = nc_mat4_apply(pm, (nc_vec4){pv.x, pv.y, pv.z, 1.0f});
+    float ndc_x = clip.x / clip.w, ndc_y = clip.y / clip.w;
+    int size = sm->size;
+    float u = (ndc_x * 0.5f + 0.5f) * (float)size, vv = (0.5f - ndc_y * 0.5f) * (float)size;
+    if (!isfinite(u) || !isfinite(vv))
+        return 1.0f;
+
+    /* World size of a texel at p. */
+    float m00 = pm->m[0][0], m11 = pm->m[1][1], m03 = pm->m[0][3], m13 = pm->m[1][3];
+    float texel = fmaxf(2.0f * w / (m00 * (float)size), 2.0f * w / (m11 * (float)size));
+    /* The receiver is the plane through p with normal n. Each texel compares against the depth
+     * where its own ray meets that plane: exact for planar receivers, also when the plane nearly
+     * contains a perspective map's axis (the ground seen by a point light's side faces). The
+     * change is limited to MAX_SLOPE texel sizes per texel of distance. */
+    nc_vec3 nv = nc_normalize(nc_mat4_dir(vm, n));
+    nc_vec3 ray = ortho ? nc_v3(0, 0, -1) : nc_normalize(pv);
+    float cos_t = fabsf(nc_dot(nv, ray));
+    float sin_t = sqrtf(fmaxf(0.0f, 1.0f - cos_t * cos_t));
+    float slope = sin_t < MAX_SLOPE * cos_t ? sin_t / cos_t : MAX_SLOPE;
+    float bias_world = fmaxf(bias, 0.0f) * texel * 0.5f * (1.0f + slope);
+    float max_dev = MAX_SLOPE * texel;
+    float plane_d = nc_dot(nv, pv);
+    float inv_size = 2.0f / (float)size;
+
+    float rad = fminf(fmaxf(pcf_radius, 0.5f), 8.0f);
+    int i0 = (int)floorf(u - rad), i1 = (int)floorf(u + rad);
+    int j0 = (int)floorf(vv - rad), j1 = (int)floorf(vv + rad);
+    if (i1 < 0 || j1 < 0 || i0 >= size || j0 >= size)
+        return 1.0f;
+    const float *map = sm->depth + (size_t)face * (size_t)size * (size_t)size;
+    bool clamp = sm->kind == NC_SHADOW_CUBE;
+    float lit = 0.0f, total = 0.0f;
+    for (int j = j0; j <= j1; j++) {
+        float oy = fminf((float)j + 1.0f, vv + rad) - fmaxf((float)j, vv - rad);
+        if (oy <= 0.0f)
+            continue;
+        for (int i = i0; i <= i1; i++) {
+            float ox = fminf((float)i + 1.0f, u + rad) - fmaxf((float)i, u - rad);
+            if (ox <= 0.0f)
+                continue;
+            float wgt = ox * oy;
+            total += wgt;
+            int ti = i, tj = j;
+            if (clamp) {
+                ti = ti < 0 ? 0 : (ti >= size ? size - 1 : ti);
+                tj = tj < 0 ? 0 : (tj >= size ? size - 1 : tj);
+            } else if (ti < 0 || tj < 0 || ti >= size || tj >= size) {
+                lit += wgt; /* beyond the map: nothing recorded, lit */
+                continue;
+            }
+            float stored = map[(size_t)tj * (size_t)size + (size_t)ti];
+            if (!(stored < 1.0f)) {
+                lit += wgt;
+                continue;
+            }
+            float tx = ((float)i + 0.5f) * inv_size - 1.0f, ty = 1.0f - ((float)j + 0.5f) * inv_size;
+            float recv;
+            if (ortho) {
+                float xv = (tx - m03) / m00, yv = (ty - m13) / m11;
+                recv = d + (nv.x * (xv - pv.x) + nv.y * (yv - pv.y)) / nv.z;
+            } else {
+                nc_vec3 rd = nc_v3(tx / m00, ty / m11, -1.0f);
+                recv = plane_d / nc_dot(nv, rd);
+            }
+            float lim = max_dev * hypotf((float)i + 0.5f - u, (float)j + 0.5f - vv);
+            if (!(recv >= d - lim))
+                recv = recv > d ? d + lim : d - lim; /* also NaN, behind the light, parallel */
+            else if (recv > d + lim)
+                recv = d + lim;
+            if (linear_depth(v, stored) >= recv - bias_world)
+                lit += wgt;
+        }
+    }
+    return total > 0.0f ? lit / total : 1.0f;
+}

@@ -1,0 +1,467 @@
+/*
+ * test_shadow.c: shadow maps against analytic shadows.
+ *
+ * A small horizontal square over a ground plane casts a shadow whose outline is the square
+ * projected along the light (parallel for directional lights, central for spot and point
+ * lights). Points well inside it must read 0, points well outside 1, and the 50% crossing of the
+ * PCF result must lie within 2 texels of the analytic edge. A tessellated sphere checks for
+ * self-shadowing acne: every point facing the light (n.l > 0.2) must be fully lit.
+ */
+#include "raster/raster.h"
+#include "test_util.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+#define PCF 1.5f
+#define BIAS 1.5f
+
+typedef struct geo {
+    float *pos;
+    float *nrm;
+    uint32_t *idx;
+    uint32_t nv, nt;
+} geo;
+
+static void geo_free(geo *g)
+{
+    free(g->pos);
+    free(g->nrm);
+    free(g->idx);
+    memset(g, 0, sizeof(*g));
+}
+
+/* Horizontal square (normal +y) centred at (cx, h, cz), `cells` x `cells` quads. */
+static geo make_square(double cx, double h, double cz, double half, int cells)
+{
+    geo g;
+    g.nv = (uint32_t)((cells + 1) * (cells + 1));
+    g.nt = (uint32_t)(2 * cells * cells);
+    g.pos = malloc(sizeof(float) * 3 * g.nv);
+    g.nrm = malloc(sizeof(float) * 3 * g.nv);
+    g.idx = malloc(sizeof(uint32_t) * 3 * g.nt);
+    for (int j = 0; j <= cells; j++)
+        for (int i = 0; i <= cells; i++) {
+            uint32_t v = (uint32_t)(j * (cells + 1) + i);
+            g.pos[3 * v] = (float)(cx - half + 2 * half * i / cells);
+            g.pos[3 * v + 1] = (float)h;
+            g.pos[3 * v + 2] = (float)(cz - half + 2 * half * j / cells);
+            g.nrm[3 * v] = 0.0f;
+            g.nrm[3 * v + 1] = 1.0f;
+            g.nrm[3 * v + 2] = 0.0f;
+        }
+    uint32_t t = 0;
+    for (int j = 0; j < cells; j++)
+        for (int i = 0; i < cells; i++) {
+            uint32_t a = (uint32_t)(j * (cells + 1) + i), b = a + 1, c = a + (uint32_t)cells + 1, d = c + 1;
+            /* Counter-clockwise seen from +y: a (x-, z-), c (x-, z+), d, b. */
+            uint32_t q[6] = {a, c, d, a, d, b};
+            memcpy(g.idx + 3 * t, q, sizeof(q));
+            t += 2;
+        }
+    return g;
+}
+
+static geo make_sphere(double cx, double cy, double cz, double r, int seg, int rings)
+{
+    geo g;
+    g.nv = (uint32_t)((seg + 1) * (rings + 1));
+    g.nt = (uint32_t)(2 * seg * rings);
+    g.pos = malloc(sizeof(float) * 3 * g.nv);
+    g.nrm = malloc(sizeof(float) * 3 * g.nv);
+    g.idx = malloc(sizeof(uint32_t) * 3 * g.nt);
+    const double pi = 3.14159265358979323846;
+    for (int j = 0; j <= rings; j++)
+        for (int i = 0; i <= seg; i++) {
+            double th = pi * j / rings, ph = 2 * pi * (i % seg) / seg;
+            double n[3] = {sin(th) * cos(ph), cos(th), -sin(th) * sin(ph)};
+            uint32_t v = (uint32_t)(j * (seg + 1) + i);
+            for (int k = 0; k < 3; k++)
+                g.nrm[3 * v + k] = (float)n[k];
+            g.pos[3 * v] = (float)(cx + r * n[0]);
+            g.pos[3 * v + 1] = (float)(cy + r * n[1]);
+            g.pos[3 * v + 2] = (float)(cz + r * n[2]);
+        }
+    uint32_t t = 0;
+    for (int j = 0; j < rings; j++)
+        for (int i = 0; i < seg; i++) {
+            uint32_t a = (uint32_t)(j * (seg + 1) + i), b = a + 1, c = a + (uint32_t)seg + 1, d = c + 1;
+            uint32_t q[6] = {a, c, d, a, d, b};
+            memcpy(g.idx + 3 * t, q, sizeof(q));
+            t += 2;
+        }
+    return g;
+}
+
+/* Axis-aligned box [x0, x1] x [y0, y1] x [z0, z1], faces wound counter-clockwise outside. */
+static geo make_box(double x0, double y0, double z0, double x1, double y1, double z1)
+{
+    geo g;
+    g.nv = 8;
+    g.nt = 12;
+    g.pos = malloc(sizeof(float) * 3 * 8);
+    g.nrm = calloc(3 * 8, sizeof(float)); /* unused */
+    g.idx = malloc(sizeof(uint32_t) * 3 * 12);
+    for (int i = 0; i < 8; i++) {
+        g.pos[3 * i] = (float)((i & 1) ? x1 : x0);
+        g.pos[3 * i + 1] = (float)((i & 2) ? y1 : y0);
+        g.pos[3 * i + 2] = (float)((i & 4) ? z1 : z0);
+    }
+    static const uint32_t q[12][3] = {{0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5}, /* -x, +x */
+                                      {0, 1, 5}, {0, 5, 4}, {2, 6, 7}, {2, 7, 3}, /* -y, +y */
+                                      {0, 2, 3}, {0, 3, 1}, {4, 5, 7}, {4, 7, 6}}; /* -z, +z */
+    memcpy(g.idx, q, sizeof(q));
+    return g;
+}
+
+static nc_raster_mesh as_mesh(const geo *g, uint32_t object)
+{
+    nc_raster_mesh m = {g->pos, g->idx, g->nv, g->nt, object, false};
+    return m;
+}
+
+static void bounds_of(const geo *gs, int n, float lo[3], float hi[3])
+{
+    for (int k = 0; k < 3; k++) {
+        lo[k] = INFINITY;
+        hi[k] = -INFINITY;
+    }
+    for (int i = 0; i < n; i++)
+        for (uint32_t v = 0; v < gs[i].nv; v++)
+            for (int k = 0; k < 3; k++) {
+                lo[k] = fminf(lo[k], gs[i].pos[3 * v + k]);
+                hi[k] = fmaxf(hi[k], gs[i].pos[3 * v + k]);
+            }
+}
+
+static nacre_context *make_ctx(int threads)
+{
+    nacre_context *ctx = NULL;
+    nacre_context_desc cd = {0};
+    cd.threads = threads;
+    CHECK(nacre_context_create(&cd, &ctx) == NACRE_OK);
+    return ctx;
+}
+
+typedef struct tally {
+    int inside, outside, inside_bad, outside_bad, edge_bad, samples;
+} tally;
+
+/* Classify one ground sample: `dist` is the signed distance (scene units, negative in shadow)
+ * to the analytic shadow outline and `texel` the size of one shadow texel on the ground. */
+static void judge(tally *t, double dist, double texel, float v)
+{
+    t->samples++;
+    double margin = (PCF + 2.0) * texel;
+    if (dist < -margin) {
+        t->inside++;
+        t->inside_bad += v != 0.0f;
+    } else if (dist > margin) {
+        t->outside++;
+        t->outside_bad += v != 1.0f;
+    }
+    if (dist < -2.0 * texel)
+        t->edge_bad += v > 0.5f;
+    else if (dist > 2.0 * texel)
+        t->edge_bad += v < 0.5f;
+}
+
+static void check_tally(const tally *t)
+{
+    CHECK(t->inside > 200);
+    CHECK(t->outside > 200);
+    CHECK(t->inside_bad == 0);
+    CHECK(t->outside_bad == 0);
+    CHECK(t->edge_bad == 0);
+    if (t->inside_bad || t->outside_bad || t->edge_bad)
+        printf("  inside %d (bad %d) outside %d (bad %d) edge bad %d\n", t->inside, t->inside_bad,
+               t->outside, t->outside_bad, t->edge_bad);
+}
+
+/* Signed box distance of (x, z) to the square |x - cx| <= half, |z - cz| <= half. */
+static double box_dist(double x, double z, double cx, double cz, double half)
+{
+    return fmax(fabs(x - cx) - half, fabs(z - cz) - half);
+}
+
+static void test_directional(void)
+{
+    nacre_context *ctx = make_ctx(2);
+    nc_rasterizer *r = NULL;
+    CHECK(nc_rasterizer_create(ctx, &r) == NACRE_OK);
+    /* A square floating over the ground, and a box standing on it (contact shadows). */
+    geo g[3] = {make_square(0, 0, 0, 10, 8), make_square(0.5, 2, -0.4, 1, 1),
+                make_box(-5.5, 0, 4.5, -4.5, 1, 5.5)};
+    nc_raster_mesh m[3] = {as_mesh(&g[0], 0), as_mesh(&g[1], 1), as_mesh(&g[2], 2)};
+    float lo[3], hi[3];
+    bounds_of(g, 3, lo, hi);
+    nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
+    double dir[3] = {0.3, -1.0, 0.2}, dl = sqrt(0.09 + 1 + 0.04);
+    for (int k = 0; k < 3; k++)
+        ld.direction[k] = (float)(dir[k] / dl);
+    nc_shadow_map sm;
+    memset(&sm, 0, sizeof(sm));
+    CHECK(nc_shadow_render(r, ctx, &ld, lo, hi, 1024, m, 3, &sm) == NACRE_OK);
+    CHECK(sm.kind == NC_SHADOW_ORTHO && sm.face_count == 1 && sm.size == 1024);
+    /* The map fits the bounds: a texel is about the scene's diagonal extent / size. */
+    CHECK(sm.texel_world[0] > 20.0f / 1024 && sm.texel_world[0] < 30.0f / 1024);
+    double ly = -ld.direction[1];
+    double texel = sm.texel_world[0] / ly;
+    double s = 2.0 / ly; /* ground -> occluder along the light */
+    tally t = {0};
+    for (double z = -9.7; z <= 9.7; z += 0.043)
+        for (double x = -9.7; x <= 9.7; x += 0.043) {
+            double qx = x - s * ld.direction[0], qz = z - s * ld.direction[2];
+            if (x < -3.5 && z > 3.5)
+                continue; /* the box, checked below */
+            float v = nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
+            judge(&t, box_dist(qx, qz, 0.5, -0.4, 1.0), texel, v);
+        }
+    check_tally(&t);
+    /* The box's shadow starts at its base: the ground just beside the lit-away side is dark
+     * (a large depth bias would light it: peter-panning), the ground on the light's side lit. */
+    int contact_bad = 0, front_bad = 0;
+    for (double z = 4.8; z <= 5.3; z += 0.02) {
+        for (double x = -4.45; x <= -4.3; x += 0.01)
+            contact_bad += nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS) != 0.0f;
+        for (double x = -5.8; x <= -5.6; x += 0.01)
+            front_bad += nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS) != 1.0f;
+    }
+    CHECK(contact_bad == 0);
+    CHECK(front_bad == 0);
+    /* The occluder's own lit face, and points beyond the map. */
+    int acne = 0;
+    for (double z = -0.9; z <= 0.5; z += 0.05)
+        for (double x = -0.4; x <= 1.4; x += 0.05)
+            acne += nc_shadow_lookup(&sm, nc_v3((float)x, 2, (float)z), nc_v3(0, 1, 0), PCF, BIAS) != 1.0f;
+    CHECK(acne == 0);
+    CHECK(nc_shadow_lookup(&sm, nc_v3(50, 0, 50), nc_v3(0, 1, 0), PCF, BIAS) == 1.0f);
+    /* Rendering again into the same map reuses it and gives the same texels. */
+    float *copy = malloc(sizeof(float) * 1024 * 1024);
+    memcpy(copy, sm.depth, sizeof(float) * 1024 * 1024);
+    CHECK(nc_shadow_render(r, ctx, &ld, lo, hi, 1024, m, 3, &sm) == NACRE_OK);
+    CHECK(memcmp(copy, sm.depth, sizeof(float) * 1024 * 1024) == 0);
+    free(copy);
+    /* A zero direction is an error. */
+    nacre_light_desc bad = ld;
+    bad.direction[0] = bad.direction[1] = bad.direction[2] = 0.0f;
+    CHECK(nc_shadow_render(r, ctx, &bad, lo, hi, 64, m, 2, &sm) == NACRE_ERROR_INVALID_ARGUMENT);
+    nc_shadow_free(ctx, &sm);
+    CHECK(sm.depth == NULL);
+    for (int i = 0; i < 3; i++)
+        geo_free(&g[i]);
+    nc_rasterizer_destroy(r);
+    nacre_context_destroy(ctx);
+}
+
+/* Central projection from L of a ground point onto the occluder plane y = h; returns the signed
+ * ground distance to the shadow outline of square (cx, cz, half). */
+static double central_dist(const double L[3], double x, double z, double h, double cx, double cz,
+                           double half)
+{
+    double s = (L[1] - h) / L[1]; /* fraction of the way from L to the ground */
+    double qx = L[0] + (x - L[0]) * s, qz = L[2] + (z - L[2]) * s;
+    return box_dist(qx, qz, cx, cz, half) / s;
+}
+
+static void test_spot(void)
+{
+    nacre_context *ctx = make_ctx(2);
+    nc_rasterizer *r = NULL;
+    CHECK(nc_rasterizer_create(ctx, &r) == NACRE_OK);
+    geo g[2] = {make_square(0, 0, 0, 10, 8), make_square(0, 2, 0, 1, 1)};
+    nc_raster_mesh m[2] = {as_mesh(&g[0], 0), as_mesh(&g[1], 1)};
+    float lo[3], hi[3];
+    bounds_of(g, 2, lo, hi);
+    nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_SPOT);
+    double L[3] = {0.4, 6.0, -0.3}, dir[3] = {0.05, -1.0, 0.03};
+    double dl = sqrt(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
+    for (int k = 0; k < 3; k++) {
+        ld.position[k] = (float)L[k];
+        ld.direction[k] = (float)(dir[k] / dl);
+    }
+    ld.outer_angle = 50.0f;
+    ld.inner_angle = 40.0f;
+    nc_shadow_map sm;
+    memset(&sm, 0, sizeof(sm));
+    CHECK(nc_shadow_render(r, ctx, &ld, lo, hi, 1024, m, 2, &sm) == NACRE_OK);
+    CHECK(sm.kind == NC_SHADOW_PERSPECTIVE && sm.face_count == 1);
+    tally t = {0};
+    double cos_lim = cos(45.0 * 3.14159265358979 / 180.0);
+    for (double z = -9.7; z <= 9.7; z += 0.043)
+        for (double x = -9.7; x <= 9.7; x += 0.043) {
+            double d[3] = {x - L[0], -L[1], z - L[2]};
+            double dist = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+            double along = (d[0] * ld.direction[0] + d[1] * ld.direction[1] + d[2] * ld.direction[2]);
+            if (along / dist < cos_lim)
+                continue; /* outside the cone: unlit anyway */
+            double cos_inc = L[1] / dist;
+            double texel = sm.texel_world[0] * along / cos_inc;
+            float v = nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
+            judge(&t, central_dist(L, x, z, 2.0, 0, 0, 1), texel, v);
+        }
+    check_tally(&t);
+    int acne = 0;
+    for (double z = -0.9; z <= 0.9; z += 0.05)
+        for (double x = -0.9; x <= 0.9; x += 0.05)
+            acne += nc_shadow_lookup(&sm, nc_v3((float)x, 2, (float)z), nc_v3(0, 1, 0), PCF, BIAS) != 1.0f;
+    CHECK(acne == 0);
+    /* Behind the light: outside the map, lit. */
+    CHECK(nc_shadow_lookup(&sm, nc_v3(0.4f, 8, -0.3f), nc_v3(0, 1, 0), PCF, BIAS) == 1.0f);
+    nc_shadow_free(ctx, &sm);
+    geo_free(&g[0]);
+    geo_free(&g[1]);
+    nc_rasterizer_destroy(r);
+    nacre_context_destroy(ctx);
+}
+
+static void test_point(void)
+{
+    nacre_context *ctx = make_ctx(2);
+    nc_rasterizer *r = NULL;
+    CHECK(nc_rasterizer_create(ctx, &r) == NACRE_OK);
+    /* Occluders below the light (the -y face) and off to three sides (+x, -x, -z faces). */
+    static const double occ[4][4] = {{0, 2, 0, 1}, {6, 1, 0, 0.5}, {-5.5, 1, 0.5, 0.5}, {-0.5, 1, -6, 0.5}};
+    geo g[5];
+    g[0] = make_square(0, 0, 0, 10, 8);
+    nc_raster_mesh m[5];
+    m[0] = as_mesh(&g[0], 0);
+    for (int i = 0; i < 4; i++) {
+        g[i + 1] = make_square(occ[i][0], occ[i][1], occ[i][2], occ[i][3], 1);
+        m[i + 1] = as_mesh(&g[i + 1], (uint32_t)i + 1);
+    }
+    float lo[3], hi[3];
+    bounds_of(g, 5, lo, hi);
+    nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_POINT);
+    double L[3] = {0.3, 5.0, 0.2};
+    for (int k = 0; k < 3; k++)
+        ld.position[k] = (float)L[k];
+    nc_shadow_map sm;
+    memset(&sm, 0, sizeof(sm));
+    CHECK(nc_shadow_render(r, ctx, &ld, lo, hi, 512, m, 5, &sm) == NACRE_OK);
+    CHECK(sm.kind == NC_SHADOW_CUBE && sm.face_count == 6 && sm.size == 512);
+    tally t = {0};
+    int faces_seen[6] = {0}, shadow_faces[6] = {0};
+    for (double z = -9.7; z <= 9.7; z += 0.043)
+        for (double x = -9.7; x <= 9.7; x += 0.043) {
+            double d[3] = {x - L[0], -L[1], z - L[2]};
+            double ax = fabs(d[0]), ay = fabs(d[1]), az = fabs(d[2]);
+            int face = ax >= ay && ax >= az ? (d[0] >= 0 ? 0 : 1) : ay >= az ? (d[1] >= 0 ? 2 : 3) : (d[2] >= 0 ? 4 : 5);
+            double major = fmax(ax, fmax(ay, az));
+            double dist = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+            double texel = sm.texel_world[face] * major * (dist / major) / (L[1] / dist);
+            float v = nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
+            double sd = INFINITY; /* signed distance to the union of the shadows */
+            for (int i = 0; i < 4; i++)
+                sd = fmin(sd, central_dist(L, x, z, occ[i][1], occ[i][0], occ[i][2], occ[i][3]));
+            faces_seen[face]++;
+            shadow_faces[face] += sd < -(PCF + 2.0) * texel;
+            judge(&t, sd, texel, v);
+        }
+    check_tally(&t);
+    CHECK(faces_seen[0] > 0 && faces_seen[1] > 0 && faces_seen[3] > 0 && faces_seen[4] > 0 && faces_seen[5] > 0);
+    CHECK(shadow_faces[0] > 50 && shadow_faces[1] > 50 && shadow_faces[3] > 50 && shadow_faces[5] > 50);
+    nc_shadow_free(ctx, &sm);
+    for (int i = 0; i < 5; i++)
+        geo_free(&g[i]);
+    nc_rasterizer_destroy(r);
+    nacre_context_destroy(ctx);
+}
+
+/* Points on the facets of a sphere lit by `ld`: everything facing the light must be lit. */
+static void acne_case(nc_rasterizer *r, nacre_context *ctx, const nacre_light_desc *ld, int size,
+                      const char *name)
+{
+    geo g[2] = {make_square(0, 0, 0, 6, 4), make_sphere(0.2, 1.3, -0.1, 1.0, 64, 32)};
+    nc_raster_mesh m[2] = {as_mesh(&g[0], 0), as_mesh(&g[1], 1)};
+    float lo[3], hi[3];
+    bounds_of(g, 2, lo, hi);
+    nc_shadow_map sm;
+    memset(&sm, 0, sizeof(sm));
+    CHECK(nc_shadow_render(r, ctx, ld, lo, hi, size, m, 2, &sm) == NACRE_OK);
+    int facing = 0, acne = 0, back = 0, back_lit = 0;
+    static const double bary[4][3] = {{1.0 / 3, 1.0 / 3, 1.0 / 3}, {0.7, 0.2, 0.1}, {0.1, 0.7, 0.2}, {0.2, 0.1, 0.7}};
+    for (uint32_t t = 0; t < g[1].nt; t++)
+        for (int s = 0; s < 4; s++) {
+            double p[3] = {0, 0, 0}, n[3] = {0, 0, 0};
+            for (int k = 0; k < 3; k++) {
+                uint32_t v = g[1].idx[3 * t + k];
+                for (int c = 0; c < 3; c++) {
+                    p[c] += bary[s][k] * g[1].pos[3 * v + c];
+                    n[c] += bary[s][k] * g[1].nrm[3 * v + c];
+                }
+            }
+            double nl = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+            double l[3];
+            if (ld->type == NACRE_LIGHT_DIRECTIONAL) {
+                for (int c = 0; c < 3; c++)
+                    l[c] = -ld->direction[c];
+            } else {
+                for (int c = 0; c < 3; c++)
+                    l[c] = ld->position[c] - p[c];
+            }
+            double ll = sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]);
+            double ndl = (n[0] * l[0] + n[1] * l[1] + n[2] * l[2]) / (nl * ll);
+            float v = nc_shadow_lookup(&sm, nc_v3((float)p[0], (float)p[1], (float)p[2]),
+                                       nc_v3((float)(n[0] / nl), (float)(n[1] / nl), (float)(n[2] / nl)),
+                                       PCF, BIAS);
+            if (ndl > 0.2) {
+                facing++;
+                acne += v < 0.999f;
+            } else if (ndl < -0.5) {
+                back++;
+                back_lit += v > 0.001f; /* the sphere shadows its own far side */
+            }
+        }
+    CHECK(facing > 3000);
+    CHECK(acne == 0);
+    CHECK(back > 3000);
+    CHECK(back_lit == 0);
+    if (acne || back_lit)
+        printf("  %s: %d of %d facing points shadowed, %d of %d back points lit\n", name, acne,
+               facing, back_lit, back);
+    nc_shadow_free(ctx, &sm);
+    geo_free(&g[0]);
+    geo_free(&g[1]);
+}
+
+static void test_acne(void)
+{
+    nacre_context *ctx = make_ctx(2);
+    nc_rasterizer *r = NULL;
+    CHECK(nc_rasterizer_create(ctx, &r) == NACRE_OK);
+    nacre_light_desc dl = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
+    double d[3] = {0.4, -1.0, 0.3}, n = sqrt(0.16 + 1 + 0.09);
+    for (int k = 0; k < 3; k++)
+        dl.direction[k] = (float)(d[k] / n);
+    acne_case(r, ctx, &dl, 1024, "directional");
+    nacre_light_desc sl = nacre_light_desc_defaults(NACRE_LIGHT_SPOT);
+    float sp[3] = {3.0f, 5.0f, 2.0f}, st[3] = {0.2f, 1.3f, -0.1f};
+    double sd[3], sn = 0.0;
+    for (int k = 0; k < 3; k++) {
+        sl.position[k] = sp[k];
+        sd[k] = st[k] - sp[k];
+        sn += sd[k] * sd[k];
+    }
+    for (int k = 0; k < 3; k++)
+        sl.direction[k] = (float)(sd[k] / sqrt(sn));
+    sl.outer_angle = 30.0f;
+    sl.inner_angle = 20.0f;
+    acne_case(r, ctx, &sl, 1024, "spot");
+    nacre_light_desc pl = nacre_light_desc_defaults(NACRE_LIGHT_POINT);
+    pl.position[0] = -2.5f;
+    pl.position[1] = 3.0f;
+    pl.position[2] = 1.5f;
+    acne_case(r, ctx, &pl, 512, "point");
+    nc_rasterizer_destroy(r);
+    nacre_context_destroy(ctx);
+}
+
+int main(void)
+{
+    test_directional();
+    test_spot();
+    test_point();
+    test_acne();
+    return TEST_MAIN_END();
+}
