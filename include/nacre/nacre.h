@@ -459,6 +459,8 @@ typedef struct nacre_render_settings {
     float shadow_bias;        /* depth bias in shadow texels, default 1.5 */
     uint32_t seed;            /* stochastic methods */
     uint32_t spp;             /* stochastic methods: samples per pixel */
+    double time;              /* seconds: when the caller should commit the scene (deformers); the
+                                 scene file's "render.time". The renderer itself does not read it. */
 } nacre_render_settings;
 
 NACRE_API nacre_render_settings nacre_render_settings_defaults(void);

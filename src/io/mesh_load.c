@@ -37,6 +37,9 @@
  * mesh anyone meant to write. */
 #define LOAD_MAX_NODE_DEPTH 1024
 
+/* Bytes read ahead of assimp to check a PLY header (see check_ply_header). */
+#define LOAD_HEAD_BYTES 65536
+
 typedef struct load_instance {
     const struct aiMesh *mesh;
     nc_mat4 xf;             /* node's global transform */
@@ -365,79 +368,116 @@ static bool word_is(const char *w, size_t n, const char *lit)
     return strlen(lit) == n && memcmp(w, lit, n) == 0;
 }
 
-/* Binary PLY carries no end marker, and assimp reads a truncated file's missing tail as garbage
- * (whose indices then crash its triangulation), so the size the header promises is checked
- * first. Vertex index lists count as at least 3 items (a face), which is exact for triangle
- * meshes and a lower bound otherwise; other lists as at least 0. Headers this cannot read are
- * left to assimp. */
-static nacre_result check_binary_ply(nacre_context *ctx, const char *path, const char *head,
-                                     size_t len, uint64_t file_size)
+/* count <= 2^40 and record <= 4096 keep each term below 2^52; many elements could still add up
+ * past 2^64, and any sum this large exceeds every file anyway. */
+static inline uint64_t add_capped(uint64_t a, uint64_t b)
 {
+    return a + b < a || a + b > ((uint64_t)1 << 62) ? ((uint64_t)1 << 62) : a + b;
+}
+
+/* Checks on a PLY header before assimp sees the file (other files pass untouched):
+ *  - assimp 5.2 loops forever on a header without "end_header", so one must be found within
+ *    the bytes read (LOAD_HEAD_BYTES; real headers are a few hundred bytes);
+ *  - binary PLY carries no end marker, and assimp reads a truncated file's missing tail as
+ *    garbage (whose indices then crash its triangulation), so the size the header promises is
+ *    checked. Vertex index lists count as at least 3 items (a face), which is exact for triangle
+ *    meshes and a lower bound otherwise; other lists as at least 0;
+ *  - assimp reserves memory for the element counts of an ASCII header before reading a value,
+ *    so "element vertex 99999999999" in a small file would take gigabytes: every ASCII value
+ *    needs at least a digit and a separator, which bounds the counts by the file size.
+ * Header lines this does not understand are left to assimp. */
+static nacre_result check_ply_header(nacre_context *ctx, const char *path, const char *head,
+                                     size_t len, uint64_t file_size, uint64_t *ascii_body,
+                                     int *header_lines)
+{
+    *ascii_body = 0;
+    if (len < 4 || (memcmp(head, "ply", 3) != 0 && memcmp(head, "PLY", 3) != 0) ||
+        (head[3] != '\n' && head[3] != '\r' && head[3] != ' ' && head[3] != '\t'))
+        return NACRE_OK; /* not a PLY file */
     const char *p = head, *end = head + len;
-    bool binary = false;
-    uint64_t need = 0, count = 0, record = 0;
+    bool binary = false, sized = true; /* sized: every element's record size is known */
+    uint64_t need = 0, count = 0, record = 0;     /* binary bytes */
+    uint64_t need_text = 0, fields = 0;           /* ASCII values */
     int line = 0;
     while (p < end) {
         const char *eol = memchr(p, '\n', (size_t)(end - p));
         if (!eol)
-            return NACRE_OK; /* header longer than what was read */
+            break;
         const char *q = p, *w;
         size_t n;
         line++;
         bool has = next_word(&q, eol, &w, &n);
-        if (line == 1 && !(has && (word_is(w, n, "ply") || word_is(w, n, "PLY"))))
-            return NACRE_OK;
         if (has && word_is(w, n, "format")) {
-            if (!next_word(&q, eol, &w, &n))
-                return NACRE_OK;
-            binary = word_is(w, n, "binary_little_endian") || word_is(w, n, "binary_big_endian");
-            if (!binary)
-                return NACRE_OK;
+            binary = next_word(&q, eol, &w, &n) && (word_is(w, n, "binary_little_endian") ||
+                                                     word_is(w, n, "binary_big_endian"));
         } else if (has && word_is(w, n, "element")) {
-            need += count * record; /* count <= 2^40, record <= 4096: no overflow */
+            need = add_capped(need, sized ? count * record : 0);
+            need_text = add_capped(need_text, count * fields);
             char num[32];
-            if (!next_word(&q, eol, &w, &n) || !next_word(&q, eol, &w, &n) || n >= sizeof(num))
-                return NACRE_OK;
+            if (!next_word(&q, eol, &w, &n) || !next_word(&q, eol, &w, &n) || n >= sizeof(num)) {
+                sized = false;
+                goto next_line;
+            }
             memcpy(num, w, n);
             num[n] = '\0';
             char *stop;
             errno = 0;
             unsigned long long c = strtoull(num, &stop, 10);
-            if (*stop != '\0' || errno)
-                return NACRE_OK;
+            if (*stop != '\0' || errno) {
+                sized = false;
+                goto next_line;
+            }
             count = c;
             record = 0;
+            fields = 0;
             /* Any count beyond this cannot fit in a file, let alone in 32-bit indices. */
             if (count > ((uint64_t)1 << 40))
                 return nc_fail(ctx, NACRE_ERROR_PARSE, "%s:%d: element count %llu too large",
                                path, line, (unsigned long long)count);
         } else if (has && word_is(w, n, "property")) {
-            if (!next_word(&q, eol, &w, &n))
-                return NACRE_OK;
-            if (word_is(w, n, "list")) {
+            unsigned size = 0;
+            fields++;
+            if (next_word(&q, eol, &w, &n) && word_is(w, n, "list")) {
                 const char *ct, *it, *name;
                 size_t cn, in, nn;
-                if (!next_word(&q, eol, &ct, &cn) || !next_word(&q, eol, &it, &in) ||
-                    !next_word(&q, eol, &name, &nn))
-                    return NACRE_OK;
-                unsigned cs = ply_type_size(ct, cn), is = ply_type_size(it, in);
-                if (!cs || !is)
-                    return NACRE_OK;
-                bool corners = word_is(name, nn, "vertex_indices") ||
-                               word_is(name, nn, "vertex_index");
-                record += cs + (corners ? 3u * is : 0u);
+                if (next_word(&q, eol, &ct, &cn) && next_word(&q, eol, &it, &in) &&
+                    next_word(&q, eol, &name, &nn)) {
+                    unsigned cs = ply_type_size(ct, cn), is = ply_type_size(it, in);
+                    bool corners = word_is(name, nn, "vertex_indices") ||
+                                   word_is(name, nn, "vertex_index");
+                    if (cs && is)
+                        size = cs + (corners ? 3u * is : 0u);
+                    fields += corners ? 3u : 0u;
+                }
             } else {
-                unsigned sz = ply_type_size(w, n);
-                if (!sz)
-                    return NACRE_OK;
-                record += sz;
+                size = ply_type_size(w, n);
             }
+            if (size == 0)
+                sized = false;
+            record += size;
             if (record > 4096)
-                return NACRE_OK;
+                sized = false;
+            if (fields > 4096)
+                fields = 4096; /* keeps count * fields below 2^52; still a valid lower bound */
         } else if (has && word_is(w, n, "end_header")) {
-            if (!binary)
+            uint64_t header = (uint64_t)(eol + 1 - head);
+            if (!binary) {
+                *ascii_body = header;
+                *header_lines = line;
+                /* "v v ... v\n" per record: two bytes per value, the last newline optional */
+                need_text = add_capped(need_text, count * fields);
+                need_text = need_text ? add_capped(header, 2 * need_text - 1) : header;
+                if (file_size < need_text)
+                    return nc_fail(ctx, NACRE_ERROR_PARSE,
+                                   "%s: truncated ASCII PLY: the header's element counts need at "
+                                   "least %llu bytes, the file has %llu",
+                                   path, (unsigned long long)need_text,
+                                   (unsigned long long)file_size);
                 return NACRE_OK;
-            need += count * record + (uint64_t)(eol + 1 - head);
+            }
+            if (!sized)
+                return NACRE_OK;
+            need = add_capped(need, count * record + header);
             if (file_size < need)
                 return nc_fail(ctx, NACRE_ERROR_PARSE,
                                "%s: truncated binary PLY: the header needs at least %llu bytes, "
@@ -445,9 +485,101 @@ static nacre_result check_binary_ply(nacre_context *ctx, const char *path, const
                                path, (unsigned long long)need, (unsigned long long)file_size);
             return NACRE_OK;
         }
+    next_line:
         p = eol + 1;
     }
-    return NACRE_OK;
+    if (len < file_size)
+        return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: PLY header longer than %zu bytes", path, len);
+    return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: PLY header has no end_header line", path);
+}
+
+/* Case-insensitive comparison of the first strlen(lit) chars of t with lowercase `lit`. */
+static bool strncasecmp_ascii(const char *t, const char *lit)
+{
+    for (; *lit; t++, lit++)
+        if ((*t | 0x20) != *lit)
+            return false;
+    return true;
+}
+
+/* Whether an ASCII PLY token is a number assimp's fast_atoreal_move reads whole without
+ * throwing: [+-]? then nan / inf / infinity, or digits with an optional fraction ('.' or ','
+ * before a digit) and an exponent that has digits. */
+static bool ply_number_ok(const char *t, size_t n)
+{
+    size_t i = 0;
+    if (i < n && (t[i] == '+' || t[i] == '-'))
+        i++;
+    if (n - i == 3 && (strncasecmp_ascii(t + i, "nan") || strncasecmp_ascii(t + i, "inf")))
+        return true;
+    if (n - i == 8 && strncasecmp_ascii(t + i, "infinity"))
+        return true;
+    size_t digits = 0;
+    while (i < n && t[i] >= '0' && t[i] <= '9')
+        i++, digits++;
+    if (i < n && (t[i] == '.' || t[i] == ',')) {
+        i++;
+        size_t frac = 0;
+        while (i < n && t[i] >= '0' && t[i] <= '9')
+            i++, frac++;
+        if (t[i - 1 - frac] == ',' && frac == 0)
+            return false; /* a trailing comma is not eaten like a trailing dot */
+        digits += frac;
+    }
+    if (digits == 0)
+        return false;
+    if (i < n && (t[i] == 'e' || t[i] == 'E')) {
+        i++;
+        if (i < n && (t[i] == '+' || t[i] == '-'))
+            i++;
+        size_t exp = 0;
+        while (i < n && t[i] >= '0' && t[i] <= '9')
+            i++, exp++;
+        if (exp == 0)
+            return false;
+    }
+    return i == n;
+}
+
+/* assimp's ASCII PLY reader throws on a malformed number and leaks what it had built (5.2), so
+ * every token of the body is checked first. One pass over the file in `buf`-sized chunks. */
+static nacre_result check_ply_ascii_body(nacre_context *ctx, const char *path, FILE *f,
+                                         uint64_t offset, int line, char *buf, size_t cap)
+{
+    if (fseek(f, (long)offset, SEEK_SET) != 0)
+        return NACRE_OK; /* let assimp report it */
+    char tok[64];
+    size_t n = 0;
+    bool long_token = false;
+    line++; /* the body starts on the line after end_header */
+    for (;;) {
+        size_t got = fread(buf, 1, cap, f);
+        bool eof = got == 0; /* one more pass with a blank ends the last token */
+        for (size_t i = 0; i < got || (eof && i == 0); i++) {
+            char c = eof ? ' ' : buf[i];
+            bool space = c == ' ' || c == '\t' || c == '\r' || c == '\n';
+            if (!space) {
+                if ((unsigned char)c < 0x20 || c == 0x7f)
+                    return nc_fail(ctx, NACRE_ERROR_PARSE,
+                                   "%s:%d: control character 0x%02x in ASCII PLY data", path, line,
+                                   (unsigned)(unsigned char)c);
+                if (n < sizeof(tok))
+                    tok[n++] = (unsigned char)c < 0x80 ? c : '?';
+                else
+                    long_token = true;
+                continue;
+            }
+            if (n > 0 && (long_token || !ply_number_ok(tok, n)))
+                return nc_fail(ctx, NACRE_ERROR_PARSE, "%s:%d: not a number: \"%.*s%s\"", path,
+                               line, (int)(n < 32 ? n : 32), tok, n > 32 ? "..." : "");
+            n = 0;
+            long_token = false;
+            if (c == '\n')
+                line++;
+        }
+        if (eof)
+            return NACRE_OK;
+    }
 }
 
 /* Before any post-processing: assimp's triangulation indexes vertices through the faces without
@@ -506,17 +638,26 @@ nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_da
     FILE *f = fopen(path, "rb");
     if (!f)
         return nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot open: %s", path, strerror(errno));
-    char head[8192];
-    size_t head_len = fread(head, 1, sizeof(head), f);
+    char *head = nc_alloc(ctx, LOAD_HEAD_BYTES);
+    if (!head) {
+        fclose(f);
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    }
+    size_t head_len = fread(head, 1, LOAD_HEAD_BYTES, f);
     uint64_t file_size = 0;
     if (fseek(f, 0, SEEK_END) == 0) {
         long end = ftell(f);
         file_size = end > 0 ? (uint64_t)end : 0;
     }
+    uint64_t ascii_body = 0;
+    int header_lines = 0;
+    nacre_result r = head_len == 0 ? nc_fail(ctx, NACRE_ERROR_PARSE, "%s: empty file", path)
+                                   : check_ply_header(ctx, path, head, head_len, file_size,
+                                                      &ascii_body, &header_lines);
+    if (r == NACRE_OK && ascii_body)
+        r = check_ply_ascii_body(ctx, path, f, ascii_body, header_lines, head, LOAD_HEAD_BYTES);
     fclose(f);
-    if (head_len == 0)
-        return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: empty file", path);
-    nacre_result r = check_binary_ply(ctx, path, head, head_len, file_size);
+    nc_free(ctx, head);
     if (r != NACRE_OK)
         return r;
 

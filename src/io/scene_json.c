@@ -65,7 +65,6 @@ typedef struct loader {
     size_t path_len;
     float unit_mm;
     nacre_render_settings settings;
-    double time;          /* "render.time": validated, not yet returned (no API field) */
     material_entry *materials; /* sorted by name */
     uint32_t material_count;
     mesh_entry *meshes;
@@ -639,7 +638,7 @@ static void parse_render(loader *ld, const cJSON *obj)
         s->spp = (uint32_t)v;
     if (get_integer(ld, obj, "seed", 0, UINT32_MAX, &v))
         s->seed = (uint32_t)v;
-    get_double(ld, obj, "time", R_FINITE, &ld->time);
+    get_double(ld, obj, "time", R_FINITE, &s->time);
     pop(ld, mark);
 }
 

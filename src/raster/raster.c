@@ -23,10 +23,7 @@
 #include "raster/raster.h"
 
 #include <string.h>
-#ifdef _OPENMP
-#include <omp.h>
-#endif
-#if defined(__SSE2__)
+#if defined(__SSE2__) || defined(__AVX__)
 #include <immintrin.h>
 #endif
 
@@ -46,6 +43,8 @@
 #define SPAN_MIN_WIDTH 12
 /* How far ahead the setup pass prefetches vertices (triangles). */
 #define PREFETCH_TRIS 24
+/* How far ahead the tile pass prefetches records. */
+#define PREFETCH_RECS 8
 
 /* Outcode bits: outside one frustum plane (for trivial rejection) or needing the slow path. */
 enum {
@@ -76,7 +75,7 @@ typedef struct tri_rec {
 
 typedef struct chunk {
     tri_rec *recs;
-    uint32_t rec_cap, rec_count; /* rec_count may exceed rec_cap: then the frame is redone */
+    uint32_t rec_cap, rec_count; /* rec_count > rec_cap: grow and set the chunk up again */
     uint64_t drawn;
     uint64_t first, end;         /* global triangle range */
     bool bad_index;
@@ -123,7 +122,8 @@ typedef struct frame {
     const uint64_t *vbase, *tbase;
     bool cull;          /* cull back faces of meshes that are not double-sided */
     float *depth;
-    uint32_t *ids;      /* global triangle id per pixel, or NULL for depth only */
+    uint32_t *ids;      /* global triangle id per pixel (then triangle in object), or NULL */
+    uint32_t *objects;  /* object per pixel, with ids */
     const svert *verts;
     const float *vz;
 } frame;
@@ -346,6 +346,18 @@ typedef struct setup_out {
     int tiles_x;
 } setup_out;
 
+/* Edge function k (from vertex k to k+1) of a triangle with positive area at the sub-pixel
+ * point (px, py): E = dx (Py - Ya) - dy (Px - Xa) > 0 inside. On the edge (E = 0) only top and
+ * left edges own the point; with y down those have dy < 0, or dy == 0 and dx > 0. The result is
+ * biased so that >= 0 means covered. */
+static inline int64_t edge_at(const int32_t x[3], const int32_t y[3], int k, int64_t px, int64_t py)
+{
+    int k2 = k == 2 ? 0 : k + 1;
+    int64_t dx = (int64_t)x[k2] - x[k], dy = (int64_t)y[k2] - y[k];
+    bool top_left = dy < 0 || (dy == 0 && dx > 0);
+    return dx * (py - y[k]) - dy * (px - x[k]) - (top_left ? 0 : 1);
+}
+
 /* Emit one snapped triangle; returns whether it produced a record. */
 static inline bool emit(const frame *f, setup_out *o, int32_t x0, int32_t y0, float z0, int32_t x1,
                         int32_t y1, float z1, int32_t x2, int32_t y2, float z2, uint32_t id, bool cull)
@@ -380,6 +392,20 @@ static inline bool emit(const frame *f, setup_out *o, int32_t x0, int32_t y0, fl
     if (j1 > f->height - 1) j1 = f->height - 1;
     if (i0 > i1 || j0 > j1)
         return false;
+    if (i1 - i0 <= 1 && j1 - j0 <= 1) {
+        /* At most 4 pixel centres: most such triangles of a dense mesh cover none of them, and
+         * testing here saves their record, binning and tile work. */
+        const int32_t vx[3] = {x0, x1, x2}, vy[3] = {y0, y1, y2};
+        bool any = false;
+        for (int32_t j = j0; j <= j1; j++)
+            for (int32_t i = i0; i <= i1; i++) {
+                int64_t px = (int64_t)i * SUB_ONE + SUB_HALF, py = (int64_t)j * SUB_ONE + SUB_HALF;
+                any |= (edge_at(vx, vy, 0, px, py) | edge_at(vx, vy, 1, px, py) |
+                        edge_at(vx, vy, 2, px, py)) >= 0;
+            }
+        if (!any)
+            return false;
+    }
     uint32_t n = o->count++;
     if (n < o->cap) {
         tri_rec *r = &o->recs[n];
@@ -732,6 +758,14 @@ static void fill_span(const frame *f, size_t row, int lo, int hi, float zrow, fl
     }
 }
 
+static inline int32_t extent3(const int32_t v[3])
+{
+    int32_t lo = v[0] < v[1] ? v[0] : v[1], hi = v[0] < v[1] ? v[1] : v[0];
+    lo = lo < v[2] ? lo : v[2];
+    hi = hi > v[2] ? hi : v[2];
+    return hi - lo;
+}
+
 /* Draw record r restricted to pixels [rx0, rx1] x [ry0, ry1]. */
 static void draw(const frame *f, const tri_rec *r, int rx0, int ry0, int rx1, int ry1)
 {
@@ -739,21 +773,55 @@ static void draw(const frame *f, const tri_rec *r, int rx0, int ry0, int rx1, in
     int j0 = r->py0 > ry0 ? r->py0 : ry0, j1 = r->py1 < ry1 ? r->py1 : ry1;
     if (i0 > i1 || j0 > j1)
         return;
-    /* E_k(P) = dx (Py - Ya) - dy (Px - Xa) > 0 inside; on the edge (E = 0) only top and left
-     * edges own the pixel: with y down those have dy < 0, or dy == 0 and dx > 0. */
+    /* Edge values at the first pixel centre and their steps per pixel in x and y. */
     int64_t e[3], sx[3], sy[3];
     int64_t px = (int64_t)i0 * SUB_ONE + SUB_HALF, py = (int64_t)j0 * SUB_ONE + SUB_HALF;
     for (int k = 0; k < 3; k++) {
         int k2 = k == 2 ? 0 : k + 1;
-        int64_t dx = (int64_t)r->x[k2] - r->x[k], dy = (int64_t)r->y[k2] - r->y[k];
-        bool top_left = dy < 0 || (dy == 0 && dx > 0);
-        e[k] = dx * (py - r->y[k]) - dy * (px - r->x[k]) - (top_left ? 0 : 1);
-        sx[k] = -dy * SUB_ONE;
-        sy[k] = dx * SUB_ONE;
+        e[k] = edge_at(r->x, r->y, k, px, py);
+        sx[k] = -((int64_t)r->y[k2] - r->y[k]) * SUB_ONE;
+        sy[k] = ((int64_t)r->x[k2] - r->x[k]) * SUB_ONE;
     }
     const float inv = 1.0f / SUB_ONE;
     int32_t cx = SUB_HALF - r->x[0];
     size_t w = (size_t)f->width;
+#ifdef __AVX2__
+    /* Narrow boxes of small triangles, a row of up to 8 pixels per step without branches.
+     * Within a triangle's bounding box of under 64 px, |E| < 2^29: int32 lanes suffice. */
+    if (i1 - i0 < 8 && extent3(r->x) < 64 * SUB_ONE && extent3(r->y) < 64 * SUB_ONE) {
+        const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+        __m256i ev[3], rowstep[3];
+        for (int k = 0; k < 3; k++) {
+            ev[k] = _mm256_add_epi32(_mm256_set1_epi32((int32_t)e[k]),
+                                     _mm256_mullo_epi32(lane, _mm256_set1_epi32((int32_t)sx[k])));
+            rowstep[k] = _mm256_set1_epi32((int32_t)sy[k]);
+        }
+        __m256i valid = _mm256_cmpgt_epi32(_mm256_set1_epi32(i1 - i0 + 1), lane);
+        __m256i xs = _mm256_add_epi32(_mm256_slli_epi32(_mm256_add_epi32(_mm256_set1_epi32(i0), lane), SUB_BITS),
+                                      _mm256_set1_epi32(cx));
+        __m256 fx = _mm256_mul_ps(_mm256_cvtepi32_ps(xs), _mm256_set1_ps(inv));
+        __m256 dzx = _mm256_mul_ps(_mm256_set1_ps(r->dzdx), fx);
+        __m256i vid = _mm256_set1_epi32((int)r->id);
+        for (int j = j0; j <= j1; j++) {
+            __m256i in = _mm256_or_si256(_mm256_or_si256(ev[0], ev[1]), ev[2]);
+            in = _mm256_and_si256(_mm256_cmpgt_epi32(in, _mm256_set1_epi32(-1)), valid);
+            for (int k = 0; k < 3; k++)
+                ev[k] = _mm256_add_epi32(ev[k], rowstep[k]);
+            if (_mm256_testz_si256(in, in))
+                continue;
+            float fy = (float)(j * SUB_ONE + SUB_HALF - r->y[0]) * inv;
+            float zrow = r->z0 + r->dzdy * fy;
+            __m256 z = _mm256_add_ps(_mm256_set1_ps(zrow), dzx);
+            size_t at = (size_t)j * w + (size_t)i0;
+            __m256 old = _mm256_maskload_ps(f->depth + at, in);
+            __m256i closer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(z, old, _CMP_LT_OQ)), in);
+            _mm256_maskstore_ps(f->depth + at, closer, z);
+            if (f->ids)
+                _mm256_maskstore_epi32((int *)(f->ids + at), closer, vid);
+        }
+        return;
+    }
+#endif
     if (i1 - i0 + 1 < SPAN_MIN_WIDTH) {
         for (int j = j0; j <= j1; j++) {
             int64_t e0 = e[0], e1 = e[1], e2 = e[2];
@@ -810,30 +878,100 @@ static void draw(const frame *f, const tri_rec *r, int rx0, int ry0, int rx1, in
     }
 }
 
+/* Fill n 32-bit words with `value`; whole cache lines with streaming stores (the caller
+ * fences). For tiles nothing touches: no read of the old contents, no cache pollution. */
+static void fill32(void *dst, size_t n, uint32_t value, bool stream)
+{
+    uint32_t *p = dst;
+#ifdef __AVX__
+    if (stream && n >= 32) {
+        while ((uintptr_t)p & 63) {
+            *p++ = value;
+            n--;
+        }
+        __m256i v = _mm256_set1_epi32((int)value);
+        for (; n >= 16; n -= 16, p += 16) {
+            _mm256_stream_si256((__m256i *)p, v);
+            _mm256_stream_si256((__m256i *)(p + 8), v);
+        }
+    }
+#else
+    (void)stream;
+#endif
+    for (; n; n--)
+        *p++ = value;
+}
+
+/* Global triangle ids of a tile -> (object, triangle within the object), while in cache. */
+static void tile_ids(const frame *f, int x0, int y0, int x1, int y1)
+{
+    size_t w = (size_t)f->width;
+    const uint64_t *tbase = f->tbase;
+    uint32_t m = 0;
+    for (int y = y0; y < y1; y++) {
+        uint32_t *tri = f->ids + (size_t)y * w, *obj = f->objects + (size_t)y * w;
+        for (int x = x0; x < x1; x++) {
+            uint32_t g = tri[x];
+            if (g == NC_NO_OBJECT) {
+                obj[x] = NC_NO_OBJECT;
+                continue;
+            }
+            if (g < tbase[m] || g >= tbase[m + 1]) { /* the mesh rarely changes */
+                uint32_t lo = 0, hi = f->mesh_count - 1;
+                while (lo < hi) {
+                    uint32_t mid = (lo + hi + 1) / 2;
+                    if (tbase[mid] <= g)
+                        lo = mid;
+                    else
+                        hi = mid - 1;
+                }
+                m = lo;
+            }
+            obj[x] = f->meshes[m].object_index;
+            tri[x] = (uint32_t)(g - tbase[m]);
+        }
+    }
+}
+
 static void draw_tile(const frame *f, const nc_rasterizer *rz, int tile)
 {
     int tx = tile % f->tiles_x, ty = tile / f->tiles_x;
     int x0 = tx * TILE, y0 = ty * TILE;
     int x1 = x0 + TILE < f->width ? x0 + TILE : f->width;
     int y1 = y0 + TILE < f->height ? y0 + TILE : f->height;
-    size_t w = (size_t)f->width;
-    for (int y = y0; y < y1; y++) {
-        float *d = f->depth + (size_t)y * w;
-        for (int x = x0; x < x1; x++)
-            d[x] = 1.0f;
-        if (f->ids) {
-            uint32_t *id = f->ids + (size_t)y * w;
-            for (int x = x0; x < x1; x++)
-                id[x] = NC_NO_OBJECT;
-        }
-    }
+    size_t w = (size_t)f->width, tw = (size_t)(x1 - x0);
     int cc = rz->chunk_count;
     const uint32_t *st = rz->start + (size_t)tile * (size_t)cc;
+    bool empty = st[cc] == st[0];
+    uint32_t one;
+    float fone = 1.0f;
+    memcpy(&one, &fone, sizeof(one));
+    for (int y = y0; y < y1; y++) {
+        size_t row = (size_t)y * w + (size_t)x0;
+        fill32(f->depth + row, tw, one, empty);
+        if (f->ids) {
+            fill32(f->ids + row, tw, NC_NO_OBJECT, empty);
+            if (empty)
+                fill32(f->objects + row, tw, NC_NO_OBJECT, true);
+        }
+    }
+    if (empty)
+        return;
     for (int c = 0; c < cc; c++) {
         const tri_rec *recs = rz->chunks[c].recs;
-        for (uint32_t q = st[c]; q < st[c + 1]; q++)
+        uint32_t end = st[c + 1];
+        for (uint32_t q = st[c]; q < end; q++) {
+            /* Records were written by the setup pass long ago (out of cache by now). */
+            if (q + PREFETCH_RECS < end) {
+                const char *ahead = (const char *)&recs[rz->refs[q + PREFETCH_RECS]];
+                __builtin_prefetch(ahead);
+                __builtin_prefetch(ahead + sizeof(tri_rec) - 1);
+            }
             draw(f, &recs[rz->refs[q]], x0, y0, x1 - 1, y1 - 1);
+        }
     }
+    if (f->ids)
+        tile_ids(f, x0, y0, x1, y1);
 }
 
 /* ---- the frame ---- */
@@ -863,7 +1001,7 @@ static nacre_result check_args(nc_rasterizer *r, const nc_raster_view *view,
 /* Run passes 1-4 into f->depth / f->ids. */
 static nacre_result run(nc_rasterizer *r, const nc_raster_view *view, const nc_raster_mesh *meshes,
                         uint32_t mesh_count, bool cull, float *depth, uint32_t *ids,
-                        nc_raster_counts *counts)
+                        uint32_t *objects, nc_raster_counts *counts)
 {
     nacre_context *ctx = r->ctx;
     nacre_result res = check_args(r, view, meshes, mesh_count);
@@ -893,6 +1031,7 @@ static nacre_result run(nc_rasterizer *r, const nc_raster_view *view, const nc_r
     f.cull = cull;
     f.depth = depth;
     f.ids = ids;
+    f.objects = objects;
 
     /* Sizes and scratch. */
     if (mesh_count + 1 > r->mesh_cap) {
@@ -1037,9 +1176,15 @@ static nacre_result run(nc_rasterizer *r, const nc_raster_view *view, const nc_r
     PROF(3);
     /* Pass 4. */
     int ntiles_i = (int)ntiles;
-    #pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
-    for (int t = 0; t < ntiles_i; t++)
-        draw_tile(&f, r, t);
+    #pragma omp parallel num_threads(threads)
+    {
+        #pragma omp for schedule(dynamic, 1)
+        for (int t = 0; t < ntiles_i; t++)
+            draw_tile(&f, r, t);
+#ifdef __AVX__
+        _mm_sfence(); /* this thread's streaming stores, before the region ends */
+#endif
+    }
 
     PROF(4);
     if (counts) {
@@ -1055,43 +1200,11 @@ nacre_result nc_raster_visibility(nc_rasterizer *r, const nc_raster_view *view,
 {
     if (!r)
         return NACRE_ERROR_INVALID_ARGUMENT;
-    if (!out || !out->depth || !view || out->width != view->width || out->height != view->height)
+    if (!out || !out->depth || !out->object || !out->triangle || !view || out->width != view->width ||
+        out->height != view->height)
         return nc_fail(r->ctx, NACRE_ERROR_INVALID_ARGUMENT,
                        "raster: visibility buffer missing or not the view's size");
-    nacre_result res = run(r, view, meshes, mesh_count, true, out->depth, out->triangle, counts);
-    if (res != NACRE_OK)
-        return res;
-    /* Global ids -> (object, triangle within the object). */
-    size_t w = (size_t)out->width;
-    int h = out->height;
-    int threads = nc_threads(r->ctx);
-    const uint64_t *tbase = r->tbase;
-    #pragma omp parallel for num_threads(threads) schedule(static)
-    for (int y = 0; y < h; y++) {
-        uint32_t *tri = out->triangle + (size_t)y * w, *obj = out->object + (size_t)y * w;
-        uint32_t m = 0;
-        for (size_t x = 0; x < w; x++) {
-            uint32_t g = tri[x];
-            if (g == NC_NO_OBJECT) {
-                obj[x] = NC_NO_OBJECT;
-                continue;
-            }
-            if (g < tbase[m] || g >= tbase[m + 1]) { /* mesh changes rarely along a row */
-                uint32_t lo = 0, hi = mesh_count - 1;
-                while (lo < hi) {
-                    uint32_t mid = (lo + hi + 1) / 2;
-                    if (tbase[mid] <= g)
-                        lo = mid;
-                    else
-                        hi = mid - 1;
-                }
-                m = lo;
-            }
-            obj[x] = meshes[m].object_index;
-            tri[x] = (uint32_t)(g - tbase[m]);
-        }
-    }
-    return NACRE_OK;
+    return run(r, view, meshes, mesh_count, true, out->depth, out->triangle, out->object, counts);
 }
 
 nacre_result nc_raster_depth(nc_rasterizer *r, const nc_raster_view *view,
@@ -1102,5 +1215,5 @@ nacre_result nc_raster_depth(nc_rasterizer *r, const nc_raster_view *view,
         return NACRE_ERROR_INVALID_ARGUMENT;
     if (!depth)
         return nc_fail(r->ctx, NACRE_ERROR_INVALID_ARGUMENT, "raster: depth buffer is NULL");
-    return run(r, view, meshes, mesh_count, cull_back_faces, depth, NULL, NULL);
+    return run(r, view, meshes, mesh_count, cull_back_faces, depth, NULL, NULL, NULL);
 }

@@ -38,7 +38,8 @@ typedef struct nc_raster_view {
 } nc_raster_view;
 
 /* Per pixel: depth = NDC z of the nearest surface (1 where empty, i.e. cleared to far), object =
- * object_index (NC_NO_OBJECT where empty), triangle = triangle index within the object. */
+ * object_index (NC_NO_OBJECT where empty), triangle = triangle index within the object
+ * (NC_NO_OBJECT where empty). */
 typedef struct nc_vis_buffer {
     int32_t width, height;
     float *depth;
@@ -67,7 +68,8 @@ nacre_result nc_raster_visibility(nc_rasterizer *r, const nc_raster_view *view,
                                   const nc_raster_mesh *meshes, uint32_t mesh_count,
                                   nc_vis_buffer *out, nc_raster_counts *counts);
 
-/* Depth only, into depth[width*height] (cleared to 1). cull_back_faces as for the camera. */
+/* Depth only, into depth[width*height] (cleared to 1). cull_back_faces as for the camera: when
+ * true, back faces of meshes that are not double_sided are culled; when false, none are. */
 nacre_result nc_raster_depth(nc_rasterizer *r, const nc_raster_view *view,
                              const nc_raster_mesh *meshes, uint32_t mesh_count,
                              bool cull_back_faces, float *depth);
@@ -75,8 +77,9 @@ nacre_result nc_raster_depth(nc_rasterizer *r, const nc_raster_view *view,
 /* Attributes of one object for the G-buffer resolve (borrowed). */
 typedef struct nc_gbuffer_source {
     const float *positions; /* world, 3 per vertex */
-    const float *normals;   /* world, 3 per vertex */
-    const float *tangents;  /* world, 4 per vertex, or NULL */
+    const float *normals;   /* world, 3 per vertex (NULL: the geometric normal) */
+    const float *tangents;  /* world, 4 per vertex, or NULL: dp/du of the triangle from the UVs,
+                               or an arbitrary perpendicular without UVs */
     const float *uvs;       /* 2 per vertex, or NULL */
     const uint32_t *indices;
     uint32_t material_index;
@@ -132,7 +135,13 @@ nacre_result nc_shadow_render(nc_rasterizer *r, nacre_context *ctx, const nacre_
                               nc_shadow_map *sm);
 void nc_shadow_free(nacre_context *ctx, nc_shadow_map *sm);
 /* Fraction of light reaching world point p (1 = lit) with PCF over a disc of `pcf_radius`
- * texels; `bias` in texels, scaled by the slope between the normal n and the light. */
+ * texels; `bias` in texels, scaled by the slope between the normal n and the light.
+ * Implementation notes (shadow.c): the PCF kernel is a box of half-width pcf_radius (clamped to
+ * [0.5, 8]) with texels weighted by overlap area; each texel compares against the depth of the
+ * plane through p with normal n along that texel's ray (receiver-plane bias), so n should be the
+ * surface normal at p (either side). Points outside the map (or its depth range) are lit.
+ * Perspective maps keep far/near <= 1000: casters closer to a point or spot light than
+ * far/1000 do not shadow. Thread-safe (reads only). */
 float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_radius, float bias);
 
 #endif /* NACRE_RASTER_H */

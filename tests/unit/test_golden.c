@@ -39,7 +39,7 @@ static void check_scene(nacre_context *ctx, const char *name, bool update)
         rs.height = 1;
     rs.method = NACRE_METHOD_PHONG;
     rs.shadow_map_size = 1024;
-    bool ok = nacre_scene_commit(scene, 0.0) == NACRE_OK && nacre_render(scene, &rs, &img, NULL) == NACRE_OK;
+    bool ok = nacre_scene_commit(scene, rs.time) == NACRE_OK && nacre_render(scene, &rs, &img, NULL) == NACRE_OK;
     if (!ok)
         printf("%s: %s\n", name, nacre_context_last_error(ctx));
     CHECK(ok);

@@ -723,6 +723,27 @@ static void test_load_errors(void)
     write_bytes(junk_ply, body, (size_t)hn + sizeof(junk));
     expect_load_error(junk_ply, NACRE_ERROR_PARSE, NULL);
 
+    /* A PLY header cut short (assimp 5.2 would loop forever looking for its end). */
+    const char *no_end = tmp_path("no_end_header.ply");
+    write_text(no_end, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_he");
+    expect_load_error(no_end, NACRE_ERROR_PARSE, "PLY header has no end_header line");
+
+    /* A count no file this small can hold (assimp would reserve memory for it first). */
+    const char *huge = tmp_path("huge_count.ply");
+    write_text(huge, "ply\nformat ascii 1.0\nelement vertex 99999999999\nproperty float x\n"
+                     "property float y\nproperty float z\nelement face 1\n"
+                     "property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n"
+                     "3 0 1 2\n");
+    expect_load_error(huge, NACRE_ERROR_PARSE, "truncated ASCII PLY");
+
+    /* A malformed number (assimp would throw and leak): named with its line. */
+    const char *nan_ply = tmp_path("bad_number.ply");
+    write_text(nan_ply, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
+                        "property float y\nproperty float z\nelement face 1\n"
+                        "property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 x10\n"
+                        "0 1 0\n3 0 1 2\n");
+    expect_load_error(nan_ply, NACRE_ERROR_PARSE, "bad_number.ply:11: not a number: \"x10\"");
+
     /* Truncated binary PLY: detected from the size the header promises. */
     nacre_mesh_data box = shape(NACRE_SHAPE_BOX, 2, 0);
     const char *trunc = tmp_path("truncated.ply");

@@ -189,19 +189,20 @@ static void test_directional(void)
     nacre_context *ctx = make_ctx(2);
     nc_rasterizer *r = NULL;
     CHECK(nc_rasterizer_create(ctx, &r) == NACRE_OK);
-    /* A square floating over the ground, and a box standing on it (contact shadows). */
-    geo g[3] = {make_square(0, 0, 0, 10, 8), make_square(0.5, 2, -0.4, 1, 1),
-                make_box(-5.5, 0, 4.5, -4.5, 1, 5.5)};
-    nc_raster_mesh m[3] = {as_mesh(&g[0], 0), as_mesh(&g[1], 1), as_mesh(&g[2], 2)};
+    /* A square floating over the ground, a box standing on it and a thin plate just above it
+     * (contact shadows). */
+    geo g[4] = {make_square(0, 0, 0, 10, 8), make_square(0.5, 2, -0.4, 1, 1),
+                make_box(-5.5, 0, 4.5, -4.5, 1, 5.5), make_square(4, 0.1, 5, 0.5, 1)};
+    nc_raster_mesh m[4] = {as_mesh(&g[0], 0), as_mesh(&g[1], 1), as_mesh(&g[2], 2), as_mesh(&g[3], 3)};
     float lo[3], hi[3];
-    bounds_of(g, 3, lo, hi);
+    bounds_of(g, 4, lo, hi);
     nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
     double dir[3] = {0.3, -1.0, 0.2}, dl = sqrt(0.09 + 1 + 0.04);
     for (int k = 0; k < 3; k++)
         ld.direction[k] = (float)(dir[k] / dl);
     nc_shadow_map sm;
     memset(&sm, 0, sizeof(sm));
-    CHECK(nc_shadow_render(r, ctx, &ld, lo, hi, 1024, m, 3, &sm) == NACRE_OK);
+    CHECK(nc_shadow_render(r, ctx, &ld, lo, hi, 1024, m, 4, &sm) == NACRE_OK);
     CHECK(sm.kind == NC_SHADOW_ORTHO && sm.face_count == 1 && sm.size == 1024);
     /* The map fits the bounds: a texel is about the scene's diagonal extent / size. */
     CHECK(sm.texel_world[0] > 20.0f / 1024 && sm.texel_world[0] < 30.0f / 1024);
@@ -212,8 +213,8 @@ static void test_directional(void)
     for (double z = -9.7; z <= 9.7; z += 0.043)
         for (double x = -9.7; x <= 9.7; x += 0.043) {
             double qx = x - s * ld.direction[0], qz = z - s * ld.direction[2];
-            if (x < -3.5 && z > 3.5)
-                continue; /* the box, checked below */
+            if ((x < -3.5 || x > 3.0) && z > 3.5)
+                continue; /* the box and the plate, checked below */
             float v = nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
             judge(&t, box_dist(qx, qz, 0.5, -0.4, 1.0), texel, v);
         }
@@ -227,6 +228,15 @@ static void test_directional(void)
         for (double x = -5.8; x <= -5.6; x += 0.01)
             front_bad += nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS) != 1.0f;
     }
+    /* The plate 0.1 above the ground: a depth bias of a few texels too many would lose it. */
+    double sp = 0.1 / ly;
+    tally tp = {0};
+    for (double z = 4.2; z <= 5.8; z += 0.011)
+        for (double x = 3.2; x <= 4.8; x += 0.011) {
+            float v = nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
+            judge(&tp, box_dist(x - sp * ld.direction[0], z - sp * ld.direction[2], 4, 5, 0.5), texel, v);
+        }
+    CHECK(tp.inside > 200 && tp.inside_bad == 0 && tp.edge_bad == 0);
     CHECK(contact_bad == 0);
     CHECK(front_bad == 0);
     /* The occluder's own lit face, and points beyond the map. */
@@ -239,7 +249,7 @@ static void test_directional(void)
     /* Rendering again into the same map reuses it and gives the same texels. */
     float *copy = malloc(sizeof(float) * 1024 * 1024);
     memcpy(copy, sm.depth, sizeof(float) * 1024 * 1024);
-    CHECK(nc_shadow_render(r, ctx, &ld, lo, hi, 1024, m, 3, &sm) == NACRE_OK);
+    CHECK(nc_shadow_render(r, ctx, &ld, lo, hi, 1024, m, 4, &sm) == NACRE_OK);
     CHECK(memcmp(copy, sm.depth, sizeof(float) * 1024 * 1024) == 0);
     free(copy);
     /* A zero direction is an error. */
@@ -248,7 +258,7 @@ static void test_directional(void)
     CHECK(nc_shadow_render(r, ctx, &bad, lo, hi, 64, m, 2, &sm) == NACRE_ERROR_INVALID_ARGUMENT);
     nc_shadow_free(ctx, &sm);
     CHECK(sm.depth == NULL);
-    for (int i = 0; i < 3; i++)
+    for (int i = 0; i < 4; i++)
         geo_free(&g[i]);
     nc_rasterizer_destroy(r);
     nacre_context_destroy(ctx);

@@ -118,7 +118,7 @@ static const char render_help[] =
     "  --method M          phong | diffusion | layered | pathtrace (default: the scene's, else phong)\n"
     "  --size WxH          image size (default: the scene's)\n"
     "  --exposure EV       PNG exposure in stops (default: the scene's, else 0)\n"
-    "  --time T            time in seconds at which deformers are evaluated (default 0)\n"
+    "  --time T            time in seconds at which deformers are evaluated (default: the scene's, else 0)\n"
     "  --threads N         worker threads (default: all cores)\n"
     "  --exr-float         write 32-bit float EXR instead of half\n"
     "  --stats             print one JSON object with per-stage timings in microseconds\n"
@@ -160,7 +160,7 @@ static int cmd_render(int argc, char **argv)
 {
     const char *scene_path = NULL, *out_path = "nacre.png", *method_name = NULL;
     long width = 0, height = 0, threads = 0;
-    double exposure = NAN, time = 0;
+    double exposure = NAN, time = NAN;
     bool stats = false, exr_float = false;
     int code;
     for (int i = 0; i < argc; i++) {
@@ -250,12 +250,14 @@ static int cmd_render(int argc, char **argv)
     }
     if (!isnan(exposure))
         rs.exposure = (float)exposure;
+    if (!isnan(time))
+        rs.time = time;
     if (!nacre_method_available(rs.method)) {
         cli_error("method '%s' is not implemented yet (available: phong)", nacre_method_name(rs.method));
         goto out;
     }
     uint64_t t0 = nc_cli_now_us();
-    if (nacre_scene_commit(scene, time) != NACRE_OK) {
+    if (nacre_scene_commit(scene, rs.time) != NACRE_OK) {
         nc_cli_fail(ctx);
         goto out;
     }
