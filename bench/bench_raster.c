@@ -45,7 +45,9 @@ static bool find_mesh(char *buf, size_t size)
     return false;
 }
 
-typedef struct stat3 { double median, min, max; } stat3;
+typedef struct stat3 {
+    double median, min, max;
+} stat3;
 
 static stat3 stats(double *v, int n)
 {
@@ -69,7 +71,8 @@ int nc_bench_raster(int argc, char **argv)
     for (int i = 0; i < argc; i++) {
         if (strcmp(argv[i], "--json") == 0)
             json = true;
-        else if (strcmp(argv[i], "--runs") == 0 && i + 1 < argc && nc_cli_parse_int(argv[i + 1], 1, 10000, &runs))
+        else if (strcmp(argv[i], "--runs") == 0 && i + 1 < argc &&
+                 nc_cli_parse_int(argv[i + 1], 1, 10000, &runs))
             i++;
         else if (strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
             mesh_path = argv[++i];
@@ -79,8 +82,10 @@ int nc_bench_raster(int argc, char **argv)
     char found[4096];
     if (!mesh_path) {
         if (!find_mesh(found, sizeof(found))) {
-            fprintf(stderr, "nacre bench raster: %s not found in $NACRE_MESH_DIR, ../shared/meshes "
-                            "or /work/shared/meshes (use --mesh PATH)\n", MESH_NAME);
+            fprintf(stderr,
+                    "nacre bench raster: %s not found in $NACRE_MESH_DIR, ../shared/meshes "
+                    "or /work/shared/meshes (use --mesh PATH)\n",
+                    MESH_NAME);
             return 2;
         }
         mesh_path = found;
@@ -105,7 +110,8 @@ int nc_bench_raster(int argc, char **argv)
         goto out;
     }
     double load_ms = (nc_cli_now_us() - t_load) / 1000.0;
-    if (nc_rasterizer_create(ctx, &rz) != NACRE_OK || nc_vis_buffer_resize(ctx, &vis, WIDTH, HEIGHT) != NACRE_OK ||
+    if (nc_rasterizer_create(ctx, &rz) != NACRE_OK ||
+        nc_vis_buffer_resize(ctx, &vis, WIDTH, HEIGHT) != NACRE_OK ||
         nc_gbuffer_resize(ctx, &gb, WIDTH, HEIGHT) != NACRE_OK) {
         rc = nc_cli_fail(ctx);
         goto out;
@@ -130,8 +136,10 @@ int nc_bench_raster(int argc, char **argv)
     view.proj = nc_mat4_perspective(fov, aspect, 0.5f * znear, dist + radius);
     view.width = WIDTH;
     view.height = HEIGHT;
-    nc_raster_mesh rm = {mesh.positions, mesh.indices, mesh.vertex_count, mesh.triangle_count, 0, false};
-    nc_gbuffer_source src = {mesh.positions, mesh.normals, mesh.tangents, mesh.uvs, mesh.indices, 0};
+    nc_raster_mesh rm = {mesh.positions, mesh.indices, mesh.vertex_count, mesh.triangle_count, 0,
+                         false};
+    nc_gbuffer_source src = {mesh.positions, mesh.normals, mesh.tangents,
+                             mesh.uvs,       mesh.indices, 0};
 
     nc_raster_counts counts = {0, 0};
     for (long run = -1; run < runs; run++) {
@@ -159,7 +167,8 @@ int nc_bench_raster(int argc, char **argv)
     stat3 sr = stats(samples, n), sg = stats(samples + n, n), st = stats(samples + 2 * n, n);
     int threads = nacre_context_threads(ctx);
     if (json) {
-        printf("{\"bench\":\"raster\",\"scene\":\"lucy_1600k\",\"width\":%d,\"height\":%d,\"threads\":%d,"
+        printf("{\"bench\":\"raster\",\"scene\":\"lucy_1600k\",\"width\":%d,\"height\":%d,"
+               "\"threads\":%d,"
                "\"runs\":%d,\"triangles\":%llu,\"triangles_drawn\":%llu,\"pixels_covered\":%zu,"
                "\"raster_ms\":%.3f,\"raster_min_ms\":%.3f,\"raster_max_ms\":%.3f,"
                "\"resolve_ms\":%.3f,\"resolve_min_ms\":%.3f,\"resolve_max_ms\":%.3f,"
@@ -168,11 +177,11 @@ int nc_bench_raster(int argc, char **argv)
                (unsigned long long)counts.triangles_drawn, covered, sr.median, sr.min, sr.max,
                sg.median, sg.min, sg.max, st.median, st.min, st.max);
     } else {
-        printf("%s: %llu triangles (%llu drawn, %zu pixels covered), loaded in %.0f ms\n", mesh_path,
-               (unsigned long long)counts.triangles, (unsigned long long)counts.triangles_drawn,
-               covered, load_ms);
-        printf("G-buffer %dx%d, %d threads, %d runs (ms):   median      min      max\n", WIDTH, HEIGHT,
-               threads, n);
+        printf("%s: %llu triangles (%llu drawn, %zu pixels covered), loaded in %.0f ms\n",
+               mesh_path, (unsigned long long)counts.triangles,
+               (unsigned long long)counts.triangles_drawn, covered, load_ms);
+        printf("G-buffer %dx%d, %d threads, %d runs (ms):   median      min      max\n", WIDTH,
+               HEIGHT, threads, n);
         printf("  %-8s %37.3f %8.3f %8.3f\n", "raster", sr.median, sr.min, sr.max);
         printf("  %-8s %37.3f %8.3f %8.3f\n", "resolve", sg.median, sg.min, sg.max);
         printf("  %-8s %37.3f %8.3f %8.3f\n", "total", st.median, st.min, st.max);

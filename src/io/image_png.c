@@ -112,6 +112,12 @@ nacre_result nacre_image_write_png(nacre_context *ctx, const nacre_image *image,
         e = spng_set_ihdr(enc, &ihdr);
     if (!e)
         e = spng_set_srgb(enc, 0); /* rendering intent: perceptual */
+    /* zlib level 6 with every filter tried cost ~150 ms at 1280x720; level 3 with the
+     * Paeth/Up filters writes files a few percent larger several times faster. */
+    if (!e)
+        e = spng_set_option(enc, SPNG_IMG_COMPRESSION_LEVEL, 3);
+    if (!e)
+        e = spng_set_option(enc, SPNG_FILTER_CHOICE, SPNG_FILTER_CHOICE_UP | SPNG_FILTER_CHOICE_PAETH);
     if (!e)
         e = spng_encode_image(enc, NULL, 0, SPNG_FMT_PNG,
                               SPNG_ENCODE_PROGRESSIVE | SPNG_ENCODE_FINALIZE);

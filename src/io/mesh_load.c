@@ -15,6 +15,15 @@
  * merged meshes) are computed by nacre_mesh_compute_normals / _tangents for those vertices only;
  * authored ones are kept. Bad positions, UVs or indices fail the load with NACRE_ERROR_PARSE.
  *
+ * assimp 5.2 is not robust against broken files: it loops forever on a PLY header without
+ * end_header, reads a truncated binary PLY's missing tail as garbage, allocates whatever an
+ * ASCII PLY count says before reading the values, throws (and leaks) on a malformed ASCII
+ * number or a late OBJ index out of range, and its triangulation indexes vertices through
+ * unchecked faces. So the file is checked before assimp opens it (PLY header, ASCII PLY body,
+ * OBJ indices) and the faces are checked before any post-processing; the error messages name the
+ * file and, where known, the line. Files are imported with no post-processing first, then
+ * triangulated with aiApplyPostProcessing.
+ *
  * assimp keeps its last error in one process-wide string (aiGetErrorString), so two threads
  * loading broken files at the same time may read each other's message; nacre keeps no global
  * state of its own.
@@ -231,7 +240,8 @@ static void fill_vertices(const load_state *s, const load_instance *in, nacre_me
     }
 }
 
-/* Copy one instance's triangles; fails on an out-of-range corner. */
+/* Copy one instance's triangles. check_faces has vetted the file's faces, but triangulation
+ * made new ones, and the merged arrays are indexed through these values: check again. */
 static nacre_result fill_indices(const load_state *s, const load_instance *in, nacre_mesh_data *m)
 {
     const struct aiMesh *mesh = in->mesh;
@@ -368,6 +378,22 @@ static bool word_is(const char *w, size_t n, const char *lit)
     return strlen(lit) == n && memcmp(w, lit, n) == 0;
 }
 
+/* What check_ply_header learns for the ASCII body check: where the body starts and which
+ * properties are lists, per element (up to the limits below; beyond them only the number syntax
+ * is checked). */
+#define PLY_MAX_ELEMENTS 16
+#define PLY_MAX_PROPERTIES 32
+
+typedef struct ply_layout {
+    uint64_t body;     /* byte offset of an ASCII body; 0 if binary or not PLY */
+    int header_lines;
+    bool known;        /* the element table below is complete */
+    int elements;
+    uint64_t count[PLY_MAX_ELEMENTS];
+    int properties[PLY_MAX_ELEMENTS];
+    bool is_list[PLY_MAX_ELEMENTS][PLY_MAX_PROPERTIES];
+} ply_layout;
+
 /* count <= 2^40 and record <= 4096 keep each term below 2^52; many elements could still add up
  * past 2^64, and any sum this large exceeds every file anyway. */
 static inline uint64_t add_capped(uint64_t a, uint64_t b)
@@ -387,10 +413,10 @@ static inline uint64_t add_capped(uint64_t a, uint64_t b)
  *    needs at least a digit and a separator, which bounds the counts by the file size.
  * Header lines this does not understand are left to assimp. */
 static nacre_result check_ply_header(nacre_context *ctx, const char *path, const char *head,
-                                     size_t len, uint64_t file_size, uint64_t *ascii_body,
-                                     int *header_lines)
+                                     size_t len, uint64_t file_size, ply_layout *layout)
 {
-    *ascii_body = 0;
+    memset(layout, 0, sizeof(*layout));
+    layout->known = true;
     if (len < 4 || (memcmp(head, "ply", 3) != 0 && memcmp(head, "PLY", 3) != 0) ||
         (head[3] != '\n' && head[3] != '\r' && head[3] != ' ' && head[3] != '\t'))
         return NACRE_OK; /* not a PLY file */
@@ -415,7 +441,7 @@ static nacre_result check_ply_header(nacre_context *ctx, const char *path, const
             need_text = add_capped(need_text, count * fields);
             char num[32];
             if (!next_word(&q, eol, &w, &n) || !next_word(&q, eol, &w, &n) || n >= sizeof(num)) {
-                sized = false;
+                sized = layout->known = false;
                 goto next_line;
             }
             memcpy(num, w, n);
@@ -424,12 +450,16 @@ static nacre_result check_ply_header(nacre_context *ctx, const char *path, const
             errno = 0;
             unsigned long long c = strtoull(num, &stop, 10);
             if (*stop != '\0' || errno) {
-                sized = false;
+                sized = layout->known = false;
                 goto next_line;
             }
             count = c;
             record = 0;
             fields = 0;
+            if (layout->elements < PLY_MAX_ELEMENTS)
+                layout->count[layout->elements++] = count;
+            else
+                layout->known = false;
             /* Any count beyond this cannot fit in a file, let alone in 32-bit indices. */
             if (count > ((uint64_t)1 << 40))
                 return nc_fail(ctx, NACRE_ERROR_PARSE, "%s:%d: element count %llu too large",
@@ -437,7 +467,13 @@ static nacre_result check_ply_header(nacre_context *ctx, const char *path, const
         } else if (has && word_is(w, n, "property")) {
             unsigned size = 0;
             fields++;
-            if (next_word(&q, eol, &w, &n) && word_is(w, n, "list")) {
+            bool list = next_word(&q, eol, &w, &n) && word_is(w, n, "list");
+            int e = layout->elements - 1;
+            if (e < 0 || layout->properties[e] >= PLY_MAX_PROPERTIES)
+                layout->known = false;
+            else
+                layout->is_list[e][layout->properties[e]++] = list;
+            if (list) {
                 const char *ct, *it, *name;
                 size_t cn, in, nn;
                 if (next_word(&q, eol, &ct, &cn) && next_word(&q, eol, &it, &in) &&
@@ -462,8 +498,8 @@ static nacre_result check_ply_header(nacre_context *ctx, const char *path, const
         } else if (has && word_is(w, n, "end_header")) {
             uint64_t header = (uint64_t)(eol + 1 - head);
             if (!binary) {
-                *ascii_body = header;
-                *header_lines = line;
+                layout->body = header;
+                layout->header_lines = line;
                 /* "v v ... v\n" per record: two bytes per value, the last newline optional */
                 need_text = add_capped(need_text, count * fields);
                 need_text = need_text ? add_capped(header, 2 * need_text - 1) : header;
@@ -541,22 +577,56 @@ static bool ply_number_ok(const char *t, size_t n)
     return i == n;
 }
 
-/* assimp's ASCII PLY reader throws on a malformed number and leaks what it had built (5.2), so
- * every token of the body is checked first. One pass over the file in `buf`-sized chunks. */
-static nacre_result check_ply_ascii_body(nacre_context *ctx, const char *path, FILE *f,
-                                         uint64_t offset, int line, char *buf, size_t cap)
+/* Where the body scan is in the PLY's element table: assimp reads one instance per non-blank
+ * line and, for a list, resizes its value array to the count token before reading the items. */
+typedef struct ply_cursor {
+    const ply_layout *layout;
+    int element, property;
+    uint64_t instance;
+    uint64_t items;    /* list items still to come on this line */
+    bool line_used;
+} ply_cursor;
+
+static void ply_next_element(ply_cursor *c)
 {
-    if (fseek(f, (long)offset, SEEK_SET) != 0)
+    while (c->element < c->layout->elements && c->instance >= c->layout->count[c->element]) {
+        c->element++;
+        c->instance = 0;
+    }
+}
+
+/* The value assimp's strtoul10 gives a (syntax-checked) token, saturated. */
+static uint64_t ply_leading_uint(const char *t, size_t n)
+{
+    uint64_t v = 0;
+    size_t i = (n > 0 && t[0] == '+') ? 1 : 0;
+    for (; i < n && t[i] >= '0' && t[i] <= '9'; i++)
+        v = v > UINT64_MAX / 100 ? UINT64_MAX / 100 : v * 10 + (uint64_t)(t[i] - '0');
+    return v;
+}
+
+/* assimp's ASCII PLY reader throws on a malformed number and leaks what it had built (5.2), and
+ * it allocates a list's values before reading them, so a count like 4294967295 takes 32 GB.
+ * Every token of the body is checked first: its number syntax, and for list counts (when the
+ * header's layout is known) a size the file could hold, at least two bytes per item. One pass
+ * over the file in `buf`-sized chunks. */
+static nacre_result check_ply_ascii_body(nacre_context *ctx, const char *path, FILE *f,
+                                         const ply_layout *layout, uint64_t file_size, char *buf,
+                                         size_t cap)
+{
+    if (fseek(f, (long)layout->body, SEEK_SET) != 0)
         return NACRE_OK; /* let assimp report it */
+    ply_cursor cur = {layout, 0, 0, 0, 0, false};
+    ply_next_element(&cur);
     char tok[64];
     size_t n = 0;
     bool long_token = false;
-    line++; /* the body starts on the line after end_header */
+    int line = layout->header_lines + 1; /* the body starts on the line after end_header */
     for (;;) {
         size_t got = fread(buf, 1, cap, f);
-        bool eof = got == 0; /* one more pass with a blank ends the last token */
+        bool eof = got == 0; /* one more pass with a newline ends the last token and line */
         for (size_t i = 0; i < got || (eof && i == 0); i++) {
-            char c = eof ? ' ' : buf[i];
+            char c = eof ? '\n' : buf[i];
             bool space = c == ' ' || c == '\t' || c == '\r' || c == '\n';
             if (!space) {
                 if ((unsigned char)c < 0x20 || c == 0x7f)
@@ -569,17 +639,174 @@ static nacre_result check_ply_ascii_body(nacre_context *ctx, const char *path, F
                     long_token = true;
                 continue;
             }
-            if (n > 0 && (long_token || !ply_number_ok(tok, n)))
-                return nc_fail(ctx, NACRE_ERROR_PARSE, "%s:%d: not a number: \"%.*s%s\"", path,
-                               line, (int)(n < 32 ? n : 32), tok, n > 32 ? "..." : "");
+            if (n > 0) {
+                if (long_token || !ply_number_ok(tok, n))
+                    return nc_fail(ctx, NACRE_ERROR_PARSE, "%s:%d: not a number: \"%.*s%s\"",
+                                   path, line, (int)(n < 32 ? n : 32), tok, n > 32 ? "..." : "");
+                cur.line_used = true;
+                if (cur.items > 0) {
+                    cur.items--;
+                } else if (layout->known && cur.element < layout->elements &&
+                           cur.property < layout->properties[cur.element]) {
+                    if (layout->is_list[cur.element][cur.property]) {
+                        uint64_t items = ply_leading_uint(tok, n);
+                        if (items > file_size / 2)
+                            return nc_fail(ctx, NACRE_ERROR_PARSE,
+                                           "%s:%d: a list of %llu items cannot fit in the file",
+                                           path, line, (unsigned long long)items);
+                        cur.items = items;
+                    }
+                    cur.property++;
+                }
+            }
             n = 0;
             long_token = false;
-            if (c == '\n')
+            if (c == '\n') {
                 line++;
+                if (cur.line_used) {
+                    cur.instance++;
+                    ply_next_element(&cur);
+                }
+                cur.property = 0;
+                cur.items = 0;
+                cur.line_used = false;
+            }
         }
         if (eof)
             return NACRE_OK;
     }
+}
+
+/* OBJ index check. assimp 5.2 resolves face indices only when it builds its meshes, after the
+ * whole file is parsed, and an out-of-range index thrown there leaks every mesh built before it;
+ * so indices are checked here first. Positive indices count from the start of the file and must
+ * not exceed the file's total; negative ones count back from the current line and must not reach
+ * before the first element. Lines other than v, vt, vn, f, l and p are skipped. */
+typedef struct obj_scan {
+    uint64_t count[3]; /* v, vt, vn seen so far */
+    uint64_t max[3];   /* largest positive index used */
+    int max_line[3];
+    int line;
+    int kind;          /* of the current line: 0..2 an element, 3 a face/line/point, -1 other */
+    bool first;        /* next token is the line's keyword */
+} obj_scan;
+
+static const char *const obj_kind_name[3] = {"vertices", "texture coordinates", "normals"};
+
+/* One token of an f/l/p line: "v", "v/vt", "v//vn" or "v/vt/vn". */
+static nacre_result obj_face_token(nacre_context *ctx, const char *path, obj_scan *s,
+                                   const char *t, size_t n)
+{
+    size_t i = 0;
+    for (int k = 0; k < 3 && i <= n; k++) {
+        bool neg = i < n && t[i] == '-';
+        size_t j = i + (neg ? 1 : 0), digits = 0;
+        uint64_t v = 0;
+        while (j < n && t[j] >= '0' && t[j] <= '9' && digits < 19) {
+            v = v * 10 + (uint64_t)(t[j] - '0');
+            j++;
+            digits++;
+        }
+        bool whole = digits > 0 && (j == n || t[j] == '/');
+        if (whole && v > 0) {
+            if (neg && v > s->count[k])
+                return nc_fail(ctx, NACRE_ERROR_PARSE,
+                               "%s:%d: index -%llu reaches before the first of %llu %s", path,
+                               s->line, (unsigned long long)v, (unsigned long long)s->count[k],
+                               obj_kind_name[k]);
+            if (!neg && v > s->max[k]) {
+                s->max[k] = v;
+                s->max_line[k] = s->line;
+            }
+        }
+        while (j < n && t[j] != '/')
+            j++;
+        i = j + 1;
+    }
+    return NACRE_OK;
+}
+
+static nacre_result obj_token(nacre_context *ctx, const char *path, obj_scan *s, const char *t,
+                              size_t n)
+{
+    if (s->first) {
+        s->first = false;
+        s->kind = -1;
+        if (n == 1 && t[0] == 'v')
+            s->kind = 0;
+        else if (n == 2 && t[0] == 'v' && t[1] == 't')
+            s->kind = 1;
+        else if (n == 2 && t[0] == 'v' && t[1] == 'n')
+            s->kind = 2;
+        else if (n == 1 && (t[0] == 'f' || t[0] == 'l' || t[0] == 'p'))
+            s->kind = 3;
+        if (s->kind >= 0 && s->kind < 3)
+            s->count[s->kind]++;
+        return NACRE_OK;
+    }
+    return s->kind == 3 ? obj_face_token(ctx, path, s, t, n) : NACRE_OK;
+}
+
+static nacre_result check_obj_indices(nacre_context *ctx, const char *path, FILE *f, char *buf,
+                                      size_t cap)
+{
+    if (fseek(f, 0, SEEK_SET) != 0)
+        return NACRE_OK;
+    obj_scan s;
+    memset(&s, 0, sizeof(s));
+    s.line = 1;
+    s.first = true;
+    char tok[64];
+    size_t n = 0;
+    bool comment = false;
+    nacre_result r = NACRE_OK;
+    for (;;) {
+        size_t got = fread(buf, 1, cap, f);
+        bool eof = got == 0;
+        for (size_t i = 0; i < got || (eof && i == 0); i++) {
+            char c = eof ? '\n' : buf[i];
+            bool space = c == ' ' || c == '\t' || c == '\r' || c == '\n' || c == '\0';
+            if (!space && !comment) {
+                if (c == '#' && n == 0) {
+                    comment = true;
+                    continue;
+                }
+                if (n < sizeof(tok))
+                    tok[n++] = c;
+                continue;
+            }
+            if (n > 0 && !comment) {
+                /* Tokens longer than tok are cut; no real index is that long. */
+                if ((r = obj_token(ctx, path, &s, tok, n)) != NACRE_OK)
+                    return r;
+            }
+            n = 0;
+            if (c == '\n') {
+                s.line++;
+                s.first = true;
+                comment = false;
+            }
+        }
+        if (eof)
+            break;
+    }
+    for (int k = 0; k < 3; k++)
+        if (s.max[k] > s.count[k])
+            return nc_fail(ctx, NACRE_ERROR_PARSE, "%s:%d: index %llu out of range (%llu %s)",
+                           path, s.max_line[k], (unsigned long long)s.max[k],
+                           (unsigned long long)s.count[k], obj_kind_name[k]);
+    return NACRE_OK;
+}
+
+static bool has_extension(const char *path, const char *ext)
+{
+    size_t n = strlen(path), e = strlen(ext);
+    if (n < e)
+        return false;
+    for (size_t i = 0; i < e; i++)
+        if ((path[n - e + i] | 0x20) != ext[i])
+            return false;
+    return true;
 }
 
 /* Before any post-processing: assimp's triangulation indexes vertices through the faces without
@@ -649,13 +876,13 @@ nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_da
         long end = ftell(f);
         file_size = end > 0 ? (uint64_t)end : 0;
     }
-    uint64_t ascii_body = 0;
-    int header_lines = 0;
+    ply_layout layout = {0};
     nacre_result r = head_len == 0 ? nc_fail(ctx, NACRE_ERROR_PARSE, "%s: empty file", path)
-                                   : check_ply_header(ctx, path, head, head_len, file_size,
-                                                      &ascii_body, &header_lines);
-    if (r == NACRE_OK && ascii_body)
-        r = check_ply_ascii_body(ctx, path, f, ascii_body, header_lines, head, LOAD_HEAD_BYTES);
+                                   : check_ply_header(ctx, path, head, head_len, file_size, &layout);
+    if (r == NACRE_OK && layout.body)
+        r = check_ply_ascii_body(ctx, path, f, &layout, file_size, head, LOAD_HEAD_BYTES);
+    if (r == NACRE_OK && has_extension(path, ".obj"))
+        r = check_obj_indices(ctx, path, f, head, LOAD_HEAD_BYTES);
     fclose(f);
     nc_free(ctx, head);
     if (r != NACRE_OK)

@@ -21,7 +21,9 @@
 #include <immintrin.h>
 #endif
 
-typedef struct dmat4 { double m[4][4]; } dmat4;
+typedef struct dmat4 {
+    double m[4][4];
+} dmat4;
 
 /* Gauss-Jordan with partial pivoting; false if singular. */
 static bool dmat4_inverse(const dmat4 *a, dmat4 *out)
@@ -80,10 +82,15 @@ nacre_result nc_gbuffer_resize(nacre_context *ctx, nc_gbuffer *gb, int32_t width
     gb->object = nc_alloc(ctx, n * sizeof(uint32_t));
     gb->material = nc_alloc(ctx, n * sizeof(uint32_t));
     gb->triangle = nc_alloc(ctx, n * sizeof(uint32_t));
+    gb->row_span = nc_alloc(ctx, 2 * (size_t)height * sizeof(int32_t));
     if (!gb->position || !gb->normal || !gb->geo_normal || !gb->uv || !gb->tangent ||
-        !gb->view_depth || !gb->object || !gb->material || !gb->triangle) {
+        !gb->view_depth || !gb->object || !gb->material || !gb->triangle || !gb->row_span) {
         nc_gbuffer_free(ctx, gb);
         return NACRE_ERROR_OUT_OF_MEMORY;
+    }
+    for (int32_t y = 0; y < height; y++) { /* new memory: every pixel needs writing */
+        gb->row_span[2 * y] = 0;
+        gb->row_span[2 * y + 1] = width;
     }
     gb->width = width;
     gb->height = height;
@@ -103,22 +110,29 @@ void nc_gbuffer_free(nacre_context *ctx, nc_gbuffer *gb)
     nc_free(ctx, gb->object);
     nc_free(ctx, gb->material);
     nc_free(ctx, gb->triangle);
+    nc_free(ctx, gb->row_span);
     memset(gb, 0, sizeof(*gb));
 }
 
 typedef struct ray_setup {
-    dmat4 inv_vp;      /* clip -> world */
-    double eye[3];     /* perspective: centre of projection */
-    double zrow[4];    /* view row 2: view_depth = -(zrow . (p, 1)) */
-    double sx, sy;     /* pixel -> NDC */
+    dmat4 inv_vp;   /* clip -> world */
+    double eye[3];  /* perspective: centre of projection */
+    double zrow[4]; /* view row 2: view_depth = -(zrow . (p, 1)) */
+    double sx, sy;  /* pixel -> NDC */
     bool ortho;
 } ray_setup;
 
 /* Small by-value vectors: kept in registers (arrays on the stack caused store-forwarding
  * stalls in this loop). */
-typedef struct dv3 { double x, y, z; } dv3;
+typedef struct dv3 {
+    double x, y, z;
+} dv3;
 
-static inline dv3 dv(double x, double y, double z) { dv3 r = {x, y, z}; return r; }
+static inline dv3 dv(double x, double y, double z)
+{
+    dv3 r = {x, y, z};
+    return r;
+}
 static inline dv3 dsub(dv3 a, dv3 b) { return dv(a.x - b.x, a.y - b.y, a.z - b.z); }
 static inline dv3 dscale(dv3 a, double s) { return dv(a.x * s, a.y * s, a.z * s); }
 static inline double ddot(dv3 a, dv3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
@@ -172,18 +186,18 @@ static inline void pixel_ray(const ray_setup *rs, int x, int y, dv3 *o, dv3 *d)
 typedef struct tri_setup {
     uint32_t obj, tri;
     dv3 p0, e1, e2;
-    dv3 nrm;            /* e1 x e2 (unnormalised); plane: nrm . q = plane_d */
+    dv3 nrm; /* e1 x e2 (unnormalised); plane: nrm . q = plane_d */
     double plane_d;
-    dv3 m1, m2;         /* b1 = (q - p0) . m1, b2 = (q - p0) . m2 for q on the plane */
-    double c0, a1, a2;  /* perspective: q = eye + s d, s = c0 / (d . nrm), b = a + s (d . m) */
-    dv3 ng;             /* unit geometric normal (winding side) */
+    dv3 m1, m2;        /* b1 = (q - p0) . m1, b2 = (q - p0) . m2 for q on the plane */
+    double c0, a1, a2; /* perspective: q = eye + s d, s = c0 / (d . nrm), b = a + s (d . m) */
+    dv3 ng;            /* unit geometric normal (winding side) */
     uint32_t material;
     bool degenerate;
     bool has_normals, has_uvs, has_tangents;
-    dv3 n[3];           /* vertex normals */
+    dv3 n[3]; /* vertex normals */
     double uv[3][2];
-    dv3 t[3];           /* vertex tangents, or the face tangent in t[0] */
-    double w[3];        /* tangent handedness per vertex (or the face's in w[0]) */
+    dv3 t[3];    /* vertex tangents, or the face tangent in t[0] */
+    double w[3]; /* tangent handedness per vertex (or the face's in w[0]) */
 } tri_setup;
 
 static void setup_triangle(tri_setup *ts, const ray_setup *rs, const nc_gbuffer_source *src,
@@ -248,6 +262,13 @@ static void setup_triangle(tri_setup *ts, const ray_setup *rs, const nc_gbuffer_
                 ts->w[0] = ddot(dcross(ts->ng, ts->t[0]), bt) < 0.0 ? -1.0 : 1.0;
             }
         }
+        if (ddot(ts->t[0], ts->t[0]) == 0.0) {
+            /* No UVs (or degenerate ones): any tangent perpendicular to the face. */
+            nc_vec3 tt, bb;
+            nc_basis(nc_v3((float)ts->ng.x, (float)ts->ng.y, (float)ts->ng.z), &tt, &bb);
+            ts->t[0] = dv(tt.x, tt.y, tt.z);
+            ts->w[0] = 1.0;
+        }
         /* The same per vertex, so the batched path interpolates without a special case. */
         ts->t[1] = ts->t[2] = ts->t[0];
         ts->w[1] = ts->w[2] = ts->w[0];
@@ -300,8 +321,10 @@ static void resolve_pixel(const ray_setup *rs, const tri_setup *ts, int x, int y
     dv3 n = ng;
     if (ts->has_normals) {
         const dv3 *vn = ts->n;
-        n = dnormalize(dv(b0 * vn[0].x + b1 * vn[1].x + b2 * vn[2].x, b0 * vn[0].y + b1 * vn[1].y + b2 * vn[2].y,
-                          b0 * vn[0].z + b1 * vn[1].z + b2 * vn[2].z), ng);
+        n = dnormalize(dv(b0 * vn[0].x + b1 * vn[1].x + b2 * vn[2].x,
+                          b0 * vn[0].y + b1 * vn[1].y + b2 * vn[2].y,
+                          b0 * vn[0].z + b1 * vn[1].z + b2 * vn[2].z),
+                       ng);
     }
     double u = 0.0, v = 0.0;
     if (ts->has_uvs) {
@@ -312,7 +335,8 @@ static void resolve_pixel(const ray_setup *rs, const tri_setup *ts, int x, int y
     double hand = ts->w[0];
     if (ts->has_tangents) {
         const dv3 *vt = ts->t;
-        t = dv(b0 * vt[0].x + b1 * vt[1].x + b2 * vt[2].x, b0 * vt[0].y + b1 * vt[1].y + b2 * vt[2].y,
+        t = dv(b0 * vt[0].x + b1 * vt[1].x + b2 * vt[2].x,
+               b0 * vt[0].y + b1 * vt[1].y + b2 * vt[2].y,
                b0 * vt[0].z + b1 * vt[1].z + b2 * vt[2].z);
         hand = b0 * ts->w[0] + b1 * ts->w[1] + b2 * ts->w[2] < 0.0 ? -1.0 : 1.0;
     }
@@ -334,14 +358,23 @@ static void resolve_pixel(const ray_setup *rs, const tri_setup *ts, int x, int y
     }
     float *po = out->position + 3 * p, *no = out->normal + 3 * p, *go = out->geo_normal + 3 * p;
     float *to = out->tangent + 4 * p;
-    po[0] = (float)pos.x; po[1] = (float)pos.y; po[2] = (float)pos.z;
-    no[0] = (float)n.x; no[1] = (float)n.y; no[2] = (float)n.z;
-    go[0] = (float)ng.x; go[1] = (float)ng.y; go[2] = (float)ng.z;
-    to[0] = (float)t.x; to[1] = (float)t.y; to[2] = (float)t.z; to[3] = (float)hand;
+    po[0] = (float)pos.x;
+    po[1] = (float)pos.y;
+    po[2] = (float)pos.z;
+    no[0] = (float)n.x;
+    no[1] = (float)n.y;
+    no[2] = (float)n.z;
+    go[0] = (float)ng.x;
+    go[1] = (float)ng.y;
+    go[2] = (float)ng.z;
+    to[0] = (float)t.x;
+    to[1] = (float)t.y;
+    to[2] = (float)t.z;
+    to[3] = (float)hand;
     out->uv[2 * p] = (float)u;
     out->uv[2 * p + 1] = (float)v;
-    out->view_depth[p] = (float)-(rs->zrow[0] * pos.x + rs->zrow[1] * pos.y +
-                                  rs->zrow[2] * pos.z + rs->zrow[3]);
+    out->view_depth[p] =
+        (float)-(rs->zrow[0] * pos.x + rs->zrow[1] * pos.y + rs->zrow[2] * pos.z + rs->zrow[3]);
     out->object[p] = ts->obj;
     out->material[p] = ts->material;
     out->triangle[p] = ts->tri;
@@ -352,12 +385,14 @@ static void resolve_pixel(const ray_setup *rs, const tri_setup *ts, int x, int y
  * a long chain of dependent divisions and square roots per pixel, which this overlaps. Same
  * formulas as resolve_pixel; lanes it cannot handle (degenerate triangle, ray parallel to the
  * plane, no usable tangent) are redone by resolve_pixel. */
-#define LANE(field) (uniform ? _mm256_set1_pd(L[0]->field) \
-                             : _mm256_setr_pd(L[0]->field, L[1]->field, L[2]->field, L[3]->field))
+#define LANE(field)                                                                                \
+    (uniform ? _mm256_set1_pd(L[0]->field)                                                         \
+             : _mm256_setr_pd(L[0]->field, L[1]->field, L[2]->field, L[3]->field))
 
 static inline __m256d dot4(__m256d ax, __m256d ay, __m256d az, __m256d bx, __m256d by, __m256d bz)
 {
-    return _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(ax, bx), _mm256_mul_pd(ay, by)), _mm256_mul_pd(az, bz));
+    return _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(ax, bx), _mm256_mul_pd(ay, by)),
+                         _mm256_mul_pd(az, bz));
 }
 
 static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int xs[4], int y,
@@ -366,10 +401,11 @@ static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int
     bool uniform = L[0] == L[1] && L[0] == L[2] && L[0] == L[3];
     const __m256d zero = _mm256_setzero_pd(), one = _mm256_set1_pd(1.0);
     const __m256d sign = _mm256_set1_pd(-0.0);
-    __m256d nx = _mm256_sub_pd(_mm256_mul_pd(_mm256_add_pd(_mm256_setr_pd(xs[0], xs[1], xs[2], xs[3]),
-                                                           _mm256_set1_pd(0.5)),
-                                             _mm256_set1_pd(rs->sx)),
-                               one);
+    __m256d nx =
+        _mm256_sub_pd(_mm256_mul_pd(_mm256_add_pd(_mm256_setr_pd(xs[0], xs[1], xs[2], xs[3]),
+                                                  _mm256_set1_pd(0.5)),
+                                    _mm256_set1_pd(rs->sx)),
+                      one);
     double ny = 1.0 - (y + 0.5) * rs->sy;
     const dmat4 *m = &rs->inv_vp;
     __m256d h[4];
@@ -383,7 +419,8 @@ static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int
     if (rs->ortho) {
         /* Near point o (z = 0) and far point (z = 1); h holds the z = 0 homogeneous point. */
         __m256d iw0 = _mm256_div_pd(one, h[3]);
-        __m256d ox = _mm256_mul_pd(h[0], iw0), oy = _mm256_mul_pd(h[1], iw0), oz = _mm256_mul_pd(h[2], iw0);
+        __m256d ox = _mm256_mul_pd(h[0], iw0), oy = _mm256_mul_pd(h[1], iw0),
+                oz = _mm256_mul_pd(h[2], iw0);
         __m256d f[4];
         for (int i = 0; i < 4; i++)
             f[i] = _mm256_add_pd(h[i], _mm256_set1_pd(m->m[i][2]));
@@ -392,7 +429,8 @@ static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int
         dy = _mm256_sub_pd(_mm256_mul_pd(f[1], iw1), oy);
         dz = _mm256_sub_pd(_mm256_mul_pd(f[2], iw1), oz);
         den = dot4(dx, dy, dz, nrm_x, nrm_y, nrm_z);
-        __m256d t = _mm256_div_pd(_mm256_sub_pd(LANE(plane_d), dot4(ox, oy, oz, nrm_x, nrm_y, nrm_z)), den);
+        __m256d t =
+            _mm256_div_pd(_mm256_sub_pd(LANE(plane_d), dot4(ox, oy, oz, nrm_x, nrm_y, nrm_z)), den);
         __m256d rx = _mm256_sub_pd(_mm256_add_pd(ox, _mm256_mul_pd(t, dx)), LANE(p0.x));
         __m256d ry = _mm256_sub_pd(_mm256_add_pd(oy, _mm256_mul_pd(t, dy)), LANE(p0.y));
         __m256d rz = _mm256_sub_pd(_mm256_add_pd(oz, _mm256_mul_pd(t, dz)), LANE(p0.z));
@@ -400,9 +438,12 @@ static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int
         b2 = dot4(rx, ry, rz, m2x, m2y, m2z);
     } else {
         __m256d sg = _mm256_and_pd(h[3], sign); /* positive multiple of the direction */
-        dx = _mm256_xor_pd(_mm256_sub_pd(h[0], _mm256_mul_pd(_mm256_set1_pd(rs->eye[0]), h[3])), sg);
-        dy = _mm256_xor_pd(_mm256_sub_pd(h[1], _mm256_mul_pd(_mm256_set1_pd(rs->eye[1]), h[3])), sg);
-        dz = _mm256_xor_pd(_mm256_sub_pd(h[2], _mm256_mul_pd(_mm256_set1_pd(rs->eye[2]), h[3])), sg);
+        dx =
+            _mm256_xor_pd(_mm256_sub_pd(h[0], _mm256_mul_pd(_mm256_set1_pd(rs->eye[0]), h[3])), sg);
+        dy =
+            _mm256_xor_pd(_mm256_sub_pd(h[1], _mm256_mul_pd(_mm256_set1_pd(rs->eye[1]), h[3])), sg);
+        dz =
+            _mm256_xor_pd(_mm256_sub_pd(h[2], _mm256_mul_pd(_mm256_set1_pd(rs->eye[2]), h[3])), sg);
         den = dot4(dx, dy, dz, nrm_x, nrm_y, nrm_z);
         __m256d t = _mm256_div_pd(LANE(c0), den);
         b1 = _mm256_add_pd(LANE(a1), _mm256_mul_pd(t, dot4(dx, dy, dz, m1x, m1y, m1z)));
@@ -412,21 +453,27 @@ static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int
     /* x - x == 0 exactly when x is finite. */
     __m256d ok = _mm256_and_pd(_mm256_cmp_pd(_mm256_sub_pd(b1, b1), zero, _CMP_EQ_OQ),
                                _mm256_cmp_pd(_mm256_sub_pd(b2, b2), zero, _CMP_EQ_OQ));
-    __m256d neg = _mm256_or_pd(_mm256_or_pd(_mm256_cmp_pd(b0, zero, _CMP_LT_OQ), _mm256_cmp_pd(b1, zero, _CMP_LT_OQ)),
-                               _mm256_cmp_pd(b2, zero, _CMP_LT_OQ));
+    __m256d neg = _mm256_or_pd(
+        _mm256_or_pd(_mm256_cmp_pd(b0, zero, _CMP_LT_OQ), _mm256_cmp_pd(b1, zero, _CMP_LT_OQ)),
+        _mm256_cmp_pd(b2, zero, _CMP_LT_OQ));
     if (_mm256_movemask_pd(neg)) {
-        __m256d c0 = _mm256_max_pd(b0, zero), c1 = _mm256_max_pd(b1, zero), c2 = _mm256_max_pd(b2, zero);
+        __m256d c0 = _mm256_max_pd(b0, zero), c1 = _mm256_max_pd(b1, zero),
+                c2 = _mm256_max_pd(b2, zero);
         __m256d inv = _mm256_div_pd(one, _mm256_add_pd(_mm256_add_pd(c0, c1), c2));
         b0 = _mm256_blendv_pd(b0, _mm256_mul_pd(c0, inv), neg);
         b1 = _mm256_blendv_pd(b1, _mm256_mul_pd(c1, inv), neg);
         b2 = _mm256_blendv_pd(b2, _mm256_mul_pd(c2, inv), neg);
     }
-#define INTERP(f0, f1, f2) _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(b0, LANE(f0)), _mm256_mul_pd(b1, LANE(f1))), \
-                                         _mm256_mul_pd(b2, LANE(f2)))
+#define INTERP(f0, f1, f2)                                                                         \
+    _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(b0, LANE(f0)), _mm256_mul_pd(b1, LANE(f1))),         \
+                  _mm256_mul_pd(b2, LANE(f2)))
     __m256d pos[3], n[3], ng[3], t[3], uv[2];
-    pos[0] = _mm256_add_pd(LANE(p0.x), _mm256_add_pd(_mm256_mul_pd(b1, LANE(e1.x)), _mm256_mul_pd(b2, LANE(e2.x))));
-    pos[1] = _mm256_add_pd(LANE(p0.y), _mm256_add_pd(_mm256_mul_pd(b1, LANE(e1.y)), _mm256_mul_pd(b2, LANE(e2.y))));
-    pos[2] = _mm256_add_pd(LANE(p0.z), _mm256_add_pd(_mm256_mul_pd(b1, LANE(e1.z)), _mm256_mul_pd(b2, LANE(e2.z))));
+    pos[0] = _mm256_add_pd(
+        LANE(p0.x), _mm256_add_pd(_mm256_mul_pd(b1, LANE(e1.x)), _mm256_mul_pd(b2, LANE(e2.x))));
+    pos[1] = _mm256_add_pd(
+        LANE(p0.y), _mm256_add_pd(_mm256_mul_pd(b1, LANE(e1.y)), _mm256_mul_pd(b2, LANE(e2.y))));
+    pos[2] = _mm256_add_pd(
+        LANE(p0.z), _mm256_add_pd(_mm256_mul_pd(b1, LANE(e1.z)), _mm256_mul_pd(b2, LANE(e2.z))));
     ng[0] = LANE(ng.x);
     ng[1] = LANE(ng.y);
     ng[2] = LANE(ng.z);
@@ -462,13 +509,14 @@ static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int
         ng[c] = _mm256_xor_pd(ng[c], flip);
     }
     hand = _mm256_xor_pd(hand, flip);
-    __m256d vd = _mm256_xor_pd(_mm256_add_pd(dot4(_mm256_set1_pd(rs->zrow[0]), _mm256_set1_pd(rs->zrow[1]),
-                                                  _mm256_set1_pd(rs->zrow[2]), pos[0], pos[1], pos[2]),
-                                             _mm256_set1_pd(rs->zrow[3])),
-                               sign);
+    __m256d vd =
+        _mm256_xor_pd(_mm256_add_pd(dot4(_mm256_set1_pd(rs->zrow[0]), _mm256_set1_pd(rs->zrow[1]),
+                                         _mm256_set1_pd(rs->zrow[2]), pos[0], pos[1], pos[2]),
+                                    _mm256_set1_pd(rs->zrow[3])),
+                      sign);
     float fo[16][4];
-    __m256d all[16] = {pos[0], pos[1], pos[2], n[0], n[1], n[2], ng[0], ng[1], ng[2],
-                       t[0], t[1], t[2], hand, uv[0], uv[1], vd};
+    __m256d all[16] = {pos[0], pos[1], pos[2], n[0], n[1], n[2],  ng[0], ng[1],
+                       ng[2],  t[0],   t[1],   t[2], hand, uv[0], uv[1], vd};
     for (int i = 0; i < 16; i++)
         _mm_storeu_ps(fo[i], _mm256_cvtpd_ps(all[i]));
     int okm = _mm256_movemask_pd(ok);
@@ -481,10 +529,19 @@ static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int
         }
         float *po = out->position + 3 * p, *no = out->normal + 3 * p, *go = out->geo_normal + 3 * p;
         float *to = out->tangent + 4 * p;
-        po[0] = fo[0][k]; po[1] = fo[1][k]; po[2] = fo[2][k];
-        no[0] = fo[3][k]; no[1] = fo[4][k]; no[2] = fo[5][k];
-        go[0] = fo[6][k]; go[1] = fo[7][k]; go[2] = fo[8][k];
-        to[0] = fo[9][k]; to[1] = fo[10][k]; to[2] = fo[11][k]; to[3] = fo[12][k];
+        po[0] = fo[0][k];
+        po[1] = fo[1][k];
+        po[2] = fo[2][k];
+        no[0] = fo[3][k];
+        no[1] = fo[4][k];
+        no[2] = fo[5][k];
+        go[0] = fo[6][k];
+        go[1] = fo[7][k];
+        go[2] = fo[8][k];
+        to[0] = fo[9][k];
+        to[1] = fo[10][k];
+        to[2] = fo[11][k];
+        to[3] = fo[12][k];
         out->uv[2 * p] = fo[13][k];
         out->uv[2 * p + 1] = fo[14][k];
         out->view_depth[p] = fo[15][k];
@@ -575,9 +632,9 @@ static inline void prefetch_vertices(const nc_gbuffer_source *sources, uint32_t 
     }
 }
 
-nacre_result nc_gbuffer_resolve(nacre_context *ctx, const nc_raster_view *view, const nc_vis_buffer *vis,
-                                const nc_gbuffer_source *sources, uint32_t source_count,
-                                nc_gbuffer *out)
+nacre_result nc_gbuffer_resolve(nacre_context *ctx, const nc_raster_view *view,
+                                const nc_vis_buffer *vis, const nc_gbuffer_source *sources,
+                                uint32_t source_count, nc_gbuffer *out)
 {
     if (!view || !vis || !out || !vis->object || !out->position)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "G-buffer resolve: missing argument");
@@ -610,7 +667,8 @@ nacre_result nc_gbuffer_resolve(nacre_context *ctx, const nc_raster_view *view, 
             vp.m[i][j] = s;
         }
     if (!dmat4_inverse(&vp, &rs.inv_vp) || !dmat4_inverse(&v, &iv))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "G-buffer resolve: singular view or projection");
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                       "G-buffer resolve: singular view or projection");
     for (int i = 0; i < 3; i++)
         rs.eye[i] = iv.m[i][3] / iv.m[3][3];
     for (int j = 0; j < 4; j++)
@@ -622,69 +680,83 @@ nacre_result nc_gbuffer_resolve(nacre_context *ctx, const nc_raster_view *view, 
     int h = vis->height, w = vis->width;
     int threads = nc_threads(ctx);
     bool bad = false;
-    #pragma omp parallel num_threads(threads) reduction(|| : bad)
+#pragma omp parallel num_threads(threads) reduction(|| : bad)
     {
-    #pragma omp for schedule(dynamic, 4)
-    for (int y = 0; y < h; y++) {
-        size_t row = (size_t)y * (size_t)w;
-        /* Triangle setups, reused while pixels stay on the same triangle; a small ring so the
+#pragma omp for schedule(dynamic, 4)
+        for (int y = 0; y < h; y++) {
+            size_t row = (size_t)y * (size_t)w;
+            /* Triangle setups, reused while pixels stay on the same triangle; a small ring so the
          * lanes of a batch and the previous pixel's setup are never overwritten. */
-        tri_setup pool[8];
-        int next = 0;
-        const tri_setup *last = NULL;
-        const tri_setup *lanes[4];
-        int lane_x[4], n_lanes = 0;
-        size_t lane_p[4];
-        const uint32_t *objs = vis->object + row, *tris = vis->triangle + row;
-        int x = 0;
-        while (x < w) {
-            if (objs[x] == NC_NO_OBJECT) {
-                int e = x + 1;
-                while (e < w && objs[e] == NC_NO_OBJECT)
-                    e++;
-                clear_run(out, row + (size_t)x, row + (size_t)e);
-                x = e;
-                continue;
-            }
-            if (x + INDEX_AHEAD < w)
-                prefetch_indices(sources, source_count, objs[x + INDEX_AHEAD], tris[x + INDEX_AHEAD]);
-            if (x + VERTEX_AHEAD < w)
-                prefetch_vertices(sources, source_count, objs[x + VERTEX_AHEAD], tris[x + VERTEX_AHEAD]);
-            size_t px = row + (size_t)x;
-            uint32_t obj = objs[x], tri = tris[x];
-            if (obj >= source_count) {
-                bad = true;
-                clear_run(out, px, px + 1);
-                x++;
-                continue;
-            }
-            if (!last || last->obj != obj || last->tri != tri) {
-                tri_setup *ts = &pool[next];
-                next = (next + 1) & 7;
-                setup_triangle(ts, &rs, &sources[obj], obj, tri);
-                last = ts;
-            }
+            tri_setup pool[8];
+            int next = 0;
+            const tri_setup *last = NULL;
+            const tri_setup *lanes[4];
+            int lane_x[4], n_lanes = 0;
+            size_t lane_p[4];
+            const uint32_t *objs = vis->object + row, *tris = vis->triangle + row;
+            /* Empty pixels outside the span the previous resolve left are already empty. */
+            int old_lo = out->row_span ? out->row_span[2 * y] : 0;
+            int old_hi = out->row_span ? out->row_span[2 * y + 1] : w;
+            int new_lo = w, new_hi = 0;
+            int x = 0;
+            while (x < w) {
+                if (objs[x] == NC_NO_OBJECT) {
+                    int e = x + 1;
+                    while (e < w && objs[e] == NC_NO_OBJECT)
+                        e++;
+                    int lo = x > old_lo ? x : old_lo, hi = e < old_hi ? e : old_hi;
+                    if (lo < hi)
+                        clear_run(out, row + (size_t)lo, row + (size_t)hi);
+                    x = e;
+                    continue;
+                }
+                new_lo = x < new_lo ? x : new_lo;
+                new_hi = x + 1;
+                if (x + INDEX_AHEAD < w)
+                    prefetch_indices(sources, source_count, objs[x + INDEX_AHEAD],
+                                     tris[x + INDEX_AHEAD]);
+                if (x + VERTEX_AHEAD < w)
+                    prefetch_vertices(sources, source_count, objs[x + VERTEX_AHEAD],
+                                      tris[x + VERTEX_AHEAD]);
+                size_t px = row + (size_t)x;
+                uint32_t obj = objs[x], tri = tris[x];
+                if (obj >= source_count) {
+                    bad = true;
+                    clear_run(out, px, px + 1);
+                    x++;
+                    continue;
+                }
+                if (!last || last->obj != obj || last->tri != tri) {
+                    tri_setup *ts = &pool[next];
+                    next = (next + 1) & 7;
+                    setup_triangle(ts, &rs, &sources[obj], obj, tri);
+                    last = ts;
+                }
 #ifdef __AVX2__
-            lanes[n_lanes] = last;
-            lane_x[n_lanes] = x;
-            lane_p[n_lanes] = px;
-            if (++n_lanes == 4) {
-                resolve4(&rs, lanes, lane_x, y, lane_p, 4, out);
-                n_lanes = 0;
-            }
+                lanes[n_lanes] = last;
+                lane_x[n_lanes] = x;
+                lane_p[n_lanes] = px;
+                if (++n_lanes == 4) {
+                    resolve4(&rs, lanes, lane_x, y, lane_p, 4, out);
+                    n_lanes = 0;
+                }
 #else
-            resolve_pixel(&rs, last, x, y, px, out);
+                resolve_pixel(&rs, last, x, y, px, out);
 #endif
-            x++;
+                x++;
+            }
+            for (int k = 0; k < n_lanes; k++) /* the row's last few pixels */
+                resolve_pixel(&rs, lanes[k], lane_x[k], y, lane_p[k], out);
+            if (out->row_span) {
+                out->row_span[2 * y] = new_lo < new_hi ? new_lo : 0;
+                out->row_span[2 * y + 1] = new_lo < new_hi ? new_hi : 0;
+            }
+            (void)lanes;
+            (void)lane_x;
+            (void)lane_p;
         }
-        for (int k = 0; k < n_lanes; k++) /* the row's last few pixels */
-            resolve_pixel(&rs, lanes[k], lane_x[k], y, lane_p[k], out);
-        (void)lanes;
-        (void)lane_x;
-        (void)lane_p;
-    }
 #ifdef __AVX__
-    _mm_sfence(); /* order this thread's streaming stores before the region ends */
+        _mm_sfence(); /* order this thread's streaming stores before the region ends */
 #endif
     }
     if (bad)

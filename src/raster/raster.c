@@ -5,14 +5,18 @@
  *   1. vertices: world -> clip -> snapped screen position (8 sub-pixel bits, int32), NDC z and an
  *      outcode, for every vertex of every mesh (one global vertex numbering);
  *   2. setup, over contiguous chunks of the global triangle sequence: trivial frustum reject,
- *      homogeneous clipping (near plane and a guard band) for the few triangles that need it,
- *      back-face culling on the exact integer area, rejection of triangles whose bounding box
- *      holds no pixel centre, then one 48-byte record per surviving (sub-)triangle and a count
- *      per screen tile it touches;
+ *      homogeneous clipping (near plane and a guard band, in double) for the few triangles that
+ *      need it, back-face culling on the exact integer area, rejection of triangles whose
+ *      bounding box holds no pixel centre or, for boxes of up to 2 x 2 centres, that cover none
+ *      (with AVX2, 8 triangles at a time before the exact scalar path), then one 48-byte record
+ *      per surviving (sub-)triangle and a count per screen tile it touches;
  *   3. binning: a prefix sum over (tile, chunk) and a scatter of record references, so that
  *      each tile's list visits chunks 0..C-1 in order, i.e. triangles in submission order;
  *   4. tiles (64 x 64 pixels) in parallel: clear, then integer edge functions with the top-left
- *      rule and a depth test `z < depth`, so ties keep the earlier triangle.
+ *      rule and a depth test `z < depth`, so ties keep the earlier triangle. Narrow boxes take
+ *      8-pixel rows at once (AVX2), wide ones solve each row's span per edge. Triangle ids are
+ *      turned into (object, triangle) while the tile is in cache.
+ * Scratch (vertices, records, bins) lives in the nc_rasterizer and only grows.
  * Nothing depends on which thread ran what, so the output is independent of the thread count.
  *
  * Conventions: pixel (x, y) has its centre at (x + 0.5, y + 0.5), row 0 at the top; snapped
@@ -48,7 +52,12 @@
 
 /* Outcode bits: outside one frustum plane (for trivial rejection) or needing the slow path. */
 enum {
-    OUT_LEFT = 1, OUT_RIGHT = 2, OUT_BOTTOM = 4, OUT_TOP = 8, OUT_NEAR = 16, OUT_FAR = 32,
+    OUT_LEFT = 1,
+    OUT_RIGHT = 2,
+    OUT_BOTTOM = 4,
+    OUT_TOP = 8,
+    OUT_NEAR = 16,
+    OUT_FAR = 32,
     OUT_FRUSTUM = 63,
     NEEDS_CLIP = 64
 };
@@ -57,8 +66,8 @@ enum {
  * bound by cache misses; 8 bytes per vertex put 8 vertices in a cache line. z lives apart: only
  * the few triangles that survive culling read it. */
 typedef struct svert {
-    int32_t x;      /* snapped screen x (0 with NEEDS_CLIP) */
-    int32_t yc;     /* snapped screen y << CODE_BITS | outcode; |y| < 2^23 */
+    int32_t x;  /* snapped screen x (0 with NEEDS_CLIP) */
+    int32_t yc; /* snapped screen y << CODE_BITS | outcode; |y| < 2^23 */
 } svert;
 #define CODE_BITS 7
 
@@ -67,19 +76,19 @@ static inline unsigned sv_code(svert v) { return (unsigned)v.yc & ((1u << CODE_B
 
 /* A triangle ready for the tile pass, oriented so that its integer signed area is positive. */
 typedef struct tri_rec {
-    int32_t x[3], y[3];           /* snapped screen position */
-    float z0, dzdx, dzdy;         /* depth at vertex 0 and its gradient per pixel */
-    uint32_t id;                  /* global triangle id (submission order) */
-    uint16_t px0, py0, px1, py1;  /* inclusive range of pixel centres in the bounding box */
+    int32_t x[3], y[3];          /* snapped screen position */
+    float z0, dzdx, dzdy;        /* depth at vertex 0 and its gradient per pixel */
+    uint32_t id;                 /* global triangle id (submission order) */
+    uint16_t px0, py0, px1, py1; /* inclusive range of pixel centres in the bounding box */
 } tri_rec;
 
 typedef struct chunk {
     tri_rec *recs;
     uint32_t rec_cap, rec_count; /* rec_count > rec_cap: grow and set the chunk up again */
     uint64_t drawn;
-    uint64_t first, end;         /* global triangle range */
+    uint64_t first, end; /* global triangle range */
     bool bad_index;
-    bool redo;                   /* set up (again) in this frame's setup loop */
+    bool redo; /* set up (again) in this frame's setup loop */
 } chunk;
 
 struct nc_rasterizer {
@@ -98,32 +107,23 @@ struct nc_rasterizer {
     size_t tile_cap;
     uint32_t *refs;
     size_t ref_cap;
-#ifdef NC_RASTER_PROFILE
-    uint64_t prof[5];
-#endif
 };
-#ifdef NC_RASTER_PROFILE
-#define PROF(i) r->prof[i] = nc_now_us()
-uint64_t *nc_raster_prof(nc_rasterizer *r) { return r->prof; }
-#else
-#define PROF(i) ((void)0)
-#endif
 
 /* Everything the passes read about the current frame. */
 typedef struct frame {
-    float m[4][4];      /* world -> clip */
-    double md[4][4];    /* the same in double, for clipping */
+    float m[4][4];   /* world -> clip */
+    double md[4][4]; /* the same in double, for clipping */
     int32_t width, height;
-    float sx, sy;       /* NDC -> snapped pixels scale (and offset) */
-    float gx, gy;       /* guard band in NDC units */
+    float sx, sy; /* NDC -> snapped pixels scale (and offset) */
+    float gx, gy; /* guard band in NDC units */
     int tiles_x, tiles_y;
     const nc_raster_mesh *meshes;
     uint32_t mesh_count;
     const uint64_t *vbase, *tbase;
-    bool cull;          /* cull back faces of meshes that are not double-sided */
+    bool cull; /* cull back faces of meshes that are not double-sided */
     float *depth;
-    uint32_t *ids;      /* global triangle id per pixel (then triangle in object), or NULL */
-    uint32_t *objects;  /* object per pixel, with ids */
+    uint32_t *ids;     /* global triangle id per pixel (then triangle in object), or NULL */
+    uint32_t *objects; /* object per pixel, with ids */
     const svert *verts;
     const float *vz;
 } frame;
@@ -166,7 +166,8 @@ void nc_rasterizer_destroy(nc_rasterizer *r)
     nc_free(ctx, r);
 }
 
-nacre_result nc_vis_buffer_resize(nacre_context *ctx, nc_vis_buffer *vb, int32_t width, int32_t height)
+nacre_result nc_vis_buffer_resize(nacre_context *ctx, nc_vis_buffer *vb, int32_t width,
+                                  int32_t height)
 {
     if (!vb || width < 1 || height < 1 || width > MAX_SIZE || height > MAX_SIZE)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "visibility buffer: invalid size %dx%d",
@@ -257,13 +258,20 @@ static inline void snap(const frame *f, const float c[4], int32_t *x, int32_t *y
 static inline uint8_t outcode(const frame *f, const float c[4])
 {
     unsigned k = 0;
-    if (!(c[0] >= -c[3])) k |= OUT_LEFT;
-    if (!(c[0] <= c[3])) k |= OUT_RIGHT;
-    if (!(c[1] >= -c[3])) k |= OUT_BOTTOM;
-    if (!(c[1] <= c[3])) k |= OUT_TOP;
-    if (!(c[2] >= 0.0f)) k |= OUT_NEAR;
-    if (!(c[2] <= c[3])) k |= OUT_FAR;
-    if (!snappable(f, c)) k |= NEEDS_CLIP;
+    if (!(c[0] >= -c[3]))
+        k |= OUT_LEFT;
+    if (!(c[0] <= c[3]))
+        k |= OUT_RIGHT;
+    if (!(c[1] >= -c[3]))
+        k |= OUT_BOTTOM;
+    if (!(c[1] <= c[3]))
+        k |= OUT_TOP;
+    if (!(c[2] >= 0.0f))
+        k |= OUT_NEAR;
+    if (!(c[2] <= c[3]))
+        k |= OUT_FAR;
+    if (!snappable(f, c))
+        k |= NEEDS_CLIP;
     return (uint8_t)k;
 }
 
@@ -293,26 +301,34 @@ static void transform_vertices(const frame *f, const float *restrict pos, size_t
         __m256 pz = _mm256_i32gather_ps(p + 2, off, 4);
         __m256 c[4];
         for (int r = 0; r < 4; r++)
-            c[r] = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(m[r][0], px),
-                                                             _mm256_mul_ps(m[r][1], py)),
-                                               _mm256_mul_ps(m[r][2], pz)),
-                                 m[r][3]);
+            c[r] = _mm256_add_ps(
+                _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(m[r][0], px), _mm256_mul_ps(m[r][1], py)),
+                              _mm256_mul_ps(m[r][2], pz)),
+                m[r][3]);
         __m256 nw = _mm256_xor_ps(c[3], sign);
         __m256 gw = _mm256_mul_ps(gx, c[3]), hw = _mm256_mul_ps(gy, c[3]);
         __m256 ngw = _mm256_xor_ps(gw, sign), nhw = _mm256_xor_ps(hw, sign);
-        __m256 ok = _mm256_and_ps(_mm256_cmp_ps(c[2], zero, _CMP_GE_OQ), _mm256_cmp_ps(c[3], zero, _CMP_GT_OQ));
-        ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(c[0], ngw, _CMP_GE_OQ), _mm256_cmp_ps(c[0], gw, _CMP_LE_OQ)));
-        ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(c[1], nhw, _CMP_GE_OQ), _mm256_cmp_ps(c[1], hw, _CMP_LE_OQ)));
-        __m256i code = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(c[0], nw, _CMP_NGE_UQ)), _mm256_set1_epi32(OUT_LEFT));
-        code = _mm256_or_si256(code, _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(c[0], c[3], _CMP_NLE_UQ)), _mm256_set1_epi32(OUT_RIGHT)));
-        code = _mm256_or_si256(code, _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(c[1], nw, _CMP_NGE_UQ)), _mm256_set1_epi32(OUT_BOTTOM)));
-        code = _mm256_or_si256(code, _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(c[1], c[3], _CMP_NLE_UQ)), _mm256_set1_epi32(OUT_TOP)));
-        code = _mm256_or_si256(code, _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(c[2], zero, _CMP_NGE_UQ)), _mm256_set1_epi32(OUT_NEAR)));
-        code = _mm256_or_si256(code, _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(c[2], c[3], _CMP_NLE_UQ)), _mm256_set1_epi32(OUT_FAR)));
-        code = _mm256_or_si256(code, _mm256_andnot_si256(_mm256_castps_si256(ok), _mm256_set1_epi32(NEEDS_CLIP)));
+        __m256 ok = _mm256_and_ps(_mm256_cmp_ps(c[2], zero, _CMP_GE_OQ),
+                                  _mm256_cmp_ps(c[3], zero, _CMP_GT_OQ));
+        ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(c[0], ngw, _CMP_GE_OQ),
+                                             _mm256_cmp_ps(c[0], gw, _CMP_LE_OQ)));
+        ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(c[1], nhw, _CMP_GE_OQ),
+                                             _mm256_cmp_ps(c[1], hw, _CMP_LE_OQ)));
+#define BIT_IF(cmp, bit) _mm256_and_si256(_mm256_castps_si256(cmp), _mm256_set1_epi32(bit))
+        __m256i code = BIT_IF(_mm256_cmp_ps(c[0], nw, _CMP_NGE_UQ), OUT_LEFT);
+        code = _mm256_or_si256(code, BIT_IF(_mm256_cmp_ps(c[0], c[3], _CMP_NLE_UQ), OUT_RIGHT));
+        code = _mm256_or_si256(code, BIT_IF(_mm256_cmp_ps(c[1], nw, _CMP_NGE_UQ), OUT_BOTTOM));
+        code = _mm256_or_si256(code, BIT_IF(_mm256_cmp_ps(c[1], c[3], _CMP_NLE_UQ), OUT_TOP));
+        code = _mm256_or_si256(code, BIT_IF(_mm256_cmp_ps(c[2], zero, _CMP_NGE_UQ), OUT_NEAR));
+        code = _mm256_or_si256(code, BIT_IF(_mm256_cmp_ps(c[2], c[3], _CMP_NLE_UQ), OUT_FAR));
+        code = _mm256_or_si256(
+            code, _mm256_andnot_si256(_mm256_castps_si256(ok), _mm256_set1_epi32(NEEDS_CLIP)));
+#undef BIT_IF
         __m256 iw = _mm256_div_ps(one, c[3]);
-        __m256i x = _mm256_cvtps_epi32(_mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(c[0], iw), sx), sx));
-        __m256i y = _mm256_cvtps_epi32(_mm256_sub_ps(sy, _mm256_mul_ps(_mm256_mul_ps(c[1], iw), sy)));
+        __m256i x =
+            _mm256_cvtps_epi32(_mm256_add_ps(_mm256_mul_ps(_mm256_mul_ps(c[0], iw), sx), sx));
+        __m256i y =
+            _mm256_cvtps_epi32(_mm256_sub_ps(sy, _mm256_mul_ps(_mm256_mul_ps(c[1], iw), sy)));
         __m256 z = _mm256_and_ps(_mm256_mul_ps(c[2], iw), ok);
         x = _mm256_and_si256(x, _mm256_castps_si256(ok));
         y = _mm256_and_si256(y, _mm256_castps_si256(ok));
@@ -360,7 +376,8 @@ static inline int64_t edge_at(const int32_t x[3], const int32_t y[3], int k, int
 
 /* Emit one snapped triangle; returns whether it produced a record. */
 static inline bool emit(const frame *f, setup_out *o, int32_t x0, int32_t y0, float z0, int32_t x1,
-                        int32_t y1, float z1, int32_t x2, int32_t y2, float z2, uint32_t id, bool cull)
+                        int32_t y1, float z1, int32_t x2, int32_t y2, float z2, uint32_t id,
+                        bool cull)
 {
     int64_t area = (int64_t)(x1 - x0) * (y2 - y0) - (int64_t)(x2 - x0) * (y1 - y0);
     if (area == 0)
@@ -372,9 +389,15 @@ static inline bool emit(const frame *f, setup_out *o, int32_t x0, int32_t y0, fl
     } else {
         int32_t t;
         float tz;
-        t = x1; x1 = x2; x2 = t;
-        t = y1; y1 = y2; y2 = t;
-        tz = z1; z1 = z2; z2 = tz;
+        t = x1;
+        x1 = x2;
+        x2 = t;
+        t = y1;
+        y1 = y2;
+        y2 = t;
+        tz = z1;
+        z1 = z2;
+        z2 = tz;
         area = -area;
     }
     int32_t minx = x0 < x1 ? (x0 < x2 ? x0 : x2) : (x1 < x2 ? x1 : x2);
@@ -386,10 +409,14 @@ static inline bool emit(const frame *f, setup_out *o, int32_t x0, int32_t y0, fl
     int32_t i1 = (maxx - SUB_HALF) >> SUB_BITS;
     int32_t j0 = (miny - SUB_HALF + SUB_ONE - 1) >> SUB_BITS;
     int32_t j1 = (maxy - SUB_HALF) >> SUB_BITS;
-    if (i0 < 0) i0 = 0;
-    if (j0 < 0) j0 = 0;
-    if (i1 > f->width - 1) i1 = f->width - 1;
-    if (j1 > f->height - 1) j1 = f->height - 1;
+    if (i0 < 0)
+        i0 = 0;
+    if (j0 < 0)
+        j0 = 0;
+    if (i1 > f->width - 1)
+        i1 = f->width - 1;
+    if (j1 > f->height - 1)
+        j1 = f->height - 1;
     if (i0 > i1 || j0 > j1)
         return false;
     if (i1 - i0 <= 1 && j1 - j0 <= 1) {
@@ -409,8 +436,12 @@ static inline bool emit(const frame *f, setup_out *o, int32_t x0, int32_t y0, fl
     uint32_t n = o->count++;
     if (n < o->cap) {
         tri_rec *r = &o->recs[n];
-        r->x[0] = x0; r->x[1] = x1; r->x[2] = x2;
-        r->y[0] = y0; r->y[1] = y1; r->y[2] = y2;
+        r->x[0] = x0;
+        r->x[1] = x1;
+        r->x[2] = x2;
+        r->y[0] = y0;
+        r->y[1] = y1;
+        r->y[2] = y2;
         /* Plane through the snapped vertices, in pixels (exact deltas, double for the solve). */
         double dx1 = (x1 - x0) * (1.0 / SUB_ONE), dy1 = (y1 - y0) * (1.0 / SUB_ONE);
         double dx2 = (x2 - x0) * (1.0 / SUB_ONE), dy2 = (y2 - y0) * (1.0 / SUB_ONE);
@@ -420,8 +451,10 @@ static inline bool emit(const frame *f, setup_out *o, int32_t x0, int32_t y0, fl
         r->dzdx = (float)((dz1 * dy2 - dz2 * dy1) * inv);
         r->dzdy = (float)((dz2 * dx1 - dz1 * dx2) * inv);
         r->id = id;
-        r->px0 = (uint16_t)i0; r->px1 = (uint16_t)i1;
-        r->py0 = (uint16_t)j0; r->py1 = (uint16_t)j1;
+        r->px0 = (uint16_t)i0;
+        r->px1 = (uint16_t)i1;
+        r->py0 = (uint16_t)j0;
+        r->py1 = (uint16_t)j1;
     }
     int tx0 = i0 >> TILE_SHIFT, tx1 = i1 >> TILE_SHIFT;
     int ty0 = j0 >> TILE_SHIFT, ty1 = j1 >> TILE_SHIFT;
@@ -439,11 +472,16 @@ typedef struct cvert {
 static inline double plane_dist(const frame *f, int plane, const double c[4])
 {
     switch (plane) {
-    case 0: return c[2];
-    case 1: return f->gx * c[3] - c[0];
-    case 2: return f->gx * c[3] + c[0];
-    case 3: return f->gy * c[3] - c[1];
-    default: return f->gy * c[3] + c[1];
+    case 0:
+        return c[2];
+    case 1:
+        return f->gx * c[3] - c[0];
+    case 2:
+        return f->gx * c[3] + c[0];
+    case 3:
+        return f->gy * c[3] - c[1];
+    default:
+        return f->gy * c[3] + c[1];
     }
 }
 
@@ -462,7 +500,8 @@ static bool setup_clipped(const frame *f, setup_out *o, const float *pos, const 
     for (int k = 0; k < 3; k++) {
         const float *p = pos + 3 * (size_t)vi[k];
         for (int q = 0; q < 4; q++) {
-            buf[0][k].c[q] = f->md[q][0] * p[0] + f->md[q][1] * p[1] + f->md[q][2] * p[2] + f->md[q][3];
+            buf[0][k].c[q] =
+                f->md[q][0] * p[0] + f->md[q][1] * p[1] + f->md[q][2] * p[2] + f->md[q][3];
             if (!isfinite(buf[0][k].c[q]))
                 return false;
         }
@@ -528,8 +567,8 @@ static bool setup_clipped(const frame *f, setup_out *o, const float *pos, const 
     }
     bool any = false;
     for (int k = 1; k + 1 < n; k++)
-        any |= emit(f, o, sx[0], sy[0], sz[0], sx[k], sy[k], sz[k], sx[k + 1], sy[k + 1],
-                    sz[k + 1], id, cull);
+        any |= emit(f, o, sx[0], sy[0], sz[0], sx[k], sy[k], sz[k], sx[k + 1], sy[k + 1], sz[k + 1],
+                    id, cull);
     return any;
 }
 
@@ -579,11 +618,21 @@ static inline void prefetch_tri(const mesh_span *ms, uint64_t t)
  * avoids a mispredicted branch or two each. Returns a mask of lanes to pass to setup_tri. */
 static inline unsigned filter8(const frame *f, const mesh_span *ms, uint64_t t)
 {
-    const int *ib = (const int *)(ms->idx + 3 * t);
-    const __m256i step3 = _mm256_setr_epi32(0, 3, 6, 9, 12, 15, 18, 21);
+    /* 24 consecutive indices, de-interleaved into the first, second and third vertex of each
+     * triangle (cheaper than three gathers). */
+    const __m256i *ib = (const __m256i *)(ms->idx + 3 * t);
+    __m256i v0 = _mm256_loadu_si256(ib), v1 = _mm256_loadu_si256(ib + 1),
+            v2 = _mm256_loadu_si256(ib + 2);
     __m256i vi[3];
-    for (int k = 0; k < 3; k++)
-        vi[k] = _mm256_i32gather_epi32(ib, _mm256_add_epi32(step3, _mm256_set1_epi32(k)), 4);
+    vi[0] =
+        _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(v0, v1, 0x92), v2, 0x24),
+                                    _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5));
+    vi[1] =
+        _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(v0, v1, 0x24), v2, 0x49),
+                                    _mm256_setr_epi32(1, 4, 7, 2, 5, 0, 3, 6));
+    vi[2] =
+        _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(v0, v1, 0x49), v2, 0x92),
+                                    _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7));
     /* Bad indices: hand the lanes to setup_tri, which reports them. */
     const __m256i vmax = _mm256_set1_epi32((int)(ms->vc - 1));
     __m256i bad = _mm256_setzero_si256();
@@ -613,9 +662,11 @@ static inline unsigned filter8(const frame *f, const mesh_span *ms, uint64_t t)
     __m256i maxx = _mm256_max_epi32(x[0], _mm256_max_epi32(x[1], x[2]));
     __m256i miny = _mm256_min_epi32(y[0], _mm256_min_epi32(y[1], y[2]));
     __m256i maxy = _mm256_max_epi32(y[0], _mm256_max_epi32(y[1], y[2]));
-    __m256i i0 = _mm256_srai_epi32(_mm256_add_epi32(minx, _mm256_set1_epi32(SUB_ONE - 1 - SUB_HALF)), SUB_BITS);
+    __m256i i0 = _mm256_srai_epi32(
+        _mm256_add_epi32(minx, _mm256_set1_epi32(SUB_ONE - 1 - SUB_HALF)), SUB_BITS);
     __m256i i1 = _mm256_srai_epi32(_mm256_sub_epi32(maxx, _mm256_set1_epi32(SUB_HALF)), SUB_BITS);
-    __m256i j0 = _mm256_srai_epi32(_mm256_add_epi32(miny, _mm256_set1_epi32(SUB_ONE - 1 - SUB_HALF)), SUB_BITS);
+    __m256i j0 = _mm256_srai_epi32(
+        _mm256_add_epi32(miny, _mm256_set1_epi32(SUB_ONE - 1 - SUB_HALF)), SUB_BITS);
     __m256i j1 = _mm256_srai_epi32(_mm256_sub_epi32(maxy, _mm256_set1_epi32(SUB_HALF)), SUB_BITS);
     i0 = _mm256_max_epi32(i0, zero);
     j0 = _mm256_max_epi32(j0, zero);
@@ -631,8 +682,52 @@ static inline unsigned filter8(const frame *f, const mesh_span *ms, uint64_t t)
     __m256i no_area = _mm256_cmpeq_epi32(area, zero);
     if (ms->cull)
         no_area = _mm256_or_si256(no_area, _mm256_cmpgt_epi32(area, zero));
+    /* Bounding boxes of at most 2 x 2 pixel centres: the exact coverage test of emit(), on the
+     * oriented triangle (front faces are swapped there, which reverses every edge: E -> -E and
+     * the top-left test mirrors). In int32: |dx|, |dy|, |P - A| < 2^15 here. */
+    __m256i one = _mm256_set1_epi32(1);
+    __m256i tiny =
+        _mm256_and_si256(_mm256_cmpgt_epi32(_mm256_add_epi32(i0, _mm256_set1_epi32(2)), i1),
+                         _mm256_cmpgt_epi32(_mm256_add_epi32(j0, _mm256_set1_epi32(2)), j1));
+    tiny = _mm256_andnot_si256(
+        _mm256_or_si256(_mm256_or_si256(clip, large), _mm256_or_si256(empty, no_area)), tiny);
+    if (!_mm256_testz_si256(tiny, tiny)) {
+        __m256i sdx[3], sdy[3], bias[3];
+        for (int k = 0; k < 3; k++) {
+            int k2 = k == 2 ? 0 : k + 1;
+            /* sign_epi32(v, area): v * sign(area); oriented as emit() stores the triangle. */
+            sdx[k] = _mm256_sign_epi32(_mm256_sub_epi32(x[k2], x[k]), area);
+            sdy[k] = _mm256_sign_epi32(_mm256_sub_epi32(y[k2], y[k]), area);
+            __m256i tl = _mm256_or_si256(_mm256_cmpgt_epi32(zero, sdy[k]),
+                                         _mm256_and_si256(_mm256_cmpeq_epi32(sdy[k], zero),
+                                                          _mm256_cmpgt_epi32(sdx[k], zero)));
+            bias[k] = _mm256_andnot_si256(tl, one);
+        }
+        __m256i covered = zero;
+        for (int c = 0; c < 4; c++) {
+            __m256i ci = _mm256_add_epi32(i0, _mm256_set1_epi32(c & 1));
+            __m256i cj = _mm256_add_epi32(j0, _mm256_set1_epi32(c >> 1));
+            __m256i valid = _mm256_and_si256(_mm256_cmpgt_epi32(_mm256_add_epi32(i1, one), ci),
+                                             _mm256_cmpgt_epi32(_mm256_add_epi32(j1, one), cj));
+            __m256i pcx =
+                _mm256_add_epi32(_mm256_slli_epi32(ci, SUB_BITS), _mm256_set1_epi32(SUB_HALF));
+            __m256i pcy =
+                _mm256_add_epi32(_mm256_slli_epi32(cj, SUB_BITS), _mm256_set1_epi32(SUB_HALF));
+            __m256i in = valid;
+            for (int k = 0; k < 3; k++) {
+                __m256i e =
+                    _mm256_sub_epi32(_mm256_mullo_epi32(sdx[k], _mm256_sub_epi32(pcy, y[k])),
+                                     _mm256_mullo_epi32(sdy[k], _mm256_sub_epi32(pcx, x[k])));
+                e = _mm256_sub_epi32(e, bias[k]);
+                in = _mm256_and_si256(in, _mm256_cmpgt_epi32(e, _mm256_set1_epi32(-1)));
+            }
+            covered = _mm256_or_si256(covered, in);
+        }
+        empty = _mm256_or_si256(empty, _mm256_andnot_si256(covered, tiny));
+    }
     /* Drop: outside the frustum, or (snappable, small and (no pixel centre or culled)). */
-    __m256i drop = _mm256_andnot_si256(_mm256_or_si256(clip, large), _mm256_or_si256(empty, no_area));
+    __m256i drop =
+        _mm256_andnot_si256(_mm256_or_si256(clip, large), _mm256_or_si256(empty, no_area));
     drop = _mm256_andnot_si256(bad, _mm256_or_si256(out_frustum, drop));
     return ~(unsigned)_mm256_movemask_ps(_mm256_castsi256_ps(drop)) & 0xffu;
 }
@@ -741,8 +836,8 @@ static void fill_span(const frame *f, size_t row, int lo, int hi, float zrow, fl
         _mm256_storeu_ps(dr + i, _mm256_blendv_ps(old, z, closer));
         if (ir) {
             __m256i oid = _mm256_loadu_si256((const __m256i *)(ir + i));
-            __m256i nid = _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(oid),
-                                                               _mm256_castsi256_ps(vid), closer));
+            __m256i nid = _mm256_castps_si256(
+                _mm256_blendv_ps(_mm256_castsi256_ps(oid), _mm256_castsi256_ps(vid), closer));
             _mm256_storeu_si256((__m256i *)(ir + i), nid);
         }
     }
@@ -797,8 +892,9 @@ static void draw(const frame *f, const tri_rec *r, int rx0, int ry0, int rx1, in
             rowstep[k] = _mm256_set1_epi32((int32_t)sy[k]);
         }
         __m256i valid = _mm256_cmpgt_epi32(_mm256_set1_epi32(i1 - i0 + 1), lane);
-        __m256i xs = _mm256_add_epi32(_mm256_slli_epi32(_mm256_add_epi32(_mm256_set1_epi32(i0), lane), SUB_BITS),
-                                      _mm256_set1_epi32(cx));
+        __m256i xs = _mm256_add_epi32(
+            _mm256_slli_epi32(_mm256_add_epi32(_mm256_set1_epi32(i0), lane), SUB_BITS),
+            _mm256_set1_epi32(cx));
         __m256 fx = _mm256_mul_ps(_mm256_cvtepi32_ps(xs), _mm256_set1_ps(inv));
         __m256 dzx = _mm256_mul_ps(_mm256_set1_ps(r->dzdx), fx);
         __m256i vid = _mm256_set1_epi32((int)r->id);
@@ -814,7 +910,8 @@ static void draw(const frame *f, const tri_rec *r, int rx0, int ry0, int rx1, in
             __m256 z = _mm256_add_ps(_mm256_set1_ps(zrow), dzx);
             size_t at = (size_t)j * w + (size_t)i0;
             __m256 old = _mm256_maskload_ps(f->depth + at, in);
-            __m256i closer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(z, old, _CMP_LT_OQ)), in);
+            __m256i closer =
+                _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(z, old, _CMP_LT_OQ)), in);
             _mm256_maskstore_ps(f->depth + at, closer, z);
             if (f->ids)
                 _mm256_maskstore_epi32((int *)(f->ids + at), closer, vid);
@@ -862,10 +959,12 @@ static void draw(const frame *f, const tri_rec *r, int rx0, int ry0, int rx1, in
             int64_t ek = e[k] + sy[k] * (j - j0), s = sx[k];
             if (s > 0) { /* ek + s t >= 0  <=>  t >= ceil(-ek / s) */
                 int64_t t = -floor_div(ek, s);
-                if (t > lo) lo = t;
+                if (t > lo)
+                    lo = t;
             } else if (s < 0) { /* t <= floor(ek / -s) */
                 int64_t t = floor_div(ek, -s);
-                if (t < hi) hi = t;
+                if (t < hi)
+                    hi = t;
             } else if (ek < 0) {
                 hi = -1;
             }
@@ -1083,14 +1182,14 @@ static nacre_result run(nc_rasterizer *r, const nc_raster_view *view, const nc_r
         ch->end = nt * (uint64_t)(c + 1) / (uint64_t)cc;
         /* The fast path makes at most one record per triangle; clipping may need a redo. */
         size_t cap = ch->rec_cap;
-        if (!grow(ctx, (void **)&ch->recs, &cap, (size_t)(ch->end - ch->first) + 16, sizeof(tri_rec))) {
+        if (!grow(ctx, (void **)&ch->recs, &cap, (size_t)(ch->end - ch->first) + 16,
+                  sizeof(tri_rec))) {
             ch->rec_cap = 0;
             return NACRE_ERROR_OUT_OF_MEMORY;
         }
         ch->rec_cap = (uint32_t)(cap > UINT32_MAX ? UINT32_MAX : cap);
     }
 
-    PROF(0);
     /* Pass 1. */
     for (uint32_t m = 0; m < mesh_count; m++) {
         const nc_raster_mesh *mesh = &meshes[m];
@@ -1098,7 +1197,7 @@ static nacre_result run(nc_rasterizer *r, const nc_raster_view *view, const nc_r
             continue;
         int64_t blocks = ((int64_t)mesh->vertex_count + 4095) / 4096;
         uint64_t vb = r->vbase[m];
-        #pragma omp parallel for num_threads(threads) schedule(static)
+#pragma omp parallel for num_threads(threads) schedule(static)
         for (int64_t b = 0; b < blocks; b++) {
             size_t lo = (size_t)b * 4096, hi = lo + 4096;
             if (hi > mesh->vertex_count)
@@ -1108,12 +1207,11 @@ static nacre_result run(nc_rasterizer *r, const nc_raster_view *view, const nc_r
         }
     }
 
-    PROF(1);
     /* Pass 2, redone for chunks whose records overflowed (only when clipping made many). */
     for (int c = 0; c < cc; c++)
         r->chunks[c].redo = true;
     for (;;) {
-        #pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
         for (int c = 0; c < cc; c++) {
             chunk *ch = &r->chunks[c];
             if (ch->redo)
@@ -1143,7 +1241,6 @@ static nacre_result run(nc_rasterizer *r, const nc_raster_view *view, const nc_r
         drawn += r->chunks[c].drawn;
     }
 
-    PROF(2);
     /* Pass 3: offsets tile-major, chunk-minor; counts become per-chunk write cursors. */
     uint64_t total = 0;
     for (size_t t = 0; t < ntiles; t++) {
@@ -1159,7 +1256,7 @@ static nacre_result run(nc_rasterizer *r, const nc_raster_view *view, const nc_r
     r->start[ntiles * (size_t)cc] = (uint32_t)total;
     if (!grow(ctx, (void **)&r->refs, &r->ref_cap, total, sizeof(uint32_t)))
         return NACRE_ERROR_OUT_OF_MEMORY;
-    #pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
     for (int c = 0; c < cc; c++) {
         const chunk *ch = &r->chunks[c];
         uint32_t *cur = r->counts + (size_t)c * ntiles;
@@ -1173,12 +1270,11 @@ static nacre_result run(nc_rasterizer *r, const nc_raster_view *view, const nc_r
         }
     }
 
-    PROF(3);
     /* Pass 4. */
     int ntiles_i = (int)ntiles;
-    #pragma omp parallel num_threads(threads)
+#pragma omp parallel num_threads(threads)
     {
-        #pragma omp for schedule(dynamic, 1)
+#pragma omp for schedule(dynamic, 1)
         for (int t = 0; t < ntiles_i; t++)
             draw_tile(&f, r, t);
 #ifdef __AVX__
@@ -1186,7 +1282,6 @@ static nacre_result run(nc_rasterizer *r, const nc_raster_view *view, const nc_r
 #endif
     }
 
-    PROF(4);
     if (counts) {
         counts->triangles = nt;
         counts->triangles_drawn = drawn;
@@ -1200,8 +1295,8 @@ nacre_result nc_raster_visibility(nc_rasterizer *r, const nc_raster_view *view,
 {
     if (!r)
         return NACRE_ERROR_INVALID_ARGUMENT;
-    if (!out || !out->depth || !out->object || !out->triangle || !view || out->width != view->width ||
-        out->height != view->height)
+    if (!out || !out->depth || !out->object || !out->triangle || !view ||
+        out->width != view->width || out->height != view->height)
         return nc_fail(r->ctx, NACRE_ERROR_INVALID_ARGUMENT,
                        "raster: visibility buffer missing or not the view's size");
     return run(r, view, meshes, mesh_count, true, out->depth, out->triangle, out->object, counts);

@@ -49,7 +49,8 @@ typedef struct nc_vis_buffer {
 
 typedef struct nc_raster_counts {
     uint64_t triangles;       /* submitted */
-    uint64_t triangles_drawn; /* survived culling and covered at least one pixel centre bbox */
+    uint64_t triangles_drawn; /* survived culling and covered at least one pixel centre bbox
+                                 (bounding boxes of up to 2x2 centres: covered a centre) */
 } nc_raster_counts;
 
 /* Scratch memory (bins, clip buffers) kept between frames. */
@@ -99,6 +100,10 @@ typedef struct nc_gbuffer {
     uint32_t *object;  /* object index or NC_NO_OBJECT */
     uint32_t *material;/* material index */
     uint32_t *triangle;/* triangle index in the object */
+    /* Private to gbuffer.c: per row, the pixel range [first, end) the last resolve may have left
+     * non-empty. Pixels outside it are known to hold the empty values and are not rewritten, so
+     * the arrays above must not be written by anyone but nc_gbuffer_resolve. */
+    int32_t *row_span;
 } nc_gbuffer;
 
 nacre_result nc_gbuffer_resize(nacre_context *ctx, nc_gbuffer *gb, int32_t width, int32_t height);

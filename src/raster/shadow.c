@@ -33,10 +33,7 @@ static void corners(const float lo[3], const float hi[3], nc_vec3 out[8])
         out[i] = nc_v3((i & 1) ? hi[0] : lo[0], (i & 2) ? hi[1] : lo[1], (i & 4) ? hi[2] : lo[2]);
 }
 
-static nc_vec3 up_for(nc_vec3 f)
-{
-    return fabsf(f.y) < 0.99f ? nc_v3(0, 1, 0) : nc_v3(1, 0, 0);
-}
+static nc_vec3 up_for(nc_vec3 f) { return fabsf(f.y) < 0.99f ? nc_v3(0, 1, 0) : nc_v3(1, 0, 0); }
 
 /* Near and far view depths (along f from eye) covering the bounds, or false if all behind. */
 static bool depth_range(const nc_vec3 c[8], nc_vec3 eye, nc_vec3 f, float *near_out, float *far_out)
@@ -56,7 +53,8 @@ static bool depth_range(const nc_vec3 c[8], nc_vec3 eye, nc_vec3 f, float *near_
     return true;
 }
 
-static void set_face(nc_shadow_map *sm, int face, nc_mat4 view, nc_mat4 proj, bool ortho, float texel)
+static void set_face(nc_shadow_map *sm, int face, nc_mat4 view, nc_mat4 proj, bool ortho,
+                     float texel)
 {
     nc_raster_view *v = &sm->views[face];
     v->view = view;
@@ -75,15 +73,22 @@ nacre_result nc_shadow_render(nc_rasterizer *r, nacre_context *ctx, const nacre_
     if (!r || !light || !bounds_min || !bounds_max || !sm)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "shadow map: missing argument");
     if (size < 1 || size > 16384)
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "shadow map: size %d out of range", (int)size);
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "shadow map: size %d out of range",
+                       (int)size);
     for (int i = 0; i < 3; i++)
         if (!isfinite(bounds_min[i]) || !isfinite(bounds_max[i]) || bounds_min[i] > bounds_max[i])
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "shadow map: invalid scene bounds");
     nc_shadow_kind kind;
     switch (light->type) {
-    case NACRE_LIGHT_DIRECTIONAL: kind = NC_SHADOW_ORTHO; break;
-    case NACRE_LIGHT_SPOT: kind = NC_SHADOW_PERSPECTIVE; break;
-    case NACRE_LIGHT_POINT: kind = NC_SHADOW_CUBE; break;
+    case NACRE_LIGHT_DIRECTIONAL:
+        kind = NC_SHADOW_ORTHO;
+        break;
+    case NACRE_LIGHT_SPOT:
+        kind = NC_SHADOW_PERSPECTIVE;
+        break;
+    case NACRE_LIGHT_POINT:
+        kind = NC_SHADOW_CUBE;
+        break;
     default:
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "shadow map: unknown light type %d",
                        (int)light->type);
@@ -92,7 +97,8 @@ nacre_result nc_shadow_render(nc_rasterizer *r, nacre_context *ctx, const nacre_
     if (kind != NC_SHADOW_CUBE) {
         float len = nc_length(dir);
         if (!(len > 0.0f) || !isfinite(len))
-            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "shadow map: light direction is zero");
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                           "shadow map: light direction is zero");
         dir = nc_scale(dir, 1.0f / len);
     }
     int faces = kind == NC_SHADOW_CUBE ? 6 : 1;
@@ -119,19 +125,25 @@ nacre_result nc_shadow_render(nc_rasterizer *r, nacre_context *ctx, const nacre_
         nc_vec3 centre = nc_scale(nc_add(lo, hi), 0.5f);
         nc_vec3 eye = nc_sub(centre, nc_scale(dir, scale));
         nc_mat4 view = nc_mat4_look_at(eye, nc_add(eye, dir), up_for(dir));
-        float l = INFINITY, rr = -INFINITY, b = INFINITY, t = -INFINITY, dn = INFINITY, df = -INFINITY;
+        float l = INFINITY, rr = -INFINITY, b = INFINITY, t = -INFINITY, dn = INFINITY,
+              df = -INFINITY;
         for (int i = 0; i < 8; i++) {
             nc_vec3 q = nc_mat4_point(&view, c[i]);
-            l = fminf(l, q.x); rr = fmaxf(rr, q.x);
-            b = fminf(b, q.y); t = fmaxf(t, q.y);
-            dn = fminf(dn, -q.z); df = fmaxf(df, -q.z);
+            l = fminf(l, q.x);
+            rr = fmaxf(rr, q.x);
+            b = fminf(b, q.y);
+            t = fmaxf(t, q.y);
+            dn = fminf(dn, -q.z);
+            df = fmaxf(df, -q.z);
         }
         /* Non-zero extents and 2 texels of margin, so PCF at the border sees the casters. */
         float ex = fmaxf(rr - l, 1e-4f * scale), ey = fmaxf(t - b, 1e-4f * scale);
         float mx = 2.0f * ex / (float)size, my = 2.0f * ey / (float)size;
         float cx = 0.5f * (l + rr), cy = 0.5f * (b + t);
-        l = cx - 0.5f * ex - mx; rr = cx + 0.5f * ex + mx;
-        b = cy - 0.5f * ey - my; t = cy + 0.5f * ey + my;
+        l = cx - 0.5f * ex - mx;
+        rr = cx + 0.5f * ex + mx;
+        b = cy - 0.5f * ey - my;
+        t = cy + 0.5f * ey + my;
         float mz = 0.01f * (df - dn) + 1e-4f * scale;
         nc_mat4 proj = nc_mat4_ortho(l, rr, b, t, dn - mz, df + mz);
         set_face(sm, 0, view, proj, true, fmaxf(rr - l, t - b) / (float)size);
@@ -149,8 +161,10 @@ nacre_result nc_shadow_render(nc_rasterizer *r, nacre_context *ctx, const nacre_
         nc_mat4 proj = nc_mat4_perspective(2.0f * half, 1.0f, near_d, far_d);
         set_face(sm, 0, view, proj, false, 2.0f * tanf(half) / (float)size);
     } else {
-        static const float axes[6][3] = {{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}};
-        static const float ups[6][3] = {{0, 1, 0}, {0, 1, 0}, {0, 0, 1}, {0, 0, 1}, {0, 1, 0}, {0, 1, 0}};
+        static const float axes[6][3] = {{1, 0, 0},  {-1, 0, 0}, {0, 1, 0},
+                                         {0, -1, 0}, {0, 0, 1},  {0, 0, -1}};
+        static const float ups[6][3] = {{0, 1, 0}, {0, 1, 0}, {0, 0, 1},
+                                        {0, 0, 1}, {0, 1, 0}, {0, 1, 0}};
         float tan_half = (float)size / ((float)size - 2.0f * CUBE_MARGIN_TEXELS);
         if (!(tan_half > 0.0f) || tan_half > 2.0f)
             tan_half = 2.0f; /* tiny maps */
@@ -185,6 +199,10 @@ void nc_shadow_free(nacre_context *ctx, nc_shadow_map *sm)
 }
 
 /* Stored NDC depth -> distance along the view axis. */
+/* Branch-free min/max: libm's fminf/fmaxf are not inlined (NaN rules) and dominated the taps. */
+static inline float fmin_fast(float a, float b) { return a < b ? a : b; }
+static inline float fmax_fast(float a, float b) { return a > b ? a : b; }
+
 static inline float linear_depth(const nc_raster_view *v, float ndc)
 {
     const nc_mat4 *p = &v->proj;
@@ -226,7 +244,7 @@ float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_
 
     /* World size of a texel at p. */
     float m00 = pm->m[0][0], m11 = pm->m[1][1], m03 = pm->m[0][3], m13 = pm->m[1][3];
-    float texel = fmaxf(2.0f * w / (m00 * (float)size), 2.0f * w / (m11 * (float)size));
+    float texel = fmax_fast(2.0f * w / (m00 * (float)size), 2.0f * w / (m11 * (float)size));
     /* The receiver is the plane through p with normal n. Each texel compares against the depth
      * where its own ray meets that plane: exact for planar receivers, also when the plane nearly
      * contains a perspective map's axis (the ground seen by a point light's side faces). The
@@ -234,27 +252,47 @@ float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_
     nc_vec3 nv = nc_normalize(nc_mat4_dir(vm, n));
     nc_vec3 ray = ortho ? nc_v3(0, 0, -1) : nc_normalize(pv);
     float cos_t = fabsf(nc_dot(nv, ray));
-    float sin_t = sqrtf(fmaxf(0.0f, 1.0f - cos_t * cos_t));
+    float sin_t = sqrtf(fmax_fast(0.0f, 1.0f - cos_t * cos_t));
     float slope = sin_t < MAX_SLOPE * cos_t ? sin_t / cos_t : MAX_SLOPE;
-    float bias_world = fmaxf(bias, 0.0f) * texel * 0.5f * (1.0f + slope);
+    float bias_world = fmax_fast(bias, 0.0f) * texel * 0.5f * (1.0f + slope);
     float max_dev = MAX_SLOPE * texel;
     float plane_d = nc_dot(nv, pv);
     float inv_size = 2.0f / (float)size;
+    /* Per-tap constants (divisions hoisted out of the tap loop). */
+    float inv_m00 = 1.0f / m00, inv_m11 = 1.0f / m11, inv_nz = 1.0f / nv.z;
+    float inv_m22 = 1.0f / pm->m[2][2], m22 = pm->m[2][2], m23 = pm->m[2][3];
 
-    float rad = fminf(fmaxf(pcf_radius, 0.5f), 8.0f);
+    float rad = fmin_fast(fmax_fast(pcf_radius, 0.5f), 8.0f);
     int i0 = (int)floorf(u - rad), i1 = (int)floorf(u + rad);
     int j0 = (int)floorf(vv - rad), j1 = (int)floorf(vv + rad);
     if (i1 < 0 || j1 < 0 || i0 >= size || j0 >= size)
         return 1.0f;
     const float *map = sm->depth + (size_t)face * (size_t)size * (size_t)size;
     bool clamp = sm->kind == NC_SHADOW_CUBE;
+    /* Most receivers are wholly lit or wholly shadowed: decide from the window's depth range
+     * against the widest receiver deviation before doing per-tap plane intersections. */
+    if (i0 >= 0 && j0 >= 0 && i1 < size && j1 < size) {
+        float smin = INFINITY, smax = -INFINITY;
+        for (int j = j0; j <= j1; j++) {
+            const float *row = map + (size_t)j * (size_t)size;
+            for (int i = i0; i <= i1; i++) {
+                smin = fmin_fast(smin, row[i]);
+                smax = fmax_fast(smax, row[i]);
+            }
+        }
+        float reach = max_dev * (rad + 1.0f) * 1.4142136f;
+        if (!(smin < 1.0f) || linear_depth(v, smin) >= d + reach - bias_world)
+            return 1.0f;
+        if (smax < 1.0f && linear_depth(v, smax) < d - reach - bias_world)
+            return 0.0f;
+    }
     float lit = 0.0f, total = 0.0f;
     for (int j = j0; j <= j1; j++) {
-        float oy = fminf((float)j + 1.0f, vv + rad) - fmaxf((float)j, vv - rad);
+        float oy = fmin_fast((float)j + 1.0f, vv + rad) - fmax_fast((float)j, vv - rad);
         if (oy <= 0.0f)
             continue;
         for (int i = i0; i <= i1; i++) {
-            float ox = fminf((float)i + 1.0f, u + rad) - fmaxf((float)i, u - rad);
+            float ox = fmin_fast((float)i + 1.0f, u + rad) - fmax_fast((float)i, u - rad);
             if (ox <= 0.0f)
                 continue;
             float wgt = ox * oy;
@@ -272,21 +310,24 @@ float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_
                 lit += wgt;
                 continue;
             }
-            float tx = ((float)i + 0.5f) * inv_size - 1.0f, ty = 1.0f - ((float)j + 0.5f) * inv_size;
+            float tx = ((float)i + 0.5f) * inv_size - 1.0f,
+                  ty = 1.0f - ((float)j + 0.5f) * inv_size;
             float recv;
             if (ortho) {
-                float xv = (tx - m03) / m00, yv = (ty - m13) / m11;
-                recv = d + (nv.x * (xv - pv.x) + nv.y * (yv - pv.y)) / nv.z;
+                float xv = (tx - m03) * inv_m00, yv = (ty - m13) * inv_m11;
+                recv = d + (nv.x * (xv - pv.x) + nv.y * (yv - pv.y)) * inv_nz;
             } else {
-                nc_vec3 rd = nc_v3(tx / m00, ty / m11, -1.0f);
+                nc_vec3 rd = nc_v3(tx * inv_m00, ty * inv_m11, -1.0f);
                 recv = plane_d / nc_dot(nv, rd);
             }
-            float lim = max_dev * hypotf((float)i + 0.5f - u, (float)j + 0.5f - vv);
+            float du = (float)i + 0.5f - u, dv = (float)j + 0.5f - vv;
+            float lim = max_dev * sqrtf(du * du + dv * dv);
             if (!(recv >= d - lim))
                 recv = recv > d ? d + lim : d - lim; /* also NaN, behind the light, parallel */
             else if (recv > d + lim)
                 recv = d + lim;
-            if (linear_depth(v, stored) >= recv - bias_world)
+            float occluder = ortho ? (m23 - stored) * inv_m22 : m23 / (stored + m22);
+            if (occluder >= recv - bias_world)
                 lit += wgt;
         }
     }

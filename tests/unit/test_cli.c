@@ -94,7 +94,7 @@ static void test_help_version(void)
 
 static void test_render_errors(void)
 {
-    char args[2048], outpng[1024];
+    char args[8192], outpng[1024];
     snprintf(outpng, sizeof(outpng), "%s/out.png", TMP);
     /* Unknown flag, unknown method, bad size, bad output extension. */
     snprintf(args, sizeof(args), "render --frobnicate -o %s", outpng);
@@ -139,7 +139,7 @@ static void test_render_errors(void)
 
 static void test_render_ok_and_stats(void)
 {
-    char args[2048], outpng[1024], outexr[1024];
+    char args[8192], outpng[1024], outexr[1024];
     snprintf(outpng, sizeof(outpng), "%s/demo.png", TMP);
     snprintf(outexr, sizeof(outexr), "%s/demo.exr", TMP);
     snprintf(args, sizeof(args), "render --size 96x54 -o %s --stats", outpng);
@@ -177,7 +177,7 @@ static void test_render_ok_and_stats(void)
 
 static void test_info(void)
 {
-    char args[2048];
+    char args[8192];
     snprintf(args, sizeof(args), "info %s/examples/meshes/suzanne.ply --json", NACRE_SOURCE_DIR);
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
     cJSON *j = cJSON_Parse(out);

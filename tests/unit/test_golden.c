@@ -1,5 +1,5 @@
 /*
- * test_golden.c: every example scene (examples/*.json) rendered small and compared with its
+ * test_golden.c: every example scene (examples/<name>.json) rendered small and compared with its
  * reviewed reference image in tests/golden/<name>.exr (32-bit float).
  *
  * Tolerance: the renders are deterministic, but optimisation levels and sanitizer builds may

@@ -744,6 +744,15 @@ static void test_load_errors(void)
                         "0 1 0\n3 0 1 2\n");
     expect_load_error(nan_ply, NACRE_ERROR_PARSE, "bad_number.ply:11: not a number: \"x10\"");
 
+    /* A list count no file could hold (assimp would allocate for it first). */
+    const char *big_list = tmp_path("big_list.ply");
+    write_text(big_list, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
+                         "property float y\nproperty float z\nelement face 2\n"
+                         "property list uchar int vertex_indices\nend_header\n0 0 0\n\n1 0 0\n"
+                         "0 1 0\n3 0 1 2\n4294967295 0 1 2\n");
+    expect_load_error(big_list, NACRE_ERROR_PARSE,
+                      "big_list.ply:15: a list of 4294967295 items cannot fit in the file");
+
     /* Truncated binary PLY: detected from the size the header promises. */
     nacre_mesh_data box = shape(NACRE_SHAPE_BOX, 2, 0);
     const char *trunc = tmp_path("truncated.ply");
@@ -776,7 +785,13 @@ static void test_load_errors(void)
 
     const char *bad_face = tmp_path("bad_face.obj");
     write_text(bad_face, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n");
-    expect_load_error(bad_face, NACRE_ERROR_PARSE, NULL);
+    expect_load_error(bad_face, NACRE_ERROR_PARSE, "bad_face.obj:4: index 7 out of range (3 vertices)");
+    /* A bad index in a later group (assimp would leak the meshes built before it). */
+    write_text(bad_face, "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\ng a\nf 1//1 2//1 3//1\ng b\n"
+                         "f 3//1 2//1 1//2\n");
+    expect_load_error(bad_face, NACRE_ERROR_PARSE, "bad_face.obj:8: index 2 out of range (1 normals)");
+    write_text(bad_face, "v 0 0 0\nv 1 0 0\nf -1 -2 -3\nv 0 1 0\n");
+    expect_load_error(bad_face, NACRE_ERROR_PARSE, "bad_face.obj:3: index -3 reaches before");
 
     CHECK(nacre_mesh_load(ctx2, NULL, &m) == NACRE_ERROR_INVALID_ARGUMENT);
     CHECK(nacre_mesh_load(ctx2, empty, NULL) == NACRE_ERROR_INVALID_ARGUMENT);

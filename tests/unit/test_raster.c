@@ -254,13 +254,63 @@ static void test_shared_edges(void)
     CHECK(count_covered(&g.vb) == 0);
     CHECK(counts.triangles_drawn == 0);
 
+    /* A fine grid (cells of 1.5 px, vertices on multiples of 1/4 px, many pixel centres on
+     * edges and vertices): triangles this small go through the vectorised rejection of the
+     * setup pass when drawn as one mesh, and through the scalar path when drawn one by one. */
+    {
+        const int M = 27; /* vertices per side */
+        float *fp = malloc(sizeof(float) * 3 * M * M);
+        uint32_t *fi = malloc(sizeof(uint32_t) * 6 * (M - 1) * (M - 1));
+        for (int j = 0; j < M; j++)
+            for (int i = 0; i < M; i++) {
+                double x = 4.5 + 1.5 * i, y = 4.5 + 1.5 * j;
+                if (i > 0 && i < M - 1)
+                    x += 0.25 * (double)((int)(rnd() * 3) - 1);
+                if (j > 0 && j < M - 1)
+                    y += 0.25 * (double)((int)(rnd() * 3) - 1);
+                screen_to_world(W, H, x, y, 0.5, fp + 3 * (j * M + i));
+            }
+        int fn = 0;
+        for (int j = 0; j + 1 < M; j++)
+            for (int i = 0; i + 1 < M; i++) {
+                uint32_t a = (uint32_t)(j * M + i), b = a + 1, c = a + (uint32_t)M, d = c + 1;
+                uint32_t q[6] = {a, c, d, a, d, b};
+                memcpy(fi + 3 * fn, q, sizeof(q));
+                fn += 2;
+            }
+        nc_raster_mesh fm = {fp, fi, (uint32_t)(M * M), (uint32_t)fn, 0, false};
+        CHECK(nc_raster_visibility(g.r, &view, &fm, 1, &g.vb, NULL) == NACRE_OK);
+        int fine_bad = 0;
+        for (int j = 0; j < H; j++)
+            for (int i = 0; i < W; i++) {
+                /* Left and top edges of the square own their centres, right and bottom not. */
+                bool want = i >= 4 && i < 43 && j >= 4 && j < 43;
+                fine_bad += want != (g.vb.object[j * W + i] == 0);
+            }
+        CHECK(fine_bad == 0);
+        int single_hits[64 * 64] = {0};
+        for (int t = 0; t < fn; t++) {
+            nc_raster_mesh m1 = {fp, fi + 3 * t, (uint32_t)(M * M), 1, 0, false};
+            CHECK(nc_raster_visibility(g.r, &view, &m1, 1, &g.vb, NULL) == NACRE_OK);
+            for (int p = 0; p < W * H; p++)
+                single_hits[p] += g.vb.object[p] == 0;
+        }
+        int single_bad = 0;
+        for (int j = 0; j < H; j++)
+            for (int i = 0; i < W; i++)
+                single_bad += single_hits[j * W + i] != (i >= 4 && i < 43 && j >= 4 && j < 43);
+        CHECK(single_bad == 0);
+        free(fp);
+        free(fi);
+    }
+
     /* A fan of 16 triangles around a pixel centre, outer vertices on pixel centres too. */
     const int F = 16;
     float fp[(16 + 1) * 3];
     screen_to_world(W, H, 32.5, 32.5, 0.5, fp);
-    static const int ring[16][2] = {{12, 0}, {11, 5}, {9, 9}, {5, 11}, {0, 12}, {-5, 11}, {-9, 9},
-                                    {-11, 5}, {-12, 0}, {-11, -5}, {-9, -9}, {-5, -11}, {0, -12},
-                                    {5, -11}, {9, -9}, {11, -5}};
+    static const int ring[16][2] = {{12, 0},  {11, 5},  {9, 9},   {5, 11},   {0, 12},  {-5, 11},
+                                    {-9, 9},  {-11, 5}, {-12, 0}, {-11, -5}, {-9, -9}, {-5, -11},
+                                    {0, -12}, {5, -11}, {9, -9},  {11, -5}};
     for (int k = 0; k < F; k++)
         screen_to_world(W, H, 32.5 + ring[k][0], 32.5 + ring[k][1], 0.5, fp + 3 * (k + 1));
     int fan_hits[64 * 64] = {0};
@@ -296,7 +346,8 @@ static void test_depth_order(void)
     for (int pass = 0; pass < 2; pass++) {
         double za = pass == 0 ? 0.3 : 0.5, zb = pass == 0 ? 0.6 : 0.5;
         for (int order = 0; order < 2; order++) {
-            double (*first)[2] = order == 0 ? tri_a : tri_b, (*second)[2] = order == 0 ? tri_b : tri_a;
+            double(*first)[2] = order == 0 ? tri_a : tri_b,
+            (*second)[2] = order == 0 ? tri_b : tri_a;
             double zf = order == 0 ? za : zb, zs = order == 0 ? zb : za;
             for (int k = 0; k < 3; k++) {
                 screen_to_world(W, H, first[k][0], first[k][1], zf, pos + 3 * k);
@@ -307,7 +358,8 @@ static void test_depth_order(void)
             CHECK(nc_raster_visibility(g.r, &view, &m, 1, &g.vb, NULL) == NACRE_OK);
             size_t p = 16 * W + 20; /* inside both */
             CHECK(g.vb.object[p] == 7);
-            uint32_t want = pass == 0 ? (order == 0 ? 0u : 1u) : 0u; /* nearer, or earlier on ties */
+            uint32_t want =
+                pass == 0 ? (order == 0 ? 0u : 1u) : 0u; /* nearer, or earlier on ties */
             CHECK(g.vb.triangle[p] == want);
             CHECK_NEAR(g.vb.depth[p], pass == 0 ? 0.3 : 0.5, 1e-6);
             /* The same across two meshes: ties keep the earlier draw. */
@@ -332,7 +384,9 @@ typedef struct cam {
 static void norm3(double v[3])
 {
     double l = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-    v[0] /= l; v[1] /= l; v[2] /= l;
+    v[0] /= l;
+    v[1] /= l;
+    v[2] /= l;
 }
 static void cross3(const double a[3], const double b[3], double r[3])
 {
@@ -340,7 +394,10 @@ static void cross3(const double a[3], const double b[3], double r[3])
     r[1] = a[2] * b[0] - a[0] * b[2];
     r[2] = a[0] * b[1] - a[1] * b[0];
 }
-static double dot3(const double a[3], const double b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+static double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
 
 static cam cam_make(const double eye[3], const double target[3], double fov_deg, int w, int h,
                     double znear, double zfar)
@@ -466,8 +523,9 @@ static void test_perspective_resolve(void)
                 continue;
             }
             covered++;
-            double dist = sqrt((hit[0] - eye[0]) * (hit[0] - eye[0]) + (hit[1] - eye[1]) * (hit[1] - eye[1]) +
-                               (hit[2] - eye[2]) * (hit[2] - eye[2]));
+            double dist =
+                sqrt((hit[0] - eye[0]) * (hit[0] - eye[0]) + (hit[1] - eye[1]) * (hit[1] - eye[1]) +
+                     (hit[2] - eye[2]) * (hit[2] - eye[2]));
             double err = 0.0;
             for (int a = 0; a < 3; a++)
                 err = fmax(err, fabs(gb.position[3 * p + a] - hit[a]));
@@ -484,7 +542,8 @@ static void test_perspective_resolve(void)
                 attr_bad += fabs(gb.tangent[4 * p + a] - T[a]) > 1e-4;
             }
             attr_bad += gb.tangent[4 * p + 3] != 1.0f;
-            attr_bad += gb.material[p] != 5 || gb.object[p] != 0 || gb.triangle[p] != g.vb.triangle[p];
+            attr_bad +=
+                gb.material[p] != 5 || gb.object[p] != 0 || gb.triangle[p] != g.vb.triangle[p];
         }
     CHECK(covered > 2000);
     CHECK(cov_bad == 0);
@@ -493,6 +552,29 @@ static void test_perspective_resolve(void)
     CHECK(uv_bad == 0);
     CHECK(attr_bad == 0);
     CHECK(empty_bad == 0);
+    /* Frames with less coverage leave no stale pixels behind (the resolve skips rewriting
+     * pixels it knows to be empty). */
+    for (int frame = 0; frame < 2; frame++) {
+        nc_raster_mesh half = {pos, idx, 4, frame == 0 ? 1u : 0u, 0, false};
+        CHECK(nc_raster_visibility(g.r, &c.view, &half, 1, &g.vb, NULL) == NACRE_OK);
+        CHECK(nc_gbuffer_resolve(g.ctx, &c.view, &g.vb, &src, 1, &gb) == NACRE_OK);
+        int stale = 0, drawn = 0;
+        for (size_t p = 0; p < (size_t)W * H; p++) {
+            if (g.vb.object[p] == 0) {
+                drawn++;
+                stale += gb.object[p] != 0;
+                continue;
+            }
+            stale +=
+                gb.object[p] != NC_NO_OBJECT || !isinf(gb.view_depth[p]) || gb.material[p] != 0;
+            for (int a = 0; a < 3; a++)
+                stale += gb.position[3 * p + a] != 0.0f || gb.normal[3 * p + a] != 0.0f ||
+                         gb.geo_normal[3 * p + a] != 0.0f;
+            stale += gb.uv[2 * p] != 0.0f || gb.tangent[4 * p + 3] != 0.0f;
+        }
+        CHECK(stale == 0);
+        CHECK(frame == 0 ? drawn > 500 : drawn == 0);
+    }
     nc_gbuffer_free(g.ctx, &gb);
     rig_free(&g);
 }
@@ -645,7 +727,8 @@ static void test_back_faces(void)
     for (size_t p = 0; p < (size_t)W * H; p++) {
         if (gb.object[p] != 0)
             continue;
-        bad += fabs(gb.normal[3 * p + 2] - 1.0f) > 1e-6 || fabs(gb.geo_normal[3 * p + 2] - 1.0f) > 1e-6;
+        bad += fabs(gb.normal[3 * p + 2] - 1.0f) > 1e-6 ||
+               fabs(gb.geo_normal[3 * p + 2] - 1.0f) > 1e-6;
         /* Seen from the back, the handedness follows the flipped normal so that the bitangent
          * w (n x t) still points along +v (here +y); in the triangle's own frame it was -1. */
         bad += fabs(gb.tangent[4 * p] - 1.0f) > 1e-5 || gb.tangent[4 * p + 3] != 1.0f;
@@ -663,7 +746,8 @@ static void test_back_faces(void)
     for (size_t p = 0; p < (size_t)W * H; p++) {
         if (gb.object[p] != 0)
             continue;
-        bad += fabs(gb.normal[3 * p + 2] - 1.0f) > 1e-6 || fabs(gb.geo_normal[3 * p + 2] - 1.0f) > 1e-6;
+        bad += fabs(gb.normal[3 * p + 2] - 1.0f) > 1e-6 ||
+               fabs(gb.geo_normal[3 * p + 2] - 1.0f) > 1e-6;
         bad += fabs(gb.tangent[4 * p] - 1.0f) > 1e-5 || gb.tangent[4 * p + 3] != 1.0f;
     }
     CHECK(bad == 0);
@@ -815,7 +899,8 @@ static void test_orthographic(void)
                 continue;
             double wx = -2.0 + (i + 0.5) * 4.0 / W, wy = 1.5 - (j + 0.5) * 3.0 / H;
             double wz = z0 + (wy - y0) / (y1 - y0) * (z1 - z0);
-            pbad += fabs(gb.position[3 * p] - wx) > 1e-5 || fabs(gb.position[3 * p + 1] - wy) > 1e-5 ||
+            pbad += fabs(gb.position[3 * p] - wx) > 1e-5 ||
+                    fabs(gb.position[3 * p + 1] - wy) > 1e-5 ||
                     fabs(gb.position[3 * p + 2] - wz) > 1e-5;
             pbad += fabs(gb.view_depth[p] - (5.0 - wz)) > 1e-5;
             pbad += fabs(gb.normal[3 * p + 2] - nz / nl) > 1e-5;

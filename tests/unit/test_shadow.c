@@ -53,7 +53,8 @@ static geo make_square(double cx, double h, double cz, double half, int cells)
     uint32_t t = 0;
     for (int j = 0; j < cells; j++)
         for (int i = 0; i < cells; i++) {
-            uint32_t a = (uint32_t)(j * (cells + 1) + i), b = a + 1, c = a + (uint32_t)cells + 1, d = c + 1;
+            uint32_t a = (uint32_t)(j * (cells + 1) + i), b = a + 1, c = a + (uint32_t)cells + 1,
+                     d = c + 1;
             /* Counter-clockwise seen from +y: a (x-, z-), c (x-, z+), d, b. */
             uint32_t q[6] = {a, c, d, a, d, b};
             memcpy(g.idx + 3 * t, q, sizeof(q));
@@ -85,7 +86,8 @@ static geo make_sphere(double cx, double cy, double cz, double r, int seg, int r
     uint32_t t = 0;
     for (int j = 0; j < rings; j++)
         for (int i = 0; i < seg; i++) {
-            uint32_t a = (uint32_t)(j * (seg + 1) + i), b = a + 1, c = a + (uint32_t)seg + 1, d = c + 1;
+            uint32_t a = (uint32_t)(j * (seg + 1) + i), b = a + 1, c = a + (uint32_t)seg + 1,
+                     d = c + 1;
             uint32_t q[6] = {a, c, d, a, d, b};
             memcpy(g.idx + 3 * t, q, sizeof(q));
             t += 2;
@@ -107,8 +109,8 @@ static geo make_box(double x0, double y0, double z0, double x1, double y1, doubl
         g.pos[3 * i + 1] = (float)((i & 2) ? y1 : y0);
         g.pos[3 * i + 2] = (float)((i & 4) ? z1 : z0);
     }
-    static const uint32_t q[12][3] = {{0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5}, /* -x, +x */
-                                      {0, 1, 5}, {0, 5, 4}, {2, 6, 7}, {2, 7, 3}, /* -y, +y */
+    static const uint32_t q[12][3] = {{0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5},  /* -x, +x */
+                                      {0, 1, 5}, {0, 5, 4}, {2, 6, 7}, {2, 7, 3},  /* -y, +y */
                                       {0, 2, 3}, {0, 3, 1}, {4, 5, 7}, {4, 7, 6}}; /* -z, +z */
     memcpy(g.idx, q, sizeof(q));
     return g;
@@ -193,7 +195,8 @@ static void test_directional(void)
      * (contact shadows). */
     geo g[4] = {make_square(0, 0, 0, 10, 8), make_square(0.5, 2, -0.4, 1, 1),
                 make_box(-5.5, 0, 4.5, -4.5, 1, 5.5), make_square(4, 0.1, 5, 0.5, 1)};
-    nc_raster_mesh m[4] = {as_mesh(&g[0], 0), as_mesh(&g[1], 1), as_mesh(&g[2], 2), as_mesh(&g[3], 3)};
+    nc_raster_mesh m[4] = {as_mesh(&g[0], 0), as_mesh(&g[1], 1), as_mesh(&g[2], 2),
+                           as_mesh(&g[3], 3)};
     float lo[3], hi[3];
     bounds_of(g, 4, lo, hi);
     nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
@@ -215,7 +218,8 @@ static void test_directional(void)
             double qx = x - s * ld.direction[0], qz = z - s * ld.direction[2];
             if ((x < -3.5 || x > 3.0) && z > 3.5)
                 continue; /* the box and the plate, checked below */
-            float v = nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
+            float v =
+                nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
             judge(&t, box_dist(qx, qz, 0.5, -0.4, 1.0), texel, v);
         }
     check_tally(&t);
@@ -224,17 +228,21 @@ static void test_directional(void)
     int contact_bad = 0, front_bad = 0;
     for (double z = 4.8; z <= 5.3; z += 0.02) {
         for (double x = -4.45; x <= -4.3; x += 0.01)
-            contact_bad += nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS) != 0.0f;
+            contact_bad += nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF,
+                                            BIAS) != 0.0f;
         for (double x = -5.8; x <= -5.6; x += 0.01)
-            front_bad += nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS) != 1.0f;
+            front_bad += nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF,
+                                          BIAS) != 1.0f;
     }
     /* The plate 0.1 above the ground: a depth bias of a few texels too many would lose it. */
     double sp = 0.1 / ly;
     tally tp = {0};
     for (double z = 4.2; z <= 5.8; z += 0.011)
         for (double x = 3.2; x <= 4.8; x += 0.011) {
-            float v = nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
-            judge(&tp, box_dist(x - sp * ld.direction[0], z - sp * ld.direction[2], 4, 5, 0.5), texel, v);
+            float v =
+                nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
+            judge(&tp, box_dist(x - sp * ld.direction[0], z - sp * ld.direction[2], 4, 5, 0.5),
+                  texel, v);
         }
     CHECK(tp.inside > 200 && tp.inside_bad == 0 && tp.edge_bad == 0);
     CHECK(contact_bad == 0);
@@ -243,7 +251,8 @@ static void test_directional(void)
     int acne = 0;
     for (double z = -0.9; z <= 0.5; z += 0.05)
         for (double x = -0.4; x <= 1.4; x += 0.05)
-            acne += nc_shadow_lookup(&sm, nc_v3((float)x, 2, (float)z), nc_v3(0, 1, 0), PCF, BIAS) != 1.0f;
+            acne += nc_shadow_lookup(&sm, nc_v3((float)x, 2, (float)z), nc_v3(0, 1, 0), PCF,
+                                     BIAS) != 1.0f;
     CHECK(acne == 0);
     CHECK(nc_shadow_lookup(&sm, nc_v3(50, 0, 50), nc_v3(0, 1, 0), PCF, BIAS) == 1.0f);
     /* Rendering again into the same map reuses it and gives the same texels. */
@@ -302,19 +311,22 @@ static void test_spot(void)
         for (double x = -9.7; x <= 9.7; x += 0.043) {
             double d[3] = {x - L[0], -L[1], z - L[2]};
             double dist = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
-            double along = (d[0] * ld.direction[0] + d[1] * ld.direction[1] + d[2] * ld.direction[2]);
+            double along =
+                (d[0] * ld.direction[0] + d[1] * ld.direction[1] + d[2] * ld.direction[2]);
             if (along / dist < cos_lim)
                 continue; /* outside the cone: unlit anyway */
             double cos_inc = L[1] / dist;
             double texel = sm.texel_world[0] * along / cos_inc;
-            float v = nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
+            float v =
+                nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
             judge(&t, central_dist(L, x, z, 2.0, 0, 0, 1), texel, v);
         }
     check_tally(&t);
     int acne = 0;
     for (double z = -0.9; z <= 0.9; z += 0.05)
         for (double x = -0.9; x <= 0.9; x += 0.05)
-            acne += nc_shadow_lookup(&sm, nc_v3((float)x, 2, (float)z), nc_v3(0, 1, 0), PCF, BIAS) != 1.0f;
+            acne += nc_shadow_lookup(&sm, nc_v3((float)x, 2, (float)z), nc_v3(0, 1, 0), PCF,
+                                     BIAS) != 1.0f;
     CHECK(acne == 0);
     /* Behind the light: outside the map, lit. */
     CHECK(nc_shadow_lookup(&sm, nc_v3(0.4f, 8, -0.3f), nc_v3(0, 1, 0), PCF, BIAS) == 1.0f);
@@ -331,7 +343,8 @@ static void test_point(void)
     nc_rasterizer *r = NULL;
     CHECK(nc_rasterizer_create(ctx, &r) == NACRE_OK);
     /* Occluders below the light (the -y face) and off to three sides (+x, -x, -z faces). */
-    static const double occ[4][4] = {{0, 2, 0, 1}, {6, 1, 0, 0.5}, {-5.5, 1, 0.5, 0.5}, {-0.5, 1, -6, 0.5}};
+    static const double occ[4][4] = {
+        {0, 2, 0, 1}, {6, 1, 0, 0.5}, {-5.5, 1, 0.5, 0.5}, {-0.5, 1, -6, 0.5}};
     geo g[5];
     g[0] = make_square(0, 0, 0, 10, 8);
     nc_raster_mesh m[5];
@@ -356,11 +369,14 @@ static void test_point(void)
         for (double x = -9.7; x <= 9.7; x += 0.043) {
             double d[3] = {x - L[0], -L[1], z - L[2]};
             double ax = fabs(d[0]), ay = fabs(d[1]), az = fabs(d[2]);
-            int face = ax >= ay && ax >= az ? (d[0] >= 0 ? 0 : 1) : ay >= az ? (d[1] >= 0 ? 2 : 3) : (d[2] >= 0 ? 4 : 5);
+            int face = ax >= ay && ax >= az ? (d[0] >= 0 ? 0 : 1)
+                       : ay >= az           ? (d[1] >= 0 ? 2 : 3)
+                                            : (d[2] >= 0 ? 4 : 5);
             double major = fmax(ax, fmax(ay, az));
             double dist = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
             double texel = sm.texel_world[face] * major * (dist / major) / (L[1] / dist);
-            float v = nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
+            float v =
+                nc_shadow_lookup(&sm, nc_v3((float)x, 0, (float)z), nc_v3(0, 1, 0), PCF, BIAS);
             double sd = INFINITY; /* signed distance to the union of the shadows */
             for (int i = 0; i < 4; i++)
                 sd = fmin(sd, central_dist(L, x, z, occ[i][1], occ[i][0], occ[i][2], occ[i][3]));
@@ -369,8 +385,10 @@ static void test_point(void)
             judge(&t, sd, texel, v);
         }
     check_tally(&t);
-    CHECK(faces_seen[0] > 0 && faces_seen[1] > 0 && faces_seen[3] > 0 && faces_seen[4] > 0 && faces_seen[5] > 0);
-    CHECK(shadow_faces[0] > 50 && shadow_faces[1] > 50 && shadow_faces[3] > 50 && shadow_faces[5] > 50);
+    CHECK(faces_seen[0] > 0 && faces_seen[1] > 0 && faces_seen[3] > 0 && faces_seen[4] > 0 &&
+          faces_seen[5] > 0);
+    CHECK(shadow_faces[0] > 50 && shadow_faces[1] > 50 && shadow_faces[3] > 50 &&
+          shadow_faces[5] > 50);
     nc_shadow_free(ctx, &sm);
     for (int i = 0; i < 5; i++)
         geo_free(&g[i]);
@@ -390,7 +408,8 @@ static void acne_case(nc_rasterizer *r, nacre_context *ctx, const nacre_light_de
     memset(&sm, 0, sizeof(sm));
     CHECK(nc_shadow_render(r, ctx, ld, lo, hi, size, m, 2, &sm) == NACRE_OK);
     int facing = 0, acne = 0, back = 0, back_lit = 0;
-    static const double bary[4][3] = {{1.0 / 3, 1.0 / 3, 1.0 / 3}, {0.7, 0.2, 0.1}, {0.1, 0.7, 0.2}, {0.2, 0.1, 0.7}};
+    static const double bary[4][3] = {
+        {1.0 / 3, 1.0 / 3, 1.0 / 3}, {0.7, 0.2, 0.1}, {0.1, 0.7, 0.2}, {0.2, 0.1, 0.7}};
     for (uint32_t t = 0; t < g[1].nt; t++)
         for (int s = 0; s < 4; s++) {
             double p[3] = {0, 0, 0}, n[3] = {0, 0, 0};
@@ -412,9 +431,9 @@ static void acne_case(nc_rasterizer *r, nacre_context *ctx, const nacre_light_de
             }
             double ll = sqrt(l[0] * l[0] + l[1] * l[1] + l[2] * l[2]);
             double ndl = (n[0] * l[0] + n[1] * l[1] + n[2] * l[2]) / (nl * ll);
-            float v = nc_shadow_lookup(&sm, nc_v3((float)p[0], (float)p[1], (float)p[2]),
-                                       nc_v3((float)(n[0] / nl), (float)(n[1] / nl), (float)(n[2] / nl)),
-                                       PCF, BIAS);
+            float v = nc_shadow_lookup(
+                &sm, nc_v3((float)p[0], (float)p[1], (float)p[2]),
+                nc_v3((float)(n[0] / nl), (float)(n[1] / nl), (float)(n[2] / nl)), PCF, BIAS);
             if (ndl > 0.2) {
                 facing++;
                 acne += v < 0.999f;
