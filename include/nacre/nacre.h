@@ -528,4 +528,7 @@ NACRE_API nacre_result nacre_scene_load_json(nacre_context *ctx, const char *jso
 }
 #endif
 
+/* Voxelization (needs the declarations above). */
+#include <nacre/voxel.h>
+
 #endif /* NACRE_NACRE_H */

@@ -123,7 +123,8 @@ void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_sha
                         continue;
                 }
                 nc_vec3 hv = nc_normalize(nc_add(wi, v));
-                float nh = fmaxf(nc_dot(n, hv), 0.0f);
+                float nh = nc_dot(n, hv);
+                nh = nh > 0.0f ? nh : 0.0f;
                 float spec = m->shininess > 0 ? spec_norm * powf(nh, m->shininess) : spec_norm * 1.0f;
                 float e = scale * cos_i;
                 for (int c = 0; c < 3; c++)

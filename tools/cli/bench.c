@@ -4,6 +4,12 @@
  *
  * `nacre bench raster` = the lucy_1600k G-buffer benchmark (bench/bench_raster.c) followed by
  * the built-in demo scene rendered with phong at 1280x720, per stage.
+ *
+ * `nacre bench voxelize` = nacre_voxelize on the stand-ins of the seed's meshes at 4^3 .. 256^3,
+ * beside the seed's GPU voxelization times (seed 000, tables 5.1-5.3, "Voxélisation" column, at
+ * 4^3, 12^3 and 28^3 only) scaled by our triangle count over the seed's. Closedness is decided
+ * once per mesh (nacre_mesh_analyze, not timed: topology does not change between frames) and the
+ * solid rule is passed explicitly, as a per-frame caller would.
  */
 #include "cli.h"
 
@@ -32,7 +38,118 @@ static const char bench_help[] =
     "  raster   G-buffer of lucy_1600k.ply at 1280x720 (mesh from $NACRE_MESH_DIR or\n"
     "           ../shared/meshes), then the demo scene with phong at 1280x720, per stage\n"
     "  --json   one JSON object per line\n"
-    "  --runs N timed runs after one warm-up (default 15); medians are reported\n";
+    "  --runs N timed runs after one warm-up (default 15); medians are reported\n"
+    "usage: nacre bench voxelize [--json] [--runs N]\n"
+    "  voxelize suzanne_subdiv2, armadillo_400k, dragon, lucy_1600k (missing ones skipped) at\n"
+    "           4,12,28,64,128,256 voxels per side, beside the seed's tables 5.1-5.3\n";
+
+/* Seed meshes: our stand-in file, the seed's triangle count and its voxelization time in
+ * microseconds at 4^3, 12^3, 28^3 (tables 5.1, 5.2, 5.3). */
+static const struct {
+    const char *file;
+    const char *seed_name;
+    double seed_tris;
+    double seed_us[3];
+} vox_meshes[] = {
+    {"suzanne_subdiv2.ply", "Suzanne", 15e3, {266, 257, 286}},
+    {"armadillo_400k.ply", "Armadillo", 346e3, {4906, 5046, 5208}},
+    {"dragon.ply", "Statue", 800e3, {9700, 8789, 8627}},
+    {"lucy_1600k.ply", "Lucy", 2027e3, {26401, 24822, 23705}},
+};
+static const uint32_t vox_res[] = {4, 12, 28, 64, 128, 256};
+
+static bool find_mesh(const char *file, char *path, size_t size)
+{
+    const char *dirs[3] = {getenv("NACRE_MESH_DIR"), "../shared/meshes", "/work/shared/meshes"};
+    for (int d = 0; d < 3; d++) {
+        if (!dirs[d])
+            continue;
+        snprintf(path, size, "%s/%s", dirs[d], file);
+        FILE *f = fopen(path, "rb");
+        if (f) {
+            fclose(f);
+            return true;
+        }
+    }
+    return false;
+}
+
+static int bench_voxelize(bool json, int runs)
+{
+    nacre_context *ctx = nc_cli_context(0);
+    if (!ctx)
+        return 2;
+    double *samples = calloc((size_t)runs, sizeof(double));
+    int rc = 2;
+    if (!samples)
+        goto out;
+    if (!json)
+        printf("voxelize, %d threads, median of %d runs (ms); seed = GPU time of tables 5.1-5.3 x tris ratio\n"
+               "%-22s %9s %5s %6s %10s %10s %10s %8s\n",
+               nacre_context_threads(ctx), runs, "mesh", "tris", "res", "rule", "surface", "solid", "ms", "seed_ms");
+    for (size_t m = 0; m < sizeof(vox_meshes) / sizeof(vox_meshes[0]); m++) {
+        char path[4096];
+        if (!find_mesh(vox_meshes[m].file, path, sizeof(path))) {
+            fprintf(stderr, "nacre bench voxelize: %s not found, skipped\n", vox_meshes[m].file);
+            continue;
+        }
+        nacre_mesh_data mesh = {0};
+        nacre_mesh_info info;
+        if (nacre_mesh_load(ctx, path, &mesh) != NACRE_OK || nacre_mesh_analyze(ctx, &mesh, &info) != NACRE_OK) {
+            nacre_mesh_data_free(ctx, &mesh);
+            rc = nc_cli_fail(ctx);
+            goto out;
+        }
+        double ratio = mesh.triangle_count / vox_meshes[m].seed_tris;
+        for (size_t r = 0; r < sizeof(vox_res) / sizeof(vox_res[0]); r++) {
+            nacre_voxel_settings vs = nacre_voxel_settings_defaults();
+            vs.resolution = vox_res[r];
+            vs.solid_rule = info.closed ? NACRE_VOXEL_SOLID_PARITY : NACRE_VOXEL_SOLID_ROBUST;
+            nacre_voxel_report rep;
+            for (int run = -1; run < runs; run++) {
+                nacre_voxel_grid *grid = NULL;
+                uint64_t t0 = nc_cli_now_us();
+                nacre_result res = nacre_voxelize(ctx, &mesh, &vs, &grid, &rep);
+                uint64_t t1 = nc_cli_now_us();
+                nacre_voxel_grid_destroy(grid);
+                if (res != NACRE_OK) {
+                    nacre_mesh_data_free(ctx, &mesh);
+                    rc = nc_cli_fail(ctx);
+                    goto out;
+                }
+                if (run >= 0)
+                    samples[run] = (t1 - t0) / 1000.0;
+            }
+            double ms = nc_cli_median(samples, runs);
+            double seed_ms = r < 3 ? vox_meshes[m].seed_us[r] / 1000.0 * ratio : -1;
+            const char *rule = info.closed ? "parity" : "robust";
+            if (json) {
+                printf("{\"bench\":\"voxelize\",\"mesh\":\"%s\",\"triangles\":%u,\"res\":%u,\"rule\":\"%s\","
+                       "\"threads\":%d,\"runs\":%d,\"surface_voxels\":%llu,\"solid_voxels\":%llu,\"ms\":%.3f",
+                       vox_meshes[m].file, mesh.triangle_count, vox_res[r], rule, nacre_context_threads(ctx), runs,
+                       (unsigned long long)rep.surface_voxels, (unsigned long long)rep.solid_voxels, ms);
+                if (seed_ms >= 0)
+                    printf(",\"seed_ms\":%.3f", seed_ms);
+                printf("}\n");
+            } else {
+                printf("%-22s %9u %5u %6s %10llu %10llu %10.3f ", vox_meshes[m].file, mesh.triangle_count,
+                       vox_res[r], rule, (unsigned long long)rep.surface_voxels,
+                       (unsigned long long)rep.solid_voxels, ms);
+                if (seed_ms >= 0)
+                    printf("%8.3f\n", seed_ms);
+                else
+                    printf("%8s\n", "-");
+            }
+            fflush(stdout);
+        }
+        nacre_mesh_data_free(ctx, &mesh);
+    }
+    rc = 0;
+out:
+    free(samples);
+    nacre_context_destroy(ctx);
+    return rc;
+}
 
 /* Demo scene: every stage timed with caches cold (a fresh renderer per run). */
 static int bench_demo(bool json, int runs)
@@ -93,11 +210,12 @@ int nc_cli_bench(int argc, char **argv)
 {
     int code;
     if (argc < 1)
-        return nc_cli_usage("bench", "needs a benchmark name (raster)");
+        return nc_cli_usage("bench", "needs a benchmark name (raster, voxelize)");
     if (nc_cli_common_flag("bench", argv[0], bench_help, &code))
         return code;
-    if (strcmp(argv[0], "raster") != 0)
-        return nc_cli_usage("bench", "unknown benchmark '%s' (raster)", argv[0]);
+    bool voxelize = strcmp(argv[0], "voxelize") == 0;
+    if (strcmp(argv[0], "raster") != 0 && !voxelize)
+        return nc_cli_usage("bench", "unknown benchmark '%s' (raster, voxelize)", argv[0]);
     bool json = false;
     long runs = 15;
     for (int i = 1; i < argc; i++) {
@@ -107,11 +225,13 @@ int nc_cli_bench(int argc, char **argv)
             json = true;
         else if (strcmp(argv[i], "--runs") == 0 && i + 1 < argc && nc_cli_parse_int(argv[i + 1], 1, 10000, &runs))
             i++;
-        else if (strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
+        else if (!voxelize && strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
             i++; /* read by nc_bench_raster */
         else
             return nc_cli_usage("bench", "unknown or incomplete option '%s'", argv[i]);
     }
+    if (voxelize)
+        return bench_voxelize(json, (int)runs);
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;

@@ -1,0 +1,109 @@
+/*
+ * voxel.h: voxelization of triangle meshes (part of the nacre public API; included by nacre.h,
+ * which it needs for nacre_context, nacre_result and nacre_mesh_data).
+ *
+ * UNITS AND CONVENTIONS
+ *   - Voxels are cubes of side `voxel_size` in mesh units. Voxel (x, y, z) of level 0 covers
+ *     [origin + (x, y, z) * voxel_size, origin + (x + 1, y + 1, z + 1) * voxel_size].
+ *   - Fitting: the bounds are those of the finite vertices (unreferenced ones included); their
+ *     longest axis spans `resolution` voxels. By default the grid
+ *     is resolution^3 with the mesh centred in it; with `anisotropic` the other axes get
+ *     max(1, ceil(extent / voxel_size)) voxels, the mesh centred on each.
+ *   - Surface set: conservative; a voxel is set when its closed box touches a triangle (Schwarz
+ *     and Seidel 2010 triangle/box overlap). Solid set: a voxel is set when its centre is inside
+ *     the mesh. The solid set does not include the surface set (use both for "occupied").
+ *   - Level L has dims ceil(dims(L-1) / 2); a coarse voxel is set when any of its (up to 8)
+ *     children is. Levels stop when the next one would have fewer than 4 voxels on its shortest
+ *     side (a grid already under 4 has one level).
+ *   - Triangles with a non-finite vertex or zero area are skipped and counted in the report.
+ *
+ * COST: one pass over the vertices (bounds) and one over the triangles (surface and z parity, both
+ * with atomic bit operations), then a prefix XOR per column; ROBUST adds two more triangle passes
+ * and a per-voxel vote. SOLID_AUTO also runs nacre_mesh_analyze (welding, edge sort), which costs
+ * more than the voxelization on large meshes: per-frame callers should decide the rule once
+ * (topology does not change under deformation) and pass PARITY or ROBUST.
+ *
+ * THREADING: voxelization uses OpenMP with the context's thread count; the result does not
+ * depend on it. A finished grid may be queried from several threads at once.
+ */
+#ifndef NACRE_VOXEL_H
+#define NACRE_VOXEL_H
+
+#include <nacre/nacre.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* How the solid set is found. */
+typedef enum nacre_voxel_solid_rule {
+    NACRE_VOXEL_SOLID_AUTO = 0, /* PARITY for meshes closed after welding, ROBUST otherwise */
+    NACRE_VOXEL_SOLID_PARITY,   /* crossings of z lines through voxel centres (closed meshes) */
+    NACRE_VOXEL_SOLID_ROBUST    /* majority vote of the x, y and z parities (holes, flips) */
+} nacre_voxel_solid_rule;
+
+typedef struct nacre_voxel_settings {
+    uint32_t resolution;               /* voxels along the longest axis, 1..4096; 0: 32 */
+    bool anisotropic;                  /* false: resolution^3 grid; true: fitted to the bounds */
+    nacre_voxel_solid_rule solid_rule; /* AUTO runs nacre_mesh_analyze (welding) to decide */
+} nacre_voxel_settings;
+
+typedef enum nacre_voxel_set { NACRE_VOXEL_SURFACE = 0, NACRE_VOXEL_SOLID } nacre_voxel_set;
+
+typedef struct nacre_voxel_report {
+    uint32_t dims[3];                  /* level 0 */
+    float voxel_size;                  /* mesh units */
+    float origin[3];                   /* minimum corner of voxel (0, 0, 0) */
+    uint64_t surface_voxels, solid_voxels; /* level 0 */
+    bool closed;                       /* AUTO: closed after welding; else: rule == PARITY */
+    nacre_voxel_solid_rule rule_used;  /* PARITY or ROBUST */
+    uint32_t levels;
+    uint32_t skipped_degenerate;       /* zero-area triangles */
+    uint32_t skipped_nonfinite;        /* triangles with a NaN or infinite vertex */
+    double ms;                         /* wall time of nacre_voxelize */
+} nacre_voxel_report;
+
+typedef struct nacre_voxel_grid nacre_voxel_grid;
+
+/* Defaults: resolution 32, cubic, AUTO. */
+NACRE_API nacre_voxel_settings nacre_voxel_settings_defaults(void);
+/* Voxelize `mesh` (read only, not kept). settings may be NULL (defaults); report may be NULL.
+ * Fails with INVALID_ARGUMENT on out-of-range indices, on empty meshes and when no triangle is
+ * left after skipping; OUT_OF_MEMORY past the allocator. Free with nacre_voxel_grid_destroy. */
+NACRE_API nacre_result nacre_voxelize(nacre_context *ctx, const nacre_mesh_data *mesh,
+                                      const nacre_voxel_settings *settings,
+                                      nacre_voxel_grid **out, nacre_voxel_report *report);
+NACRE_API void nacre_voxel_grid_destroy(nacre_voxel_grid *grid);
+/* Number of levels (>= 1). */
+NACRE_API uint32_t nacre_voxel_grid_levels(const nacre_voxel_grid *grid);
+/* Dims of `level`; false (dims zeroed) when the level does not exist. */
+NACRE_API bool nacre_voxel_grid_dims(const nacre_voxel_grid *grid, uint32_t level,
+                                     uint32_t dims[3]);
+/* Whether voxel (x, y, z) of `level` is in `set`; false outside the grid. */
+NACRE_API bool nacre_voxel_grid_get(const nacre_voxel_grid *grid, nacre_voxel_set set,
+                                    uint32_t level, uint32_t x, uint32_t y, uint32_t z);
+/* Voxels set in `set` at `level`. */
+NACRE_API uint64_t nacre_voxel_grid_count(const nacre_voxel_grid *grid, nacre_voxel_set set,
+                                          uint32_t level);
+/* Write `level` as NRRD (uint8, raw): sizes 2 x y z, channel 0 = solid, 1 = surface (0 or 1),
+ * with space origin and directions in mesh units. Written to a temporary file then renamed. */
+NACRE_API nacre_result nacre_voxel_grid_write_nrrd(const nacre_voxel_grid *grid, uint32_t level,
+                                                   const char *path);
+/* Rest-pose coordinates. The grid must come from `deformed`; `rest` has the same vertex count
+ * and indices (undeformed positions). Fills out[3 * (x + nx * (y + ny * z))] for every level-0
+ * voxel (out holds 3 * nx * ny * nz floats): NaN for voxels in neither set; for a surface voxel,
+ * the rest-pose point of the closest point on the closest deformed triangle (same barycentric
+ * coordinates; search limited to triangles touching the voxel); for a solid voxel not on the
+ * surface, its centre plus the displacement (rest - deformed) of the nearest surface voxel in
+ * 6-connected steps (breadth-first, first reached wins, in a fixed order). Exact for rigid
+ * translations, first order for smooth deformations. Serial. */
+NACRE_API nacre_result nacre_voxel_grid_rest_positions(const nacre_voxel_grid *grid,
+                                                       const nacre_mesh_data *rest,
+                                                       const nacre_mesh_data *deformed,
+                                                       float *out);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* NACRE_VOXEL_H */

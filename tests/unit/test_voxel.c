@@ -1,0 +1,573 @@
+/*
+ * test_voxel.c: voxelization (src/voxel/voxel.c): solid counts against mesh volumes, exact
+ * grid-aligned cubes, conservativeness against a brute-force separating-axis test, shared
+ * edges (few vs many triangles), broken meshes, degenerate input, the level pyramid, thread
+ * independence, rest-pose coordinates and the `nacre voxelize` CLI.
+ *
+ * Volume bound: a voxel whose box does not touch the surface is entirely inside or entirely
+ * outside, so its centre decides it exactly; only voxels touching the surface (the conservative
+ * surface set, counted in the report) can be wrong, each by at most its volume h^3. Hence
+ * |solid * h^3 - V| <= surface_voxels * h^3, with V the volume of the polyhedron (divergence
+ * theorem), not of the smooth shape the mesh approximates.
+ */
+#include "test_util.h"
+
+#include <nacre/nacre.h>
+
+#include <sys/wait.h>
+
+static nacre_context *ctx_threads(int threads)
+{
+    nacre_context_desc d = {0};
+    d.threads = threads;
+    nacre_context *ctx = NULL;
+    nacre_context_create(&d, &ctx);
+    return ctx;
+}
+
+static double mesh_volume(const nacre_mesh_data *m)
+{
+    double v = 0;
+    for (uint32_t t = 0; t < m->triangle_count; t++) {
+        const float *a = m->positions + 3 * m->indices[3 * t], *b = m->positions + 3 * m->indices[3 * t + 1],
+                    *c = m->positions + 3 * m->indices[3 * t + 2];
+        v += (double)a[0] * ((double)b[1] * c[2] - (double)b[2] * c[1]) -
+             (double)a[1] * ((double)b[0] * c[2] - (double)b[2] * c[0]) +
+             (double)a[2] * ((double)b[0] * c[1] - (double)b[1] * c[0]);
+    }
+    return v / 6.0;
+}
+
+static nacre_voxel_grid *vox(nacre_context *ctx, const nacre_mesh_data *m, uint32_t res, bool aniso,
+                             nacre_voxel_solid_rule rule, nacre_voxel_report *rep)
+{
+    nacre_voxel_settings s = nacre_voxel_settings_defaults();
+    s.resolution = res;
+    s.anisotropic = aniso;
+    s.solid_rule = rule;
+    nacre_voxel_grid *g = NULL;
+    nacre_result r = nacre_voxelize(ctx, m, &s, &g, rep);
+    if (r != NACRE_OK)
+        printf("voxelize failed: %s\n", nacre_context_last_error(ctx));
+    CHECK(r == NACRE_OK);
+    return g;
+}
+
+static bool same_set(const nacre_voxel_grid *a, const nacre_voxel_grid *b, nacre_voxel_set set, uint64_t *diff)
+{
+    uint32_t da[3], db[3];
+    nacre_voxel_grid_dims(a, 0, da);
+    nacre_voxel_grid_dims(b, 0, db);
+    if (memcmp(da, db, sizeof(da)) != 0)
+        return false;
+    *diff = 0;
+    for (uint32_t z = 0; z < da[2]; z++)
+        for (uint32_t y = 0; y < da[1]; y++)
+            for (uint32_t x = 0; x < da[0]; x++)
+                *diff += nacre_voxel_grid_get(a, set, 0, x, y, z) != nacre_voxel_grid_get(b, set, 0, x, y, z);
+    return *diff == 0;
+}
+
+static void check_volume(nacre_context *ctx, nacre_shape_desc sd, uint32_t res)
+{
+    nacre_mesh_data m = {0};
+    CHECK(nacre_mesh_make_shape(ctx, &sd, &m) == NACRE_OK);
+    nacre_voxel_report rep;
+    nacre_voxel_grid *g = vox(ctx, &m, res, false, NACRE_VOXEL_SOLID_AUTO, &rep);
+    double h3 = (double)rep.voxel_size * rep.voxel_size * rep.voxel_size;
+    double v = mesh_volume(&m);
+    CHECK(rep.closed);
+    CHECK(rep.rule_used == NACRE_VOXEL_SOLID_PARITY);
+    CHECK_NEAR((double)rep.solid_voxels * h3, v, (double)rep.surface_voxels * h3);
+    CHECK(nacre_voxel_grid_count(g, NACRE_VOXEL_SOLID, 0) == rep.solid_voxels);
+    /* The robust rule agrees with parity on a closed mesh, up to centres on the surface. */
+    nacre_voxel_report rep2;
+    nacre_voxel_grid *g2 = vox(ctx, &m, res, false, NACRE_VOXEL_SOLID_ROBUST, &rep2);
+    uint64_t diff = 0;
+    same_set(g, g2, NACRE_VOXEL_SOLID, &diff);
+    CHECK(diff <= rep.solid_voxels / 1000);
+    nacre_voxel_grid_destroy(g2);
+    nacre_voxel_grid_destroy(g);
+    nacre_mesh_data_free(ctx, &m);
+}
+
+/* Separating-axis triangle/box test (Akenine-Moeller 2001) for the unit box at (x, y, z); touching
+ * counts as overlap. */
+static bool tri_box(const double tv[3][3], int x, int y, int z)
+{
+    double c[3] = {x + 0.5, y + 0.5, z + 0.5}, v[3][3], e[3][3];
+    for (int i = 0; i < 3; i++)
+        for (int a = 0; a < 3; a++)
+            v[i][a] = tv[i][a] - c[a];
+    for (int i = 0; i < 3; i++)
+        for (int a = 0; a < 3; a++)
+            e[i][a] = v[(i + 1) % 3][a] - v[i][a];
+    double axes[13][3];
+    int n = 0;
+    for (int a = 0; a < 3; a++) {
+        axes[n][0] = axes[n][1] = axes[n][2] = 0;
+        axes[n++][a] = 1;
+    }
+    axes[n][0] = e[0][1] * e[1][2] - e[0][2] * e[1][1];
+    axes[n][1] = e[0][2] * e[1][0] - e[0][0] * e[1][2];
+    axes[n][2] = e[0][0] * e[1][1] - e[0][1] * e[1][0];
+    n++;
+    for (int a = 0; a < 3; a++)
+        for (int i = 0; i < 3; i++) {
+            double u[3] = {0, 0, 0};
+            u[a] = 1;
+            axes[n][0] = u[1] * e[i][2] - u[2] * e[i][1];
+            axes[n][1] = u[2] * e[i][0] - u[0] * e[i][2];
+            axes[n][2] = u[0] * e[i][1] - u[1] * e[i][0];
+            n++;
+        }
+    for (int k = 0; k < n; k++) {
+        const double *ax = axes[k];
+        double p0 = ax[0] * v[0][0] + ax[1] * v[0][1] + ax[2] * v[0][2];
+        double p1 = ax[0] * v[1][0] + ax[1] * v[1][1] + ax[2] * v[1][2];
+        double p2 = ax[0] * v[2][0] + ax[1] * v[2][1] + ax[2] * v[2][2];
+        double mn = fmin(p0, fmin(p1, p2)), mx = fmax(p0, fmax(p1, p2));
+        double r = 0.5 * (fabs(ax[0]) + fabs(ax[1]) + fabs(ax[2]));
+        if (mn > r || mx < -r)
+            return false;
+    }
+    return true;
+}
+
+static uint64_t rng_state = 0x9E3779B97F4A7C15ull;
+static double rnd(void)
+{
+    rng_state ^= rng_state << 13;
+    rng_state ^= rng_state >> 7;
+    rng_state ^= rng_state << 17;
+    return (double)(rng_state >> 11) / 9007199254740992.0;
+}
+
+static void test_conservative(nacre_context *ctx)
+{
+    enum { NT = 120 };
+    for (int trial = 0; trial < 3; trial++) {
+        float pos[NT * 9];
+        uint32_t idx[NT * 3];
+        for (int t = 0; t < NT; t++) {
+            /* Sizes from a fraction of a voxel to a third of the grid (grid is ~16 voxels). */
+            double size = t % 3 == 0 ? 0.03 : t % 3 == 1 ? 0.12 : 0.4;
+            double c[3] = {rnd(), rnd(), rnd()};
+            for (int k = 0; k < 3; k++) {
+                for (int a = 0; a < 3; a++)
+                    pos[9 * t + 3 * k + a] = (float)(c[a] + size * (rnd() - 0.5));
+                idx[3 * t + k] = (uint32_t)(3 * t + k);
+            }
+        }
+        nacre_mesh_data m = {0};
+        m.vertex_count = NT * 3;
+        m.triangle_count = NT;
+        m.positions = pos;
+        m.indices = idx;
+        nacre_voxel_report rep;
+        nacre_voxel_grid *g = vox(ctx, &m, 16 + 5 * (uint32_t)trial, trial == 1, NACRE_VOXEL_SOLID_ROBUST, &rep);
+        if (!g)
+            continue;
+        const uint32_t *d = rep.dims;
+        uint8_t *ref = calloc((size_t)d[0] * d[1] * d[2], 1);
+        double inv_h = 1.0 / (double)rep.voxel_size;
+        for (int t = 0; t < NT; t++) {
+            double v[3][3];
+            for (int k = 0; k < 3; k++)
+                for (int a = 0; a < 3; a++)
+                    v[k][a] = ((double)pos[9 * t + 3 * k + a] - (double)rep.origin[a]) * inv_h;
+            for (uint32_t z = 0; z < d[2]; z++)
+                for (uint32_t y = 0; y < d[1]; y++)
+                    for (uint32_t x = 0; x < d[0]; x++)
+                        if (tri_box((const double(*)[3])v, (int)x, (int)y, (int)z))
+                            ref[x + d[0] * (y + (size_t)d[1] * z)] = 1;
+        }
+        uint64_t missed = 0, extra = 0, count = 0;
+        for (uint32_t z = 0; z < d[2]; z++)
+            for (uint32_t y = 0; y < d[1]; y++)
+                for (uint32_t x = 0; x < d[0]; x++) {
+                    bool got = nacre_voxel_grid_get(g, NACRE_VOXEL_SURFACE, 0, x, y, z);
+                    bool want = ref[x + d[0] * (y + (size_t)d[1] * z)];
+                    missed += want && !got;
+                    extra += got && !want;
+                    count += want;
+                }
+        CHECK(missed == 0);
+        CHECK(extra == 0);
+        CHECK(count == rep.surface_voxels);
+        CHECK(count > 100);
+        free(ref);
+        nacre_voxel_grid_destroy(g);
+    }
+}
+
+static void test_aligned_cube(nacre_context *ctx)
+{
+    for (uint32_t seg = 1; seg <= 4; seg *= 4) {
+        nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_BOX);
+        sd.segments = seg;
+        nacre_mesh_data m = {0};
+        CHECK(nacre_mesh_make_shape(ctx, &sd, &m) == NACRE_OK);
+        for (uint32_t n = 4; n <= 16; n += 12) {
+            nacre_voxel_report rep;
+            nacre_voxel_grid *g = vox(ctx, &m, n, false, NACRE_VOXEL_SOLID_AUTO, &rep);
+            CHECK(rep.solid_voxels == (uint64_t)n * n * n);
+            CHECK(rep.surface_voxels == (uint64_t)n * n * n - (uint64_t)(n - 2) * (n - 2) * (n - 2));
+            CHECK_NEAR(rep.voxel_size, 1.0 / n, 1e-7);
+            CHECK_NEAR(rep.origin[0], -0.5, 1e-7);
+            nacre_voxel_grid_destroy(g);
+        }
+        nacre_mesh_data_free(ctx, &m);
+    }
+    /* Anisotropic: a 2 x 1 x 0.5 box at 8 gives 8 x 4 x 2, all solid. */
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_BOX);
+    sd.size[0] = 2, sd.size[1] = 1, sd.size[2] = 0.5f;
+    nacre_mesh_data m = {0};
+    CHECK(nacre_mesh_make_shape(ctx, &sd, &m) == NACRE_OK);
+    nacre_voxel_report rep;
+    nacre_voxel_grid *g = vox(ctx, &m, 8, true, NACRE_VOXEL_SOLID_AUTO, &rep);
+    CHECK(rep.dims[0] == 8 && rep.dims[1] == 4 && rep.dims[2] == 2);
+    CHECK(rep.solid_voxels == 64);
+    CHECK(rep.levels == 1);
+    nacre_voxel_grid_destroy(g);
+    /* Cubic grid: the box is centred, 8 x 4 x 2 solid inside 8^3. */
+    g = vox(ctx, &m, 8, false, NACRE_VOXEL_SOLID_AUTO, &rep);
+    CHECK(rep.solid_voxels == 64);
+    CHECK(nacre_voxel_grid_get(g, NACRE_VOXEL_SOLID, 0, 0, 2, 3));
+    CHECK(!nacre_voxel_grid_get(g, NACRE_VOXEL_SOLID, 0, 0, 1, 3));
+    nacre_voxel_grid_destroy(g);
+    nacre_mesh_data_free(ctx, &m);
+}
+
+static void rotate(nacre_mesh_data *m)
+{
+    const double a = 0.37, b = 0.61;
+    for (uint32_t i = 0; i < m->vertex_count; i++) {
+        float *p = m->positions + 3 * i;
+        double x = p[0], y = p[1], z = p[2];
+        double x1 = cos(a) * x - sin(a) * y, y1 = sin(a) * x + cos(a) * y;
+        double y2 = cos(b) * y1 - sin(b) * z, z2 = sin(b) * y1 + cos(b) * z;
+        p[0] = (float)x1, p[1] = (float)y2, p[2] = (float)z2;
+    }
+}
+
+static void test_shared_edges(nacre_context *ctx)
+{
+    for (int rot = 0; rot < 2; rot++) {
+        nacre_mesh_data few = {0}, many = {0};
+        nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_BOX);
+        sd.size[0] = 1.0f, sd.size[1] = 0.73f, sd.size[2] = 0.41f;
+        sd.segments = 1;
+        CHECK(nacre_mesh_make_shape(ctx, &sd, &few) == NACRE_OK);
+        sd.segments = 16;
+        CHECK(nacre_mesh_make_shape(ctx, &sd, &many) == NACRE_OK);
+        if (rot) {
+            rotate(&few);
+            rotate(&many);
+        }
+        nacre_voxel_report r1, r2;
+        nacre_voxel_grid *g1 = vox(ctx, &few, 37, rot == 0, NACRE_VOXEL_SOLID_PARITY, &r1);
+        nacre_voxel_grid *g2 = vox(ctx, &many, 37, rot == 0, NACRE_VOXEL_SOLID_PARITY, &r2);
+        uint64_t diff = 1;
+        CHECK(same_set(g1, g2, NACRE_VOXEL_SOLID, &diff));
+        CHECK(diff == 0);
+        CHECK(r1.solid_voxels > 1000);
+        double h3 = (double)r1.voxel_size * r1.voxel_size * r1.voxel_size;
+        CHECK_NEAR((double)r1.solid_voxels * h3, mesh_volume(&few), (double)r1.surface_voxels * h3);
+        nacre_voxel_grid_destroy(g1);
+        nacre_voxel_grid_destroy(g2);
+        nacre_mesh_data_free(ctx, &few);
+        nacre_mesh_data_free(ctx, &many);
+    }
+}
+
+static void test_broken(nacre_context *ctx)
+{
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_SPHERE);
+    nacre_mesh_data m = {0};
+    CHECK(nacre_mesh_make_shape(ctx, &sd, &m) == NACRE_OK);
+    nacre_voxel_report ref;
+    nacre_voxel_grid *g = vox(ctx, &m, 48, false, NACRE_VOXEL_SOLID_AUTO, &ref);
+    nacre_voxel_grid_destroy(g);
+    CHECK(ref.closed);
+
+    /* Hole: drop a patch of triangles near the equator on +x (and one near the top). */
+    nacre_mesh_data holed = m;
+    uint32_t *idx = malloc(sizeof(uint32_t) * 3 * m.triangle_count);
+    uint32_t n = 0;
+    for (uint32_t t = 0; t < m.triangle_count; t++) {
+        const float *p = m.positions + 3 * m.indices[3 * t];
+        bool drop = (p[0] > 0.9f && fabsf(p[1]) < 0.25f && fabsf(p[2]) < 0.3f) || (p[1] > 0.97f);
+        if (!drop) {
+            memcpy(idx + 3 * n, m.indices + 3 * t, 3 * sizeof(uint32_t));
+            n++;
+        }
+    }
+    CHECK(n < m.triangle_count - 20);
+    holed.indices = idx;
+    holed.triangle_count = n;
+    nacre_voxel_report rep;
+    g = vox(ctx, &holed, 48, false, NACRE_VOXEL_SOLID_AUTO, &rep);
+    CHECK(!rep.closed);
+    CHECK(rep.rule_used == NACRE_VOXEL_SOLID_ROBUST);
+    CHECK_NEAR((double)rep.solid_voxels, (double)ref.solid_voxels, 0.01 * ref.solid_voxels);
+    nacre_voxel_grid_destroy(g);
+    free(idx);
+
+    /* Duplicated flipped patch: 60 triangles repeated with reversed winding. */
+    nacre_mesh_data dup = m;
+    idx = malloc(sizeof(uint32_t) * 3 * (m.triangle_count + 60));
+    memcpy(idx, m.indices, sizeof(uint32_t) * 3 * m.triangle_count);
+    for (uint32_t k = 0; k < 60; k++) {
+        const uint32_t *s = m.indices + 3 * (500 + k);
+        uint32_t *o = idx + 3 * (m.triangle_count + k);
+        o[0] = s[0], o[1] = s[2], o[2] = s[1];
+    }
+    dup.indices = idx;
+    dup.triangle_count = m.triangle_count + 60;
+    g = vox(ctx, &dup, 48, false, NACRE_VOXEL_SOLID_AUTO, &rep);
+    CHECK(!rep.closed);
+    CHECK_NEAR((double)rep.solid_voxels, (double)ref.solid_voxels, 0.01 * ref.solid_voxels);
+    nacre_voxel_grid_destroy(g);
+    free(idx);
+    nacre_mesh_data_free(ctx, &m);
+}
+
+static void test_bad_input(nacre_context *ctx)
+{
+    nacre_voxel_grid *g = NULL;
+    nacre_voxel_report rep;
+    nacre_mesh_data empty = {0};
+    CHECK(nacre_voxelize(ctx, &empty, NULL, &g, &rep) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(g == NULL);
+    CHECK(nacre_voxelize(ctx, NULL, NULL, &g, &rep) == NACRE_ERROR_INVALID_ARGUMENT);
+
+    /* A box plus a degenerate triangle and a triangle with a NaN vertex. */
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_BOX);
+    nacre_mesh_data box = {0};
+    CHECK(nacre_mesh_make_shape(ctx, &sd, &box) == NACRE_OK);
+    uint32_t nv = box.vertex_count, nt = box.triangle_count;
+    float *pos = malloc(sizeof(float) * 3 * (nv + 1));
+    uint32_t *idx = malloc(sizeof(uint32_t) * 3 * (nt + 2));
+    memcpy(pos, box.positions, sizeof(float) * 3 * nv);
+    memcpy(idx, box.indices, sizeof(uint32_t) * 3 * nt);
+    pos[3 * nv] = NAN, pos[3 * nv + 1] = 0, pos[3 * nv + 2] = 0;
+    idx[3 * nt] = 0, idx[3 * nt + 1] = 1, idx[3 * nt + 2] = 1;
+    idx[3 * nt + 3] = 0, idx[3 * nt + 4] = 1, idx[3 * nt + 5] = nv;
+    nacre_mesh_data m = {0};
+    m.vertex_count = nv + 1;
+    m.triangle_count = nt + 2;
+    m.positions = pos;
+    m.indices = idx;
+    g = vox(ctx, &m, 8, false, NACRE_VOXEL_SOLID_AUTO, &rep);
+    CHECK(rep.skipped_degenerate == 1);
+    CHECK(rep.skipped_nonfinite == 1);
+    CHECK(rep.solid_voxels == 512);
+    CHECK(!rep.closed); /* non-finite input: not analysed, robust rule */
+    nacre_voxel_grid_destroy(g);
+
+    /* Only bad triangles: clean error. */
+    m.indices = idx + 3 * nt;
+    m.triangle_count = 2;
+    g = NULL;
+    CHECK(nacre_voxelize(ctx, &m, NULL, &g, &rep) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(g == NULL);
+    CHECK(strstr(nacre_context_last_error(ctx), "voxelize") != NULL);
+    /* Out-of-range index. */
+    idx[3 * nt + 5] = nv + 7;
+    CHECK(nacre_voxelize(ctx, &m, NULL, &g, &rep) == NACRE_ERROR_INVALID_ARGUMENT);
+    /* Bad resolution. */
+    nacre_voxel_settings s = nacre_voxel_settings_defaults();
+    s.resolution = 100000;
+    CHECK(nacre_voxelize(ctx, &box, &s, &g, &rep) == NACRE_ERROR_INVALID_ARGUMENT);
+    free(pos);
+    free(idx);
+    nacre_mesh_data_free(ctx, &box);
+}
+
+static void test_pyramid(nacre_context *ctx)
+{
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_TORUS);
+    nacre_mesh_data m = {0};
+    CHECK(nacre_mesh_make_shape(ctx, &sd, &m) == NACRE_OK);
+    nacre_voxel_report rep;
+    nacre_voxel_grid *g = vox(ctx, &m, 70, true, NACRE_VOXEL_SOLID_AUTO, &rep);
+    /* Torus 2.5 x 0.5 x 2.5: dims 70 x 14 x 70 -> 35 x 7 x 35 -> 18 x 4 x 18, then stop. */
+    CHECK(rep.dims[1] == 14);
+    CHECK(nacre_voxel_grid_levels(g) == 3);
+    uint32_t d[3];
+    CHECK(nacre_voxel_grid_dims(g, 2, d) && d[0] == 18 && d[1] == 4 && d[2] == 18);
+    CHECK(!nacre_voxel_grid_dims(g, 3, d));
+    uint64_t bad = 0;
+    for (uint32_t l = 1; l < nacre_voxel_grid_levels(g); l++) {
+        uint32_t dc[3];
+        nacre_voxel_grid_dims(g, l, dc);
+        for (int set = 0; set < 2; set++)
+            for (uint32_t z = 0; z < dc[2]; z++)
+                for (uint32_t y = 0; y < dc[1]; y++)
+                    for (uint32_t x = 0; x < dc[0]; x++) {
+                        bool any = false;
+                        for (uint32_t c = 0; c < 8; c++)
+                            any = any || nacre_voxel_grid_get(g, (nacre_voxel_set)set, l - 1, 2 * x + (c & 1),
+                                                              2 * y + ((c >> 1) & 1), 2 * z + (c >> 2));
+                        bad += any != nacre_voxel_grid_get(g, (nacre_voxel_set)set, l, x, y, z);
+                    }
+    }
+    CHECK(bad == 0);
+    CHECK(nacre_voxel_grid_count(g, NACRE_VOXEL_SOLID, 1) > 0);
+    /* A 28^3 grid has 28, 14, 7, 4. */
+    nacre_voxel_grid_destroy(g);
+    g = vox(ctx, &m, 28, false, NACRE_VOXEL_SOLID_AUTO, &rep);
+    CHECK(rep.levels == 4);
+    nacre_voxel_grid_destroy(g);
+    nacre_mesh_data_free(ctx, &m);
+}
+
+static void test_threads(void)
+{
+    nacre_context *c1 = ctx_threads(1), *c2 = ctx_threads(2);
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_TORUS);
+    sd.segments = 128;
+    sd.rings = 64; /* > the parallel threshold */
+    nacre_mesh_data m = {0};
+    CHECK(nacre_mesh_make_shape(c1, &sd, &m) == NACRE_OK);
+    rotate(&m);
+    nacre_voxel_report r1, r2;
+    nacre_voxel_grid *g1 = vox(c1, &m, 64, true, NACRE_VOXEL_SOLID_ROBUST, &r1);
+    nacre_voxel_grid *g2 = vox(c2, &m, 64, true, NACRE_VOXEL_SOLID_ROBUST, &r2);
+    uint64_t diff = 1;
+    CHECK(same_set(g1, g2, NACRE_VOXEL_SOLID, &diff));
+    CHECK(same_set(g1, g2, NACRE_VOXEL_SURFACE, &diff));
+    nacre_voxel_grid_destroy(g1);
+    nacre_voxel_grid_destroy(g2);
+    nacre_mesh_data_free(c1, &m);
+    nacre_context_destroy(c1);
+    nacre_context_destroy(c2);
+}
+
+static void test_rest(nacre_context *ctx)
+{
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_SPHERE);
+    sd.segments = 24;
+    sd.rings = 12;
+    nacre_mesh_data rest = {0}, def = {0};
+    CHECK(nacre_mesh_make_shape(ctx, &sd, &rest) == NACRE_OK);
+    CHECK(nacre_mesh_make_shape(ctx, &sd, &def) == NACRE_OK);
+    const float t[3] = {0.3f, -0.2f, 0.1f};
+    for (uint32_t i = 0; i < def.vertex_count; i++)
+        for (int a = 0; a < 3; a++)
+            def.positions[3 * i + (uint32_t)a] += t[a];
+    nacre_voxel_report rep;
+    nacre_voxel_grid *g = vox(ctx, &def, 20, false, NACRE_VOXEL_SOLID_AUTO, &rep);
+    size_t nvox = (size_t)rep.dims[0] * rep.dims[1] * rep.dims[2];
+    float *out = malloc(sizeof(float) * 3 * nvox);
+    CHECK(nacre_voxel_grid_rest_positions(g, &rest, &def, out) == NACRE_OK);
+    double h = rep.voxel_size, worst = 0;
+    uint64_t filled = 0, unset_ok = 0, unset = 0;
+    for (uint32_t z = 0; z < rep.dims[2]; z++)
+        for (uint32_t y = 0; y < rep.dims[1]; y++)
+            for (uint32_t x = 0; x < rep.dims[0]; x++) {
+                size_t i = x + rep.dims[0] * (y + (size_t)rep.dims[1] * z);
+                bool in = nacre_voxel_grid_get(g, NACRE_VOXEL_SOLID, 0, x, y, z) ||
+                          nacre_voxel_grid_get(g, NACRE_VOXEL_SURFACE, 0, x, y, z);
+                if (!in) {
+                    unset++;
+                    unset_ok += isnan(out[3 * i]);
+                    continue;
+                }
+                filled++;
+                double c[3] = {rep.origin[0] + (x + 0.5) * h, rep.origin[1] + (y + 0.5) * h,
+                               rep.origin[2] + (z + 0.5) * h};
+                for (int a = 0; a < 3; a++)
+                    worst = fmax(worst, fabs(out[3 * i + (size_t)a] - (c[a] - t[a])));
+            }
+    CHECK(filled > 1000);
+    CHECK(unset_ok == unset);
+    /* Translation: interior voxels exact; surface voxels hold the closest surface point, at most
+     * half a voxel diagonal from the centre. */
+    CHECK(worst <= 0.87 * h);
+    free(out);
+    nacre_voxel_grid_destroy(g);
+    nacre_mesh_data_free(ctx, &rest);
+    nacre_mesh_data_free(ctx, &def);
+}
+
+static int run(const char *cmd)
+{
+    int st = system(cmd);
+    return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+static void test_cli(void)
+{
+    const char *obj = NACRE_TEST_TMP "/vox_cube.obj";
+    FILE *f = fopen(obj, "w");
+    CHECK(f != NULL);
+    if (!f)
+        return;
+    fprintf(f, "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n"
+               "f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n");
+    fclose(f);
+    const char *json = NACRE_TEST_TMP "/vox_cube.json", *nrrd = NACRE_TEST_TMP "/vox_cube.nrrd";
+    char cmd[1024];
+    remove(nrrd);
+    snprintf(cmd, sizeof(cmd), "\"%s\" voxelize \"%s\" --res 8 --json -o \"%s\" > \"%s\"", NACRE_CLI, obj, nrrd, json);
+    CHECK(run(cmd) == 0);
+    char buf[2048] = {0};
+    f = fopen(json, "r");
+    if (f) {
+        size_t n = fread(buf, 1, sizeof(buf) - 1, f);
+        buf[n] = 0;
+        fclose(f);
+    }
+    CHECK(strstr(buf, "\"dims\":[8,8,8]") != NULL);
+    CHECK(strstr(buf, "\"solid_voxels\":512") != NULL);
+    CHECK(strstr(buf, "\"surface_voxels\":296") != NULL);
+    CHECK(strstr(buf, "\"closed\":true") != NULL);
+    CHECK(strstr(buf, "\"voxel_size\":0.125") != NULL);
+    CHECK(strstr(buf, "\"ms\":") != NULL);
+    f = fopen(nrrd, "rb");
+    CHECK(f != NULL);
+    if (f) {
+        char head[9] = {0};
+        CHECK(fread(head, 1, 8, f) == 8);
+        CHECK(strcmp(head, "NRRD0004") == 0);
+        fseek(f, 0, SEEK_END);
+        long size = ftell(f);
+        fclose(f);
+        CHECK(size > 2 * 512 && size < 2 * 512 + 1024);
+    }
+    snprintf(cmd, sizeof(cmd), "\"%s\" voxelize \"%s\" --res 0 2>/dev/null", NACRE_CLI, obj);
+    CHECK(run(cmd) == 2);
+    snprintf(cmd, sizeof(cmd), "\"%s\" voxelize \"%s/nope.obj\" --json 2>/dev/null", NACRE_CLI, NACRE_TEST_TMP);
+    CHECK(run(cmd) == 2);
+    snprintf(cmd, sizeof(cmd), "\"%s\" voxelize 2>/dev/null", NACRE_CLI);
+    CHECK(run(cmd) == 2);
+    snprintf(cmd, sizeof(cmd), "\"%s\" voxelize \"%s\" --bogus 2>/dev/null", NACRE_CLI, obj);
+    CHECK(run(cmd) == 2);
+}
+
+int main(void)
+{
+    nacre_context *ctx = ctx_threads(0);
+    nacre_shape_desc sphere = nacre_shape_desc_defaults(NACRE_SHAPE_SPHERE);
+    nacre_shape_desc box = nacre_shape_desc_defaults(NACRE_SHAPE_BOX);
+    box.size[0] = 1.3f, box.size[1] = 0.77f, box.size[2] = 0.5f;
+    nacre_shape_desc torus = nacre_shape_desc_defaults(NACRE_SHAPE_TORUS);
+    for (uint32_t res = 16; res <= 64; res += 24) {
+        check_volume(ctx, sphere, res);
+        check_volume(ctx, box, res + 3);
+        check_volume(ctx, torus, res + 1);
+    }
+    test_aligned_cube(ctx);
+    test_conservative(ctx);
+    test_shared_edges(ctx);
+    test_broken(ctx);
+    test_bad_input(ctx);
+    test_pyramid(ctx);
+    test_threads();
+    test_rest(ctx);
+    test_cli();
+    nacre_context_destroy(ctx);
+    return TEST_MAIN_END();
+}
