@@ -35,6 +35,9 @@
 
 #include <errno.h>
 #include <math.h>
+#ifdef __AVX2__
+#include <immintrin.h>
+#endif
 #include <stdio.h>
 #include <string.h>
 
@@ -365,6 +368,71 @@ static inline int load_triangle(const tri_source *s, size_t t, double v[3][3])
     return 0;
 }
 
+#ifdef __AVX2__
+typedef struct fast_consts {
+    __m256d origin, inv_h, dimm1; /* lane 3 zero */
+} fast_consts;
+
+/* One finite triangle (all_finite sources only): the same double operations as load_triangle,
+ * surface_triangle's bounds and parity_triangle's column-centre test, with the three axes in
+ * lanes 0..2 of a vector, so every decision is bit-identical to the scalar path. The common
+ * cases (no surface voxel or one 1 x 1 column run, no column centre) finish here; the rest go
+ * to surface_triangle / parity_triangle. Returns 2 for a zero-area triangle, else 0. */
+static inline void triangle_avx_load(const float *pos, const uint32_t *ti, const fast_consts *fc, __m256d v[3])
+{
+    const __m128i m3 = _mm_set_epi32(0, -1, -1, -1);
+    for (int k = 0; k < 3; k++) {
+        __m128 f = _mm_maskload_ps(pos + 3 * (size_t)ti[k], m3);
+        v[k] = _mm256_mul_pd(_mm256_sub_pd(_mm256_cvtps_pd(f), fc->origin), fc->inv_h);
+    }
+}
+
+static inline int triangle_avx(const bitset *b, const __m256d v[3], const fast_consts *fc)
+{
+    __m256d e1 = _mm256_sub_pd(v[1], v[0]), e2 = _mm256_sub_pd(v[2], v[0]);
+    /* n = e1.yzx * e2.zxy - e1.zxy * e2.yzx, lane 3 is 0 - 0. */
+    __m256d n = _mm256_sub_pd(
+        _mm256_mul_pd(_mm256_permute4x64_pd(e1, _MM_SHUFFLE(3, 0, 2, 1)),
+                      _mm256_permute4x64_pd(e2, _MM_SHUFFLE(3, 1, 0, 2))),
+        _mm256_mul_pd(_mm256_permute4x64_pd(e1, _MM_SHUFFLE(3, 1, 0, 2)),
+                      _mm256_permute4x64_pd(e2, _MM_SHUFFLE(3, 0, 2, 1))));
+    if (_mm256_movemask_pd(_mm256_cmp_pd(n, _mm256_setzero_pd(), _CMP_EQ_OQ)) == 0xF)
+        return 2;
+    __m256d mn = _mm256_min_pd(v[0], _mm256_min_pd(v[1], v[2]));
+    __m256d mx = _mm256_max_pd(v[0], _mm256_max_pd(v[1], v[2]));
+    /* Surface bounds as in surface_triangle. */
+    __m256d l = _mm256_max_pd(_mm256_sub_pd(_mm256_ceil_pd(mn), _mm256_set1_pd(1.0)), _mm256_setzero_pd());
+    __m256d h = _mm256_min_pd(_mm256_floor_pd(mx), fc->dimm1);
+    /* Column centres i + 0.5 in the xy bounds as in parity_triangle (c = z). */
+    __m256d half = _mm256_set1_pd(0.5);
+    __m256d pl = _mm256_max_pd(_mm256_ceil_pd(_mm256_sub_pd(mn, half)), _mm256_setzero_pd());
+    __m256d ph = _mm256_min_pd(_mm256_floor_pd(_mm256_sub_pd(mx, half)), fc->dimm1);
+    bool parity = (_mm256_movemask_pd(_mm256_cmp_pd(pl, ph, _CMP_GT_OQ)) & 3) == 0;
+    bool none = (_mm256_movemask_pd(_mm256_cmp_pd(l, h, _CMP_GT_OQ)) & 7) != 0;
+    bool run = (_mm256_movemask_pd(_mm256_cmp_pd(l, h, _CMP_EQ_OQ)) & 3) == 3;
+    if (!none && run) {
+        double lo[4], hi[4];
+        _mm256_storeu_pd(lo, l);
+        _mm256_storeu_pd(hi, h);
+        mark_run(b->surface, b, (uint32_t)lo[0], (uint32_t)lo[1], (uint32_t)lo[2], (uint32_t)hi[2]);
+    }
+    if ((!none && !run) || parity) {
+        double w[3][4], vv[3][3];
+        for (int k = 0; k < 3; k++) {
+            _mm256_storeu_pd(w[k], v[k]);
+            for (int a = 0; a < 3; a++)
+                vv[k][a] = w[k][a];
+        }
+        if (!none && !run)
+            surface_triangle(b, (const double(*)[3])vv);
+        if (parity)
+            parity_triangle(b->solid, b->dims[0], b->dims[1], b->dims[2], b->words, (const double(*)[3])vv, 0,
+                            1, 2);
+    }
+    return 0;
+}
+#endif
+
 /* Parity along axis c into a fresh set with columns along c: layout columns over (a, b). */
 static nacre_result parity_axis(nacre_context *ctx, const tri_source *src, size_t nt,
                                 const uint32_t dims[3], int a, int b, int c, uint64_t **out)
@@ -577,30 +645,56 @@ nacre_result nacre_voxelize(nacre_context *ctx, const nacre_mesh_data *mesh,
 
     bitset *b = &g->level[0];
     uint32_t degenerate = 0, nonfinite = 0, bad_index = 0;
+#ifdef __AVX2__
+    fast_consts fc;
+    fc.origin = _mm256_set_pd(0.0, src.origin[2], src.origin[1], src.origin[0]);
+    fc.inv_h = _mm256_set1_pd(src.inv_h);
+    fc.dimm1 = _mm256_set_pd(0.0, (double)dims[2] - 1, (double)dims[1] - 1, (double)dims[0] - 1);
+#endif
     /* Surface and z parity in one pass over the triangles; indices are checked here rather than
      * in a pass of their own (one less sweep over the index array), and a bad one fails the
      * whole call after the loop. */
+#define VOXEL_BLOCK 8
+    size_t nblocks = (nt + VOXEL_BLOCK - 1) / VOXEL_BLOCK;
 #pragma omp parallel for schedule(static) num_threads(threads) reduction(+ : degenerate, nonfinite, bad_index) if (nt > VOXEL_PARALLEL_MIN)
-    for (size_t t = 0; t < nt; t++) {
-        const uint32_t *ti = idx + 3 * t;
-        if (ti[0] >= nv || ti[1] >= nv || ti[2] >= nv) {
-            bad_index++;
-            continue;
-        }
+    for (size_t blk = 0; blk < nblocks; blk++) {
+        size_t t0 = blk * VOXEL_BLOCK, t1 = t0 + VOXEL_BLOCK < nt ? t0 + VOXEL_BLOCK : nt;
         /* Vertex loads are random gathers and dominate on large meshes: fetch ahead. */
-        if (t + 32 < nt) {
-            const uint32_t *ahead = idx + 3 * (t + 32);
+        for (size_t t = t0 + 32; t < t1 + 32 && t < nt; t++) {
+            const uint32_t *ahead = idx + 3 * t;
             for (int k = 0; k < 3; k++) /* clamped: no out-of-range pointer is formed */
                 __builtin_prefetch(pos + 3 * (size_t)(ahead[k] < nv ? ahead[k] : 0));
         }
-        double v[3][3];
-        int st = load_triangle(&src, t, v);
-        degenerate += st == 2;
-        nonfinite += st == 1;
-        if (st != 0)
+#ifdef __AVX2__
+        /* Whole blocks of valid indices: all loads first, then the branchy part, so the
+         * gathers of a block overlap. */
+        bool valid = src.all_finite && t1 - t0 == VOXEL_BLOCK;
+        for (size_t t = t0; valid && t < t1; t++)
+            valid = idx[3 * t] < nv && idx[3 * t + 1] < nv && idx[3 * t + 2] < nv;
+        if (valid) {
+            __m256d vb[VOXEL_BLOCK][3];
+            for (size_t i = 0; i < VOXEL_BLOCK; i++)
+                triangle_avx_load(pos, idx + 3 * (t0 + i), &fc, vb[i]);
+            for (size_t i = 0; i < VOXEL_BLOCK; i++)
+                degenerate += triangle_avx(b, vb[i], &fc) == 2;
             continue;
-        surface_triangle(b, (const double(*)[3])v);
-        parity_triangle(b->solid, dims[0], dims[1], dims[2], b->words, (const double(*)[3])v, 0, 1, 2);
+        }
+#endif
+        for (size_t t = t0; t < t1; t++) {
+            const uint32_t *ti = idx + 3 * t;
+            if (ti[0] >= nv || ti[1] >= nv || ti[2] >= nv) {
+                bad_index++;
+                continue;
+            }
+            double v[3][3];
+            int st = load_triangle(&src, t, v);
+            degenerate += st == 2;
+            nonfinite += st == 1;
+            if (st != 0)
+                continue;
+            surface_triangle(b, (const double(*)[3])v);
+            parity_triangle(b->solid, dims[0], dims[1], dims[2], b->words, (const double(*)[3])v, 0, 1, 2);
+        }
     }
     if (bad_index) {
         r = nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,

@@ -547,6 +547,64 @@ static void test_cli(void)
     CHECK(run(cmd) == 2);
 }
 
+/* The vectorised block path (all vertices finite) against the per-triangle path (forced by an
+ * unreferenced NaN vertex, which changes neither the bounds nor any triangle): same bits and
+ * the same degenerate count, with zero-area triangles and a triangle count that is not a
+ * multiple of the block size. */
+static void test_block_path(nacre_context *ctx)
+{
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_SPHERE);
+    sd.segments = 96;
+    sd.rings = 61;
+    nacre_mesh_data m = {0};
+    CHECK(nacre_mesh_make_shape(ctx, &sd, &m) == NACRE_OK);
+    uint32_t nt = m.triangle_count, extra = nt / 7 + 3;
+    nacre_mesh_data a = {0};
+    a.vertex_count = m.vertex_count;
+    a.triangle_count = nt + extra;
+    a.positions = malloc(sizeof(float) * 3 * (m.vertex_count + 1));
+    a.indices = malloc(sizeof(uint32_t) * 3 * (nt + extra));
+    memcpy(a.positions, m.positions, sizeof(float) * 3 * m.vertex_count);
+    uint32_t k = 0, e = 0;
+    for (uint32_t t = 0; t < nt; t++) {
+        memcpy(a.indices + 3 * k++, m.indices + 3 * t, sizeof(uint32_t) * 3);
+        if (t % 7 == 3 && e < extra) { /* zero area: repeated vertex */
+            uint32_t i0 = m.indices[3 * t], i1 = m.indices[3 * t + 1];
+            a.indices[3 * k] = i0, a.indices[3 * k + 1] = i1, a.indices[3 * k + 2] = i0;
+            k++, e++;
+        }
+    }
+    while (e < extra) {
+        a.indices[3 * k] = a.indices[3 * k + 1] = a.indices[3 * k + 2] = 0;
+        k++, e++;
+    }
+    CHECK(k == nt + extra);
+    nacre_mesh_data b = a;
+    b.vertex_count = m.vertex_count + 1;
+    a.positions[3 * m.vertex_count] = NAN;
+    a.positions[3 * m.vertex_count + 1] = 0;
+    a.positions[3 * m.vertex_count + 2] = 0;
+    for (uint32_t res = 4; res <= 128; res = res * 2 + 1) {
+        nacre_voxel_report ra, rb;
+        nacre_voxel_grid *ga = vox(ctx, &a, res, false, NACRE_VOXEL_SOLID_PARITY, &ra);
+        nacre_voxel_grid *gb = vox(ctx, &b, res, false, NACRE_VOXEL_SOLID_PARITY, &rb);
+        if (ga && gb) {
+            uint64_t diff = 0;
+            CHECK(same_set(ga, gb, NACRE_VOXEL_SURFACE, &diff));
+            CHECK(same_set(ga, gb, NACRE_VOXEL_SOLID, &diff));
+            CHECK(ra.skipped_degenerate == extra);
+            CHECK(rb.skipped_degenerate == extra);
+            CHECK(ra.skipped_nonfinite == 0 && rb.skipped_nonfinite == 0);
+            CHECK(ra.surface_voxels == rb.surface_voxels && ra.solid_voxels == rb.solid_voxels);
+        }
+        nacre_voxel_grid_destroy(ga);
+        nacre_voxel_grid_destroy(gb);
+    }
+    free(a.positions);
+    free(a.indices);
+    nacre_mesh_data_free(ctx, &m);
+}
+
 int main(void)
 {
     nacre_context *ctx = ctx_threads(0);
@@ -566,6 +624,7 @@ int main(void)
     test_bad_input(ctx);
     test_pyramid(ctx);
     test_threads();
+    test_block_path(ctx);
     test_rest(ctx);
     test_cli();
     nacre_context_destroy(ctx);
