@@ -18,10 +18,11 @@
  *   - Triangles with a non-finite vertex or zero area are skipped and counted in the report.
  *
  * COST: one pass over the vertices (bounds) and one over the triangles (surface and z parity, both
- * with atomic bit operations), then a prefix XOR per column; ROBUST adds two more triangle passes
- * and a per-voxel vote. SOLID_AUTO also runs nacre_mesh_analyze (welding, edge sort), which costs
- * more than the voxelization on large meshes: per-frame callers should decide the rule once
- * (topology does not change under deformation) and pass PARITY or ROBUST.
+ * with atomic bit operations), then a prefix XOR per column; ROBUST adds the x and y parities (in
+ * the same triangle pass) and a per-voxel vote. SOLID_AUTO also runs nacre_mesh_analyze (welding,
+ * edge sort), which costs more than the voxelization on large meshes: per-frame callers should
+ * decide the rule once (topology does not change under deformation), pass PARITY or ROBUST and use
+ * nacre_voxelize_update on a grid kept across frames.
  *
  * THREADING: voxelization uses OpenMP with the context's thread count; the result does not
  * depend on it. A finished grid may be queried from several threads at once.
@@ -73,6 +74,18 @@ NACRE_API nacre_voxel_settings nacre_voxel_settings_defaults(void);
 NACRE_API nacre_result nacre_voxelize(nacre_context *ctx, const nacre_mesh_data *mesh,
                                       const nacre_voxel_settings *settings,
                                       nacre_voxel_grid **out, nacre_voxel_report *report);
+/* Per-frame path: re-voxelize `mesh` into an existing `grid` (from nacre_voxelize, same context),
+ * with the same results as a fresh nacre_voxelize bit for bit. The grid's level arrays and its
+ * scratch (the ROBUST x and y parity sets, kept in the grid) are reused when the new sizes fit
+ * and reallocated otherwise, so a caller voxelizing every frame (as the seed does) allocates
+ * nothing after the first frame; create the grid once, update it each frame, destroy it at the
+ * end. Settings may change between calls (resolution, anisotropic, rule); report->ms is the wall
+ * time of this call. Argument errors detected before any work (NULL or empty mesh, bad settings)
+ * leave the grid unchanged; a later failure (bad index, no usable triangle, out of memory)
+ * leaves it with 0 levels (queries return false / 0) until the next successful update. */
+NACRE_API nacre_result nacre_voxelize_update(nacre_voxel_grid *grid, const nacre_mesh_data *mesh,
+                                             const nacre_voxel_settings *settings,
+                                             nacre_voxel_report *report);
 NACRE_API void nacre_voxel_grid_destroy(nacre_voxel_grid *grid);
 /* Number of levels (>= 1). */
 NACRE_API uint32_t nacre_voxel_grid_levels(const nacre_voxel_grid *grid);

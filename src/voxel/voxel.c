@@ -64,6 +64,9 @@ struct nacre_voxel_grid {
     float voxel_size;
     uint32_t levels;
     bitset level[VOXEL_MAX_LEVELS];
+    size_t cap[VOXEL_MAX_LEVELS]; /* words allocated for each of surface and solid, per level */
+    uint64_t *px, *py;            /* ROBUST scratch: x and y parities, kept for nacre_voxelize_update */
+    size_t cap_px, cap_py;        /* words allocated in px, py */
 };
 
 nacre_voxel_settings nacre_voxel_settings_defaults(void)
@@ -75,18 +78,46 @@ nacre_voxel_settings nacre_voxel_settings_defaults(void)
     return s;
 }
 
-static nacre_result bitset_alloc(nacre_context *ctx, bitset *b, const uint32_t dims[3])
+/* Zeroed buffer of n words in *buf, reusing it when its capacity *cap suffices (only the n words
+ * used are cleared). */
+static nacre_result words_prepare(nacre_context *ctx, uint64_t **buf, size_t *cap, size_t n)
 {
-    size_t cols, n;
+    if (*buf && n <= *cap) {
+        memset(*buf, 0, n * 8);
+        return NACRE_OK;
+    }
+    nc_free(ctx, *buf);
+    *cap = 0;
+    *buf = nc_calloc(ctx, n ? n : 1, 8);
+    if (!*buf)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    *cap = n ? n : 1;
+    return NACRE_OK;
+}
+
+/* Level `l` of g with `dims`, both sets zeroed; allocations are reused when they fit. */
+static nacre_result bitset_alloc(nacre_context *ctx, nacre_voxel_grid *g, uint32_t l, const uint32_t dims[3])
+{
+    bitset *b = &g->level[l];
+    size_t cols, n, bytes;
     memcpy(b->dims, dims, sizeof(b->dims));
     b->words = (dims[2] + 63u) / 64u;
     if (!nc_mul_size_ok((size_t)dims[0], (size_t)dims[1], &cols) ||
-        !nc_mul_size_ok(cols, (size_t)b->words, &n) || !nc_mul_size_ok(n, 8, &n))
+        !nc_mul_size_ok(cols, (size_t)b->words, &n) || !nc_mul_size_ok(n, 8, &bytes))
         return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "voxel: grid too large");
-    b->surface = nc_calloc(ctx, n / 8, 8);
-    b->solid = nc_calloc(ctx, n / 8, 8);
+    if (b->surface && b->solid && n <= g->cap[l]) {
+        memset(b->surface, 0, bytes);
+        memset(b->solid, 0, bytes);
+        return NACRE_OK;
+    }
+    nc_free(ctx, b->surface);
+    nc_free(ctx, b->solid);
+    g->cap[l] = 0;
+    b->surface = nc_calloc(ctx, n ? n : 1, 8);
+    b->solid = nc_calloc(ctx, n ? n : 1, 8);
     if (!b->surface || !b->solid)
         return NACRE_ERROR_OUT_OF_MEMORY;
+    g->cap[l] = n ? n : 1;
     return NACRE_OK;
 }
 
@@ -103,6 +134,8 @@ void nacre_voxel_grid_destroy(nacre_voxel_grid *grid)
         nc_free(grid->ctx, grid->level[l].surface);
         nc_free(grid->ctx, grid->level[l].solid);
     }
+    nc_free(grid->ctx, grid->px);
+    nc_free(grid->ctx, grid->py);
     nc_free(grid->ctx, grid);
 }
 
@@ -368,6 +401,22 @@ static inline int load_triangle(const tri_source *s, size_t t, double v[3][3])
     return 0;
 }
 
+/* ROBUST: the x and y flip sets, filled in the same triangle pass as the surface and z parity
+ * (parity_triangle is the same function with the same coordinates as in a pass of its own, and
+ * the XOR toggles commute, so the result is the same). x columns over (y, z), y over (z, x). */
+typedef struct robust_sets {
+    uint64_t *px, *py;
+    uint32_t wx, wy; /* words per column */
+} robust_sets;
+
+static inline void parity_xy(const bitset *b, const robust_sets *rs, const double v[3][3], bool px, bool py)
+{
+    if (px)
+        parity_triangle(rs->px, b->dims[1], b->dims[2], b->dims[0], rs->wx, v, 1, 2, 0);
+    if (py)
+        parity_triangle(rs->py, b->dims[2], b->dims[0], b->dims[1], rs->wy, v, 2, 0, 1);
+}
+
 #ifdef __AVX2__
 typedef struct fast_consts {
     __m256d origin, inv_h, dimm1; /* lane 3 zero */
@@ -387,7 +436,7 @@ static inline void triangle_avx_load(const float *pos, const uint32_t *ti, const
     }
 }
 
-static inline int triangle_avx(const bitset *b, const __m256d v[3], const fast_consts *fc)
+static inline int triangle_avx(const bitset *b, const __m256d v[3], const fast_consts *fc, const robust_sets *rs)
 {
     __m256d e1 = _mm256_sub_pd(v[1], v[0]), e2 = _mm256_sub_pd(v[2], v[0]);
     /* n = e1.yzx * e2.zxy - e1.zxy * e2.yzx, lane 3 is 0 - 0. */
@@ -407,7 +456,10 @@ static inline int triangle_avx(const bitset *b, const __m256d v[3], const fast_c
     __m256d half = _mm256_set1_pd(0.5);
     __m256d pl = _mm256_max_pd(_mm256_ceil_pd(_mm256_sub_pd(mn, half)), _mm256_setzero_pd());
     __m256d ph = _mm256_min_pd(_mm256_floor_pd(_mm256_sub_pd(mx, half)), fc->dimm1);
-    bool parity = (_mm256_movemask_pd(_mm256_cmp_pd(pl, ph, _CMP_GT_OQ)) & 3) == 0;
+    int pmask = _mm256_movemask_pd(_mm256_cmp_pd(pl, ph, _CMP_GT_OQ));
+    bool parity = (pmask & 3) == 0;
+    /* x parity: column centres over (y, z), lanes 1 and 2; y parity: over (z, x), lanes 2 and 0. */
+    bool parx = rs && (pmask & 6) == 0, pary = rs && (pmask & 5) == 0;
     bool none = (_mm256_movemask_pd(_mm256_cmp_pd(l, h, _CMP_GT_OQ)) & 7) != 0;
     bool run = (_mm256_movemask_pd(_mm256_cmp_pd(l, h, _CMP_EQ_OQ)) & 3) == 3;
     if (!none && run) {
@@ -416,7 +468,7 @@ static inline int triangle_avx(const bitset *b, const __m256d v[3], const fast_c
         _mm256_storeu_pd(hi, h);
         mark_run(b->surface, b, (uint32_t)lo[0], (uint32_t)lo[1], (uint32_t)lo[2], (uint32_t)hi[2]);
     }
-    if ((!none && !run) || parity) {
+    if ((!none && !run) || parity || parx || pary) {
         double w[3][4], vv[3][3];
         for (int k = 0; k < 3; k++) {
             _mm256_storeu_pd(w[k], v[k]);
@@ -428,49 +480,31 @@ static inline int triangle_avx(const bitset *b, const __m256d v[3], const fast_c
         if (parity)
             parity_triangle(b->solid, b->dims[0], b->dims[1], b->dims[2], b->words, (const double(*)[3])vv, 0,
                             1, 2);
+        if (parx || pary)
+            parity_xy(b, rs, (const double(*)[3])vv, parx, pary);
     }
     return 0;
 }
 #endif
-
-/* Parity along axis c into a fresh set with columns along c: layout columns over (a, b). */
-static nacre_result parity_axis(nacre_context *ctx, const tri_source *src, size_t nt,
-                                const uint32_t dims[3], int a, int b, int c, uint64_t **out)
-{
-    uint32_t words = (dims[c] + 63u) / 64u;
-    size_t columns = (size_t)dims[a] * dims[b];
-    uint64_t *flip = nc_calloc(ctx, columns * words, 8);
-    if (!flip)
-        return NACRE_ERROR_OUT_OF_MEMORY;
-    int threads = nc_threads(ctx);
-#pragma omp parallel for schedule(static) num_threads(threads) if (nt > VOXEL_PARALLEL_MIN)
-    for (size_t t = 0; t < nt; t++) {
-        double v[3][3];
-        if (load_triangle(src, t, v) == 0)
-            parity_triangle(flip, dims[a], dims[b], dims[c], words, (const double(*)[3])v, a, b, c);
-    }
-    prefix_xor(flip, columns, dims[c], words, threads);
-    *out = flip;
-    return NACRE_OK;
-}
 
 static inline bool get_bit(const uint64_t *set, size_t col, uint32_t words, uint32_t k)
 {
     return (set[col * words + k / 64] >> (k % 64)) & 1u;
 }
 
-/* Majority of the x, y and z parities into b->solid (which holds the z parity on entry). */
-static nacre_result robust_solid(nacre_context *ctx, const tri_source *src, size_t nt, bitset *b)
+/* Majority of the x, y and z parities into b->solid (which holds the z parity on entry); rs holds
+ * the x and y toggles from the triangle pass. */
+static void robust_solid(const robust_sets *rs, bitset *b, int threads)
 {
-    uint64_t *px = NULL, *py = NULL;
+    const uint64_t *px = rs->px, *py = rs->py;
     const uint32_t *d = b->dims;
-    /* x columns over (y, z); y columns over (z, x). */
-    nacre_result r = parity_axis(ctx, src, nt, d, 1, 2, 0, &px);
-    if (r == NACRE_OK)
-        r = parity_axis(ctx, src, nt, d, 2, 0, 1, &py);
-    if (r == NACRE_OK) {
-        uint32_t wx = (d[0] + 63u) / 64u, wy = (d[1] + 63u) / 64u;
-#pragma omp parallel for schedule(static) num_threads(nc_threads(ctx))
+    prefix_xor(rs->px, (size_t)d[1] * d[2], d[0], rs->wx, threads);
+    prefix_xor(rs->py, (size_t)d[2] * d[0], d[1], rs->wy, threads);
+    {
+        uint32_t wx = rs->wx, wy = rs->wy;
+        size_t work = (size_t)d[0] * d[1] * d[2];
+        (void)work;
+#pragma omp parallel for schedule(static) num_threads(threads) if (work > 65536)
         for (uint32_t y = 0; y < d[1]; y++) {
             for (uint32_t x = 0; x < d[0]; x++) {
                 uint64_t *col = b->solid + ((size_t)y * d[0] + x) * b->words;
@@ -484,9 +518,6 @@ static nacre_result robust_solid(nacre_context *ctx, const tri_source *src, size
             }
         }
     }
-    nc_free(ctx, px);
-    nc_free(ctx, py);
-    return r;
 }
 
 /* OR of bits 2i and 2i+1 of a 128-bit pair (lo, hi) into bit i of one word. */
@@ -505,7 +536,9 @@ static void downsample(const bitset *fine, const uint64_t *fs, const bitset *coa
                        int threads)
 {
     const uint32_t *cd = coarse->dims;
-#pragma omp parallel for schedule(static) num_threads(threads)
+    size_t work = (size_t)fine->dims[0] * fine->dims[1] * fine->words;
+    (void)work;
+#pragma omp parallel for schedule(static) num_threads(threads) if (work > 16384)
     for (uint32_t y = 0; y < cd[1]; y++) {
         for (uint32_t x = 0; x < cd[0]; x++) {
             uint64_t *out = cs + ((size_t)y * cd[0] + x) * coarse->words;
@@ -531,18 +564,16 @@ static uint64_t popcount_set(const uint64_t *s, size_t n)
     return c;
 }
 
-nacre_result nacre_voxelize(nacre_context *ctx, const nacre_mesh_data *mesh,
-                            const nacre_voxel_settings *settings, nacre_voxel_grid **out,
-                            nacre_voxel_report *report)
+/* Voxelize into *out: a fresh grid when *out is NULL (destroyed on failure), else the grid
+ * given, whose allocations are reused when they fit (levels set to 0 on a failure after it was
+ * touched). */
+static nacre_result voxelize_impl(nacre_context *ctx, const nacre_mesh_data *mesh,
+                                  const nacre_voxel_settings *settings, nacre_voxel_grid **out,
+                                  nacre_voxel_report *report)
 {
-    if (!ctx)
-        return NACRE_ERROR_INVALID_ARGUMENT;
     uint64_t t_start = nc_now_us();
     if (report)
         memset(report, 0, sizeof(*report));
-    if (!out)
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "voxelize: output is NULL");
-    *out = NULL;
     nacre_voxel_settings s = settings ? *settings : nacre_voxel_settings_defaults();
     if (s.resolution == 0)
         s.resolution = 32;
@@ -615,14 +646,16 @@ nacre_result nacre_voxelize(nacre_context *ctx, const nacre_mesh_data *mesh,
         origin[a] = 0.5 * ((double)bmin[a] + (double)bmax[a]) - 0.5 * dims[a] * h;
     }
 
-    nacre_voxel_grid *g = nc_calloc(ctx, 1, sizeof(*g));
+    bool fresh = *out == NULL;
+    nacre_voxel_grid *g = fresh ? nc_calloc(ctx, 1, sizeof(*g)) : *out;
     if (!g)
         return NACRE_ERROR_OUT_OF_MEMORY;
     g->ctx = ctx;
+    g->levels = 0;
     g->voxel_size = (float)h;
     for (int a = 0; a < 3; a++)
         g->origin[a] = (float)origin[a];
-    nacre_result r = bitset_alloc(ctx, &g->level[0], dims);
+    nacre_result r = bitset_alloc(ctx, g, 0, dims);
     if (r != NACRE_OK)
         goto fail;
     /* Use the float-rounded origin and size so queries and exports describe exactly this grid. */
@@ -645,6 +678,20 @@ nacre_result nacre_voxelize(nacre_context *ctx, const nacre_mesh_data *mesh,
 
     bitset *b = &g->level[0];
     uint32_t degenerate = 0, nonfinite = 0, bad_index = 0;
+    robust_sets rsets, *rs = NULL;
+    if (rule == NACRE_VOXEL_SOLID_ROBUST) {
+        rsets.wx = (dims[0] + 63u) / 64u;
+        rsets.wy = (dims[1] + 63u) / 64u;
+        /* Sizes cannot overflow: each is at most the level-0 size times 64 words per 4096 voxels. */
+        r = words_prepare(ctx, &g->px, &g->cap_px, (size_t)dims[1] * dims[2] * rsets.wx);
+        if (r == NACRE_OK)
+            r = words_prepare(ctx, &g->py, &g->cap_py, (size_t)dims[2] * dims[0] * rsets.wy);
+        if (r != NACRE_OK)
+            goto fail;
+        rsets.px = g->px;
+        rsets.py = g->py;
+        rs = &rsets;
+    }
 #ifdef __AVX2__
     fast_consts fc;
     fc.origin = _mm256_set_pd(0.0, src.origin[2], src.origin[1], src.origin[0]);
@@ -676,7 +723,7 @@ nacre_result nacre_voxelize(nacre_context *ctx, const nacre_mesh_data *mesh,
             for (size_t i = 0; i < VOXEL_BLOCK; i++)
                 triangle_avx_load(pos, idx + 3 * (t0 + i), &fc, vb[i]);
             for (size_t i = 0; i < VOXEL_BLOCK; i++)
-                degenerate += triangle_avx(b, vb[i], &fc) == 2;
+                degenerate += triangle_avx(b, vb[i], &fc, rs) == 2;
             continue;
         }
 #endif
@@ -694,6 +741,8 @@ nacre_result nacre_voxelize(nacre_context *ctx, const nacre_mesh_data *mesh,
                 continue;
             surface_triangle(b, (const double(*)[3])v);
             parity_triangle(b->solid, dims[0], dims[1], dims[2], b->words, (const double(*)[3])v, 0, 1, 2);
+            if (rs)
+                parity_xy(b, rs, (const double(*)[3])v, true, true);
         }
     }
     if (bad_index) {
@@ -706,11 +755,8 @@ nacre_result nacre_voxelize(nacre_context *ctx, const nacre_mesh_data *mesh,
         goto fail;
     }
     prefix_xor(b->solid, (size_t)dims[0] * dims[1], dims[2], b->words, threads);
-    if (rule == NACRE_VOXEL_SOLID_ROBUST) {
-        r = robust_solid(ctx, &src, nt, b);
-        if (r != NACRE_OK)
-            goto fail;
-    }
+    if (rs)
+        robust_solid(rs, b, threads);
 
     /* Pyramid. */
     g->levels = 1;
@@ -722,7 +768,7 @@ nacre_result nacre_voxelize(nacre_context *ctx, const nacre_mesh_data *mesh,
         if (cd[0] < 4 || cd[1] < 4 || cd[2] < 4 || (f->dims[0] <= 4 || f->dims[1] <= 4 || f->dims[2] <= 4))
             break;
         bitset *c = &g->level[g->levels];
-        r = bitset_alloc(ctx, c, cd);
+        r = bitset_alloc(ctx, g, g->levels, cd);
         if (r != NACRE_OK)
             goto fail;
         downsample(f, f->surface, c, c->surface, threads);
@@ -746,8 +792,38 @@ nacre_result nacre_voxelize(nacre_context *ctx, const nacre_mesh_data *mesh,
     *out = g;
     return NACRE_OK;
 fail:
-    nacre_voxel_grid_destroy(g);
+    if (fresh) {
+        nacre_voxel_grid_destroy(g);
+    } else {
+        g->levels = 0;
+        memset(g->level[0].dims, 0, sizeof(g->level[0].dims));
+    }
     return r;
+}
+
+nacre_result nacre_voxelize(nacre_context *ctx, const nacre_mesh_data *mesh,
+                            const nacre_voxel_settings *settings, nacre_voxel_grid **out,
+                            nacre_voxel_report *report)
+{
+    if (!ctx)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    if (report)
+        memset(report, 0, sizeof(*report));
+    if (!out)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "voxelize: output is NULL");
+    *out = NULL;
+    return voxelize_impl(ctx, mesh, settings, out, report);
+}
+
+nacre_result nacre_voxelize_update(nacre_voxel_grid *grid, const nacre_mesh_data *mesh,
+                                   const nacre_voxel_settings *settings, nacre_voxel_report *report)
+{
+    if (report)
+        memset(report, 0, sizeof(*report));
+    if (!grid)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    nacre_voxel_grid *g = grid;
+    return voxelize_impl(grid->ctx, mesh, settings, &g, report);
 }
 
 /* ------------------------------------------------------------------------------------------ */

@@ -605,6 +605,94 @@ static void test_block_path(nacre_context *ctx)
     nacre_mesh_data_free(ctx, &m);
 }
 
+/* nacre_voxelize_update on a reused grid equals a fresh nacre_voxelize bit for bit, on every
+ * level and both sets: same dims again, larger and smaller dims (anisotropic too), another rule,
+ * and a failure (bad index) followed by a successful update. */
+static bool same_grid(const nacre_voxel_grid *a, const nacre_voxel_grid *b)
+{
+    uint32_t la = nacre_voxel_grid_levels(a);
+    if (la != nacre_voxel_grid_levels(b))
+        return false;
+    for (uint32_t l = 0; l < la; l++) {
+        uint32_t da[3], db[3];
+        nacre_voxel_grid_dims(a, l, da);
+        nacre_voxel_grid_dims(b, l, db);
+        if (memcmp(da, db, sizeof(da)) != 0)
+            return false;
+        for (int set = 0; set < 2; set++) {
+            if (nacre_voxel_grid_count(a, (nacre_voxel_set)set, l) != nacre_voxel_grid_count(b, (nacre_voxel_set)set, l))
+                return false;
+            for (uint32_t z = 0; z < da[2]; z++)
+                for (uint32_t y = 0; y < da[1]; y++)
+                    for (uint32_t x = 0; x < da[0]; x++)
+                        if (nacre_voxel_grid_get(a, (nacre_voxel_set)set, l, x, y, z) !=
+                            nacre_voxel_grid_get(b, (nacre_voxel_set)set, l, x, y, z))
+                            return false;
+        }
+    }
+    return true;
+}
+
+static void test_update(nacre_context *ctx)
+{
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_TORUS);
+    nacre_mesh_data m = {0};
+    CHECK(nacre_mesh_make_shape(ctx, &sd, &m) == NACRE_OK);
+    /* An open copy (a few triangles dropped) so ROBUST differs from PARITY. */
+    nacre_mesh_data open = m;
+    open.triangle_count = m.triangle_count - 5;
+    struct {
+        const nacre_mesh_data *mesh;
+        uint32_t res;
+        bool aniso;
+        nacre_voxel_solid_rule rule;
+    } steps[] = {
+        {&m, 28, false, NACRE_VOXEL_SOLID_PARITY},   {&m, 28, false, NACRE_VOXEL_SOLID_PARITY},
+        {&m, 64, false, NACRE_VOXEL_SOLID_PARITY},   {&m, 12, false, NACRE_VOXEL_SOLID_PARITY},
+        {&open, 12, false, NACRE_VOXEL_SOLID_ROBUST}, {&open, 70, false, NACRE_VOXEL_SOLID_ROBUST},
+        {&open, 33, true, NACRE_VOXEL_SOLID_ROBUST},  {&open, 33, true, NACRE_VOXEL_SOLID_AUTO},
+        {&m, 40, true, NACRE_VOXEL_SOLID_AUTO},       {&open, 5, false, NACRE_VOXEL_SOLID_ROBUST},
+        {&m, 130, false, NACRE_VOXEL_SOLID_PARITY},  {&open, 130, false, NACRE_VOXEL_SOLID_ROBUST},
+    };
+    nacre_voxel_report rep;
+    nacre_voxel_grid *g = vox(ctx, &m, 20, false, NACRE_VOXEL_SOLID_ROBUST, &rep);
+    CHECK(g != NULL);
+    CHECK(nacre_voxelize_update(NULL, &m, NULL, &rep) == NACRE_ERROR_INVALID_ARGUMENT);
+    for (size_t i = 0; g && i < sizeof(steps) / sizeof(steps[0]); i++) {
+        nacre_voxel_report rf, ru;
+        nacre_voxel_grid *f = vox(ctx, steps[i].mesh, steps[i].res, steps[i].aniso, steps[i].rule, &rf);
+        nacre_voxel_settings s = nacre_voxel_settings_defaults();
+        s.resolution = steps[i].res;
+        s.anisotropic = steps[i].aniso;
+        s.solid_rule = steps[i].rule;
+        CHECK(nacre_voxelize_update(g, steps[i].mesh, &s, &ru) == NACRE_OK);
+        CHECK(f && same_grid(f, g));
+        CHECK(memcmp(rf.dims, ru.dims, sizeof(rf.dims)) == 0 && rf.voxel_size == ru.voxel_size);
+        CHECK(memcmp(rf.origin, ru.origin, sizeof(rf.origin)) == 0);
+        CHECK(rf.surface_voxels == ru.surface_voxels && rf.solid_voxels == ru.solid_voxels);
+        CHECK(rf.rule_used == ru.rule_used && rf.closed == ru.closed && rf.levels == ru.levels);
+        CHECK(rf.skipped_degenerate == ru.skipped_degenerate && rf.skipped_nonfinite == ru.skipped_nonfinite);
+        nacre_voxel_grid_destroy(f);
+    }
+    /* A failing update (index out of range) empties the grid; the next one restores it. */
+    nacre_mesh_data bad = m;
+    bad.indices = malloc(sizeof(uint32_t) * 3 * m.triangle_count);
+    memcpy(bad.indices, m.indices, sizeof(uint32_t) * 3 * m.triangle_count);
+    bad.indices[4] = m.vertex_count + 7;
+    nacre_voxel_settings s = nacre_voxel_settings_defaults();
+    s.solid_rule = NACRE_VOXEL_SOLID_ROBUST;
+    CHECK(nacre_voxelize_update(g, &bad, &s, &rep) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(nacre_voxel_grid_levels(g) == 0);
+    CHECK(nacre_voxel_grid_count(g, NACRE_VOXEL_SURFACE, 0) == 0);
+    CHECK(nacre_voxelize_update(g, &m, &s, &rep) == NACRE_OK);
+    nacre_voxel_grid *f = vox(ctx, &m, 32, false, NACRE_VOXEL_SOLID_ROBUST, NULL);
+    CHECK(f && same_grid(f, g));
+    nacre_voxel_grid_destroy(f);
+    free(bad.indices);
+    nacre_voxel_grid_destroy(g);
+    nacre_mesh_data_free(ctx, &m);
+}
+
 int main(void)
 {
     nacre_context *ctx = ctx_threads(0);
@@ -625,6 +713,7 @@ int main(void)
     test_pyramid(ctx);
     test_threads();
     test_block_path(ctx);
+    test_update(ctx);
     test_rest(ctx);
     test_cli();
     nacre_context_destroy(ctx);
