@@ -452,7 +452,7 @@ NACRE_API bool nacre_method_available(nacre_method method);
 
 typedef struct nacre_render_settings {
     nacre_method method;
-    int32_t width, height;    /* default 640 x 480; 1..16384 */
+    int32_t width, height;    /* default 640 x 480; 1..16384 each, at most 2^26 pixels */
     float exposure;           /* EV stops applied when writing PNG (informational here) */
     int32_t shadow_map_size;  /* texels per side, default 2048; 0 disables shadows */
     float pcf_radius;         /* PCF kernel radius in shadow texels, default 1.5 */

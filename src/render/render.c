@@ -90,6 +90,11 @@ static nacre_result check_settings(nacre_context *ctx, const nacre_render_settin
     if (s->width < 1 || s->width > 16384 || s->height < 1 || s->height > 16384)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: size %dx%d: width and height must be 1..16384",
                        s->width, s->height);
+    /* ~100 bytes of buffers per pixel: 2^26 pixels (8192 x 8192) is ~7 GB, the most that fits
+     * the machines we target; larger requests fail here rather than in the kernel's OOM killer. */
+    if ((int64_t)s->width * s->height > ((int64_t)1 << 26))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: size %dx%d: at most 67108864 pixels (8192x8192)",
+                       s->width, s->height);
     if (s->shadow_map_size < 0 || s->shadow_map_size > 16384)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: shadow_map_size: must be 0..16384");
     if (!(isfinite(s->pcf_radius) && s->pcf_radius >= 0 && s->pcf_radius <= 64))

@@ -107,6 +107,9 @@ static void test_render_errors(void)
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
     snprintf(args, sizeof(args), "render --size 100000x10 -o %s", outpng);
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    snprintf(args, sizeof(args), "render --size 16384x16384 -o %s", outpng);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "pixels") != NULL);
     snprintf(args, sizeof(args), "render -o %s/out.bmp", TMP);
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
     /* Known but not implemented method: a clear error, not a fake image. */
