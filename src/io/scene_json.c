@@ -874,16 +874,19 @@ static void parse_light(loader *ld, const cJSON *obj)
         fail_inner(ld, r);
 }
 
-static void parse_lights(loader *ld, const cJSON *arr)
+/* Walk a JSON array whose elements are parsed by `parse_element`, with the key and index on the
+ * field path for messages ("lights[2].type"). */
+static void parse_array(loader *ld, const cJSON *arr, const char *key,
+                        void (*parse_element)(loader *, const cJSON *))
 {
-    size_t mark = push_key(ld, "lights");
+    size_t mark = push_key(ld, key);
     if (!cJSON_IsArray(arr)) {
         fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "expected an array, got %s", type_name(arr));
     } else {
         int i = 0;
         for (const cJSON *c = arr->child; c && !ld->err; c = c->next, i++) {
             size_t m2 = push_index(ld, i);
-            parse_light(ld, c);
+            parse_element(ld, c);
             pop(ld, m2);
         }
     }
@@ -1253,21 +1256,6 @@ static void parse_object(loader *ld, const cJSON *obj)
         fail_inner(ld, r);
 }
 
-static void parse_objects(loader *ld, const cJSON *arr)
-{
-    size_t mark = push_key(ld, "objects");
-    if (!cJSON_IsArray(arr)) {
-        fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "expected an array, got %s", type_name(arr));
-    } else {
-        int i = 0;
-        for (const cJSON *c = arr->child; c && !ld->err; c = c->next, i++) {
-            size_t m2 = push_index(ld, i);
-            parse_object(ld, c);
-            pop(ld, m2);
-        }
-    }
-    pop(ld, mark);
-}
 
 /* Sections in dependency order, whatever their order in the file: units scale the presets,
  * materials must exist before objects name them. */
@@ -1294,9 +1282,9 @@ static void parse_scene(loader *ld, const cJSON *root)
     if ((item = member(root, "materials")) && !ld->err)
         parse_materials(ld, item);
     if ((item = member(root, "lights")) && !ld->err)
-        parse_lights(ld, item);
+        parse_array(ld, item, "lights", parse_light);
     if ((item = member(root, "objects")) && !ld->err)
-        parse_objects(ld, item);
+        parse_array(ld, item, "objects", parse_object);
 }
 
 /* ------------------------------------------------------------------------------------------ */
