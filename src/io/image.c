@@ -57,6 +57,15 @@ void nacre_image_free(nacre_context *ctx, nacre_image *image)
     memset(image, 0, sizeof(*image));
 }
 
+nacre_result nc_image_write_check(nacre_context *ctx, const nacre_image *image, const char *path)
+{
+    if (!ctx)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    if (!path)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "image write: path is NULL");
+    return nc_image_check(ctx, image, path);
+}
+
 nacre_result nc_image_check(nacre_context *ctx, const nacre_image *image, const char *what)
 {
     if (!image)

@@ -237,11 +237,7 @@ static exr_result_t write_pixels(exr_context_t exr, const nacre_image *image)
 nacre_result nacre_image_write_exr(nacre_context *ctx, const nacre_image *image,
                                    const char *path, nacre_exr_pixel type)
 {
-    if (!ctx)
-        return NACRE_ERROR_INVALID_ARGUMENT;
-    if (!path)
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "image write: path is NULL");
-    nacre_result r = nc_image_check(ctx, image, path);
+    nacre_result r = nc_image_write_check(ctx, image, path);
     if (r != NACRE_OK)
         return r;
     if (type != NACRE_EXR_HALF && type != NACRE_EXR_FLOAT)

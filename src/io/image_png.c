@@ -72,11 +72,7 @@ static void encode_row(const float *src, int32_t width, int32_t channels, float 
 nacre_result nacre_image_write_png(nacre_context *ctx, const nacre_image *image,
                                    const char *path, float exposure)
 {
-    if (!ctx)
-        return NACRE_ERROR_INVALID_ARGUMENT;
-    if (!path)
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "image write: path is NULL");
-    nacre_result r = nc_image_check(ctx, image, path);
+    nacre_result r = nc_image_write_check(ctx, image, path);
     if (r != NACRE_OK)
         return r;
     if (!isfinite(exposure))

@@ -18,6 +18,8 @@
 /* Check that `image` is usable as input (sizes, channels, stride, pixels). `what` prefixes the
  * message, normally the path. */
 nacre_result nc_image_check(nacre_context *ctx, const nacre_image *image, const char *what);
+/* Argument checks every writer starts with: context, path and image. */
+nacre_result nc_image_write_check(nacre_context *ctx, const nacre_image *image, const char *path);
 
 /* Check sizes read from a file header against the limits above; fails with
  * NACRE_ERROR_PARSE naming the path. */
