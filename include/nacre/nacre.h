@@ -295,6 +295,29 @@ typedef struct { uint32_t id; } nacre_light;
  * with the albedo of its diffuse reflectance (dipole Rd); later methods use the medium. */
 typedef enum nacre_material_type { NACRE_MATERIAL_OPAQUE = 0, NACRE_MATERIAL_TRANSLUCENT } nacre_material_type;
 
+/* Heterogeneous media (diffusion, path tracer): the coefficients of a translucent material vary
+ * over the object's rest-pose (undeformed mesh) coordinates, so patterns follow deformation.
+ * The material's own sigma_a/sigma_s is medium 1; sigma_a2/sigma_s2 is medium 2. */
+typedef enum nacre_pattern_type {
+    NACRE_PATTERN_NONE = 0,   /* homogeneous */
+    NACRE_PATTERN_RANDOM_MIX, /* cubic cells of `cell_size`, each medium 2 with probability `fraction` */
+    NACRE_PATTERN_CHECKER,    /* 3D checker of `cell_size` alternating medium 1 and 2 */
+    NACRE_PATTERN_NOISE,      /* fractal value noise (feature size `cell_size`, `octaves`) blends 1 -> 2 */
+    NACRE_PATTERN_VOLUME      /* a volume (nacre_scene_add_volume) scales medium 1 per point */
+} nacre_pattern_type;
+
+typedef struct { uint32_t id; } nacre_volume;
+
+typedef struct nacre_medium_pattern {
+    nacre_pattern_type type;
+    float sigma_a2[3], sigma_s2[3]; /* medium 2, per scene unit */
+    float cell_size;                /* rest-pose scene units, > 0 */
+    float fraction;                 /* RANDOM_MIX: probability of medium 2, in [0, 1] */
+    uint32_t seed;                  /* RANDOM_MIX, NOISE */
+    uint32_t octaves;               /* NOISE: 1..12 */
+    nacre_volume volume;            /* VOLUME */
+} nacre_medium_pattern;
+
 typedef struct nacre_material_desc {
     nacre_material_type type;
     float diffuse[3];  /* opaque: Lambert albedo in [0,1] */
@@ -304,6 +327,7 @@ typedef struct nacre_material_desc {
     float sigma_s[3];  /* translucent: scattering per scene unit, >= 0 */
     float g;           /* Henyey-Greenstein anisotropy, in (-1, 1) */
     float eta;         /* relative index of refraction, > 0 */
+    nacre_medium_pattern pattern; /* translucent: heterogeneity (default NONE) */
 } nacre_material_desc;
 
 /* Defaults: opaque grey 0.8, specular 0.04, shininess 64; translucent: the seed's jade
@@ -450,6 +474,18 @@ NACRE_API bool nacre_method_from_name(const char *name, nacre_method *out);
 /* Whether this build implements the method. */
 NACRE_API bool nacre_method_available(nacre_method method);
 
+/* Diffusion solver (Blanchard 2012 section 4.5 and our default). */
+typedef enum nacre_diffusion_solver {
+    NACRE_SOLVER_MULTIGRID = 0, /* multigrid-preconditioned conjugate gradients to `tolerance` */
+    NACRE_SOLVER_SEED           /* the seed: Jacobi sweeps over the resolution cascade, fixed counts */
+} nacre_diffusion_solver;
+
+/* Where the light transmitted through the surface enters the diffusion solve. */
+typedef enum nacre_diffusion_source {
+    NACRE_SOURCE_VOLUME = 0, /* reduced intensity deposited along the refracted ray, exp(-sigma_t' d) */
+    NACRE_SOURCE_FACE        /* the seed: flux on the exposed voxel faces (Robin boundary source) */
+} nacre_diffusion_source;
+
 typedef struct nacre_render_settings {
     nacre_method method;
     int32_t width, height;    /* default 640 x 480; 1..16384 each, at most 2^26 pixels */
@@ -461,6 +497,16 @@ typedef struct nacre_render_settings {
     uint32_t spp;             /* stochastic methods: samples per pixel */
     double time;              /* seconds: when the caller should commit the scene (deformers); the
                                  scene file's "render.time". The renderer itself does not read it. */
+    /* diffusion */
+    uint32_t voxel_resolution;       /* voxels along the longest axis of each translucent object, default 32 */
+    int32_t tsm_size;                /* translucent shadow map texels per side, default 512 */
+    nacre_diffusion_solver solver;   /* default MULTIGRID */
+    nacre_diffusion_source source;   /* default VOLUME */
+    float tolerance;                 /* MULTIGRID: relative residual, default 1e-4 */
+    uint32_t seed_iterations;        /* SEED: Jacobi sweeps per level, 0 = the seed's table 5.6 count */
+    /* pathtrace */
+    double time_limit;               /* seconds; 0 = none (stops early, at a whole pass) */
+    uint32_t max_scatter;            /* scattering events per path in media; 0 = unlimited */
 } nacre_render_settings;
 
 NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
@@ -471,6 +517,10 @@ NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
     X(NACRE_STAGE_RASTER, "raster")                                                            \
     X(NACRE_STAGE_GBUFFER, "gbuffer")                                                          \
     X(NACRE_STAGE_SHADOW, "shadow")                                                            \
+    X(NACRE_STAGE_VOXELIZE, "voxelize")                                                        \
+    X(NACRE_STAGE_TSM, "tsm")                                                                  \
+    X(NACRE_STAGE_INJECT, "inject")                                                            \
+    X(NACRE_STAGE_PROPAGATE, "propagate")                                                      \
     X(NACRE_STAGE_SHADE, "shade")
 
 typedef enum nacre_stage {
@@ -490,6 +540,14 @@ typedef struct nacre_render_stats {
     uint64_t triangles_drawn;    /* after culling (back faces, off-screen, no pixel centre) */
     uint32_t shadow_maps;        /* rendered (not cached) this frame */
     int threads;
+    /* diffusion (summed over translucent objects; dims of the largest grid) */
+    uint32_t voxel_dims[3];
+    nacre_diffusion_solver solver;
+    uint32_t iterations;         /* MULTIGRID: PCG iterations (max over objects and channels); SEED: sweeps */
+    double residual;             /* final relative residual (max over objects and channels) */
+    /* pathtrace */
+    uint32_t spp_done;           /* samples per pixel completed */
+    double samples_per_second;   /* camera paths per second */
 } nacre_render_stats;
 
 /* A renderer keeps the buffers and results of previous frames (G-buffer, shadow maps) and
@@ -509,6 +567,48 @@ NACRE_API nacre_result nacre_renderer_render(nacre_renderer *renderer, const nac
 /* One-shot render with a temporary renderer. */
 NACRE_API nacre_result nacre_render(const nacre_scene *scene, const nacre_render_settings *settings,
                                     nacre_image *out, nacre_render_stats *stats);
+
+/* The per-pixel variance of the last path-traced image (variance of the pixel mean, 3 channels).
+ * INVALID_OPERATION if the renderer's last frame was not path traced. Same allocation rule as
+ * nacre_renderer_render. */
+NACRE_API nacre_result nacre_renderer_variance(const nacre_renderer *renderer, nacre_image *out);
+
+/* ------------------------------------------------------------------------------------------ */
+/* Slab measurement (validation of diffusion and path tracing against exact results)          */
+/* ------------------------------------------------------------------------------------------ */
+
+/* A plane-parallel slab, infinite in x and y, of optical thickness tau (sigma_t * depth; INFINITY
+ * for semi-infinite), single-scattering albedo a = sigma_s / sigma_t, Henyey-Greenstein g and
+ * relative index eta with air (index 1) on both sides, lit by collimated light at normal
+ * incidence with unit power per unit area. R: light leaving the top after scattering (the
+ * specular reflection at the top excluded, reported as R_specular); T: all light leaving the
+ * bottom (unscattered included). */
+typedef struct nacre_slab_desc {
+    nacre_method method;            /* DIFFUSION or PATHTRACE */
+    double albedo, tau, g, eta;
+    /* diffusion */
+    uint32_t cells_per_mfp;         /* grid cells per reduced mean free path 1/sigma_t', default 8 */
+    nacre_diffusion_solver solver;
+    nacre_diffusion_source source;
+    float tolerance;                /* default 1e-6 */
+    /* pathtrace */
+    uint64_t samples;               /* incident paths, default 1e6 */
+    uint32_t max_scatter;           /* 0 = unlimited */
+    uint64_t seed;
+} nacre_slab_desc;
+
+typedef struct nacre_slab_result {
+    double R, T;
+    double R_stderr, T_stderr;      /* pathtrace: standard errors of the means; diffusion: 0 */
+    double R_specular;              /* Fresnel reflection at normal incidence, ((eta-1)/(eta+1))^2 */
+    uint32_t iterations;            /* diffusion */
+    double residual;                /* diffusion */
+    double ms;
+} nacre_slab_result;
+
+NACRE_API nacre_slab_desc nacre_slab_desc_defaults(void);
+NACRE_API nacre_result nacre_slab_measure(nacre_context *ctx, const nacre_slab_desc *desc,
+                                          nacre_slab_result *out);
 
 /* ------------------------------------------------------------------------------------------ */
 /* Scene files (JSON; format in docs/scene-format.md)                                         */

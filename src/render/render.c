@@ -11,6 +11,7 @@
  * Camera conventions: core/math.h (right-handed, looking down -z, NDC z in [0, 1]). When the
  * scene leaves near/far at 0 they are fitted to the committed scene bounds.
  */
+#include "pathtrace/pathtrace.h"
 #include "raster/raster.h"
 #include "scene/scene.h"
 #include "shade/shade.h"
@@ -43,6 +44,7 @@ struct nacre_renderer {
     nc_gbuffer_source *sources;
     nc_shade_light *shade_lights;
     uint32_t draw_capacity, light_capacity;
+    nc_pathtracer *pathtracer; /* created by the first path-traced frame */
 };
 
 nacre_result nacre_renderer_create(nacre_context *ctx, nacre_renderer **out)
@@ -77,6 +79,7 @@ void nacre_renderer_destroy(nacre_renderer *r)
     nc_free(ctx, r->draws);
     nc_free(ctx, r->sources);
     nc_free(ctx, r->shade_lights);
+    nc_pathtracer_destroy(ctx, r->pathtracer);
     nc_free(ctx, r);
 }
 
@@ -203,6 +206,15 @@ nacre_result nacre_renderer_render(nacre_renderer *r, const nacre_scene *s, cons
             return res;
         allocated = true;
     }
+    if (settings->method == NACRE_METHOD_PATHTRACE) {
+        /* The path tracer shares nothing with the raster pipeline. */
+        if ((res = nc_pathtrace_render(&r->pathtracer, ctx, s, settings, out, &st)) != NACRE_OK)
+            goto fail;
+        st.total_us = nc_now_us() - t_start;
+        if (stats)
+            *stats = st;
+        return NACRE_OK;
+    }
     if ((res = ensure_lists(r, s->object_count, s->light_count)) != NACRE_OK)
         goto fail;
 
@@ -302,6 +314,13 @@ fail:
     if (allocated)
         nacre_image_free(ctx, out);
     return res;
+}
+
+nacre_result nacre_renderer_variance(const nacre_renderer *r, nacre_image *out)
+{
+    if (!r || !out)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    return nc_pathtrace_variance(r->pathtracer, r->ctx, out);
 }
 
 nacre_result nacre_render(const nacre_scene *s, const nacre_render_settings *settings, nacre_image *out,

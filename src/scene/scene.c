@@ -12,6 +12,8 @@
  * Units: scene units (millimetres by default); angles in degrees at the API, radians inside.
  */
 #include "scene/scene.h"
+#include "diffusion/diffusion.h"
+#include "pathtrace/pathtrace.h"
 
 #include <math.h>
 #include <string.h>
@@ -157,6 +159,11 @@ nacre_render_settings nacre_render_settings_defaults(void)
     s.shadow_bias = 1.5f;
     s.seed = 1;
     s.spp = 64;
+    s.voxel_resolution = 32;
+    s.tsm_size = 512;
+    s.solver = NACRE_SOLVER_MULTIGRID;
+    s.source = NACRE_SOURCE_VOLUME;
+    s.tolerance = 1e-4f;
     return s;
 }
 
@@ -178,7 +185,11 @@ bool nacre_method_from_name(const char *name, nacre_method *out)
     return false;
 }
 
-bool nacre_method_available(nacre_method method) { return method == NACRE_METHOD_PHONG; }
+bool nacre_method_available(nacre_method method)
+{
+    return method == NACRE_METHOD_PHONG || (method == NACRE_METHOD_DIFFUSION && nc_diffusion_available()) ||
+           (method == NACRE_METHOD_PATHTRACE && nc_pathtrace_available());
+}
 
 const char *nacre_stage_name(nacre_stage stage)
 {

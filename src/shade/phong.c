@@ -11,25 +11,9 @@
  * close to the fraction of energy reflected specularly.
  */
 #include "shade/shade.h"
+#include "core/optics.h"
 
 #include <math.h>
-
-double nc_fresnel_fdr(double eta)
-{
-    /* Egan & Hilgeman fit used by Jensen et al. 2001; valid for eta near 1 to 2. Below 1 the
-     * second branch of the same source applies. */
-    if (eta >= 1.0)
-        return -1.440 / (eta * eta) + 0.710 / eta + 0.668 + 0.0636 * eta;
-    return -0.4399 + 0.7099 / eta - 0.3319 / (eta * eta) + 0.0636 / (eta * eta * eta);
-}
-
-double nc_dipole_rd(double alpha_p, double eta)
-{
-    double fdr = nc_fresnel_fdr(eta);
-    double A = (1.0 + fdr) / (1.0 - fdr);
-    double s = sqrt(3.0 * (1.0 - alpha_p));
-    return 0.5 * alpha_p * (1.0 + exp(-4.0 / 3.0 * A * s)) * exp(-s);
-}
 
 void nc_material_albedo(const nacre_material_desc *m, float out[3])
 {

@@ -26,12 +26,6 @@ typedef struct nc_shade_params {
  * diffusion dipole (Jensen et al. 2001, eq. for Rd), per channel. */
 void nc_material_albedo(const nacre_material_desc *m, float out[3]);
 
-/* Total diffuse reflectance Rd of a semi-infinite medium, reduced albedo `alpha_p`, relative
- * index `eta` (Jensen et al. 2001; A from the Groenhuis et al. polynomial for Fdr). */
-double nc_dipole_rd(double alpha_p, double eta);
-/* Diffuse Fresnel reflectance Fdr (polynomial fit, Egan and Hilgeman 1973). */
-double nc_fresnel_fdr(double eta);
-
 /* Ambient + Lambert + normalized Blinn-Phong with shadow maps, into rgb (width*height*3, row
  * stride `stride` floats). Empty pixels get the environment radiance. */
 void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_shade_light *lights,

@@ -4,6 +4,7 @@
  */
 #include "scene/scene.h"
 #include "shade/shade.h"
+#include "core/optics.h"
 #include "test_util.h"
 
 #include <string.h>

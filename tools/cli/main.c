@@ -123,6 +123,19 @@ static const char render_help[] =
     "  --threads N         worker threads (default: all cores)\n"
     "  --exr-float         write 32-bit float EXR instead of half\n"
     "  --stats             print one JSON object with per-stage timings in microseconds\n"
+    "diffusion:\n"
+    "  --voxel-res N       voxels along each translucent object's longest axis (default 32)\n"
+    "  --tsm-size N        translucent shadow map texels per side (default 512)\n"
+    "  --solver S          multigrid (default: PCG to --tolerance) | seed (Jacobi cascade)\n"
+    "  --source S          volume (default) | face (the seed's face injection)\n"
+    "  --tolerance T       relative residual for multigrid (default 1e-4)\n"
+    "  --seed-iterations N Jacobi sweeps for the seed solver (default: the seed's table 5.6)\n"
+    "pathtrace:\n"
+    "  --spp N             samples per pixel (default: the scene's, else 64)\n"
+    "  --seed N            random seed (same seed, same image)\n"
+    "  --time-limit S      stop after S seconds (at a whole pass)\n"
+    "  --max-scatter K     scattering events per path in media (K = 1: single scattering)\n"
+    "  --variance FILE     also write the per-pixel variance of the estimate (.exr)\n"
     "  --help, --version\n";
 
 static void print_stats(const char *scene_name, const nacre_render_settings *rs, const nacre_render_stats *st,
@@ -141,9 +154,16 @@ static void print_stats(const char *scene_name, const nacre_render_settings *rs,
     for (int i = 0; i < NACRE_STAGE_COUNT; i++)
         printf(",\"%s_us\":%llu", nacre_stage_name((nacre_stage)i), (unsigned long long)st->stage_us[i]);
     printf(",\"render_us\":%llu,\"write_us\":%llu,\"total_us\":%llu,\"triangles\":%llu,\"triangles_drawn\":%llu,"
-           "\"shadow_maps\":%u}\n",
+           "\"shadow_maps\":%u",
            (unsigned long long)st->total_us, (unsigned long long)write_us, (unsigned long long)total_us,
            (unsigned long long)st->triangles, (unsigned long long)st->triangles_drawn, st->shadow_maps);
+    if (rs->method == NACRE_METHOD_DIFFUSION)
+        printf(",\"solver\":\"%s\",\"iterations\":%u,\"residual\":%.3g,\"voxel_dims\":[%u,%u,%u]",
+               st->solver == NACRE_SOLVER_SEED ? "seed" : "multigrid", st->iterations, st->residual,
+               st->voxel_dims[0], st->voxel_dims[1], st->voxel_dims[2]);
+    if (rs->method == NACRE_METHOD_PATHTRACE)
+        printf(",\"spp\":%u,\"samples_per_second\":%.6g", st->spp_done, st->samples_per_second);
+    printf("}\n");
 }
 
 static bool has_suffix(const char *s, const char *suffix)
@@ -159,9 +179,11 @@ static bool has_suffix(const char *s, const char *suffix)
 
 static int cmd_render(int argc, char **argv)
 {
-    const char *scene_path = NULL, *out_path = "nacre.png", *method_name = NULL;
-    long width = 0, height = 0, threads = 0;
-    double exposure = NAN, time = NAN;
+    const char *scene_path = NULL, *out_path = "nacre.png", *method_name = NULL, *variance_path = NULL;
+    const char *solver_name = NULL, *source_name = NULL;
+    long width = 0, height = 0, threads = 0, voxel_res = -1, tsm_size = -1, seed_iters = -1, spp = -1, seed = -1,
+         max_scatter = -1;
+    double exposure = NAN, time = NAN, tolerance = NAN, time_limit = NAN;
     bool stats = false, exr_float = false;
     int code;
     for (int i = 0; i < argc; i++) {
@@ -198,6 +220,48 @@ static int cmd_render(int argc, char **argv)
         } else if (strcmp(a, "--threads") == 0) {
             if (!has_value || !nc_cli_parse_int(argv[++i], 1, 1024, &threads))
                 return nc_cli_usage("render", "--threads needs an integer in 1..1024");
+        } else if (strcmp(a, "--voxel-res") == 0) {
+            if (!has_value || !nc_cli_parse_int(argv[++i], 1, 1024, &voxel_res))
+                return nc_cli_usage("render", "--voxel-res needs an integer in 1..1024");
+        } else if (strcmp(a, "--tsm-size") == 0) {
+            if (!has_value || !nc_cli_parse_int(argv[++i], 16, 8192, &tsm_size))
+                return nc_cli_usage("render", "--tsm-size needs an integer in 16..8192");
+        } else if (strcmp(a, "--solver") == 0) {
+            if (!has_value)
+                return nc_cli_usage("render", "--solver needs multigrid or seed");
+            solver_name = argv[++i];
+            if (strcmp(solver_name, "multigrid") != 0 && strcmp(solver_name, "seed") != 0)
+                return nc_cli_usage("render", "--solver '%s': expected multigrid or seed", solver_name);
+        } else if (strcmp(a, "--source") == 0) {
+            if (!has_value)
+                return nc_cli_usage("render", "--source needs volume or face");
+            source_name = argv[++i];
+            if (strcmp(source_name, "volume") != 0 && strcmp(source_name, "face") != 0)
+                return nc_cli_usage("render", "--source '%s': expected volume or face", source_name);
+        } else if (strcmp(a, "--tolerance") == 0) {
+            if (!has_value || !nc_cli_parse_float(argv[++i], &tolerance) || !(tolerance > 0 && tolerance < 1))
+                return nc_cli_usage("render", "--tolerance needs a number in (0, 1)");
+        } else if (strcmp(a, "--seed-iterations") == 0) {
+            if (!has_value || !nc_cli_parse_int(argv[++i], 1, 100000, &seed_iters))
+                return nc_cli_usage("render", "--seed-iterations needs an integer in 1..100000");
+        } else if (strcmp(a, "--spp") == 0) {
+            if (!has_value || !nc_cli_parse_int(argv[++i], 1, 1 << 24, &spp))
+                return nc_cli_usage("render", "--spp needs an integer in 1..16777216");
+        } else if (strcmp(a, "--seed") == 0) {
+            if (!has_value || !nc_cli_parse_int(argv[++i], 0, 4294967295L, &seed))
+                return nc_cli_usage("render", "--seed needs an integer in 0..4294967295");
+        } else if (strcmp(a, "--time-limit") == 0) {
+            if (!has_value || !nc_cli_parse_float(argv[++i], &time_limit) || !(time_limit > 0))
+                return nc_cli_usage("render", "--time-limit needs a positive number of seconds");
+        } else if (strcmp(a, "--max-scatter") == 0) {
+            if (!has_value || !nc_cli_parse_int(argv[++i], 1, 1000000, &max_scatter))
+                return nc_cli_usage("render", "--max-scatter needs an integer in 1..1000000");
+        } else if (strcmp(a, "--variance") == 0) {
+            if (!has_value)
+                return nc_cli_usage("render", "--variance needs a file name");
+            variance_path = argv[++i];
+            if (!has_suffix(variance_path, ".exr"))
+                return nc_cli_usage("render", "--variance '%s': use a .exr file name", variance_path);
         } else if (strcmp(a, "--stats") == 0) {
             stats = true;
         } else if (strcmp(a, "--exr-float") == 0) {
@@ -221,6 +285,7 @@ static int cmd_render(int argc, char **argv)
         return EXIT_BAD;
     int rc = EXIT_BAD;
     nacre_scene *scene = NULL;
+    nacre_renderer *renderer = NULL;
     nacre_image img = {0};
     nacre_render_settings rs = nacre_render_settings_defaults();
     uint64_t t_start = nc_cli_now_us();
@@ -253,8 +318,32 @@ static int cmd_render(int argc, char **argv)
         rs.exposure = (float)exposure;
     if (!isnan(time))
         rs.time = time;
+    if (voxel_res > 0)
+        rs.voxel_resolution = (uint32_t)voxel_res;
+    if (tsm_size > 0)
+        rs.tsm_size = (int32_t)tsm_size;
+    if (solver_name)
+        rs.solver = strcmp(solver_name, "seed") == 0 ? NACRE_SOLVER_SEED : NACRE_SOLVER_MULTIGRID;
+    if (source_name)
+        rs.source = strcmp(source_name, "face") == 0 ? NACRE_SOURCE_FACE : NACRE_SOURCE_VOLUME;
+    if (!isnan(tolerance))
+        rs.tolerance = (float)tolerance;
+    if (seed_iters > 0)
+        rs.seed_iterations = (uint32_t)seed_iters;
+    if (spp > 0)
+        rs.spp = (uint32_t)spp;
+    if (seed >= 0)
+        rs.seed = (uint32_t)seed;
+    if (!isnan(time_limit))
+        rs.time_limit = time_limit;
+    if (max_scatter > 0)
+        rs.max_scatter = (uint32_t)max_scatter;
+    if (variance_path && rs.method != NACRE_METHOD_PATHTRACE) {
+        cli_error("--variance needs --method pathtrace");
+        goto out;
+    }
     if (!nacre_method_available(rs.method)) {
-        cli_error("method '%s' is not implemented yet (available: phong)", nacre_method_name(rs.method));
+        cli_error("method '%s' is not implemented yet", nacre_method_name(rs.method));
         goto out;
     }
     uint64_t t0 = nc_cli_now_us();
@@ -264,9 +353,19 @@ static int cmd_render(int argc, char **argv)
     }
     uint64_t commit_us = nc_cli_now_us() - t0;
     nacre_render_stats st;
-    if (nacre_render(scene, &rs, &img, &st) != NACRE_OK) {
+    if (nacre_renderer_create(ctx, &renderer) != NACRE_OK || nacre_renderer_render(renderer, scene, &rs, &img, &st) != NACRE_OK) {
         nc_cli_fail(ctx);
         goto out;
+    }
+    if (variance_path) {
+        nacre_image var = {0};
+        nacre_image_write_options vo = {.exr_type = NACRE_EXR_FLOAT};
+        bool ok = nacre_renderer_variance(renderer, &var) == NACRE_OK && nacre_image_write(ctx, &var, variance_path, &vo) == NACRE_OK;
+        nacre_image_free(ctx, &var);
+        if (!ok) {
+            nc_cli_fail(ctx);
+            goto out;
+        }
     }
     t0 = nc_cli_now_us();
     nacre_image_write_options wo = {.exposure = rs.exposure, .exr_type = exr_float ? NACRE_EXR_FLOAT : NACRE_EXR_HALF};
@@ -281,6 +380,7 @@ static int cmd_render(int argc, char **argv)
     rc = 0;
 out:
     nacre_image_free(ctx, &img);
+    nacre_renderer_destroy(renderer);
     nacre_scene_destroy(scene);
     nacre_context_destroy(ctx);
     return rc;

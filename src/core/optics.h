@@ -1,0 +1,29 @@
+/*
+ * optics.h: the optics every light-transport module shares: Fresnel reflectance of a smooth
+ * dielectric boundary, its hemispherical (diffuse) averages, the classical dipole diffuse
+ * reflectance, Henyey-Greenstein phase function. One place, so the diffusion solver, the
+ * shading passes and the path tracer agree on the same numbers.
+ *
+ * Conventions: `eta` is the relative index n_transmitted / n_incident (1.3 for light entering
+ * skin from air; 1 / 1.3 for light leaving it). Angles are given by cosines measured from the
+ * boundary normal on the incident side, in [0, 1].
+ */
+#ifndef NACRE_OPTICS_H
+#define NACRE_OPTICS_H
+
+/* Unpolarized Fresnel reflectance for light arriving at cos_i (>= 0) on a boundary of relative
+ * index eta; 1 under total internal reflection. */
+double nc_fresnel_dielectric(double cos_i, double eta);
+/* Hemispherical average 2 * integral_0^1 F(mu, eta) mu dmu (numerical, 1e-7): the fraction of
+ * diffuse (Lambertian) light arriving from the incident side that is reflected. */
+double nc_fresnel_diffuse(double eta);
+/* The polynomial fit of the diffuse Fresnel reflectance used by Jensen et al. 2001 for light
+ * inside a medium of relative index eta (Egan and Hilgeman 1973). */
+double nc_fresnel_fdr(double eta);
+/* Total diffuse reflectance Rd of a semi-infinite medium of reduced albedo alpha_p and relative
+ * index eta, per unit power entering (Jensen et al. 2001, dipole, A = (1 + Fdr) / (1 - Fdr)). */
+double nc_dipole_rd(double alpha_p, double eta);
+/* Henyey-Greenstein phase function value (per steradian) for cos_theta between the directions. */
+double nc_hg_phase(double cos_theta, double g);
+
+#endif /* NACRE_OPTICS_H */
