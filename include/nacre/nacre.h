@@ -590,7 +590,7 @@ typedef struct nacre_slab_desc {
     uint32_t cells_per_mfp;         /* grid cells per reduced mean free path 1/sigma_t', default 8 */
     nacre_diffusion_solver solver;
     nacre_diffusion_source source;
-    float tolerance;                /* default 1e-6 */
+    float tolerance;                /* default 1e-5 */
     /* pathtrace */
     uint64_t samples;               /* incident paths, default 1e6 */
     uint32_t max_scatter;           /* 0 = unlimited */

@@ -33,6 +33,8 @@ static inline uint64_t nc_cli_now_us(void)
 /* Median of n values (sorts in place). */
 double nc_cli_median(double *values, int n);
 
+/* `nacre slab ...` (tools/cli/slab.c). */
+int nc_cli_slab(int argc, char **argv);
 /* `nacre bench ...` (tools/cli/bench.c). */
 int nc_cli_bench(int argc, char **argv);
 /* `nacre bench raster` part for lucy_1600k (bench/bench_raster.c). */

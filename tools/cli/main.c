@@ -27,6 +27,7 @@ static void print_main_help(FILE *f)
             "  info MESH             mesh counts, bounds, open and non-manifold edges\n"
             "  compare A B           error metrics of image A against reference B\n"
             "  voxelize MESH         surface and solid voxelization, NRRD export\n"
+            "  slab                  reflectance and transmittance of a slab (diffusion, pathtrace)\n"
             "  bench raster|voxelize benchmarks (medians)\n"
             "\n"
             "  nacre <command> --help   options of a command\n"
@@ -659,6 +660,8 @@ int main(int argc, char **argv)
         return cmd_compare(argc - 2, argv + 2);
     if (strcmp(cmd, "voxelize") == 0)
         return cmd_voxelize(argc - 2, argv + 2);
+    if (strcmp(cmd, "slab") == 0)
+        return nc_cli_slab(argc - 2, argv + 2);
     if (strcmp(cmd, "bench") == 0)
         return nc_cli_bench(argc - 2, argv + 2);
     fprintf(stderr, "nacre: unknown command '%s'\n", cmd);

@@ -1,0 +1,351 @@
+/*
+ * test_diffusion_solver.c: the finite-volume diffusion solver (src/diffusion/solver.c) and the
+ * slab measurement built on it, against analytic solutions and published numbers.
+ */
+#include "diffusion/diffusion.h"
+#include "core/optics.h"
+#include "test_util.h"
+
+#include <nacre/nacre.h>
+
+static nacre_context *make_ctx(int threads)
+{
+    nacre_context_desc d = {0};
+    d.threads = threads;
+    nacre_context *ctx = NULL;
+    nacre_context_create(&d, &ctx);
+    return ctx;
+}
+
+/* ---- manufactured solution on a box with Robin boundaries ------------------------------- */
+
+static const double MS_D = 0.05, MS_SA = 0.3, MS_ETA = 1.3;
+
+static double ms_phi(double x, double y, double z) { return 2.0 + cos(2.0 * x) * cos(1.4 * y) * cosh(0.8 * z); }
+static void ms_grad(double x, double y, double z, double g[3])
+{
+    g[0] = -2.0 * sin(2.0 * x) * cos(1.4 * y) * cosh(0.8 * z);
+    g[1] = -1.4 * cos(2.0 * x) * sin(1.4 * y) * cosh(0.8 * z);
+    g[2] = 0.8 * cos(2.0 * x) * cos(1.4 * y) * sinh(0.8 * z);
+}
+/* -D lap(phi) + sigma_a phi */
+static double ms_source(double x, double y, double z)
+{
+    double lap = (-4.0 - 1.96 + 0.64) * cos(2.0 * x) * cos(1.4 * y) * cosh(0.8 * z);
+    return -MS_D * lap + MS_SA * ms_phi(x, y, z);
+}
+
+/* Max error of the solver against phi on the unit box at n^3 cells. The boundary data enter as
+ * the Robin source s = phi + 2 A D dphi/dn at each face centre, which adds B_f s to the cell. */
+static double manufactured_error(nacre_context *ctx, uint32_t n)
+{
+    size_t cells = (size_t)n * n * n;
+    uint8_t *solid = malloc(cells);
+    float *src = calloc(cells, sizeof(float)), *phi = calloc(cells, sizeof(float));
+    memset(solid, 1, cells);
+    const double h = 1.0 / n, D = MS_D, A = nc_diff_robin_a(MS_ETA);
+    const float sp = (float)(1.0 / (3.0 * D) - MS_SA);
+    nc_diff_medium m = {.dims = {n, n, n}, .h = (float)h, .solid = solid,
+                        .sigma_a_const = {(float)MS_SA, (float)MS_SA, (float)MS_SA}, .sigma_sp_const = {sp, sp, sp},
+                        .eta = (float)MS_ETA};
+    nc_diff_solver *s = NULL;
+    CHECK(nc_diff_solver_create(ctx, &s) == NACRE_OK);
+    CHECK(nc_diff_setup(s, &m) == NACRE_OK);
+    const double bface = h * h * 2.0 * D / (h + 4.0 * A * D);
+    for (uint32_t z = 0; z < n; z++)
+        for (uint32_t y = 0; y < n; y++)
+            for (uint32_t x = 0; x < n; x++) {
+                double c[3] = {(x + 0.5) * h, (y + 0.5) * h, (z + 0.5) * h};
+                double S = ms_source(c[0], c[1], c[2]) * h * h * h;
+                uint32_t p[3] = {x, y, z};
+                for (int a = 0; a < 3; a++)
+                    for (int dir = -1; dir <= 1; dir += 2) {
+                        if ((dir < 0 && p[a] > 0) || (dir > 0 && p[a] + 1 < n))
+                            continue;
+                        double f[3] = {c[0], c[1], c[2]};
+                        f[a] += dir * 0.5 * h;
+                        double g[3];
+                        ms_grad(f[0], f[1], f[2], g);
+                        double sface = ms_phi(f[0], f[1], f[2]) + 2.0 * A * D * dir * g[a];
+                        S += bface * sface;
+                    }
+                src[x + n * (y + n * z)] = (float)S;
+            }
+    nc_diff_solve_opts o = {.solver = NACRE_SOLVER_MULTIGRID, .tolerance = 1e-6f, .max_iterations = 500};
+    nc_diff_solve_report rep;
+    CHECK(nc_diff_solve(s, 0, src, phi, &o, &rep) == NACRE_OK);
+    double err = 0.0;
+    for (uint32_t z = 0; z < n; z++)
+        for (uint32_t y = 0; y < n; y++)
+            for (uint32_t x = 0; x < n; x++) {
+                double e = fabs(phi[x + n * (y + n * z)] - ms_phi((x + 0.5) * h, (y + 0.5) * h, (z + 0.5) * h));
+                err = e > err ? e : err;
+            }
+    nc_diff_solver_destroy(s);
+    free(solid);
+    free(src);
+    free(phi);
+    return err;
+}
+
+static void test_manufactured(nacre_context *ctx)
+{
+    double e8 = manufactured_error(ctx, 8), e16 = manufactured_error(ctx, 16), e32 = manufactured_error(ctx, 32);
+    printf("manufactured: max error n=8 %.3e, n=16 %.3e, n=32 %.3e (orders %.2f, %.2f)\n", e8, e16, e32,
+           log2(e8 / e16), log2(e16 / e32));
+    /* Second order: each halving of h divides the error by ~4. */
+    CHECK(log2(e8 / e16) > 1.7);
+    CHECK(log2(e16 / e32) > 1.7);
+    CHECK(e32 < 2e-3);
+}
+
+/* ---- 1D: a slab lit from one side against the analytic diffusion solution ---------------- */
+
+/* phi'' - k^2 phi = -Q exp(-st z) / D on [0, d], phi - 2AD phi' = 0 at 0, phi + 2AD phi' = 0 at d.
+ * Returns the outward fluxes phi / (2A) at both ends. */
+static void slab_analytic(double a, double tau, double eta, double *R, double *T)
+{
+    double sa = 1.0 - a, sp = a, st = sa + sp, D = 1.0 / (3.0 * st), k = sqrt(sa / D);
+    double A = nc_diff_robin_a(eta), r0 = ((eta - 1) / (eta + 1)) * ((eta - 1) / (eta + 1));
+    double Q = (1.0 - r0) * (sp / st) * st;
+    double C = Q / (D * (k * k - st * st));
+    /* phi = C e^{-st z} + p e^{k z} + q e^{-k z}; two linear conditions in p, q */
+    double d = tau;
+    double a11 = 1.0 - 2 * A * D * k, a12 = 1.0 + 2 * A * D * k, b1 = -(C + 2 * A * D * st * C);
+    double ekd = exp(k * d), emkd = exp(-k * d), es = exp(-st * d);
+    double a21 = ekd * (1.0 + 2 * A * D * k), a22 = emkd * (1.0 - 2 * A * D * k), b2 = -(C * es - 2 * A * D * st * C * es);
+    double det = a11 * a22 - a12 * a21;
+    double p = (b1 * a22 - a12 * b2) / det, q = (a11 * b2 - b1 * a21) / det;
+    double phi0 = C + p + q, phid = C * es + p * ekd + q * emkd;
+    *R = phi0 / (2 * A);
+    *T = phid / (2 * A) + (1.0 - r0) * es * (1.0 - r0);
+}
+
+static void test_slab_1d(nacre_context *ctx)
+{
+    const double cases[][3] = {{0.9, 4.0, 1.0}, {0.99, 10.0, 1.33}, {0.8, 1.0, 1.5}};
+    for (int i = 0; i < 3; i++) {
+        double Ra, Ta;
+        slab_analytic(cases[i][0], cases[i][1], cases[i][2], &Ra, &Ta);
+        double errs[2];
+        for (int k = 0; k < 2; k++) {
+            nacre_slab_desc d = nacre_slab_desc_defaults();
+            d.albedo = cases[i][0];
+            d.tau = cases[i][1];
+            d.eta = cases[i][2];
+            d.cells_per_mfp = k == 0 ? 8 : 16;
+            nacre_slab_result r;
+            CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_OK);
+            errs[k] = fabs(r.R - Ra) + fabs(r.T - Ta);
+            if (k == 1)
+                printf("slab 1D a=%.2f tau=%.1f eta=%.2f: R %.6f (analytic %.6f), T %.6f (analytic %.6f)\n", d.albedo,
+                       d.tau, d.eta, r.R, Ra, r.T, Ta);
+            CHECK(fabs(r.R - Ra) <= 0.005 * Ra + 1e-5);
+            CHECK(fabs(r.T - Ta) <= 0.005 * Ta + 1e-5);
+        }
+        CHECK(errs[1] < errs[0] * 0.4 + 1e-6); /* second order in the cell size */
+    }
+}
+
+/* ---- slab against the dipole (Jensen et al. 2001) and adding-doubling ------------------- */
+
+static void test_slab_dipole(nacre_context *ctx)
+{
+    const double albedos[] = {0.99, 0.999}, etas[] = {1.0, 1.33};
+    for (int i = 0; i < 2; i++)
+        for (int j = 0; j < 2; j++) {
+            nacre_slab_desc d = nacre_slab_desc_defaults();
+            d.albedo = albedos[i];
+            d.eta = etas[j];
+            nacre_slab_result r;
+            CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_OK);
+            double r0 = ((d.eta - 1) / (d.eta + 1)) * ((d.eta - 1) / (d.eta + 1));
+            double ref = nc_dipole_rd(d.albedo, d.eta) * (1.0 - r0);
+            printf("slab a=%.3f eta=%.2f: R %.4f, dipole Rd(1-R0) %.4f (%+.2f%%), %u iterations, residual %.2g\n",
+                   d.albedo, d.eta, r.R, ref, 100.0 * (r.R - ref) / ref, r.iterations, r.residual);
+            CHECK(fabs(r.R - ref) <= 0.05 * ref);
+            CHECK(r.T < 1e-3);
+        }
+    /* Adding-doubling (exact transport): the diffusion error is recorded, and bounded here so a
+     * regression shows. */
+    const double ad[][3] = {{0.99, 1.0, 0.7527}, {0.9, 1.0, 0.4149}, {0.9, 1.33, 0.2747}};
+    for (int i = 0; i < 3; i++) {
+        nacre_slab_desc d = nacre_slab_desc_defaults();
+        d.albedo = ad[i][0];
+        d.eta = ad[i][1];
+        nacre_slab_result r;
+        CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_OK);
+        printf("slab a=%.2f eta=%.2f: R %.4f vs adding-doubling %.4f (%+.2f%%)\n", d.albedo, d.eta, r.R, ad[i][2],
+               100.0 * (r.R - ad[i][2]) / ad[i][2]);
+        CHECK(fabs(r.R - ad[i][2]) <= 0.04 * ad[i][2]);
+    }
+    /* No absorption: everything comes out. */
+    nacre_slab_desc d = nacre_slab_desc_defaults();
+    d.albedo = 1.0;
+    d.tau = 5.0;
+    nacre_slab_result r;
+    CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_OK);
+    CHECK_NEAR(r.R + r.T, 1.0, 1e-4);
+    /* Face injection (the seed's) conserves too, and is the less accurate one. */
+    d = nacre_slab_desc_defaults();
+    d.source = NACRE_SOURCE_FACE;
+    CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_OK);
+    nacre_slab_result rv;
+    d.source = NACRE_SOURCE_VOLUME;
+    CHECK(nacre_slab_measure(ctx, &d, &rv) == NACRE_OK);
+    printf("slab a=0.99: face source R %.4f, volume source R %.4f, adding-doubling 0.7527\n", r.R, rv.R);
+    CHECK(fabs(rv.R - 0.7527) < fabs(r.R - 0.7527));
+    /* Bad input */
+    d = nacre_slab_desc_defaults();
+    d.albedo = 1.5;
+    CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_ERROR_INVALID_ARGUMENT);
+    d = nacre_slab_desc_defaults();
+    d.g = 1.0;
+    CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_ERROR_INVALID_ARGUMENT);
+    d = nacre_slab_desc_defaults();
+    d.method = NACRE_METHOD_PHONG;
+    CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_ERROR_UNSUPPORTED);
+}
+
+/* ---- heterogeneous energy balance, multigrid iteration counts ---------------------------- */
+
+static uint32_t hash32(uint32_t x)
+{
+    x ^= x >> 16;
+    x *= 0x7feb352dU;
+    x ^= x >> 15;
+    x *= 0x846ca68bU;
+    x ^= x >> 16;
+    return x;
+}
+
+typedef struct sphere_case {
+    uint32_t n;
+    uint8_t *solid;
+    float *sa, *sp, *src, *phi;
+} sphere_case;
+
+static void sphere_make(sphere_case *c, uint32_t n, bool hetero)
+{
+    size_t cells = (size_t)n * n * n;
+    c->n = n;
+    c->solid = calloc(cells, 1);
+    c->sa = malloc(cells * sizeof(float));
+    c->sp = malloc(cells * sizeof(float));
+    c->src = calloc(cells, sizeof(float));
+    c->phi = calloc(cells, sizeof(float));
+    double r = 0.5 * n - 0.5;
+    for (uint32_t z = 0; z < n; z++)
+        for (uint32_t y = 0; y < n; y++)
+            for (uint32_t x = 0; x < n; x++) {
+                size_t i = x + (size_t)n * (y + (size_t)n * z);
+                double dx = x + 0.5 - 0.5 * n, dy = y + 0.5 - 0.5 * n, dz = z + 0.5 - 0.5 * n;
+                c->solid[i] = dx * dx + dy * dy + dz * dz <= r * r;
+                uint32_t hsh = hash32((uint32_t)i * 2654435761u + 17u);
+                /* A 10x contrast in both coefficients for the heterogeneous case (per scene unit
+                 * where the sphere spans 20 units). */
+                double u = (hsh & 0xffff) / 65535.0, v = (hsh >> 16) / 65535.0;
+                c->sa[i] = (float)(hetero ? 0.002 + 0.018 * u : 0.01);
+                c->sp[i] = (float)(hetero ? 0.5 + 4.5 * v : 2.0);
+                /* light entering near the top cap */
+                if (c->solid[i] && dz > 0.3 * r)
+                    c->src[i] = (float)(1.0 + 0.5 * u);
+            }
+}
+
+static void sphere_free(sphere_case *c)
+{
+    free(c->solid);
+    free(c->sa);
+    free(c->sp);
+    free(c->src);
+    free(c->phi);
+}
+
+static void test_energy_hetero(nacre_context *ctx)
+{
+    sphere_case c;
+    sphere_make(&c, 24, true);
+    nc_diff_medium m = {.dims = {24, 24, 24}, .h = 20.0f / 24, .solid = c.solid, .eta = 1.4f};
+    for (int k = 0; k < 3; k++) {
+        m.sigma_a[k] = c.sa;
+        m.sigma_sp[k] = c.sp;
+    }
+    nc_diff_solver *s = NULL;
+    CHECK(nc_diff_solver_create(ctx, &s) == NACRE_OK);
+    CHECK(nc_diff_setup(s, &m) == NACRE_OK);
+    for (int solver = 0; solver < 2; solver++) {
+        nc_diff_solve_opts o = {.solver = NACRE_SOLVER_MULTIGRID, .tolerance = 1e-5f};
+        nc_diff_solve_report rep;
+        memset(c.phi, 0, 24 * 24 * 24 * sizeof(float));
+        if (solver == 1) {
+            o.solver = NACRE_SOLVER_SEED;
+            o.seed_iterations = 4000;
+        }
+        CHECK(nc_diff_solve(s, 0, c.src, c.phi, &o, &rep) == NACRE_OK);
+        double bal = (rep.absorbed + rep.escaped - rep.injected) / rep.injected;
+        printf("heterogeneous sphere 24^3 (%s): injected %.4f, absorbed %.4f, escaped %.4f, balance %.2e, "
+               "%u iterations, residual %.2e\n",
+               solver ? "seed, 4000 sweeps" : "multigrid", rep.injected, rep.absorbed, rep.escaped, bal, rep.iterations,
+               rep.residual);
+        if (solver == 0) {
+            CHECK(fabs(bal) < 1e-3);
+            CHECK(rep.residual <= 1e-5);
+        }
+        CHECK(rep.absorbed > 0 && rep.escaped > 0);
+        for (size_t i = 0; i < 24 * 24 * 24; i++)
+            if (!c.solid[i] && c.phi[i] != 0.0f) {
+                CHECK(!"phi outside the domain");
+                break;
+            }
+    }
+    /* Warm start from the solution converges at once. */
+    nc_diff_solve_opts o = {.solver = NACRE_SOLVER_MULTIGRID, .tolerance = 1e-4f, .warm_start = true};
+    nc_diff_solve_report rep;
+    CHECK(nc_diff_solve(s, 0, c.src, c.phi, &o, &rep) == NACRE_OK);
+    CHECK(rep.iterations == 0);
+    /* Non-finite source: clean error. */
+    c.src[12 + 24 * (12 + 24 * 12)] = NAN; /* the centre: inside the domain */
+    CHECK(nc_diff_solve(s, 0, c.src, c.phi, &o, &rep) == NACRE_ERROR_INVALID_ARGUMENT);
+    nc_diff_solver_destroy(s);
+    sphere_free(&c);
+}
+
+static void test_multigrid_scaling(nacre_context *ctx)
+{
+    uint32_t its[3];
+    const uint32_t sizes[3] = {16, 32, 64};
+    for (int k = 0; k < 3; k++) {
+        sphere_case c;
+        uint32_t n = sizes[k];
+        sphere_make(&c, n, false);
+        /* Same physical sphere (20 units) at each resolution. */
+        nc_diff_medium m = {.dims = {n, n, n}, .h = 20.0f / n, .solid = c.solid, .eta = 1.3f,
+                            .sigma_a_const = {0.01f, 0.01f, 0.01f}, .sigma_sp_const = {2.0f, 2.0f, 2.0f}};
+        nc_diff_solver *s = NULL;
+        CHECK(nc_diff_solver_create(ctx, &s) == NACRE_OK);
+        CHECK(nc_diff_setup(s, &m) == NACRE_OK);
+        nc_diff_solve_opts o = {.solver = NACRE_SOLVER_MULTIGRID, .tolerance = 1e-4f};
+        nc_diff_solve_report rep;
+        CHECK(nc_diff_solve(s, 0, c.src, c.phi, &o, &rep) == NACRE_OK);
+        CHECK(rep.residual <= 1e-4);
+        its[k] = rep.iterations;
+        nc_diff_solver_destroy(s);
+        sphere_free(&c);
+    }
+    printf("multigrid PCG iterations to 1e-4: 16^3 %u, 32^3 %u, 64^3 %u\n", its[0], its[1], its[2]);
+    CHECK(its[2] <= its[0] + 4);
+    CHECK(its[2] <= 20);
+}
+
+int main(void)
+{
+    nacre_context *ctx = make_ctx(2);
+    test_manufactured(ctx);
+    test_slab_1d(ctx);
+    test_slab_dipole(ctx);
+    test_energy_hetero(ctx);
+    test_multigrid_scaling(ctx);
+    nacre_context_destroy(ctx);
+    return TEST_MAIN_END();
+}
