@@ -42,6 +42,7 @@ typedef struct nc_diff_solve_opts {
     float tolerance;             /* MULTIGRID: stop when ||S - M phi|| <= tolerance * ||S|| */
     uint32_t max_iterations;     /* MULTIGRID: PCG iterations cap (0: 200) */
     uint32_t seed_iterations;    /* SEED: Jacobi sweeps at the finest level (0: seed table 5.6) */
+    bool seed_single_grid;       /* SEED: no cascade, sweeps on the finest grid only (table 4.3) */
     bool warm_start;             /* phi holds the previous solution on entry */
 } nc_diff_solve_opts;
 

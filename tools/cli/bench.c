@@ -41,7 +41,10 @@ static const char bench_help[] =
     "  --runs N timed runs after one warm-up (default 15); medians are reported\n"
     "usage: nacre bench voxelize [--json] [--runs N]\n"
     "  voxelize suzanne_subdiv2, armadillo_400k, dragon, lucy_1600k (missing ones skipped) at\n"
-    "           4,12,28,64,128,256 voxels per side, beside the seed's tables 5.1-5.3\n";
+    "           4,12,28,64,128,256 voxels per side, beside the seed's tables 5.1-5.3\n"
+    "usage: nacre bench diffusion [--json] [--runs N]\n"
+    "  diffusion  iterations to converge (seed table 4.3) and converged propagation time at\n"
+    "           32^3..256^3 (bench/bench_diffusion_solver.c)\n";
 
 /* Seed meshes: our stand-in file, the seed's triangle count and its voxelization time in
  * microseconds at 4^3, 12^3, 28^3 (tables 5.1, 5.2, 5.3). */
@@ -215,9 +218,9 @@ int nc_cli_bench(int argc, char **argv)
         return nc_cli_usage("bench", "needs a benchmark name (raster, voxelize)");
     if (nc_cli_common_flag("bench", argv[0], bench_help, &code))
         return code;
-    bool voxelize = strcmp(argv[0], "voxelize") == 0;
-    if (strcmp(argv[0], "raster") != 0 && !voxelize)
-        return nc_cli_usage("bench", "unknown benchmark '%s' (raster, voxelize)", argv[0]);
+    bool voxelize = strcmp(argv[0], "voxelize") == 0, diffusion = strcmp(argv[0], "diffusion") == 0;
+    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion)
+        return nc_cli_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion)", argv[0]);
     bool json = false;
     long runs = 15;
     for (int i = 1; i < argc; i++) {
@@ -234,6 +237,8 @@ int nc_cli_bench(int argc, char **argv)
     }
     if (voxelize)
         return bench_voxelize(json, (int)runs);
+    if (diffusion)
+        return nc_bench_diffusion_solver(json, (int)runs);
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;

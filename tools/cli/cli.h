@@ -37,6 +37,8 @@ double nc_cli_median(double *values, int n);
 int nc_cli_slab(int argc, char **argv);
 /* `nacre bench ...` (tools/cli/bench.c). */
 int nc_cli_bench(int argc, char **argv);
+/* `nacre bench diffusion`, solver part (bench/bench_diffusion_solver.c). */
+int nc_bench_diffusion_solver(bool json, int runs);
 /* `nacre bench raster` part for lucy_1600k (bench/bench_raster.c). */
 int nc_bench_raster(int argc, char **argv);
 
