@@ -63,6 +63,11 @@ nacre_result nc_diff_setup(nc_diff_solver *s, const nc_diff_medium *m);
  * `phi` (nx*ny*nz; 0 outside the domain). */
 nacre_result nc_diff_solve(nc_diff_solver *s, int channel, const float *source, float *phi,
                            const nc_diff_solve_opts *opts, nc_diff_solve_report *report);
+/* All three channels at once (one pass over the grid serves the three: about 3x faster than three
+ * nc_diff_solve calls). source[c] / phi[c] as above; a NULL channel is skipped (phi untouched).
+ * report may be NULL, else receives one report per channel. */
+nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], float *const phi[3],
+                               const nc_diff_solve_opts *opts, nc_diff_solve_report report[3]);
 /* D per cell of channel c after setup (nx*ny*nz; 0 outside), for the exitance. */
 const float *nc_diff_coefficient_d(const nc_diff_solver *s, int channel);
 

@@ -16,9 +16,15 @@
  *     coarse cells gives for a homogeneous medium (piecewise-constant transfer alone would make
  *     the coarse operator twice too stiff). Smoother: red-black Gauss-Seidel, red then black
  *     before and black then red after the coarse correction, so the V-cycle is a symmetric
- *     operator as conjugate gradients needs. Stops at ||S - M phi|| <= tol * ||S||.
+ *     operator as conjugate gradients needs. Stops at ||S - M phi|| <= tol * ||S|| per channel.
  *   SEED: the seed's scheme for reproducing its numbers: Jacobi sweeps with fixed counts on the
  *     levels from 4 cells up (tables 4.3 and 5.6), each level started from the coarser one.
+ *
+ * Layout: the three channels are solved together, each cell holding a 4-float vector (R, G, B,
+ * unused), so one pass over the grid serves all channels and the arithmetic is one SIMD
+ * operation per cell; the conjugate-gradient scalars are per-channel vectors too (three
+ * independent solves in lockstep). Each level has one layer of padding cells (outside the
+ * domain: zero conductances, zero values) so kernels need no bounds tests.
  *
  * Sources are restricted to the coarse levels by summation (power is additive), which is the
  * seed's "inject on every level" (section 4.4) done once.
@@ -31,37 +37,40 @@
 
 #define MAX_LEVELS 16
 
-/* Each level is stored with one layer of padding cells around it (outside the domain, zero
- * conductances), so the stencil kernels need no bounds tests. Periodic axes must have one cell
- * (the slab): a face that joins a cell to itself carries no flux, so they need no storage. */
+/* One cell: R, G, B and an unused lane. aligned(4) so any allocator's memory will do. */
+typedef float v4 __attribute__((vector_size(16), aligned(4)));
+typedef double v4d __attribute__((vector_size(32), aligned(8)));
+
 typedef struct level {
-    uint32_t n[3];    /* interior cells per axis */
-    uint32_t p[3];    /* padded: n + 2 */
-    uint32_t r[3];    /* coarsening factor from the previous (finer) level per axis: 1 or 2 */
-    size_t cells;     /* padded cell count */
-    size_t sy, sz;    /* strides */
+    uint32_t n[3]; /* interior cells per axis */
+    uint32_t r[3]; /* coarsening factor from the finer level per axis: 1 or 2 */
+    size_t cells;  /* padded: (n + 2) per axis */
+    size_t sy, sz; /* strides */
     uint8_t *solid;
-    /* per channel: conductance to the +x, +y, +z neighbour (0 when either cell is outside),
-     * diagonal and its inverse (1 outside the domain) */
-    float *g[3][3];
-    float *diag[3], *inv_diag[3];
-    float *x, *b, *res; /* V-cycle work */
+    v4 *g[3];      /* conductance to the +x, +y, +z neighbour (0 when either cell is outside) */
+    v4 *diag, *inv; /* diagonal and its inverse (1 outside the domain) */
+    v4 *x, *b, *res; /* V-cycle work */
+    /* Homogeneous fast path (level 0 of a medium with constant coefficients): the kernels read a
+     * byte per cell instead of 80 bytes of coefficients. k = solid neighbours (0..6), 7 outside;
+     * every coefficient is a function of k (the neighbours outside hold zero values). */
+    uint8_t *k;
+    bool homogeneous_level;
+    v4 kdiag[8], kinv[8], kg[8];
 } level;
 
 struct nc_diff_solver {
     nacre_context *ctx;
-    float h;
     uint32_t dims[3];
     uint32_t level_count;
     level lv[MAX_LEVELS];
-    size_t capacity[MAX_LEVELS]; /* cells allocated per level */
-    /* level 0 extras (padded layout) */
-    float *d[3];      /* D per cell; also handed out in the caller's layout (d_user) */
-    float *d_user[3];
-    float *bnd[3];    /* boundary conductance sum per cell (escape) */
-    float *absorb[3]; /* sigma_a h^3 per cell */
-    float *pr, *pz, *pp, *pq, *px; /* PCG vectors */
+    size_t capacity[MAX_LEVELS]; /* padded cells allocated per level */
+    /* level 0 extras */
+    v4 *bnd;     /* boundary conductance sum per cell (escape) */
+    v4 *absorb;  /* sigma_a h^3 per cell */
+    v4 *pr, *pz, *pp, *pq, *px; /* conjugate-gradient vectors */
+    float *d_user[3]; /* D per cell in the caller's layout */
     size_t user_capacity;
+    bool homogeneous; /* level 0 uses the fast path */
 };
 
 double nc_diff_robin_a(double eta)
@@ -84,12 +93,11 @@ nacre_result nc_diff_solver_create(nacre_context *ctx, nc_diff_solver **out)
 static void level_free(nacre_context *ctx, level *l)
 {
     nc_free(ctx, l->solid);
-    for (int c = 0; c < 3; c++) {
-        for (int a = 0; a < 3; a++)
-            nc_free(ctx, l->g[c][a]);
-        nc_free(ctx, l->diag[c]);
-        nc_free(ctx, l->inv_diag[c]);
-    }
+    nc_free(ctx, l->k);
+    for (int a = 0; a < 3; a++)
+        nc_free(ctx, l->g[a]);
+    nc_free(ctx, l->diag);
+    nc_free(ctx, l->inv);
     nc_free(ctx, l->x);
     nc_free(ctx, l->b);
     nc_free(ctx, l->res);
@@ -99,19 +107,11 @@ static void level_free(nacre_context *ctx, level *l)
 static void extras_free(nc_diff_solver *s)
 {
     nacre_context *ctx = s->ctx;
-    for (int c = 0; c < 3; c++) {
-        nc_free(ctx, s->d[c]);
-        nc_free(ctx, s->d_user[c]);
-        nc_free(ctx, s->bnd[c]);
-        nc_free(ctx, s->absorb[c]);
-        s->d[c] = s->d_user[c] = s->bnd[c] = s->absorb[c] = NULL;
+    v4 **w[7] = {&s->bnd, &s->absorb, &s->pr, &s->pz, &s->pp, &s->pq, &s->px};
+    for (int k = 0; k < 7; k++) {
+        nc_free(ctx, *w[k]);
+        *w[k] = NULL;
     }
-    nc_free(ctx, s->pr);
-    nc_free(ctx, s->pz);
-    nc_free(ctx, s->pp);
-    nc_free(ctx, s->pq);
-    nc_free(ctx, s->px);
-    s->pr = s->pz = s->pp = s->pq = s->px = NULL;
 }
 
 void nc_diff_solver_destroy(nc_diff_solver *s)
@@ -121,6 +121,8 @@ void nc_diff_solver_destroy(nc_diff_solver *s)
     for (int i = 0; i < MAX_LEVELS; i++)
         level_free(s->ctx, &s->lv[i]);
     extras_free(s);
+    for (int c = 0; c < 3; c++)
+        nc_free(s->ctx, s->d_user[c]);
     nc_free(s->ctx, s);
 }
 
@@ -129,48 +131,44 @@ const float *nc_diff_coefficient_d(const nc_diff_solver *s, int channel)
     return (s && channel >= 0 && channel < 3) ? s->d_user[channel] : NULL;
 }
 
-/* (Re)allocate a level's arrays when its padded size grows; level 0 also gets the extras. */
+static void level_shape(level *l, const uint32_t n[3])
+{
+    memcpy(l->n, n, sizeof(l->n));
+    l->sy = (size_t)n[0] + 2;
+    l->sz = l->sy * ((size_t)n[1] + 2);
+    l->cells = l->sz * ((size_t)n[2] + 2);
+}
+
+/* Grow a level's arrays (and level 0's extras) to its padded size. */
 static nacre_result level_alloc(nc_diff_solver *s, int li, size_t user_cells)
 {
     nacre_context *ctx = s->ctx;
     level *l = &s->lv[li];
-    size_t cells = l->cells;
     bool ok = true;
-    if (s->capacity[li] < cells || !l->solid) {
+    if (s->capacity[li] < l->cells || !l->solid) {
         level keep = *l;
         level_free(ctx, l);
         memcpy(l->n, keep.n, sizeof(keep.n));
-        memcpy(l->p, keep.p, sizeof(keep.p));
         memcpy(l->r, keep.r, sizeof(keep.r));
         l->cells = keep.cells;
         l->sy = keep.sy;
         l->sz = keep.sz;
         s->capacity[li] = 0;
-        size_t fb = cells * sizeof(float);
-        ok = (l->solid = nc_alloc(ctx, cells)) != NULL;
-        for (int c = 0; c < 3 && ok; c++) {
-            for (int a = 0; a < 3 && ok; a++)
-                ok = (l->g[c][a] = nc_alloc(ctx, fb)) != NULL;
-            ok = ok && (l->diag[c] = nc_alloc(ctx, fb)) != NULL && (l->inv_diag[c] = nc_alloc(ctx, fb)) != NULL;
-        }
-        ok = ok && (l->x = nc_alloc(ctx, fb)) && (l->b = nc_alloc(ctx, fb)) && (l->res = nc_alloc(ctx, fb));
+        size_t vb = l->cells * sizeof(v4);
+        ok = (l->solid = nc_alloc(ctx, l->cells)) != NULL;
+        for (int a = 0; a < 3 && ok; a++)
+            ok = (l->g[a] = nc_alloc(ctx, vb)) != NULL;
+        ok = ok && (l->diag = nc_alloc(ctx, vb)) && (l->inv = nc_alloc(ctx, vb)) && (l->x = nc_alloc(ctx, vb)) &&
+             (l->b = nc_alloc(ctx, vb)) && (l->res = nc_alloc(ctx, vb));
+        ok = ok && (li != 0 || (l->k = nc_alloc(ctx, l->cells)) != NULL);
         if (ok && li == 0) {
             extras_free(s);
-            for (int c = 0; c < 3; c++) {
-                s->d[c] = nc_alloc(ctx, fb);
-                s->bnd[c] = nc_alloc(ctx, fb);
-                s->absorb[c] = nc_alloc(ctx, fb);
-                ok = ok && s->d[c] && s->bnd[c] && s->absorb[c];
-            }
-            s->pr = nc_alloc(ctx, fb);
-            s->pz = nc_alloc(ctx, fb);
-            s->pp = nc_alloc(ctx, fb);
-            s->pq = nc_alloc(ctx, fb);
-            s->px = nc_alloc(ctx, fb);
-            ok = ok && s->pr && s->pz && s->pp && s->pq && s->px;
+            v4 **w[7] = {&s->bnd, &s->absorb, &s->pr, &s->pz, &s->pp, &s->pq, &s->px};
+            for (int k = 0; k < 7; k++)
+                ok = ok && (*w[k] = nc_alloc(ctx, vb)) != NULL;
         }
         if (ok)
-            s->capacity[li] = cells;
+            s->capacity[li] = l->cells;
     }
     if (ok && li == 0 && s->user_capacity < user_cells) {
         for (int c = 0; c < 3; c++) {
@@ -195,149 +193,188 @@ static inline size_t pidx(const level *l, uint32_t x, uint32_t y, uint32_t z)
     return (size_t)(x + 1) + l->sy * (y + 1) + l->sz * (z + 1);
 }
 
-static void finish_diag(level *l, int c)
-{
-    for (size_t i = 0; i < l->cells; i++) {
-        if (!l->solid[i]) {
-            l->diag[c][i] = 1.0f;
-            l->inv_diag[c][i] = 1.0f;
-        } else {
-            l->inv_diag[c][i] = l->diag[c][i] > 0 ? 1.0f / l->diag[c][i] : 0.0f;
-        }
-    }
-}
+static const v4 V4_ZERO = {0, 0, 0, 0};
+static const v4 V4_ONE = {1, 1, 1, 1};
 
-/* diag += the conductances of the six faces (diag holds boundary + absorption on entry). */
-static void add_conductances(level *l, int c)
+/* diag (holding boundary + absorption on entry) += the six face conductances; inv = 1 / diag.
+ * Gathered per cell (its own +faces and its neighbours' -faces), so z slabs run in parallel. */
+static void finish_level(level *l, int threads)
 {
-    const size_t st[3] = {1, l->sy, l->sz};
-    for (size_t i = 0; i < l->cells; i++)
-        for (int a = 0; a < 3; a++) {
-            float g = l->g[c][a][i];
-            if (g != 0.0f) {
-                l->diag[c][i] += g;
-                l->diag[c][i + st[a]] += g;
+    const size_t sy = l->sy, sz = l->sz;
+    const size_t nz = l->n[2] + 2;
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (size_t z = 0; z < nz; z++)
+        for (size_t i = z * sz; i < (z + 1) * sz; i++) {
+            if (!l->solid[i]) {
+                l->diag[i] = V4_ONE;
+                l->inv[i] = V4_ONE;
+                continue;
             }
+            /* solid cells are interior, so i - sz etc. are in range */
+            v4 d = l->diag[i] + l->g[0][i] + l->g[0][i - 1] + l->g[1][i] + l->g[1][i - sy] + l->g[2][i] + l->g[2][i - sz];
+            l->diag[i] = d;
+            v4 inv;
+            for (int c = 0; c < 4; c++)
+                inv[c] = d[c] > 0 ? 1.0f / d[c] : 0.0f;
+            l->inv[i] = inv;
         }
 }
 
-static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m)
+static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int threads)
 {
     level *l = &s->lv[0];
     const float h = m->h;
     const float A = (float)nc_diff_robin_a(m->eta);
-    const uint32_t nx = m->dims[0], ny = m->dims[1];
-    const size_t st[3] = {1, l->sy, l->sz};
+    const uint32_t nx = m->dims[0], ny = m->dims[1], nz = m->dims[2];
+    const size_t sy = l->sy, sz = l->sz;
+    v4 *d = s->pz; /* scratch until the first solve */
+    bool homogeneous = true;
+    for (int c = 0; c < 3; c++)
+        homogeneous &= !m->sigma_a[c] && !m->sigma_sp[c];
     memset(l->solid, 0, l->cells);
-    for (uint32_t z = 0; z < l->n[2]; z++)
-        for (uint32_t y = 0; y < l->n[1]; y++)
-            for (uint32_t x = 0; x < l->n[0]; x++)
-                l->solid[pidx(l, x, y, z)] = m->solid[x + (size_t)nx * (y + (size_t)ny * z)] != 0;
+    memset(d, 0, l->cells * sizeof(v4));
+    memset(s->absorb, 0, l->cells * sizeof(v4));
+    memset(s->bnd, 0, l->cells * sizeof(v4));
+    v4 dconst = V4_ZERO, aconst = V4_ZERO;
     for (int c = 0; c < 3; c++) {
-        float *d = s->d[c];
-        memset(d, 0, l->cells * sizeof(float));
-        memset(s->absorb[c], 0, l->cells * sizeof(float));
-        memset(s->bnd[c], 0, l->cells * sizeof(float));
-        for (uint32_t z = 0; z < l->n[2]; z++)
-            for (uint32_t y = 0; y < l->n[1]; y++)
-                for (uint32_t x = 0; x < l->n[0]; x++) {
-                    size_t u = x + (size_t)nx * (y + (size_t)ny * z), i = pidx(l, x, y, z);
-                    float du = 0.0f;
-                    if (l->solid[i]) {
+        float sa = m->sigma_a_const[c], sp = m->sigma_sp_const[c];
+        dconst[c] = sa + sp > 0 ? 1.0f / (3.0f * (sa + sp)) : 0.0f;
+        aconst[c] = sa * h * h * h;
+    }
+    /* Pass 1: domain, D and absorption per cell. */
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (uint32_t z = 0; z < nz; z++)
+        for (uint32_t y = 0; y < ny; y++) {
+            size_t u0 = (size_t)nx * (y + (size_t)ny * z), i0 = pidx(l, 0, y, z);
+            for (uint32_t x = 0; x < nx; x++) {
+                size_t u = u0 + x, i = i0 + x;
+                bool in = m->solid[u] != 0;
+                l->solid[i] = in;
+                if (!in) {
+                    for (int c = 0; c < 3; c++)
+                        s->d_user[c][u] = 0.0f;
+                    continue;
+                }
+                v4 dv = dconst, av = aconst;
+                if (!homogeneous)
+                    for (int c = 0; c < 3; c++) {
                         float sa = m->sigma_a[c] ? m->sigma_a[c][u] : m->sigma_a_const[c];
                         float sp = m->sigma_sp[c] ? m->sigma_sp[c][u] : m->sigma_sp_const[c];
-                        float sum = sa + sp;
-                        du = sum > 0 ? 1.0f / (3.0f * sum) : 0.0f;
-                        s->absorb[c][i] = sa * h * h * h;
+                        dv[c] = sa + sp > 0 ? 1.0f / (3.0f * (sa + sp)) : 0.0f;
+                        av[c] = sa * h * h * h;
                     }
-                    d[i] = du;
-                    s->d_user[c][u] = du;
-                }
-        for (size_t i = 0; i < l->cells; i++) {
-            for (int a = 0; a < 3; a++) {
-                size_t j = i + st[a];
-                float g = 0.0f;
-                if (j < l->cells && l->solid[i] && l->solid[j] && d[i] > 0 && d[j] > 0)
-                    g = h * 2.0f * d[i] * d[j] / (d[i] + d[j]);
-                l->g[c][a][i] = g;
+                d[i] = dv;
+                s->absorb[i] = av;
+                for (int c = 0; c < 3; c++)
+                    s->d_user[c][u] = dv[c];
             }
         }
-        for (uint32_t z = 0; z < l->n[2]; z++)
-            for (uint32_t y = 0; y < l->n[1]; y++)
-                for (uint32_t x = 0; x < l->n[0]; x++) {
-                    size_t i = pidx(l, x, y, z);
-                    if (!l->solid[i])
-                        continue;
-                    /* Robin condition on each face whose neighbour is outside the domain; the
-                     * faces of a one-cell periodic axis join the cell to itself: no boundary. */
-                    float bface = h * h * 2.0f * d[i] / (h + 4.0f * A * d[i]);
-                    float bsum = 0.0f;
-                    for (int a = 0; a < 3; a++) {
-                        if (m->periodic[a])
-                            continue;
-                        bsum += (l->solid[i - st[a]] ? 0.0f : bface) + (l->solid[i + st[a]] ? 0.0f : bface);
-                    }
-                    s->bnd[c][i] = bsum;
+    /* Pass 2: face conductances (harmonic mean of D, so the flux is continuous across media)
+     * and the Robin boundary of exposed faces. The faces of a one-cell periodic axis join the
+     * cell to itself: no flux and no boundary there. */
+    int open_axes[3] = {!m->periodic[0], !m->periodic[1], !m->periodic[2]};
+    const size_t st[3] = {1, sy, sz};
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (size_t z = 0; z < (size_t)nz + 2; z++)
+        for (size_t i = z * sz; i < (z + 1) * sz; i++) {
+            bool in = l->solid[i];
+            int open = 0;
+            for (int a = 0; a < 3; a++) {
+                size_t j = i + st[a];
+                v4 g = V4_ZERO;
+                if (in && j < l->cells && l->solid[j]) {
+                    v4 di = d[i], dj = d[j];
+                    if (homogeneous)
+                        g = h * di;
+                    else
+                        for (int c = 0; c < 3; c++)
+                            g[c] = di[c] > 0 && dj[c] > 0 ? h * 2.0f * di[c] * dj[c] / (di[c] + dj[c]) : 0.0f;
                 }
-        for (size_t i = 0; i < l->cells; i++)
-            l->diag[c][i] = l->solid[i] ? s->bnd[c][i] + s->absorb[c][i] : 0.0f;
-        add_conductances(l, c);
-        finish_diag(l, c);
+                l->g[a][i] = g;
+                if (in && open_axes[a])
+                    open += !l->solid[i - st[a]] + !l->solid[i + st[a]];
+            }
+            if (!in) {
+                l->diag[i] = V4_ZERO;
+                continue;
+            }
+            v4 dv = d[i], bv = V4_ZERO;
+            if (open)
+                for (int c = 0; c < 3; c++)
+                    bv[c] = (float)open * h * h * 2.0f * dv[c] / (h + 4.0f * A * dv[c]);
+            s->bnd[i] = bv;
+            l->diag[i] = bv + s->absorb[i];
+        }
+    finish_level(l, threads);
+    s->homogeneous = homogeneous;
+    l->homogeneous_level = homogeneous;
+    if (homogeneous) {
+        int open_faces = 2 * (open_axes[0] + open_axes[1] + open_axes[2]);
+        v4 G = h * dconst, B = V4_ZERO;
+        for (int c = 0; c < 3; c++)
+            B[c] = h * h * 2.0f * dconst[c] / (h + 4.0f * A * dconst[c]);
+        for (int k = 0; k < 7; k++) {
+            l->kdiag[k] = (float)k * G + (float)(open_faces - k) * B + aconst;
+            for (int c = 0; c < 4; c++)
+                l->kinv[k][c] = l->kdiag[k][c] > 0 ? 1.0f / l->kdiag[k][c] : 0.0f;
+            l->kg[k] = G;
+        }
+        l->kdiag[7] = V4_ONE;
+        l->kinv[7] = V4_ZERO;
+        l->kg[7] = V4_ZERO;
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+        for (size_t z = 0; z < (size_t)nz + 2; z++)
+            for (size_t i = z * sz; i < (z + 1) * sz; i++) {
+                if (!l->solid[i]) {
+                    l->k[i] = 7;
+                    continue;
+                }
+                int k = 0;
+                for (int a = 0; a < 3; a++)
+                    if (open_axes[a])
+                        k += l->solid[i - st[a]] + l->solid[i + st[a]];
+                l->k[i] = (uint8_t)k;
+            }
     }
     return NACRE_OK;
 }
 
-/* Coarse level li from li - 1: Galerkin sums with conductances scaled by 1 / r per axis. */
-static void build_coarse(nc_diff_solver *s, int li)
+/* Coarse level li from li - 1: Galerkin sums with conductances scaled by 1 / r per axis.
+ * Parallel over coarse z slabs, each gathering its own fine children. */
+static void build_coarse(nc_diff_solver *s, int li, int threads)
 {
     level *f = &s->lv[li - 1], *l = &s->lv[li];
     (void)s;
     memset(l->solid, 0, l->cells);
-    for (int c = 0; c < 3; c++) {
-        memset(l->diag[c], 0, l->cells * sizeof(float));
-        for (int a = 0; a < 3; a++)
-            memset(l->g[c][a], 0, l->cells * sizeof(float));
-    }
+    memset(l->diag, 0, l->cells * sizeof(v4));
+    for (int a = 0; a < 3; a++)
+        memset(l->g[a], 0, l->cells * sizeof(v4));
     const size_t fst[3] = {1, f->sy, f->sz};
-    for (uint32_t z = 0; z < f->n[2]; z++)
-        for (uint32_t y = 0; y < f->n[1]; y++)
-            for (uint32_t x = 0; x < f->n[0]; x++) {
-                size_t i = pidx(f, x, y, z);
-                if (!f->solid[i])
-                    continue;
-                uint32_t p[3] = {x, y, z};
-                uint32_t cp[3] = {x / l->r[0], y / l->r[1], z / l->r[2]};
-                size_t I = pidx(l, cp[0], cp[1], cp[2]);
-                l->solid[I] = 1;
-                for (int c = 0; c < 3; c++) {
+    const float inv_r[3] = {1.0f / (float)l->r[0], 1.0f / (float)l->r[1], 1.0f / (float)l->r[2]};
+#pragma omp parallel for num_threads(threads) schedule(static) if (f->cells > 32768)
+    for (uint32_t Z = 0; Z < l->n[2]; Z++)
+        for (uint32_t z = Z * l->r[2]; z < (Z + 1) * l->r[2] && z < f->n[2]; z++)
+            for (uint32_t y = 0; y < f->n[1]; y++)
+                for (uint32_t x = 0; x < f->n[0]; x++) {
+                    size_t i = pidx(f, x, y, z);
+                    if (!f->solid[i])
+                        continue;
+                    uint32_t p[3] = {x, y, z};
+                    uint32_t cp[3] = {x / l->r[0], y / l->r[1], Z};
+                    size_t I = pidx(l, cp[0], cp[1], cp[2]);
+                    l->solid[I] = 1;
                     /* diag minus the six conductances = boundary + absorption of the fine cell */
-                    float nonc = f->diag[c][i];
+                    v4 nonc = f->diag[i];
                     for (int a = 0; a < 3; a++)
-                        nonc -= f->g[c][a][i] + f->g[c][a][i - fst[a]];
-                    l->diag[c][I] += nonc > 0 ? nonc : 0.0f;
-                    for (int a = 0; a < 3; a++) {
-                        float g = f->g[c][a][i];
-                        if (g == 0.0f || (p[a] + 1) / l->r[a] == cp[a])
-                            continue; /* none, or inside the aggregate (cancels in the sum) */
-                        l->g[c][a][I] += g / (float)l->r[a];
-                    }
+                        nonc -= f->g[a][i] + f->g[a][i - fst[a]];
+                    for (int c = 0; c < 4; c++)
+                        nonc[c] = nonc[c] > 0 ? nonc[c] : 0.0f;
+                    l->diag[I] += nonc;
+                    for (int a = 0; a < 3; a++)
+                        if ((p[a] + 1) / l->r[a] != cp[a]) /* faces inside the aggregate cancel */
+                            l->g[a][I] += f->g[a][i] * inv_r[a];
                 }
-            }
-    for (int c = 0; c < 3; c++) {
-        add_conductances(l, c);
-        finish_diag(l, c);
-    }
-}
-
-static void level_shape(level *l, const uint32_t n[3])
-{
-    for (int a = 0; a < 3; a++) {
-        l->n[a] = n[a];
-        l->p[a] = n[a] + 2;
-    }
-    l->sy = l->p[0];
-    l->sz = (size_t)l->p[0] * l->p[1];
-    l->cells = l->sz * l->p[2];
+    finish_level(l, threads);
 }
 
 nacre_result nc_diff_setup(nc_diff_solver *s, const nc_diff_medium *m)
@@ -355,18 +392,17 @@ nacre_result nc_diff_setup(nc_diff_solver *s, const nc_diff_medium *m)
     size_t cells;
     if (m->dims[0] > (1u << 16) || m->dims[1] > (1u << 16) || m->dims[2] > (1u << 24) ||
         !nc_mul_size_ok((size_t)m->dims[0] + 2, (size_t)m->dims[1] + 2, &cells) ||
-        !nc_mul_size_ok(cells, (size_t)m->dims[2] + 2, &cells) || cells > ((size_t)1 << 31))
+        !nc_mul_size_ok(cells, (size_t)m->dims[2] + 2, &cells) || cells > ((size_t)1 << 30))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "diffusion: grid %ux%ux%u too large", m->dims[0], m->dims[1],
                        m->dims[2]);
-    s->h = m->h;
     memcpy(s->dims, m->dims, sizeof(s->dims));
     size_t user_cells = (size_t)m->dims[0] * m->dims[1] * m->dims[2];
     /* Level sizes: coarsen each axis longer than 2 cells, down to at most 2 per axis. */
     uint32_t n[3] = {m->dims[0], m->dims[1], m->dims[2]};
     uint32_t count = 0;
+    s->lv[0].r[0] = s->lv[0].r[1] = s->lv[0].r[2] = 1;
     for (;;) {
-        level *l = &s->lv[count];
-        level_shape(l, n);
+        level_shape(&s->lv[count], n);
         nacre_result res = level_alloc(s, (int)count, user_cells);
         if (res != NACRE_OK)
             return res;
@@ -389,18 +425,19 @@ nacre_result nc_diff_setup(nc_diff_solver *s, const nc_diff_medium *m)
      * whatever a previous, differently shaped grid left there. */
     for (uint32_t li = 0; li < count; li++) {
         level *l = &s->lv[li];
-        memset(l->x, 0, l->cells * sizeof(float));
-        memset(l->b, 0, l->cells * sizeof(float));
-        memset(l->res, 0, l->cells * sizeof(float));
+        memset(l->x, 0, l->cells * sizeof(v4));
+        memset(l->b, 0, l->cells * sizeof(v4));
+        memset(l->res, 0, l->cells * sizeof(v4));
     }
-    float *work[5] = {s->pr, s->pz, s->pp, s->pq, s->px};
+    v4 *work[5] = {s->pr, s->pz, s->pp, s->pq, s->px};
     for (int k = 0; k < 5; k++)
-        memset(work[k], 0, s->lv[0].cells * sizeof(float));
-    nacre_result res = build_fine(s, m);
+        memset(work[k], 0, s->lv[0].cells * sizeof(v4));
+    nacre_result res = build_fine(s, m, ctx->threads);
     if (res != NACRE_OK)
         return res;
+    memset(s->pz, 0, s->lv[0].cells * sizeof(v4)); /* was scratch for D */
     for (uint32_t li = 1; li < count; li++)
-        build_coarse(s, (int)li);
+        build_coarse(s, (int)li, ctx->threads);
     return NACRE_OK;
 }
 
@@ -415,12 +452,28 @@ nacre_result nc_diff_setup(nc_diff_solver *s, const nc_diff_medium *m)
 
 /* out = b - M v, or M v when b is NULL. Cells outside the domain have zero conductances, unit
  * diagonal and zero b and v, so they come out 0 without a test. */
-static void apply(const level *l, int c, const float *v, const float *b, float *out, int threads)
+#define SUM6(v, i, sy, sz) ((v)[(i) + 1] + (v)[(i) - 1] + (v)[(i) + (sy)] + (v)[(i) - (sy)] + (v)[(i) + (sz)] + (v)[(i) - (sz)])
+
+static void apply(const level *l, const v4 *v, const v4 *b, v4 *out, int threads)
 {
     const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
     const size_t sy = l->sy, sz = l->sz;
-    const float *g[3] = {l->g[c][0], l->g[c][1], l->g[c][2]};
-    const float *diag = l->diag[c];
+    if (l->homogeneous_level) {
+        const uint8_t *k = l->k;
+        const v4 *kd = l->kdiag, *kg = l->kg;
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+        for (uint32_t z = 1; z <= nz; z++)
+            for (uint32_t y = 1; y <= ny; y++) {
+                size_t row = sy * y + sz * z;
+                for (size_t i = row + 1; i <= row + nx; i++) {
+                    v4 mv = kd[k[i]] * v[i] - kg[k[i]] * SUM6(v, i, sy, sz);
+                    out[i] = b ? b[i] - mv : mv;
+                }
+            }
+        return;
+    }
+    const v4 *g[3] = {l->g[0], l->g[1], l->g[2]};
+    const v4 *diag = l->diag;
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
     for (uint32_t z = 1; z <= nz; z++)
         for (uint32_t y = 1; y <= ny; y++) {
@@ -435,36 +488,107 @@ static void apply(const level *l, int c, const float *v, const float *b, float *
         }
 }
 
-/* out = b - M v with the products summed in double: near convergence b and M v agree to many
- * digits (high albedo makes the diagonal almost equal the neighbour sum), so a float sum would
- * put a floor of ~1e-5 under the relative residual. */
-static void residual_exact(const level *l, int c, const float *v, const float *b, float *out, int threads)
+static inline v4d widen(v4 a) { return __builtin_convertvector(a, v4d); }
+
+/* q = M p and the per-channel p . q in the same pass (rows summed in float, rows in double). */
+static v4d apply_dot(const level *l, const v4 *p, v4 *q, int threads)
 {
     const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
     const size_t sy = l->sy, sz = l->sz;
-    const float *g[3] = {l->g[c][0], l->g[c][1], l->g[c][2]};
-    const float *diag = l->diag[c];
+    double s0 = 0, s1 = 0, s2 = 0;
+#pragma omp parallel for num_threads(threads) reduction(+ : s0, s1, s2) schedule(static) if (l->cells > 32768)
+    for (uint32_t z = 1; z <= nz; z++)
+        for (uint32_t y = 1; y <= ny; y++) {
+            size_t row = sy * y + sz * z;
+            v4 acc = V4_ZERO;
+            if (l->homogeneous_level) {
+                const uint8_t *k = l->k;
+                for (size_t i = row + 1; i <= row + nx; i++) {
+                    v4 mv = l->kdiag[k[i]] * p[i] - l->kg[k[i]] * SUM6(p, i, sy, sz);
+                    q[i] = mv;
+                    acc += p[i] * mv;
+                }
+            } else {
+                const v4 *g[3] = {l->g[0], l->g[1], l->g[2]};
+                for (size_t i = row + 1; i <= row + nx; i++) {
+                    v4 mv = l->diag[i] * p[i] - NEIGHBOURS(g, p, i, sy, sz);
+                    q[i] = mv;
+                    acc += p[i] * mv;
+                }
+            }
+            s0 += acc[0];
+            s1 += acc[1];
+            s2 += acc[2];
+        }
+    v4d r = {s0, s1, s2, 0.0};
+    return r;
+}
+
+/* x += alpha p, r -= alpha q, and the per-channel r . r, in one pass. */
+static v4d update_xr(v4 *x, v4 *r, const v4 *p, const v4 *q, v4 alpha, size_t n, int threads)
+{
+    double s0 = 0, s1 = 0, s2 = 0;
+    const size_t block = 1024;
+    size_t blocks = (n + block - 1) / block;
+#pragma omp parallel for num_threads(threads) reduction(+ : s0, s1, s2) schedule(static) if (n > 65536)
+    for (size_t bi = 0; bi < blocks; bi++) {
+        size_t end = (bi + 1) * block < n ? (bi + 1) * block : n;
+        v4 acc = V4_ZERO;
+        for (size_t i = bi * block; i < end; i++) {
+            x[i] += alpha * p[i];
+            v4 ri = r[i] - alpha * q[i];
+            r[i] = ri;
+            acc += ri * ri;
+        }
+        s0 += acc[0];
+        s1 += acc[1];
+        s2 += acc[2];
+    }
+    v4d res = {s0, s1, s2, 0.0};
+    return res;
+}
+
+/* out = b - M v with the products summed in double: near convergence b and M v agree to many
+ * digits (high albedo makes the diagonal almost equal the neighbour sum), so a float sum would
+ * put a floor of ~1e-5 under the relative residual. */
+static void residual_exact(const level *l, const v4 *v, const v4 *b, v4 *out, int threads)
+{
+    const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
+    const size_t sy = l->sy, sz = l->sz;
+    const v4 *const *g = (const v4 *const *)l->g;
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
     for (uint32_t z = 1; z <= nz; z++)
         for (uint32_t y = 1; y <= ny; y++) {
             size_t row = sy * y + sz * z;
             for (size_t i = row + 1; i <= row + nx; i++) {
-                double acc = (double)b[i] - (double)diag[i] * v[i];
-                acc += (double)g[0][i] * v[i + 1] + (double)g[0][i - 1] * v[i - 1];
-                acc += (double)g[1][i] * v[i + sy] + (double)g[1][i - sy] * v[i - sy];
-                acc += (double)g[2][i] * v[i + sz] + (double)g[2][i - sz] * v[i - sz];
-                out[i] = (float)acc;
+                v4d acc = widen(b[i]) - widen(l->diag[i]) * widen(v[i]);
+                acc += widen(g[0][i]) * widen(v[i + 1]) + widen(g[0][i - 1]) * widen(v[i - 1]);
+                acc += widen(g[1][i]) * widen(v[i + sy]) + widen(g[1][i - sy]) * widen(v[i - sy]);
+                acc += widen(g[2][i]) * widen(v[i + sz]) + widen(g[2][i - sz]) * widen(v[i - sz]);
+                out[i] = __builtin_convertvector(acc, v4);
             }
         }
 }
 
 /* One red-black Gauss-Seidel half sweep over the cells with (x + y + z) % 2 == color. */
-static void gs_color(const level *l, int c, float *v, const float *b, int color, int threads)
+static void gs_color(const level *l, v4 *v, const v4 *b, int color, int threads)
 {
     const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
     const size_t sy = l->sy, sz = l->sz;
-    const float *g[3] = {l->g[c][0], l->g[c][1], l->g[c][2]};
-    const float *inv = l->inv_diag[c];
+    if (l->homogeneous_level) {
+        const uint8_t *k = l->k;
+        const v4 *ki = l->kinv, *kg = l->kg;
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+        for (uint32_t z = 1; z <= nz; z++)
+            for (uint32_t y = 1; y <= ny; y++) {
+                size_t row = sy * y + sz * z;
+                for (size_t i = row + 1 + ((color + y + z + 1) & 1); i <= row + nx; i += 2)
+                    v[i] = ki[k[i]] * (b[i] + kg[k[i]] * SUM6(v, i, sy, sz));
+            }
+        return;
+    }
+    const v4 *g[3] = {l->g[0], l->g[1], l->g[2]};
+    const v4 *inv = l->inv;
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
     for (uint32_t z = 1; z <= nz; z++)
         for (uint32_t y = 1; y <= ny; y++) {
@@ -475,130 +599,135 @@ static void gs_color(const level *l, int c, float *v, const float *b, int color,
 }
 
 /* Coarse b = sum of the fine values of its children. */
-static void restrict_sum(const level *f, const level *l, const float *fine, float *coarse)
+static void restrict_sum(const level *f, const level *l, const v4 *fine, v4 *coarse)
 {
-    memset(coarse, 0, l->cells * sizeof(float));
+    for (size_t i = 0; i < l->cells; i++)
+        coarse[i] = V4_ZERO;
+    const uint32_t sh = l->r[0] == 2 ? 1 : 0;
     for (uint32_t z = 0; z < f->n[2]; z++)
         for (uint32_t y = 0; y < f->n[1]; y++) {
             size_t row = pidx(f, 0, y, z), crow = pidx(l, 0, y / l->r[1], z / l->r[2]);
-            if (l->r[0] == 2) {
-                for (uint32_t x = 0; x < f->n[0]; x++)
-                    coarse[crow + (x >> 1)] += fine[row + x];
-            } else {
-                for (uint32_t x = 0; x < f->n[0]; x++)
-                    coarse[crow + x] += fine[row + x];
-            }
+            for (uint32_t x = 0; x < f->n[0]; x++)
+                coarse[crow + (x >> sh)] += fine[row + x];
         }
 }
 
 /* fine += the coarse value of the parent (piecewise constant), inside the domain only. */
-static void prolong_add(const level *f, const level *l, const float *coarse, float *fine)
+static void prolong_add(const level *f, const level *l, const v4 *coarse, v4 *fine)
 {
+    const uint32_t sh = l->r[0] == 2 ? 1 : 0;
     for (uint32_t z = 0; z < f->n[2]; z++)
         for (uint32_t y = 0; y < f->n[1]; y++) {
             size_t row = pidx(f, 0, y, z), crow = pidx(l, 0, y / l->r[1], z / l->r[2]);
-            const uint32_t sh = l->r[0] == 2 ? 1 : 0;
             for (uint32_t x = 0; x < f->n[0]; x++)
-                fine[row + x] += f->solid[row + x] ? coarse[crow + (x >> sh)] : 0.0f;
+                if (f->solid[row + x])
+                    fine[row + x] += coarse[crow + (x >> sh)];
         }
 }
 
 /* Symmetric V-cycle: x = V(b) with x starting at zero (a fixed linear operator of b). */
-static void vcycle(nc_diff_solver *s, uint32_t li, int c, const float *b, float *x, int threads)
+static void vcycle(nc_diff_solver *s, uint32_t li, const v4 *b, v4 *x, int threads)
 {
     level *l = &s->lv[li];
-    memset(x, 0, l->cells * sizeof(float));
+    memset(x, 0, l->cells * sizeof(v4));
     if (li + 1 == s->level_count) {
         /* Coarsest (at most 2 cells per axis, or what could not be coarsened): enough symmetric
          * sweeps to solve it, the count fixed so the cycle stays linear. */
         uint32_t sweeps = 4 + 2 * (l->n[0] + l->n[1] + l->n[2]);
         for (uint32_t k = 0; k < sweeps; k++) {
-            gs_color(l, c, x, b, 0, threads);
-            gs_color(l, c, x, b, 1, threads);
-            gs_color(l, c, x, b, 1, threads);
-            gs_color(l, c, x, b, 0, threads);
+            gs_color(l, x, b, 0, threads);
+            gs_color(l, x, b, 1, threads);
+            gs_color(l, x, b, 1, threads);
+            gs_color(l, x, b, 0, threads);
         }
         return;
     }
     level *lc = &s->lv[li + 1];
-    gs_color(l, c, x, b, 0, threads);
-    gs_color(l, c, x, b, 1, threads);
-    apply(l, c, x, b, l->res, threads);
+    gs_color(l, x, b, 0, threads);
+    gs_color(l, x, b, 1, threads);
+    apply(l, x, b, l->res, threads);
     restrict_sum(l, lc, l->res, lc->b);
-    vcycle(s, li + 1, c, lc->b, lc->x, threads);
+    vcycle(s, li + 1, lc->b, lc->x, threads);
     prolong_add(l, lc, lc->x, x);
-    gs_color(l, c, x, b, 1, threads);
-    gs_color(l, c, x, b, 0, threads);
+    gs_color(l, x, b, 1, threads);
+    gs_color(l, x, b, 0, threads);
 }
 
-static double dot(const float *a, const float *b, size_t n, int threads)
+/* Per-channel dot products: blocks of 1024 cells summed in float, blocks in double. */
+static v4d dot(const v4 *a, const v4 *b, size_t n, int threads)
 {
-    double sum = 0.0;
-#pragma omp parallel for num_threads(threads) reduction(+ : sum) schedule(static) if (n > 65536)
-    for (size_t i = 0; i < n; i++)
-        sum += (double)a[i] * b[i];
-    return sum;
-}
-
-static void energy(const nc_diff_solver *s, int c, const float *b, const float *x, nc_diff_solve_report *rep)
-{
-    const level *l = &s->lv[0];
-    double inj = 0, abs_ = 0, esc = 0;
-    for (size_t i = 0; i < l->cells; i++) {
-        inj += b[i];
-        abs_ += (double)s->absorb[c][i] * x[i];
-        esc += (double)s->bnd[c][i] * x[i];
+    double s0 = 0, s1 = 0, s2 = 0;
+    const size_t block = 1024;
+    size_t blocks = (n + block - 1) / block;
+#pragma omp parallel for num_threads(threads) reduction(+ : s0, s1, s2) schedule(static) if (n > 65536)
+    for (size_t bi = 0; bi < blocks; bi++) {
+        size_t end = (bi + 1) * block < n ? (bi + 1) * block : n;
+        v4 acc = V4_ZERO;
+        for (size_t i = bi * block; i < end; i++)
+            acc += a[i] * b[i];
+        s0 += acc[0];
+        s1 += acc[1];
+        s2 += acc[2];
     }
-    rep->injected = inj;
-    rep->absorbed = abs_;
-    rep->escaped = esc;
+    v4d r = {s0, s1, s2, 0.0};
+    return r;
 }
 
-static void solve_pcg(nc_diff_solver *s, int c, const float *b, float *x, const nc_diff_solve_opts *o,
-                      nc_diff_solve_report *rep)
+static void solve_pcg(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solve_opts *o, nc_diff_solve_report rep[3])
 {
     level *l = &s->lv[0];
     const size_t n = l->cells;
     const int threads = s->ctx->threads;
-    float *r = s->pr, *z = s->pz, *p = s->pp, *q = s->pq;
-    double bnorm = sqrt(dot(b, b, n, threads));
-    if (bnorm == 0.0) {
-        memset(x, 0, n * sizeof(float));
-        rep->iterations = 0;
-        rep->residual = 0.0;
-        return;
-    }
-    double tol = o->tolerance > 0 ? o->tolerance : 1e-4;
-    uint32_t max_it = o->max_iterations ? o->max_iterations : 200;
+    v4 *r = s->pr, *z = s->pz, *p = s->pp, *q = s->pq;
+    const double tol = o->tolerance > 0 ? o->tolerance : 1e-4;
+    const uint32_t max_it = o->max_iterations ? o->max_iterations : 200;
+    v4d bb = dot(b, b, n, threads);
+    double bnorm[3];
+    for (int c = 0; c < 3; c++)
+        bnorm[c] = sqrt(bb[c]);
     uint32_t it = 0;
-    /* Restarted from the exact residual whenever the recursively updated one (float) claims
-     * a convergence that the exact one does not confirm. */
+    /* Three solves in lockstep; a channel that has converged gets step 0 from then on. Restarted
+     * from the exact residual whenever the recursively updated one (float) claims a convergence
+     * that the exact one does not confirm. */
     for (int restart = 0; restart < 8 && it < max_it; restart++) {
-        residual_exact(l, c, x, b, r, threads);
-        double rnorm = sqrt(dot(r, r, n, threads));
-        if (rnorm <= tol * bnorm)
+        residual_exact(l, x, b, r, threads);
+        v4d rr = dot(r, r, n, threads);
+        bool active[3], any = false;
+        for (int c = 0; c < 3; c++) {
+            active[c] = sqrt(rr[c]) > tol * bnorm[c];
+            any |= active[c];
+        }
+        if (!any)
             break;
-        vcycle(s, 0, c, r, z, threads);
-        memcpy(p, z, n * sizeof(float));
-        double rz = dot(r, z, n, threads);
+        vcycle(s, 0, r, z, threads);
+        memcpy(p, z, n * sizeof(v4));
+        v4d rz = dot(r, z, n, threads);
         while (it < max_it) {
-            apply(l, c, p, NULL, q, threads);
-            double pq = dot(p, q, n, threads);
-            if (!(pq > 0))
+            v4d pq = apply_dot(l, p, q, threads);
+            v4 alpha = V4_ZERO;
+            bool stalled = true;
+            for (int c = 0; c < 3; c++)
+                if (active[c] && pq[c] > 0) {
+                    alpha[c] = (float)(rz[c] / pq[c]);
+                    stalled = false;
+                }
+            if (stalled)
                 break;
-            float af = (float)(rz / pq);
-#pragma omp parallel for num_threads(threads) schedule(static) if (n > 65536)
-            for (size_t i = 0; i < n; i++) {
-                x[i] += af * p[i];
-                r[i] -= af * q[i];
-            }
+            rr = update_xr(x, r, p, q, alpha, n, threads);
             it++;
-            rnorm = sqrt(dot(r, r, n, threads));
-            if (rnorm <= tol * bnorm)
+            any = false;
+            for (int c = 0; c < 3; c++) {
+                if (active[c] && sqrt(rr[c]) <= tol * bnorm[c])
+                    active[c] = false;
+                any |= active[c];
+            }
+            if (!any)
                 break;
-            vcycle(s, 0, c, r, z, threads);
-            double rz_new = dot(r, z, n, threads);
-            float beta = (float)(rz_new / rz);
+            vcycle(s, 0, r, z, threads);
+            v4d rz_new = dot(r, z, n, threads);
+            v4 beta = V4_ZERO;
+            for (int c = 0; c < 3; c++)
+                beta[c] = active[c] && rz[c] != 0 ? (float)(rz_new[c] / rz[c]) : 0.0f;
             rz = rz_new;
 #pragma omp parallel for num_threads(threads) schedule(static) if (n > 65536)
             for (size_t i = 0; i < n; i++)
@@ -606,9 +735,12 @@ static void solve_pcg(nc_diff_solver *s, int c, const float *b, float *x, const 
         }
     }
     /* Report the true residual, not the recursively updated one. */
-    residual_exact(l, c, x, b, r, threads);
-    rep->iterations = it;
-    rep->residual = sqrt(dot(r, r, n, threads)) / bnorm;
+    residual_exact(l, x, b, r, threads);
+    v4d rr = dot(r, r, n, threads);
+    for (int c = 0; c < 3; c++) {
+        rep[c].iterations = it;
+        rep[c].residual = bnorm[c] > 0 ? sqrt(rr[c]) / bnorm[c] : 0.0;
+    }
 }
 
 /* The seed's iteration counts per level size (tables 5.1 and 5.6), extended linearly in the
@@ -632,9 +764,8 @@ static uint32_t max_dim(const level *l)
     return m > l->n[2] ? m : l->n[2];
 }
 
-/* The seed's scheme: x starts from the coarser level's result, then plain Jacobi sweeps. */
-static void solve_seed(nc_diff_solver *s, int c, const float *b, float *x, const nc_diff_solve_opts *o,
-                       nc_diff_solve_report *rep)
+/* The seed's scheme: each level starts from the coarser level's result, then plain Jacobi. */
+static void solve_seed(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solve_opts *o, nc_diff_solve_report rep[3])
 {
     const int threads = s->ctx->threads;
     uint32_t top = 0; /* the coarsest level with a side of at least 4 cells (the seed's smallest) */
@@ -648,67 +779,106 @@ static void solve_seed(nc_diff_solver *s, int c, const float *b, float *x, const
     uint32_t total = 0;
     for (int li = (int)top; li >= 0; li--) {
         level *l = &s->lv[li];
-        float *xl = li == 0 ? x : l->x;
-        const float *bl = li == 0 ? b : l->b;
+        v4 *xl = li == 0 ? x : l->x;
+        const v4 *bl = li == 0 ? b : l->b;
         if (li < (int)top) {
-            memset(xl, 0, l->cells * sizeof(float));
+            memset(xl, 0, l->cells * sizeof(v4));
             prolong_add(l, &s->lv[li + 1], s->lv[li + 1].x, xl);
         } else if (!(li == 0 && o->warm_start)) {
-            memset(xl, 0, l->cells * sizeof(float));
+            memset(xl, 0, l->cells * sizeof(v4));
         }
         uint32_t sweeps = (li == 0 && o->seed_iterations) ? o->seed_iterations : seed_sweeps(max_dim(l));
         for (uint32_t k = 0; k < sweeps; k++) {
-            apply(l, c, xl, bl, l->res, threads);
+            apply(l, xl, bl, l->res, threads);
             for (size_t i = 0; i < l->cells; i++)
-                xl[i] += l->inv_diag[c][i] * l->res[i];
+                xl[i] += l->inv[i] * l->res[i];
         }
         total += sweeps;
     }
     level *l0 = &s->lv[0];
-    residual_exact(l0, c, x, b, l0->res, threads);
-    double bn = sqrt(dot(b, b, l0->cells, threads));
-    rep->iterations = total;
-    rep->residual = bn > 0 ? sqrt(dot(l0->res, l0->res, l0->cells, threads)) / bn : 0.0;
+    residual_exact(l0, x, b, l0->res, threads);
+    v4d bb = dot(b, b, l0->cells, threads), rr = dot(l0->res, l0->res, l0->cells, threads);
+    for (int c = 0; c < 3; c++) {
+        rep[c].iterations = total;
+        rep[c].residual = bb[c] > 0 ? sqrt(rr[c] / bb[c]) : 0.0;
+    }
 }
 
-nacre_result nc_diff_solve(nc_diff_solver *s, int channel, const float *source, float *phi,
-                           const nc_diff_solve_opts *opts, nc_diff_solve_report *report)
+nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], float *const phi[3],
+                               const nc_diff_solve_opts *opts, nc_diff_solve_report report[3])
 {
-    if (!s || channel < 0 || channel > 2 || !source || !phi || !opts || s->level_count == 0)
+    if (!s || !source || !phi || !opts || s->level_count == 0)
         return NACRE_ERROR_INVALID_ARGUMENT;
     level *l = &s->lv[0];
     const uint32_t nx = s->dims[0], ny = s->dims[1], nz = s->dims[2];
-    /* Into the padded layout; outside cells take no source. */
-    float *b = l->b, *x = s->px;
-    memset(b, 0, l->cells * sizeof(float));
-    memset(x, 0, l->cells * sizeof(float));
+    v4 *b = l->b, *x = s->px;
+    /* Into the padded layout; outside cells take no source. A NULL channel solves nothing. */
     bool clean = true;
     for (uint32_t z = 0; z < nz; z++)
         for (uint32_t y = 0; y < ny; y++) {
             size_t u = (size_t)nx * (y + (size_t)ny * z), i = pidx(l, 0, y, z);
             for (uint32_t xx = 0; xx < nx; xx++) {
-                if (!l->solid[i + xx])
-                    continue;
-                float v = source[u + xx];
-                clean &= isfinite(v) != 0;
-                b[i + xx] = v;
-                if (opts->warm_start)
-                    x[i + xx] = isfinite(phi[u + xx]) ? phi[u + xx] : 0.0f;
+                v4 bv = V4_ZERO, xv = V4_ZERO;
+                if (l->solid[i + xx])
+                    for (int c = 0; c < 3; c++) {
+                        if (!source[c])
+                            continue;
+                        float v = source[c][u + xx];
+                        clean &= isfinite(v) != 0;
+                        bv[c] = v;
+                        if (opts->warm_start && phi[c] && isfinite(phi[c][u + xx]))
+                            xv[c] = phi[c][u + xx];
+                    }
+                b[i + xx] = bv;
+                x[i + xx] = xv;
             }
         }
     if (!clean)
         return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "diffusion: non-finite source");
-    nc_diff_solve_report rep;
-    memset(&rep, 0, sizeof(rep));
+    nc_diff_solve_report rep[3];
+    memset(rep, 0, sizeof(rep));
     if (opts->solver == NACRE_SOLVER_SEED)
-        solve_seed(s, channel, b, x, opts, &rep);
+        solve_seed(s, b, x, opts, rep);
     else
-        solve_pcg(s, channel, b, x, opts, &rep);
-    energy(s, channel, b, x, &rep);
-    for (uint32_t z = 0; z < nz; z++)
-        for (uint32_t y = 0; y < ny; y++)
-            memcpy(phi + (size_t)nx * (y + (size_t)ny * z), x + pidx(l, 0, y, z), nx * sizeof(float));
+        solve_pcg(s, b, x, opts, rep);
+    /* Energy from the final phi: injected = absorbed + escaped at convergence. */
+    double inj[3] = {0, 0, 0}, abs_[3] = {0, 0, 0}, esc[3] = {0, 0, 0};
+    for (size_t i = 0; i < l->cells; i++)
+        for (int c = 0; c < 3; c++) {
+            inj[c] += b[i][c];
+            abs_[c] += (double)s->absorb[i][c] * x[i][c];
+            esc[c] += (double)s->bnd[i][c] * x[i][c];
+        }
+    for (int c = 0; c < 3; c++) {
+        rep[c].injected = inj[c];
+        rep[c].absorbed = abs_[c];
+        rep[c].escaped = esc[c];
+        if (!phi[c])
+            continue;
+        for (uint32_t z = 0; z < nz; z++)
+            for (uint32_t y = 0; y < ny; y++) {
+                size_t u = (size_t)nx * (y + (size_t)ny * z), i = pidx(l, 0, y, z);
+                for (uint32_t xx = 0; xx < nx; xx++)
+                    phi[c][u + xx] = x[i + xx][c];
+            }
+    }
     if (report)
-        *report = rep;
+        memcpy(report, rep, sizeof(rep));
     return NACRE_OK;
+}
+
+nacre_result nc_diff_solve(nc_diff_solver *s, int channel, const float *source, float *phi,
+                           const nc_diff_solve_opts *opts, nc_diff_solve_report *report)
+{
+    if (!s || channel < 0 || channel > 2 || !source || !phi)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    const float *src[3] = {NULL, NULL, NULL};
+    float *out[3] = {NULL, NULL, NULL};
+    src[channel] = source;
+    out[channel] = phi;
+    nc_diff_solve_report rep[3];
+    nacre_result res = nc_diff_solve_rgb(s, src, out, opts, rep);
+    if (res == NACRE_OK && report)
+        *report = rep[channel];
+    return res;
 }

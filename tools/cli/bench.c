@@ -43,8 +43,9 @@ static const char bench_help[] =
     "  voxelize suzanne_subdiv2, armadillo_400k, dragon, lucy_1600k (missing ones skipped) at\n"
     "           4,12,28,64,128,256 voxels per side, beside the seed's tables 5.1-5.3\n"
     "usage: nacre bench diffusion [--json] [--runs N]\n"
-    "  diffusion  iterations to converge (seed table 4.3) and converged propagation time at\n"
-    "           32^3..256^3 (bench/bench_diffusion_solver.c)\n";
+    "  diffusion  the seed's tables 5.1-5.3 layout (per-stage us, fps) for its meshes' stand-ins\n"
+    "           at 4..128 voxels (bench/bench_diffusion.c), then iterations to converge (seed\n"
+    "           table 4.3) and converged propagation at 32^3..256^3 (bench/bench_diffusion_solver.c)\n";
 
 /* Seed meshes: our stand-in file, the seed's triangle count and its voxelization time in
  * microseconds at 4^3, 12^3, 28^3 (tables 5.1, 5.2, 5.3). */
@@ -237,8 +238,14 @@ int nc_cli_bench(int argc, char **argv)
     }
     if (voxelize)
         return bench_voxelize(json, (int)runs);
-    if (diffusion)
+    if (diffusion) {
+        int rc = nc_bench_diffusion_pipeline(json, (int)runs);
+        if (rc != 0)
+            return rc;
+        if (!json)
+            printf("\n");
         return nc_bench_diffusion_solver(json, (int)runs);
+    }
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;

@@ -39,6 +39,8 @@ int nc_cli_slab(int argc, char **argv);
 int nc_cli_bench(int argc, char **argv);
 /* `nacre bench diffusion`, solver part (bench/bench_diffusion_solver.c). */
 int nc_bench_diffusion_solver(bool json, int runs);
+/* `nacre bench diffusion`, pipeline part (bench/bench_diffusion.c). */
+int nc_bench_diffusion_pipeline(bool json, int runs);
 /* `nacre bench raster` part for lucy_1600k (bench/bench_raster.c). */
 int nc_bench_raster(int argc, char **argv);
 
