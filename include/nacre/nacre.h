@@ -290,20 +290,25 @@ typedef struct { uint32_t id; } nacre_object;
 typedef struct { uint32_t id; } nacre_light;
 
 /* Materials. Opaque: Lambert diffuse + normalized Blinn-Phong specular. Translucent: a
- * homogeneous scattering medium bounded by the surface (sigma_a, sigma_s per scene unit,
- * Henyey-Greenstein g, relative index of refraction eta); the phong method shades it as Lambert
- * with the albedo of its diffuse reflectance (dipole Rd); later methods use the medium. */
+ * scattering medium bounded by the surface, homogeneous or patterned (sigma_a, sigma_s per
+ * scene unit, Henyey-Greenstein g, relative index of refraction eta); the phong method shades it
+ * as Lambert with the albedo of its diffuse reflectance (dipole Rd); later methods use the
+ * medium. */
 typedef enum nacre_material_type { NACRE_MATERIAL_OPAQUE = 0, NACRE_MATERIAL_TRANSLUCENT } nacre_material_type;
 
 /* Heterogeneous media (diffusion, path tracer): the coefficients of a translucent material vary
  * over the object's rest-pose (undeformed mesh) coordinates, so patterns follow deformation.
- * The material's own sigma_a/sigma_s is medium 1; sigma_a2/sigma_s2 is medium 2. */
+ * The material's own sigma_a/sigma_s is medium 1; sigma_a2/sigma_s2 is medium 2. Cells are
+ * aligned with the rest-pose origin. A point with a non-finite coordinate gets medium 1. The
+ * phong method shades medium 1 only. Scene files: "pattern" (docs/scene-format.md). */
 typedef enum nacre_pattern_type {
     NACRE_PATTERN_NONE = 0,   /* homogeneous */
     NACRE_PATTERN_RANDOM_MIX, /* cubic cells of `cell_size`, each medium 2 with probability `fraction` */
     NACRE_PATTERN_CHECKER,    /* 3D checker of `cell_size` alternating medium 1 and 2 */
-    NACRE_PATTERN_NOISE,      /* fractal value noise (feature size `cell_size`, `octaves`) blends 1 -> 2 */
-    NACRE_PATTERN_VOLUME      /* a volume (nacre_scene_add_volume) scales medium 1 per point */
+    NACRE_PATTERN_NOISE,      /* fractal value noise (feature size `cell_size`, `octaves`) gives w in
+                                 [0, 1]; sigma = (1 - w) * medium 1 + w * medium 2 */
+    NACRE_PATTERN_VOLUME      /* a density d >= 0 from a volume (nacre_scene_add_volume, trilinear,
+                                 clamped outside): sigma = d * medium 1; sigma_a2/sigma_s2 unused */
 } nacre_pattern_type;
 
 typedef struct { uint32_t id; } nacre_volume;
@@ -330,8 +335,8 @@ typedef struct nacre_material_desc {
     nacre_medium_pattern pattern; /* translucent: heterogeneity (default NONE) */
 } nacre_material_desc;
 
-/* Defaults: opaque grey 0.8, specular 0.04, shininess 64; translucent: the seed's jade
- * (sigma_a, sigma_s of Blanchard 2012 table 5.5 scaled to mm), g 0, eta 1.5. */
+/* Defaults: opaque grey 0.8, specular 0.04, shininess 64; translucent: the "jade" preset
+ * (Blanchard 2012, per millimetre), g 0, eta 1.6, no pattern. */
 NACRE_API nacre_material_desc nacre_material_desc_defaults(nacre_material_type type);
 
 /* Look up a named measured material (Jensen et al. 2001: "marble", "skimmilk", "wholemilk",
@@ -339,6 +344,32 @@ NACRE_API nacre_material_desc nacre_material_desc_defaults(nacre_material_type t
  * "jade", "aquamarine"), coefficients per millimetre, eta 1.3 for Jensen's. The
  * result is a translucent desc. Returns false if the name is unknown. */
 NACRE_API bool nacre_material_preset(const char *name, nacre_material_desc *out);
+
+/* Volumes for NACRE_PATTERN_VOLUME: a scalar density on a regular grid placed in the object's
+ * rest-pose space. Sample (i, j, k) sits at origin + (i, j, k) * spacing (the NRRD convention:
+ * "space origin" is the first sample's position). Between samples the density is trilinear;
+ * outside the grid it is the value at the nearest boundary point (clamp). A material with
+ * pattern VOLUME gets sigma_a = density * sigma_a and sigma_s = density * sigma_s (medium 1). */
+typedef struct nacre_volume_data {
+    uint32_t dims[3];  /* samples along x, y, z, each >= 1 */
+    float origin[3];   /* rest-pose position of sample (0, 0, 0), scene units */
+    float spacing[3];  /* distance between samples along x, y, z, scene units, > 0 */
+    float *data;       /* dims[0] * dims[1] * dims[2] densities, x fastest, finite and >= 0 */
+} nacre_volume_data;
+
+/* Add a volume to a scene (data copied, validated; kept until the scene is destroyed). At most
+ * 2^31 samples. A density of 0 makes sigma_t 0 there: fine for the path tracer, while the
+ * diffusion approximation needs sigma_t > 0 where it solves. */
+NACRE_API nacre_result nacre_scene_add_volume(nacre_scene *scene, const nacre_volume_data *data,
+                                              nacre_volume *out);
+/* Read a 3D NRRD file (raw encoding, little or big endian; int8/uint8/int16/uint16/int32/
+ * uint32/float/double; optional leading channel axis, of which `channel` is read; placement from
+ * "space origin" + axis-aligned "space directions", or "spacings"). Negative densities are
+ * rejected. The library allocates `out->data`; free with nacre_volume_data_free. */
+NACRE_API nacre_result nacre_volume_load_nrrd(nacre_context *ctx, const char *path, uint32_t channel,
+                                              nacre_volume_data *out);
+/* Free data allocated by the library and zero the struct. */
+NACRE_API void nacre_volume_data_free(nacre_context *ctx, nacre_volume_data *volume);
 
 typedef struct nacre_transform {
     float translate[3];

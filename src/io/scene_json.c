@@ -606,7 +606,11 @@ static void parse_units(loader *ld, const cJSON *item)
 static void parse_render(loader *ld, const cJSON *obj)
 {
     static const char *const keys[] = {"method", "width", "height", "exposure", "shadow_map_size",
-                                       "pcf_radius", "shadow_bias", "spp", "seed", "time"};
+                                       "pcf_radius", "shadow_bias", "spp", "seed", "time",
+                                       "voxel_resolution", "tsm_size", "solver", "source",
+                                       "tolerance", "seed_iterations", "time_limit", "max_scatter"};
+    static const char *const solvers[] = {"multigrid", "seed"};
+    static const char *const sources[] = {"volume", "face"};
     size_t mark = push_key(ld, "render");
     if (!expect_object(ld, obj) || !check_keys(ld, obj, keys, COUNT_OF(keys))) {
         pop(ld, mark);
@@ -639,6 +643,25 @@ static void parse_render(loader *ld, const cJSON *obj)
     if (get_integer(ld, obj, "seed", 0, UINT32_MAX, &v))
         s->seed = (uint32_t)v;
     get_double(ld, obj, "time", R_FINITE, &s->time);
+    /* Diffusion and path-tracer settings (nacre_render_settings); ranges match what the
+     * renderers accept, so a file cannot ask for a grid or map the library would refuse. */
+    if (get_integer(ld, obj, "voxel_resolution", 1, 4096, &v))
+        s->voxel_resolution = (uint32_t)v;
+    if (get_integer(ld, obj, "tsm_size", 1, IMAGE_SIZE_MAX, &v))
+        s->tsm_size = (int32_t)v;
+    int choice = get_choice(ld, obj, "solver", "solver", solvers, COUNT_OF(solvers));
+    if (choice >= 0)
+        s->solver = choice == 0 ? NACRE_SOLVER_MULTIGRID : NACRE_SOLVER_SEED;
+    choice = get_choice(ld, obj, "source", "source", sources, COUNT_OF(sources));
+    if (choice >= 0)
+        s->source = choice == 0 ? NACRE_SOURCE_VOLUME : NACRE_SOURCE_FACE;
+    static const range tolerance_range = {0.0, 1.0, true, true};
+    get_number(ld, obj, "tolerance", tolerance_range, &s->tolerance);
+    if (get_integer(ld, obj, "seed_iterations", 0, 1000000, &v))
+        s->seed_iterations = (uint32_t)v;
+    get_double(ld, obj, "time_limit", R_NONNEG, &s->time_limit);
+    if (get_integer(ld, obj, "max_scatter", 0, UINT32_MAX, &v))
+        s->max_scatter = (uint32_t)v;
     pop(ld, mark);
 }
 
@@ -706,11 +729,128 @@ static const char *const preset_names[] = {"apple", "chicken1", "chicken2", "cre
                                            "marble", "potato", "skimmilk", "skin1", "skin2",
                                            "wholemilk", "jade", "aquamarine"};
 
+static char *resolve_path(loader *ld, const char *rel);
+
+/* A preset's coefficients per scene unit, or false after an error listing the valid names. */
+static bool preset_per_unit(loader *ld, const char *key, const char *name, nacre_material_desc *d)
+{
+    if (!nacre_material_preset(name, d)) {
+        const char *valid[COUNT_OF(preset_names)];
+        size_t n = 0;
+        nacre_material_desc probe;
+        for (size_t i = 0; i < COUNT_OF(preset_names); i++)
+            if (nacre_material_preset(preset_names[i], &probe))
+                valid[n++] = preset_names[i];
+        char buf[NAME_SHOWN_MAX + 8], list[512];
+        size_t mark = push_key(ld, key);
+        fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "unknown preset \"%s\" (valid: %s)",
+             shown(name, buf, sizeof(buf)), join_names(valid, n, list, sizeof(list)));
+        pop(ld, mark);
+        return false;
+    }
+    /* Presets are per millimetre; the scene's coefficients are per scene unit. */
+    for (int c = 0; c < 3; c++) {
+        d->sigma_a[c] *= ld->unit_mm;
+        d->sigma_s[c] *= ld->unit_mm;
+    }
+    return true;
+}
+
+/* "volume": an NRRD file (relative to the scene file) scaled by "density_scale", added to the
+ * scene; the handle goes into the pattern. */
+static void load_volume(loader *ld, const cJSON *obj, nacre_medium_pattern *p)
+{
+    const char *rel = get_string(ld, obj, "volume");
+    int64_t channel = 0;
+    get_integer(ld, obj, "channel", 0, 255, &channel);
+    float scale = 1.0f;
+    get_number(ld, obj, "density_scale", R_NONNEG, &scale);
+    if (ld->err || !rel)
+        return;
+    size_t mark = push_key(ld, "volume");
+    char *path = resolve_path(ld, rel);
+    nacre_volume_data vol = {0};
+    nacre_result r = path ? nacre_volume_load_nrrd(ld->ctx, path, (uint32_t)channel, &vol)
+                          : NACRE_ERROR_OUT_OF_MEMORY;
+    if (r == NACRE_OK) {
+        size_t n = (size_t)vol.dims[0] * vol.dims[1] * vol.dims[2];
+        for (size_t i = 0; i < n; i++)
+            vol.data[i] *= scale;
+        r = nacre_scene_add_volume(ld->scene, &vol, &p->volume);
+    }
+    if (r != NACRE_OK)
+        fail_inner(ld, r);
+    nacre_volume_data_free(ld->ctx, &vol);
+    nc_free(ld->ctx, path);
+    pop(ld, mark);
+}
+
+/* "pattern": heterogeneity of a translucent material (nacre_medium_pattern). Medium 2 comes
+ * from "preset2" and/or "sigma_a2" + "sigma_s2" (explicit values override the preset's). */
+static void parse_pattern(loader *ld, const cJSON *obj, nacre_medium_pattern *p)
+{
+    static const char *const types[] = {"random_mix", "checker", "noise", "volume"};
+    static const char *const mix_keys[] = {"type", "preset2", "sigma_a2", "sigma_s2", "cell_size",
+                                           "fraction", "seed"};
+    static const char *const checker_keys[] = {"type", "preset2", "sigma_a2", "sigma_s2", "cell_size"};
+    static const char *const noise_keys[] = {"type", "preset2", "sigma_a2", "sigma_s2", "cell_size",
+                                             "seed", "octaves"};
+    static const char *const volume_keys[] = {"type", "volume", "channel", "density_scale"};
+    size_t mark = push_key(ld, "pattern");
+    if (!expect_object(ld, obj) || !require(ld, obj, "type")) {
+        pop(ld, mark);
+        return;
+    }
+    int type = get_choice(ld, obj, "type", "pattern type", types, COUNT_OF(types));
+    if (type < 0) {
+        pop(ld, mark);
+        return;
+    }
+    memset(p, 0, sizeof(*p));
+    p->type = (nacre_pattern_type)(NACRE_PATTERN_RANDOM_MIX + type);
+    p->fraction = 0.5f;
+    p->octaves = 4;
+    switch (p->type) {
+    case NACRE_PATTERN_RANDOM_MIX: check_keys(ld, obj, mix_keys, COUNT_OF(mix_keys)); break;
+    case NACRE_PATTERN_CHECKER: check_keys(ld, obj, checker_keys, COUNT_OF(checker_keys)); break;
+    case NACRE_PATTERN_NOISE: check_keys(ld, obj, noise_keys, COUNT_OF(noise_keys)); break;
+    default: check_keys(ld, obj, volume_keys, COUNT_OF(volume_keys)); break;
+    }
+    if (p->type == NACRE_PATTERN_VOLUME) {
+        if (require(ld, obj, "volume"))
+            load_volume(ld, obj, p);
+        pop(ld, mark);
+        return;
+    }
+    const char *preset2 = get_string(ld, obj, "preset2");
+    if (preset2) {
+        nacre_material_desc m2;
+        if (preset_per_unit(ld, "preset2", preset2, &m2)) {
+            memcpy(p->sigma_a2, m2.sigma_a, sizeof(p->sigma_a2));
+            memcpy(p->sigma_s2, m2.sigma_s, sizeof(p->sigma_s2));
+        }
+    } else if (!ld->err && (!member(obj, "sigma_a2") || !member(obj, "sigma_s2"))) {
+        fail(ld, NACRE_ERROR_INVALID_ARGUMENT,
+             "medium 2 needs \"preset2\" or both \"sigma_a2\" and \"sigma_s2\"");
+    }
+    get_floats(ld, obj, "sigma_a2", 3, R_NONNEG, true, p->sigma_a2);
+    get_floats(ld, obj, "sigma_s2", 3, R_NONNEG, true, p->sigma_s2);
+    if (require(ld, obj, "cell_size"))
+        get_number(ld, obj, "cell_size", R_POSITIVE, &p->cell_size);
+    get_number(ld, obj, "fraction", R_UNIT, &p->fraction);
+    int64_t v;
+    if (get_integer(ld, obj, "seed", 0, UINT32_MAX, &v))
+        p->seed = (uint32_t)v;
+    if (get_integer(ld, obj, "octaves", 1, 12, &v))
+        p->octaves = (uint32_t)v;
+    pop(ld, mark);
+}
+
 static void parse_material(loader *ld, const cJSON *obj, nacre_material *out)
 {
     static const char *const opaque_keys[] = {"type", "diffuse", "specular", "shininess"};
     static const char *const translucent_keys[] = {"type", "preset", "sigma_a", "sigma_s", "g",
-                                                   "eta", "specular", "shininess"};
+                                                   "eta", "specular", "shininess", "pattern"};
     static const char *const types[] = {"opaque", "translucent"};
     if (!expect_object(ld, obj))
         return;
@@ -731,25 +871,8 @@ static void parse_material(loader *ld, const cJSON *obj, nacre_material *out)
             return;
         }
         type = 1;
-        if (!nacre_material_preset(preset, &d)) {
-            const char *valid[COUNT_OF(preset_names)];
-            size_t n = 0;
-            nacre_material_desc probe;
-            for (size_t i = 0; i < COUNT_OF(preset_names); i++)
-                if (nacre_material_preset(preset_names[i], &probe))
-                    valid[n++] = preset_names[i];
-            char buf[NAME_SHOWN_MAX + 8], list[512];
-            size_t mark = push_key(ld, "preset");
-            fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "unknown preset \"%s\" (valid: %s)",
-                 shown(preset, buf, sizeof(buf)), join_names(valid, n, list, sizeof(list)));
-            pop(ld, mark);
+        if (!preset_per_unit(ld, "preset", preset, &d))
             return;
-        }
-        /* Presets are per millimetre; the scene's coefficients are per scene unit. */
-        for (int c = 0; c < 3; c++) {
-            d.sigma_a[c] *= ld->unit_mm;
-            d.sigma_s[c] *= ld->unit_mm;
-        }
     } else {
         d = nacre_material_desc_defaults(type == 0 ? NACRE_MATERIAL_OPAQUE : NACRE_MATERIAL_TRANSLUCENT);
     }
@@ -765,6 +888,9 @@ static void parse_material(loader *ld, const cJSON *obj, nacre_material *out)
     get_floats(ld, obj, "sigma_s", 3, R_NONNEG, true, d.sigma_s);
     get_number(ld, obj, "g", g_range, &d.g);
     get_number(ld, obj, "eta", R_POSITIVE, &d.eta);
+    const cJSON *pattern = member(obj, "pattern");
+    if (pattern && type == 1 && !ld->err)
+        parse_pattern(ld, pattern, &d.pattern);
     if (ld->err)
         return;
     nacre_result r = nacre_scene_add_material(ld->scene, &d, out);

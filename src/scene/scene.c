@@ -211,8 +211,39 @@ static bool finite3(const float *v) { return isfinite(v[0]) && isfinite(v[1]) &&
 static bool nonneg3(const float *v) { return finite3(v) && v[0] >= 0 && v[1] >= 0 && v[2] >= 0; }
 static bool nonzero3(const float *v) { return finite3(v) && (v[0] != 0 || v[1] != 0 || v[2] != 0); }
 
-static nacre_result check_material(nacre_context *ctx, const nacre_material_desc *d)
+/* Medium 2 and the pattern's parameters; only translucent materials read them. */
+static nacre_result check_pattern(const nacre_scene *s, const nacre_medium_pattern *p)
 {
+    nacre_context *ctx = s->ctx;
+    if (p->type < NACRE_PATTERN_NONE || p->type > NACRE_PATTERN_VOLUME)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.type: unknown (%d)", (int)p->type);
+    if (p->type == NACRE_PATTERN_NONE)
+        return NACRE_OK;
+    if (p->type != NACRE_PATTERN_VOLUME) {
+        if (!nonneg3(p->sigma_a2))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.sigma_a2: must be finite and >= 0");
+        if (!nonneg3(p->sigma_s2))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.sigma_s2: must be finite and >= 0");
+        for (int c = 0; c < 3; c++)
+            if (p->sigma_a2[c] + p->sigma_s2[c] <= 0)
+                return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                               "material: pattern.sigma_a2 + sigma_s2: must be positive in every channel");
+        /* Cells far below float resolution of typical coordinates make no sense either. */
+        if (!(isfinite(p->cell_size) && p->cell_size > 0))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.cell_size: must be finite and > 0");
+    }
+    if (p->type == NACRE_PATTERN_RANDOM_MIX && !(p->fraction >= 0 && p->fraction <= 1))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.fraction: must be in [0, 1]");
+    if (p->type == NACRE_PATTERN_NOISE && (p->octaves < 1 || p->octaves > 12))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.octaves: must be in 1..12");
+    if (p->type == NACRE_PATTERN_VOLUME && !nc_scene_volume(s, p->volume))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.volume: invalid handle %u", p->volume.id);
+    return NACRE_OK;
+}
+
+static nacre_result check_material(const nacre_scene *s, const nacre_material_desc *d)
+{
+    nacre_context *ctx = s->ctx;
     if (d->type != NACRE_MATERIAL_OPAQUE && d->type != NACRE_MATERIAL_TRANSLUCENT)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: type: unknown (%d)", (int)d->type);
     if (!nonneg3(d->diffuse))
@@ -234,6 +265,9 @@ static nacre_result check_material(nacre_context *ctx, const nacre_material_desc
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: g: must be in (-1, 1)");
         if (!(isfinite(d->eta) && d->eta > 0))
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: eta: must be positive");
+        nacre_result r = check_pattern(s, &d->pattern);
+        if (r != NACRE_OK)
+            return r;
     }
     return NACRE_OK;
 }
@@ -368,6 +402,9 @@ void nacre_scene_destroy(nacre_scene *s)
     nc_free(ctx, s->materials);
     nc_free(ctx, s->objects);
     nc_free(ctx, s->lights);
+    for (uint32_t i = 0; i < s->volume_count; i++)
+        nc_free(ctx, s->volumes[i].data);
+    nc_free(ctx, s->volumes);
     nc_free(ctx, s);
 }
 
@@ -383,6 +420,11 @@ const nc_mesh_rec *nc_scene_mesh(const nacre_scene *s, nacre_mesh m)
 const nacre_material_desc *nc_scene_material(const nacre_scene *s, nacre_material m)
 {
     return (m.id >= 1 && m.id <= s->material_count) ? &s->materials[m.id - 1] : NULL;
+}
+
+const nc_volume_rec *nc_scene_volume(const nacre_scene *s, nacre_volume v)
+{
+    return (v.id >= 1 && v.id <= s->volume_count) ? &s->volumes[v.id - 1] : NULL;
 }
 
 const nacre_mesh_data *nacre_scene_mesh_data(const nacre_scene *s, nacre_mesh m)
@@ -451,7 +493,7 @@ nacre_result nacre_scene_add_material(nacre_scene *s, const nacre_material_desc 
     if (!s || !desc || !out)
         return NACRE_ERROR_INVALID_ARGUMENT;
     out->id = 0;
-    nacre_result r = check_material(s->ctx, desc);
+    nacre_result r = check_material(s, desc);
     if (r != NACRE_OK)
         return r;
     nacre_material_desc *slot =
@@ -470,12 +512,70 @@ nacre_result nacre_scene_set_material(nacre_scene *s, nacre_material m, const na
         return NACRE_ERROR_INVALID_ARGUMENT;
     if (!nc_scene_material(s, m))
         return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: invalid handle %u", m.id);
-    nacre_result r = check_material(s->ctx, desc);
+    nacre_result r = check_material(s, desc);
     if (r != NACRE_OK)
         return r;
     s->materials[m.id - 1] = *desc;
     s->versions.materials++;
     return NACRE_OK;
+}
+
+/* Density volumes (NACRE_PATTERN_VOLUME). Values are checked here once so that the medium's
+ * lookups never meet a NaN and its majorant (max_value) is exact. */
+nacre_result nacre_scene_add_volume(nacre_scene *s, const nacre_volume_data *data, nacre_volume *out)
+{
+    if (!s || !data || !out)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    nacre_context *ctx = s->ctx;
+    out->id = 0;
+    size_t n = 1;
+    for (int k = 0; k < 3; k++) {
+        if (data->dims[k] < 1 || !nc_mul_size_ok(n, data->dims[k], &n) || n > ((size_t)1 << 31))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                           "volume: dims: each must be >= 1, at most 2^31 samples in all");
+        if (!(isfinite(data->spacing[k]) && data->spacing[k] > 0))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "volume: spacing[%d]: must be finite and > 0", k);
+    }
+    if (!finite3(data->origin))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "volume: origin: must be finite");
+    if (!data->data)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "volume: data: missing");
+    float lo = INFINITY, hi = -INFINITY;
+    for (size_t i = 0; i < n; i++) {
+        float v = data->data[i];
+        if (!(isfinite(v) && v >= 0))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                           "volume: data[%zu]: must be finite and >= 0 (got %g)", i, (double)v);
+        lo = fminf(lo, v);
+        hi = fmaxf(hi, v);
+    }
+    float *copy = nc_alloc(ctx, n * sizeof(float));
+    if (!copy)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    memcpy(copy, data->data, n * sizeof(float));
+    nc_volume_rec *rec = grow(ctx, (void **)&s->volumes, &s->volume_count, &s->volume_capacity, sizeof(*rec));
+    if (!rec) {
+        nc_free(ctx, copy);
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    }
+    memcpy(rec->dims, data->dims, sizeof(rec->dims));
+    memcpy(rec->origin, data->origin, sizeof(rec->origin));
+    memcpy(rec->spacing, data->spacing, sizeof(rec->spacing));
+    rec->data = copy;
+    rec->min_value = lo;
+    rec->max_value = hi;
+    out->id = ++s->volume_count;
+    s->versions.materials++;
+    return NACRE_OK;
+}
+
+void nacre_volume_data_free(nacre_context *ctx, nacre_volume_data *v)
+{
+    if (!v)
+        return;
+    if (ctx)
+        nc_free(ctx, v->data);
+    memset(v, 0, sizeof(*v));
 }
 
 static nacre_result check_object(nacre_scene *s, const nacre_object_desc *d)

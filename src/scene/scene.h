@@ -28,6 +28,14 @@ typedef struct nc_object_rec {
     nc_mat4 object_to_world;
 } nc_object_rec;
 
+/* A density volume (NACRE_PATTERN_VOLUME), see nacre_volume_data. */
+typedef struct nc_volume_rec {
+    uint32_t dims[3];
+    float origin[3], spacing[3];
+    float *data;          /* owned; dims[0] * dims[1] * dims[2] floats, x fastest */
+    float min_value, max_value; /* over all samples: trilinear + clamp stays inside */
+} nc_volume_rec;
+
 typedef struct nc_light_rec {
     nacre_light_desc desc; /* normalised direction */
 } nc_light_rec;
@@ -51,6 +59,8 @@ struct nacre_scene {
     uint32_t object_count, object_capacity;
     nc_light_rec *lights;
     uint32_t light_count, light_capacity;
+    nc_volume_rec *volumes;
+    uint32_t volume_count, volume_capacity;
     nacre_camera_desc camera;
     bool has_camera;
     float environment[3];
@@ -65,6 +75,7 @@ struct nacre_scene {
 /* Lookup helpers: NULL when the handle is invalid. */
 const nc_mesh_rec *nc_scene_mesh(const nacre_scene *scene, nacre_mesh mesh);
 const nacre_material_desc *nc_scene_material(const nacre_scene *scene, nacre_material material);
+const nc_volume_rec *nc_scene_volume(const nacre_scene *scene, nacre_volume volume);
 
 /* Evaluate the deformer chain at a rest-pose point (exposed for tests and the voxelizer). */
 nc_vec3 nc_deform_point(const nacre_deformer *deformers, uint32_t count, double time, nc_vec3 p);

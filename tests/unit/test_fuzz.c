@@ -11,9 +11,19 @@
  *
  * Deterministic: one fixed-seed xorshift generator passed around, no global RNG. The iteration
  * counts fit a few tens of seconds under ASan; NACRE_FUZZ_SCALE=k in the environment runs k
- * times as many (each phase also stops at a time budget, reported when hit). A crash leaves its
+ * times as many (each phase also stops at a time budget, reported when hit) and
+ * NACRE_FUZZ_ONLY=scene|mesh|nrrd runs one phase. A crash leaves its
  * input behind: NACRE_TEST_TMP/fuzz_scene.json or fuzz_mesh.{obj,ply}.
+ *
+ * NRRD volumes (src/io/nrrd.c) get their own phase: seeds are the example density volume, a
+ * voxelizer export and headers written here (4D big-endian floats, spacings, byte skip); on top
+ * of the byte-level mutations, header values are swapped for tokens aimed at the reader (sizes
+ * that overflow, negative sizes, wrong encodings and types, malformed vectors). A volume that
+ * loads must hold finite non-negative samples, go into a scene and answer density lookups.
+ * A crash leaves NACRE_TEST_TMP/fuzz_volume.nrrd behind.
  */
+#include "io/nrrd.h"
+#include "scene/medium.h"
 #include "scene/scene.h"
 #include "test_util.h"
 
@@ -29,6 +39,7 @@
 #define TMP NACRE_TEST_TMP
 #define SCENE_ITERATIONS 8000
 #define MESH_ITERATIONS 1000
+#define NRRD_ITERATIONS 600
 #define PHASE_BUDGET_S 30.0
 #define MAX_SEEDS 32
 
@@ -131,7 +142,11 @@ static const char *const words[] = {
     "double_sided", "sphere", "box", "plane", "torus", "size", "segments", "rings",
     "minor_radius", "x", "y", "z", "mm", "cm", "m", "marble", "jade", "skin1", "chicken", "phong",
     "pathtrace", "meshes/suzanne.ply", "meshes/none.ply", "meshes", ".", "/dev/null",
-    "../examples/meshes/suzanne.ply", "", "_c", "\\u0000", "\\n", "\\\"", "\\ud800"};
+    "../examples/meshes/suzanne.ply", "", "_c", "\\u0000", "\\n", "\\\"", "\\ud800",
+    "pattern", "random_mix", "checker", "noise", "volume", "preset2", "sigma_a2", "sigma_s2",
+    "cell_size", "fraction", "octaves", "channel", "density_scale", "hetero_density.nrrd",
+    "meshes/suzanne.ply.nrrd", "voxel_resolution", "tsm_size", "solver", "source", "tolerance",
+    "seed_iterations", "time_limit", "max_scatter", "multigrid", "face", "ketchup"};
 
 static const char significant[] = "{}[]\",:-.eE0123456789 \n\t\\tfn";
 
@@ -632,6 +647,201 @@ static void fuzz_meshes(nacre_context *ctx, counter *c, rng *r, int iterations)
         free(seeds[i].data.data);
 }
 
+/* ------------------------------------------------------------------------------------------ */
+/* NRRD volumes                                                                               */
+/* ------------------------------------------------------------------------------------------ */
+
+static const char *const nrrd_tokens[] = {
+    "-1", "0", "1", "2", "3", "4", "5", "2147483648", "4294967296", "18446744073709551616",
+    "99999999999999999999999", "2 2", "2 2 2 2 2", "65536 65536 65536", "2147483648 2147483648 2",
+    "-2 2 2", "1 1 1", "nan", "inf", "1e999", "-0", "", " ", "gzip", "ascii", "hex", "raw", "bzip2",
+    "little", "big", "middle", "uint8", "int8", "uint16", "short", "int", "uint32", "float",
+    "double", "int64", "block", "none", "(1,0,0) (0,1,0) (0,0,1)", "(1,0,0) (0,1,0)",
+    "none (1,0,0) (0,1,0) (0,0,1)", "(0,1,0) (1,0,0) (0,0,1)", "(-1,0,0) (0,1,0) (0,0,1)",
+    "(nan,0,0) (0,1,0) (0,0,1)", "(1e999,0,0) (0,1,0) (0,0,1)", "(1,2,3)", "(1,2)", "(1,2,3",
+    "((1,2,3)", "1 nan 1", "nan 1 1 1", "0 1 1", "x.raw", "right-anterior-superior"};
+
+static const char *const nrrd_fields[] = {
+    "type", "dimension", "sizes", "encoding", "endian", "space dimension", "space", "space origin",
+    "space directions", "spacings", "byte skip", "line skip", "data file", "kinds", "content",
+    "block size", "frobnicate", "centers"};
+
+/* Replace the value of a random header line, rename its field, or add a field line. */
+static void mutate_nrrd_header(buf *b, rng *r)
+{
+    size_t end = 0;
+    for (size_t i = 0; i + 1 < b->len; i++)
+        if (b->data[i] == '\n' && b->data[i + 1] == '\n') {
+            end = i + 1;
+            break;
+        }
+    if (end == 0)
+        end = b->len;
+    /* Pick a line start inside the header (not the magic line, most of the time). */
+    size_t starts[64], n = 0;
+    for (size_t i = 0; i < end && n < 64; i++)
+        if (i == 0 || b->data[i - 1] == '\n')
+            starts[n++] = i;
+    if (n == 0)
+        return;
+    size_t line = starts[below(r, n)];
+    size_t line_end = line;
+    while (line_end < end && b->data[line_end] != '\n')
+        line_end++;
+    char tmp[128];
+    switch (below(r, 3)) {
+    case 0: { /* new value */
+        size_t colon = line;
+        while (colon + 1 < line_end && !(b->data[colon] == ':' && b->data[colon + 1] == ' '))
+            colon++;
+        if (colon + 1 < line_end)
+            buf_replace(b, colon + 2, line_end - colon - 2, nrrd_tokens[below(r, sizeof(nrrd_tokens) / sizeof(nrrd_tokens[0]))]);
+        break;
+    }
+    case 1: /* a whole new field line */
+        snprintf(tmp, sizeof(tmp), "%s: %s\n", nrrd_fields[below(r, sizeof(nrrd_fields) / sizeof(nrrd_fields[0]))],
+                 nrrd_tokens[below(r, sizeof(nrrd_tokens) / sizeof(nrrd_tokens[0]))]);
+        buf_insert(b, line, tmp, strlen(tmp));
+        break;
+    default: /* drop the line */
+        buf_erase(b, line, line_end - line + (line_end < b->len ? 1 : 0));
+        break;
+    }
+}
+
+static int load_nrrd_seeds(nacre_context *ctx, buf *seeds)
+{
+    int n = 0;
+    if (read_file(EXAMPLES "/hetero_density.nrrd", &seeds[n]))
+        n++;
+    /* A voxelizer export (2 channels, uint8). */
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_SPHERE);
+    sd.segments = 12;
+    sd.rings = 6;
+    nacre_mesh_data mesh = {0};
+    nacre_voxel_grid *grid = NULL;
+    nacre_voxel_settings vs = nacre_voxel_settings_defaults();
+    vs.resolution = 6;
+    if (nacre_mesh_make_shape(ctx, &sd, &mesh) == NACRE_OK && nacre_voxelize(ctx, &mesh, &vs, &grid, NULL) == NACRE_OK &&
+        nacre_voxel_grid_write_nrrd(grid, 0, TMP "/fuzz_seed_voxels.nrrd") == NACRE_OK &&
+        read_file(TMP "/fuzz_seed_voxels.nrrd", &seeds[n]))
+        n++;
+    nacre_voxel_grid_destroy(grid);
+    nacre_mesh_data_free(ctx, &mesh);
+    /* 4D big-endian floats with directions; 3D uint16 with spacings and a byte skip. */
+    static const char f4[] = "NRRD0005\ntype: float\ndimension: 4\nsizes: 2 3 2 2\nencoding: raw\nendian: big\n"
+                             "space dimension: 3\nspace origin: (1,2,3)\n"
+                             "space directions: none (0.5,0,0) (0,0.5,0) (0,0,2)\n\n";
+    buf_set(&seeds[n], f4, sizeof(f4) - 1);
+    for (int i = 0; i < 24; i++) {
+        float v = 0.25f * (float)i;
+        uint32_t u;
+        memcpy(&u, &v, 4);
+        char be[4] = {(char)(u >> 24), (char)(u >> 16), (char)(u >> 8), (char)u};
+        buf_insert(&seeds[n], seeds[n].len, be, 4);
+    }
+    n++;
+    static const char u16[] = "NRRD0004\n# spacings\ntype: unsigned short\ndimension: 3\nsizes: 3 2 2\n"
+                              "encoding: raw\nendian: little\nspacings: 1 2 3\nbyte skip: 4\n\nskip";
+    buf_set(&seeds[n], u16, sizeof(u16) - 1);
+    for (int i = 0; i < 12; i++) {
+        char le[2] = {(char)(i * 100), (char)((i * 100) >> 8)};
+        buf_insert(&seeds[n], seeds[n].len, le, 2);
+    }
+    n++;
+    return n;
+}
+
+static void fuzz_nrrd(nacre_context *ctx, counter *c, rng *r, int iterations)
+{
+    buf seeds[4];
+    memset(seeds, 0, sizeof(seeds));
+    int count = load_nrrd_seeds(ctx, seeds);
+    CHECK(count == 4);
+    long baseline = c->live;
+    /* The unmutated seeds load. */
+    for (int i = 0; i < count; i++) {
+        nacre_volume_data v;
+        nacre_result res = nc_nrrd_parse(ctx, "seed.nrrd", (const uint8_t *)seeds[i].data, seeds[i].len, 0, &v);
+        CHECK(res == NACRE_OK);
+        if (res != NACRE_OK)
+            printf("nrrd seed %d: %s\n", i, nacre_context_last_error(ctx));
+        nacre_volume_data_free(ctx, &v);
+    }
+    nacre_scene *scene = NULL;
+    CHECK(nacre_scene_create(ctx, &scene) == NACRE_OK);
+    if (!scene)
+        return;
+    baseline = c->live;
+    buf input = {0};
+    stats st = {0};
+    double start = seconds();
+    for (int it = 0; it < iterations; it++) {
+        if (seconds() - start > PHASE_BUDGET_S) {
+            printf("nrrd fuzz: time budget reached after %d iterations\n", it);
+            break;
+        }
+        const buf *seed = &seeds[below(r, (size_t)count)];
+        buf_set(&input, seed->data, seed->len);
+        for (size_t m = 1 + below(r, 3); m > 0; m--) {
+            if (below(r, 2))
+                mutate_nrrd_header(&input, r);
+            else
+                mutate_once(&input, r, seeds, count, true);
+        }
+        write_file(TMP "/fuzz_volume.nrrd", &input); /* left behind if this input crashes */
+        uint32_t channel = (uint32_t)below(r, 3) == 0 ? 1u : 0u;
+        nacre_volume_data v;
+        memset(&v, 0x5a, sizeof(v));
+        /* Mostly in memory; now and then through the file loader. */
+        nacre_result res = below(r, 8) == 0
+            ? nacre_volume_load_nrrd(ctx, TMP "/fuzz_volume.nrrd", channel, &v)
+            : nc_nrrd_parse(ctx, "fuzz.nrrd", (const uint8_t *)input.data, input.len, channel, &v);
+        st.runs++;
+        bool good;
+        if (res == NACRE_OK) {
+            st.ok++;
+            size_t n = (size_t)v.dims[0] * v.dims[1] * v.dims[2];
+            good = v.data != NULL && n >= 1;
+            for (size_t i = 0; good && i < n; i++)
+                good = isfinite(v.data[i]) && v.data[i] >= 0;
+            nacre_volume h = {0};
+            good = good && nacre_scene_add_volume(scene, &v, &h) == NACRE_OK;
+            const nc_volume_rec *rec = good ? nc_scene_volume(scene, h) : NULL;
+            for (int k = 0; rec && k < 16; k++) {
+                float p[3] = {(float)below(r, 41) - 20.0f, (float)below(r, 41) - 20.0f, (float)below(r, 41) - 20.0f};
+                float d = nc_volume_density(rec, p);
+                good = good && d >= rec->min_value && d <= rec->max_value;
+            }
+        } else {
+            st.failed++;
+            const char *msg = nacre_context_last_error(ctx);
+            good = v.data == NULL && v.dims[0] == 0 && message_ok(ctx) &&
+                   (strncmp(msg, "fuzz.nrrd: ", 11) == 0 || strstr(msg, "fuzz_volume.nrrd: ") == msg ||
+                    strstr(msg, "/fuzz_volume.nrrd: ") != NULL);
+        }
+        nacre_volume_data_free(ctx, &v);
+        /* The scene keeps the volumes it accepted; everything else is returned. */
+        if (res != NACRE_OK)
+            good = good && c->live == baseline;
+        baseline = c->live;
+        if (!good) {
+            st.bad++;
+            if (st.bad <= 5)
+                printf("nrrd fuzz iteration %d: result %d, message \"%s\"\n", it, (int)res,
+                       nacre_context_last_error(ctx));
+        }
+    }
+    printf("nrrd fuzz: %d inputs, %d loaded, %d rejected, %d bad (%.1f s)\n", st.runs, st.ok, st.failed, st.bad,
+           seconds() - start);
+    CHECK(st.bad == 0);
+    CHECK(st.ok > 0 && st.failed > 0);
+    nacre_scene_destroy(scene);
+    free(input.data);
+    for (int i = 0; i < count; i++)
+        free(seeds[i].data);
+}
+
 int main(void)
 {
     counter c = {0};
@@ -643,8 +853,14 @@ int main(void)
     mkdir(TMP, 0755);
     int scale = fuzz_scale();
     rng r = {0x9E3779B97F4A7C15ULL};
-    fuzz_scenes(ctx, &c, &r, SCENE_ITERATIONS * scale);
-    fuzz_meshes(ctx, &c, &r, MESH_ITERATIONS * scale);
+    /* NACRE_FUZZ_ONLY=scene|mesh|nrrd runs one phase (for long runs of one parser). */
+    const char *only = getenv("NACRE_FUZZ_ONLY");
+    if (!only || strcmp(only, "scene") == 0)
+        fuzz_scenes(ctx, &c, &r, SCENE_ITERATIONS * scale);
+    if (!only || strcmp(only, "mesh") == 0)
+        fuzz_meshes(ctx, &c, &r, MESH_ITERATIONS * scale);
+    if (!only || strcmp(only, "nrrd") == 0)
+        fuzz_nrrd(ctx, &c, &r, NRRD_ITERATIONS * scale);
     nacre_context_destroy(ctx);
     CHECK(c.live == 0);
     return TEST_MAIN_END();

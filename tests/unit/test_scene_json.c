@@ -433,6 +433,66 @@ static const bad_case bad_cases[] = {
     /* A lower layer's message keeps its text, behind the field path. */
     {MAT("{\"type\": \"translucent\", \"sigma_a\": 0, \"sigma_s\": 0}"), INVALID,
      "t.json: materials.m: ", "sigma_a + sigma_s"},
+    /* Diffusion and path-tracer render settings. */
+    {"{\"render\": {\"voxel_resolution\": 0}}", INVALID, "t.json: render.voxel_resolution: must be an integer in 1..4096", NULL},
+    {"{\"render\": {\"voxel_resolution\": 32.5}}", INVALID, "render.voxel_resolution: must be an integer", NULL},
+    {"{\"render\": {\"tsm_size\": 0}}", INVALID, "render.tsm_size: must be an integer in 1..16384", NULL},
+    {"{\"render\": {\"solver\": \"jacobi\"}}", INVALID, "render.solver: unknown solver \"jacobi\"", "multigrid, seed"},
+    {"{\"render\": {\"solver\": 1}}", INVALID, "render.solver: expected a string, got a number", NULL},
+    {"{\"render\": {\"source\": \"surface\"}}", INVALID, "render.source: unknown source \"surface\"", "volume, face"},
+    {"{\"render\": {\"tolerance\": 0}}", INVALID, "render.tolerance: must be in (0, 1) (got 0)", NULL},
+    {"{\"render\": {\"tolerance\": 1}}", INVALID, "render.tolerance: must be in (0, 1)", NULL},
+    {"{\"render\": {\"seed_iterations\": -1}}", INVALID, "render.seed_iterations: must be an integer in 0..1000000", NULL},
+    {"{\"render\": {\"time_limit\": -1}}", INVALID, "render.time_limit: must be non-negative", NULL},
+    {"{\"render\": {\"time_limit\": \"1h\"}}", INVALID, "render.time_limit: expected a number", NULL},
+    {"{\"render\": {\"max_scatter\": 4294967296}}", INVALID, "render.max_scatter: must be an integer in 0..4294967295", NULL},
+    /* Heterogeneous materials. */
+    {MAT("{\"preset\": \"marble\", \"pattern\": 3}"), INVALID, "t.json: materials.m.pattern: expected an object, got a number", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {}}"), INVALID, "materials.m.pattern: missing required key \"type\"", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"stripes\"}}"), INVALID,
+     "materials.m.pattern.type: unknown pattern type \"stripes\"", "random_mix, checker, noise, volume"},
+    {MAT("{\"type\": \"opaque\", \"pattern\": {\"type\": \"checker\"}}"), INVALID, "materials.m: unknown key \"pattern\"", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"checker\", \"cell_size\": 1}}"), INVALID,
+     "materials.m.pattern: medium 2 needs \"preset2\" or both \"sigma_a2\" and \"sigma_s2\"", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"checker\", \"sigma_a2\": 1, \"cell_size\": 1}}"), INVALID,
+     "materials.m.pattern: medium 2 needs", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"checker\", \"preset2\": \"ketchup\"}}"), INVALID,
+     "materials.m.pattern: missing required key \"cell_size\"", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"checker\", \"preset2\": \"ketchup\", \"cell_size\": 0}}"),
+     INVALID, "materials.m.pattern.cell_size: must be positive and finite (got 0)", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"checker\", \"preset2\": \"mustard\", \"cell_size\": 1}}"),
+     INVALID, "materials.m.pattern.preset2: unknown preset \"mustard\"", "ketchup"},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"checker\", \"preset2\": \"ketchup\", \"cell_size\": 1,"
+         " \"fraction\": 0.5}}"),
+     INVALID, "materials.m.pattern: unknown key \"fraction\" (valid keys: type, preset2, sigma_a2, sigma_s2, cell_size)", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"random_mix\", \"preset2\": \"ketchup\", \"cell_size\": 1,"
+         " \"fraction\": 1.5}}"),
+     INVALID, "materials.m.pattern.fraction: must be in [0, 1] (got 1.5)", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"random_mix\", \"preset2\": \"ketchup\", \"cell_size\": 1,"
+         " \"seed\": -3}}"),
+     INVALID, "materials.m.pattern.seed: must be an integer in 0..4294967295", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"noise\", \"preset2\": \"ketchup\", \"cell_size\": 1,"
+         " \"octaves\": 13}}"),
+     INVALID, "materials.m.pattern.octaves: must be an integer in 1..12 (got 13)", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"noise\", \"sigma_a2\": [1, -1, 1], \"sigma_s2\": 1,"
+         " \"cell_size\": 1}}"),
+     INVALID, "materials.m.pattern.sigma_a2[1]: must be non-negative", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"noise\", \"sigma_a2\": 0, \"sigma_s2\": 0,"
+         " \"cell_size\": 1}}"),
+     INVALID, "t.json: materials.m: ", "sigma_a2 + sigma_s2: must be positive"},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"volume\"}}"), INVALID,
+     "materials.m.pattern: missing required key \"volume\"", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"volume\", \"volume\": \"x.nrrd\", \"cell_size\": 1}}"),
+     INVALID, "materials.m.pattern: unknown key \"cell_size\" (valid keys: type, volume, channel, density_scale)", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"volume\", \"volume\": \"missing.nrrd\"}}"),
+     NACRE_ERROR_IO, "t.json: materials.m.pattern.volume: ", "examples/missing.nrrd: cannot open"},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"volume\", \"volume\": \"hetero_density.nrrd\", \"channel\": 1}}"),
+     INVALID, "materials.m.pattern.volume: ", "channel 1: the file has 1 channel(s)"},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"volume\", \"volume\": \"hetero_density.nrrd\","
+         " \"density_scale\": -1}}"),
+     INVALID, "materials.m.pattern.density_scale: must be non-negative", NULL},
+    {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"volume\", \"volume\": \"hetero_cube.json\"}}"),
+     NACRE_ERROR_PARSE, "materials.m.pattern.volume: ", "hetero_cube.json: line 1: magic: not a NRRD file"},
 };
 
 static bool one_line(const char *s)
@@ -597,6 +657,140 @@ static int compare_strings(const void *a, const void *b)
     return strcmp(*(char *const *)a, *(char *const *)b);
 }
 
+/* ------------------------------------------------------------------------------------------ */
+
+static const char pattern_scene[] =
+    "{\"units\": \"cm\",\n"
+    " \"render\": {\"voxel_resolution\": 48, \"tsm_size\": 1024, \"solver\": \"seed\", \"source\": \"face\",\n"
+    "            \"tolerance\": 1e-5, \"seed_iterations\": 20, \"time_limit\": 2.5, \"max_scatter\": 100},\n"
+    " \"materials\": {\n"
+    "  \"mix\": {\"preset\": \"marble\", \"pattern\": {\"type\": \"random_mix\", \"preset2\": \"ketchup\",\n"
+    "          \"sigma_s2\": [1, 2, 3], \"cell_size\": 2, \"fraction\": 0.3, \"seed\": 7}},\n"
+    "  \"check\": {\"type\": \"translucent\", \"sigma_a\": 0.1, \"sigma_s\": 1,\n"
+    "            \"pattern\": {\"type\": \"checker\", \"sigma_a2\": [0.2, 0.3, 0.4], \"sigma_s2\": 0.5, \"cell_size\": 5}},\n"
+    "  \"noise\": {\"preset\": \"skin1\", \"pattern\": {\"type\": \"noise\", \"preset2\": \"skin2\", \"cell_size\": 3,\n"
+    "            \"octaves\": 6, \"seed\": 11}},\n"
+    "  \"noise default\": {\"preset\": \"skin1\", \"pattern\": {\"type\": \"noise\", \"preset2\": \"skin2\", \"cell_size\": 3}},\n"
+    "  \"vol\": {\"preset\": \"wholemilk\", \"pattern\": {\"type\": \"volume\", \"volume\": \"dens.nrrd\", \"channel\": 1,\n"
+    "          \"density_scale\": 0.5}}\n"
+    " },\n"
+    " \"lights\": [{\"type\": \"directional\", \"direction\": [0, -1, 0]}],\n"
+    " \"objects\": [{\"shape\": {\"type\": \"box\"}, \"material\": \"mix\",\n"
+    "              \"deformers\": [{\"type\": \"twist\", \"axis\": \"y\", \"angle\": 45}]},\n"
+    "             {\"shape\": {\"type\": \"box\"}, \"material\": \"vol\"}]}\n";
+
+/* A 2-channel big-endian uint16 volume, 3 x 2 x 1, channel c of sample i = 10 i + c. */
+static void write_density(const char *path)
+{
+    static const char head[] = "NRRD0005\ntype: uint16\ndimension: 4\nsizes: 2 3 2 1\nencoding: raw\n"
+                               "endian: big\nspace dimension: 3\nspace origin: (-1,-2,-3)\n"
+                               "space directions: none (0.5,0,0) (0,4,0) (0,0,1)\n\n";
+    uint8_t buf[sizeof(head) + 24];
+    memcpy(buf, head, sizeof(head) - 1);
+    size_t pos = sizeof(head) - 1;
+    for (int i = 0; i < 6; i++)
+        for (int c = 0; c < 2; c++) {
+            buf[pos++] = 0;
+            buf[pos++] = (uint8_t)(10 * i + c);
+        }
+    FILE *f = fopen(path, "wb");
+    CHECK(f != NULL);
+    if (!f)
+        return;
+    fwrite(buf, 1, pos, f);
+    fclose(f);
+}
+
+static void test_patterns(void)
+{
+    counter c;
+    nacre_context *ctx = make_context(&c);
+    mkdir(TMP, 0755);
+    write_density(TMP "/dens.nrrd");
+    nacre_scene *s = NULL;
+    nacre_render_settings rs;
+    nacre_result r = nacre_scene_load_json(ctx, pattern_scene, strlen(pattern_scene), "p.json", TMP, &s, &rs);
+    CHECK(r == NACRE_OK);
+    if (r != NACRE_OK) {
+        printf("  pattern scene: %s\n", nacre_context_last_error(ctx));
+        nacre_context_destroy(ctx);
+        return;
+    }
+    CHECK(rs.voxel_resolution == 48 && rs.tsm_size == 1024);
+    CHECK(rs.solver == NACRE_SOLVER_SEED && rs.source == NACRE_SOURCE_FACE);
+    CHECK_NEAR(rs.tolerance, 1e-5, 1e-12);
+    CHECK(rs.seed_iterations == 20 && rs.max_scatter == 100);
+    CHECK_NEAR(rs.time_limit, 2.5, 0);
+
+    CHECK(s->material_count == 5);
+    nacre_material_desc marble, ketchup, skin2;
+    CHECK(nacre_material_preset("marble", &marble) && nacre_material_preset("ketchup", &ketchup) &&
+          nacre_material_preset("skin2", &skin2));
+    const nacre_material_desc *mix = &s->materials[0], *check = &s->materials[1], *noise = &s->materials[2];
+    const nacre_material_desc *noise_default = &s->materials[3], *vol = &s->materials[4];
+    CHECK(mix->pattern.type == NACRE_PATTERN_RANDOM_MIX);
+    for (int i = 0; i < 3; i++) {
+        CHECK_NEAR(mix->sigma_s[i], marble.sigma_s[i] * 10, 1e-5);          /* medium 1: per cm */
+        CHECK_NEAR(mix->pattern.sigma_a2[i], ketchup.sigma_a[i] * 10, 1e-5); /* preset2: per cm */
+        CHECK_NEAR(mix->pattern.sigma_s2[i], i + 1, 0);                       /* override as written */
+    }
+    CHECK_NEAR(mix->pattern.cell_size, 2, 0);
+    CHECK_NEAR(mix->pattern.fraction, 0.3, 1e-7);
+    CHECK(mix->pattern.seed == 7);
+    CHECK(check->pattern.type == NACRE_PATTERN_CHECKER);
+    CHECK_NEAR(check->pattern.sigma_a2[2], 0.4, 1e-7);
+    CHECK_NEAR(check->pattern.sigma_s2[1], 0.5, 0);
+    CHECK_NEAR(check->pattern.cell_size, 5, 0);
+    CHECK(noise->pattern.type == NACRE_PATTERN_NOISE);
+    CHECK(noise->pattern.octaves == 6 && noise->pattern.seed == 11);
+    CHECK_NEAR(noise->pattern.sigma_s2[1], skin2.sigma_s[1] * 10, 1e-5);
+    CHECK(noise_default->pattern.octaves == 4 && noise_default->pattern.seed == 0);
+    CHECK(vol->pattern.type == NACRE_PATTERN_VOLUME);
+    const nc_volume_rec *v = nc_scene_volume(s, vol->pattern.volume);
+    CHECK(v != NULL && s->volume_count == 1);
+    if (v) {
+        CHECK(v->dims[0] == 3 && v->dims[1] == 2 && v->dims[2] == 1);
+        CHECK(v->origin[0] == -1 && v->origin[1] == -2 && v->origin[2] == -3);
+        CHECK(v->spacing[0] == 0.5f && v->spacing[1] == 4 && v->spacing[2] == 1);
+        bool same = true;
+        for (int i = 0; i < 6; i++)
+            same &= v->data[i] == 0.5f * (float)(10 * i + 1); /* channel 1, scaled */
+        CHECK(same);
+        CHECK(v->max_value == 25.5f && v->min_value == 0.5f);
+    }
+    CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
+    nacre_scene_destroy(s);
+
+    /* Every allocation failure while loading it is clean. */
+    long baseline = c.live;
+    bool succeeded = false;
+    for (long n = 0; n < 100000 && !succeeded; n++) {
+        c.made = 0;
+        c.fail_at = n;
+        s = NULL;
+        r = nacre_scene_load_json(ctx, pattern_scene, strlen(pattern_scene), "p.json", TMP, &s, NULL);
+        c.fail_at = -1;
+        if (r == NACRE_OK) {
+            succeeded = true;
+            nacre_scene_destroy(s);
+        } else {
+            CHECK(s == NULL && c.live == baseline);
+        }
+    }
+    CHECK(succeeded);
+
+    /* A malformed volume file: the message names the scene field, the NRRD file and its line. */
+    write_text(TMP "/bad.nrrd", "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 4 4 -4\nencoding: raw\n\n");
+    static const char bad_volume[] =
+        "{\"materials\": {\"v\": {\"preset\": \"marble\", \"pattern\": {\"type\": \"volume\", \"volume\": \"bad.nrrd\"}}}}";
+    r = nacre_scene_load_json(ctx, bad_volume, strlen(bad_volume), "b.json", TMP, &s, NULL);
+    CHECK(r == NACRE_ERROR_PARSE && s == NULL);
+    CHECK(strstr(nacre_context_last_error(ctx), "b.json: materials.v.pattern.volume: ") != NULL);
+    CHECK(strstr(nacre_context_last_error(ctx), "bad.nrrd: line 4: sizes:") != NULL);
+    nacre_context_destroy(ctx);
+    CHECK(c.live == 0);
+}
+
 /* Every example scene loads and commits; they are meant to be fast golden scenes. */
 static void test_examples(void)
 {
@@ -629,8 +823,9 @@ static void test_examples(void)
         } else {
             CHECK(nacre_scene_object_count(s) > 0 && nacre_scene_light_count(s) > 0);
             CHECK(s->has_camera);
+            /* Small enough to render quickly in tests (the demo is the showcase). */
             if (strcmp(names[i], "demo.json") != 0)
-                CHECK(rs.width == 320 && rs.height == 240);
+                CHECK((int64_t)rs.width * rs.height <= 480 * 360);
             CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
         }
         nacre_scene_destroy(s);
@@ -680,6 +875,7 @@ int main(void)
     test_full_scene();
     test_bad_inputs();
     test_files();
+    test_patterns();
     test_examples();
     test_out_of_memory();
     return TEST_MAIN_END();
