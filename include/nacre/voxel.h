@@ -99,7 +99,8 @@ NACRE_API bool nacre_voxel_grid_get(const nacre_voxel_grid *grid, nacre_voxel_se
 NACRE_API uint64_t nacre_voxel_grid_count(const nacre_voxel_grid *grid, nacre_voxel_set set,
                                           uint32_t level);
 /* Write `level` as NRRD (uint8, raw): sizes 2 x y z, channel 0 = solid, 1 = surface (0 or 1),
- * with space origin and directions in mesh units. Written to a temporary file then renamed. */
+ * with space directions in mesh units and "space origin" the centre of voxel (0, 0, 0) (NRRD
+ * places samples at cell centres). Written to a temporary file then renamed. */
 NACRE_API nacre_result nacre_voxel_grid_write_nrrd(const nacre_voxel_grid *grid, uint32_t level,
                                                    const char *path);
 /* Rest-pose coordinates. The grid must come from `deformed`; `rest` has the same vertex count

@@ -893,14 +893,15 @@ nacre_result nacre_voxel_grid_write_nrrd(const nacre_voxel_grid *grid, uint32_t 
         goto out;
     }
     double h = (double)grid->voxel_size * (double)(1u << level);
+    /* NRRD places samples at their centres: "space origin" is the centre of voxel (0, 0, 0). */
     fprintf(f,
             "NRRD0004\n# nacre voxelization level %u: channel 0 solid, channel 1 surface\n"
             "type: uint8\ndimension: 4\nsizes: 2 %u %u %u\nkinds: vector domain domain domain\n"
             "encoding: raw\nspace dimension: 3\n"
             "space directions: none (%.9g,0,0) (0,%.9g,0) (0,0,%.9g)\n"
             "space origin: (%.9g,%.9g,%.9g)\n\n",
-            level, b->dims[0], b->dims[1], b->dims[2], h, h, h, grid->origin[0], grid->origin[1],
-            grid->origin[2]);
+            level, b->dims[0], b->dims[1], b->dims[2], h, h, h, grid->origin[0] + 0.5 * h,
+            grid->origin[1] + 0.5 * h, grid->origin[2] + 0.5 * h);
     for (uint32_t z = 0; z < b->dims[2]; z++)
         for (uint32_t y = 0; y < b->dims[1]; y++) {
             for (uint32_t x = 0; x < b->dims[0]; x++) {
