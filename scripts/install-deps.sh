@@ -3,7 +3,7 @@
 # is missing; through sudo when not root. If it cannot install, it names the packages.
 set -euo pipefail
 
-packages=(build-essential cmake pkg-config libcjson-dev libspng-dev libopenexr-dev libassimp-dev zlib1g-dev)
+packages=(build-essential cmake pkg-config libcjson-dev libspng-dev libopenexr-dev libassimp-dev zlib1g-dev libembree-dev)
 
 missing=()
 for p in "${packages[@]}"; do

@@ -72,8 +72,7 @@
  *
  * nacre DOES NOT (yet)
  *   - run on a GPU: everything is CPU code (OpenMP + AVX2 where the compiler targets it);
- *   - implement the render methods whose issues are still open: NACRE_METHOD_DIFFUSION,
- *     NACRE_METHOD_LAYERED and NACRE_METHOD_PATHTRACE return NACRE_ERROR_UNSUPPORTED;
+ *   - implement NACRE_METHOD_LAYERED (its issue is open): it returns NACRE_ERROR_UNSUPPORTED;
  *   - animate anything but deformers (time-dependent) and edits between commits.
  */
 #ifndef NACRE_NACRE_H
@@ -492,9 +491,9 @@ NACRE_API nacre_result nacre_scene_bounds(const nacre_scene *scene, float min[3]
 
 typedef enum nacre_method {
     NACRE_METHOD_PHONG = 0, /* ambient + Lambert + Blinn-Phong, shadow maps with PCF */
-    NACRE_METHOD_DIFFUSION, /* Blanchard 2012 voxel diffusion (not implemented yet) */
+    NACRE_METHOD_DIFFUSION, /* Blanchard 2012 voxel diffusion */
     NACRE_METHOD_LAYERED,   /* Francois et al. 2006 subsurface texture mapping (not yet) */
-    NACRE_METHOD_PATHTRACE, /* reference volumetric path tracer (not yet) */
+    NACRE_METHOD_PATHTRACE, /* reference volumetric path tracer (Embree; see nacre render --help) */
     NACRE_METHOD_COUNT
 } nacre_method;
 

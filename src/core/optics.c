@@ -56,3 +56,26 @@ double nc_hg_phase(double cos_theta, double g)
     double d = 1.0 + g * g - 2.0 * g * cos_theta;
     return (1.0 - g * g) / (4.0 * 3.14159265358979323846 * d * sqrt(d));
 }
+
+double nc_hg_sample_cos(double g, double u)
+{
+    /* Near g = 0 the inverse divides by g; the isotropic limit is exact enough there. */
+    if (fabs(g) < 1e-3)
+        return 1.0 - 2.0 * u;
+    double s = (1.0 - g * g) / (1.0 - g + 2.0 * g * u);
+    double c = (1.0 + g * g - s * s) / (2.0 * g);
+    return c < -1.0 ? -1.0 : c > 1.0 ? 1.0 : c;
+}
+
+bool nc_refract(const float d[3], const float n[3], double eta, float out[3])
+{
+    double cos_i = -((double)d[0] * n[0] + (double)d[1] * n[1] + (double)d[2] * n[2]);
+    double sin2_t = (1.0 - cos_i * cos_i) / (eta * eta);
+    if (sin2_t >= 1.0)
+        return false;
+    double cos_t = sqrt(1.0 - sin2_t);
+    /* Snell in vector form: the tangential part scales by 1/eta, the normal part becomes cos_t. */
+    for (int k = 0; k < 3; k++)
+        out[k] = (float)(d[k] / eta + (cos_i / eta - cos_t) * n[k]);
+    return true;
+}

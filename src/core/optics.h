@@ -11,6 +11,8 @@
 #ifndef NACRE_OPTICS_H
 #define NACRE_OPTICS_H
 
+#include <stdbool.h>
+
 /* Unpolarized Fresnel reflectance for light arriving at cos_i (>= 0) on a boundary of relative
  * index eta; 1 under total internal reflection. */
 double nc_fresnel_dielectric(double cos_i, double eta);
@@ -25,5 +27,12 @@ double nc_fresnel_fdr(double eta);
 double nc_dipole_rd(double alpha_p, double eta);
 /* Henyey-Greenstein phase function value (per steradian) for cos_theta between the directions. */
 double nc_hg_phase(double cos_theta, double g);
+/* Sample the cosine of the Henyey-Greenstein scattering angle from u uniform in [0, 1) by
+ * inverting its CDF; the density of the result is 2 pi nc_hg_phase. */
+double nc_hg_sample_cos(double g, double u);
+/* Refract unit direction d (pointing towards the boundary) through the surface with unit normal
+ * n (on the incident side, dot(d, n) < 0) for relative index eta; false under total internal
+ * reflection. */
+bool nc_refract(const float d[3], const float n[3], double eta, float out[3]);
 
 #endif /* NACRE_OPTICS_H */

@@ -1,17 +1,94 @@
 /*
- * pathtrace.c: placeholder until the reference path tracer lands (issue 5): every entry point
- * reports NACRE_ERROR_UNSUPPORTED.
+ * pathtrace.c: the reference volumetric path tracer of `--method pathtrace`: unidirectional path
+ * tracing (Kajiya 1986) with next-event estimation and multiple importance sampling (Veach and
+ * Guibas 1995, power heuristic) over the committed scene, Embree 3 for ray-triangle queries.
+ *
+ * Surfaces: opaque materials are Lambert + normalized Blinn-Phong with the conventions of
+ * shade/phong.c (f = kd / pi + ks (s + 8) / (8 pi) cos^s theta_h). A translucent object's surface
+ * is a smooth dielectric of the material's eta (Fresnel reflection or refraction, chosen by the
+ * Fresnel probability), or, with eta == 1, index matched: not a scattering vertex at all, the
+ * path just changes medium. Its interior is a participating medium with sigma_a, sigma_s from
+ * nc_medium_eval at the rest-pose point and Henyey-Greenstein phase with the material's g.
+ *
+ * Media: homogeneous free flights by spectral MIS over the RGB channels (free_flight_homogeneous);
+ * heterogeneous ones by spectral tracking (Kutz, Habel, Li, Novak 2017, "Spectral and
+ * decomposition tracking", with history-aware probabilities): one scalar majorant bounds every
+ * channel; at each tentative collision the event (absorb, scatter, null) is chosen with
+ * probabilities proportional to sum_c beta_c sigma_x,c and each channel is weighted by
+ * sigma_x,c / (majorant P_x). This is unbiased for RGB-different coefficients and reduces to
+ * plain delta tracking (Woodcock 1965) for grey media. NEE transmittance: exact exp(-sigma_t d) in
+ * homogeneous media, ratio tracking (Novak, Selle, Jarosz 2014) in heterogeneous ones. Heterogeneous
+ * media get a coarse world-space majorant grid walked with a 3D DDA (Amanatides and Woo 1987);
+ * its cells bound sigma_t by dense sampling (the medium interface gives point values only), so
+ * a cell may rarely under-bound a feature smaller than the sampling step: null coefficients then
+ * go negative and the signed weights of weighted tracking keep the estimate unbiased.
+ *
+ * Rest pose: an object's rest-pose point is the inverse object transform of the world point,
+ * exact for objects without deformers. A deformed heterogeneous object gets a 64-voxel (longest
+ * axis) grid of its deformed mesh holding each voxel's rest point (nacre_voxel_grid_rest_positions:
+ * exact on the surface, first order inside), looked up by nearest voxel: the pattern follows the
+ * deformation to within about a voxel.
+ *
+ * Lights (radiometry as in phong.c): the environment is a uniform radiance (sampled uniformly over
+ * the sphere); a directional light of irradiance E and angular radius r is a distant disk of
+ * radiance E / (pi sin^2 r), sampled uniformly in its cone (r = 0: a delta light, NEE only); a
+ * point or spot light of intensity I and radius r is a sphere of radiance I / (pi r^2) times the
+ * spot falloff of the direction from its centre (r = 0: delta). Through index-matched boundaries
+ * NEE works. Inside a dielectric object NEE cannot work (shadow rays end on the boundary): a sun
+ * of non-zero radius is sampled through the boundary by a second technique, MIS-combined with
+ * phase sampling (guided_sun); every other light, and a delta sun, is reached only by paths
+ * that refract out and hit it by chance (point lights, delta suns: never; exact but slow for
+ * small sphere lights).
+ *
+ * Non-symmetric transport: a camera path refracting from index n1 into n2 carries radiance that
+ * was scaled by (n1 / n2)^2 when the light crossed the other way, so throughput gets (n1 / n2)^2
+ * (Veach 1997, ch. 5); Russian roulette uses the throughput without that factor.
+ *
+ * Determinism: each pixel of each pass has its own PCG32 stream (seed, pass, pixel); per-pixel
+ * mean and M2 (Welford) are updated in pass order, so images do not depend on threads.
+ * Not handled: fog volumes in open space (the scene API has none), nested or overlapping
+ * translucent objects (a path is in air or in one object), the phong specular lobe on translucent
+ * objects (their specular is the Fresnel reflection), cast_shadows = false (every object occludes).
  */
 #include "pathtrace/pathtrace.h"
 
+#include "core/optics.h"
+#include "pathtrace/rng.h"
+#include "scene/medium.h"
+#include "scene/scene.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+nc_pathtrace_options nc_pathtrace_options_defaults(void)
+{
+    nc_pathtrace_options o;
+    memset(&o, 0, sizeof(o));
+    o.majorant_res = 16;
+    return o;
+}
+
+#ifndef NACRE_HAVE_EMBREE
+
+struct nc_pathtracer {
+    int unused;
+};
+
 bool nc_pathtrace_available(void) { return false; }
+
+nacre_result nc_pathtracer_create(nacre_context *ctx, const nc_pathtrace_options *options, nc_pathtracer **out)
+{
+    (void)options, (void)out;
+    return nc_fail(ctx, NACRE_ERROR_UNSUPPORTED, "pathtrace: built without Embree (install libembree-dev)");
+}
 
 nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, const nacre_scene *scene,
                                  const nacre_render_settings *settings, nacre_image *out,
                                  nacre_render_stats *stats)
 {
     (void)state, (void)scene, (void)settings, (void)out, (void)stats;
-    return nc_fail(ctx, NACRE_ERROR_UNSUPPORTED, "render: method 'pathtrace' is not implemented yet");
+    return nc_fail(ctx, NACRE_ERROR_UNSUPPORTED, "render: method 'pathtrace' needs Embree (libembree-dev)");
 }
 
 nacre_result nc_pathtrace_variance(const nc_pathtracer *state, nacre_context *ctx, nacre_image *out)
@@ -22,8 +99,1358 @@ nacre_result nc_pathtrace_variance(const nc_pathtracer *state, nacre_context *ct
 
 void nc_pathtracer_destroy(nacre_context *ctx, nc_pathtracer *state) { (void)ctx, (void)state; }
 
-nacre_result nc_slab_pathtrace(nacre_context *ctx, const nacre_slab_desc *desc, nacre_slab_result *out)
+#else /* NACRE_HAVE_EMBREE */
+
+#include <embree3/rtcore.h>
+
+#define PT_PI 3.14159265358979323846f
+#define MAX_VERTICES 65536 /* real vertices per path; walks this long carry ~0 weight */
+#define RR_START 8
+#define MAX_CROSSINGS 256 /* index-matched boundaries a shadow ray may pass */
+
+enum { PT_OPAQUE = 0, PT_DIELECTRIC, PT_MATCHED };
+
+typedef struct pt_object {
+    int kind;
+    const nacre_material_desc *mat;
+    const float *pos;       /* world positions */
+    const float *nrm;       /* world normals */
+    const uint32_t *idx;
+    bool heterogeneous;
+    float sigma_a[3], sigma_s[3]; /* homogeneous media */
+    float g, eta;
+    float maj_global;        /* scalar majorant: max over channels of the sigma_t bound */
+    nc_mat4 world_to_rest;
+    float *rest;             /* deformed heterogeneous objects: rest-pose point per voxel of the
+                                deformed object-space mesh (nacre_voxel_grid_rest_positions) */
+    uint32_t rdims[3];
+    float rorigin[3], rvoxel;
+    float *grid;             /* majorant grid (heterogeneous, res^3) or NULL */
+    uint32_t res;
+    float gmin[3], cell[3];
+} pt_object;
+
+typedef struct pt_light {
+    int type;
+    bool delta;
+    nc_vec3 to_light;       /* directional: unit direction towards the light */
+    float cos_max;          /* directional: cos of the angular radius */
+    float cone_pdf;         /* directional: 1 / solid angle */
+    nc_vec3 pos;
+    float radius;
+    nc_vec3 value;          /* delta: E or I; area: radiance */
+    const nacre_light_desc *desc;
+} pt_light;
+
+struct nc_pathtracer {
+    nacre_context *ctx;
+    nc_pathtrace_options opt;
+    RTCDevice device;
+    RTCScene rtc;
+    pt_object *objects;
+    uint32_t object_count;
+    pt_light *lights;
+    uint32_t light_count;
+    bool any_matched;      /* some object is index matched (shadow rays may pass surfaces) */
+    int32_t width, height;
+    double *mean, *m2;     /* per pixel and channel */
+    size_t pixel_capacity;
+    uint32_t passes;
+    bool valid;            /* a frame was rendered into mean/m2 */
+};
+
+/* Everything a path needs, read-only during a pass. */
+typedef struct pt_scene {
+    const nacre_scene *scene;
+    const nc_pathtracer *pt;
+    nc_pt_medium_eval_fn eval;
+    nc_vec3 env;
+    bool env_on;
+    float eps;
+    uint32_t max_scatter;
+} pt_scene;
+
+typedef struct pt_hit {
+    bool hit;
+    float t;
+    uint32_t obj, prim;
+    float u, v;
+} pt_hit;
+
+static float max3(nc_vec3 v) { return fmaxf(v.x, fmaxf(v.y, v.z)); }
+static float comp(nc_vec3 v, int c) { return c == 0 ? v.x : c == 1 ? v.y : v.z; }
+static nc_vec3 ray_at(nc_vec3 o, nc_vec3 d, float t) { return nc_add(o, nc_scale(d, t)); }
+static float power_heuristic(float a, float b) { return a * a / (a * a + b * b); }
+
+static pt_hit intersect(const pt_scene *ps, nc_vec3 o, nc_vec3 d, float tfar)
 {
-    (void)desc, (void)out;
-    return nc_fail(ctx, NACRE_ERROR_UNSUPPORTED, "slab: method 'pathtrace' is not implemented yet");
+    struct RTCIntersectContext ictx;
+    rtcInitIntersectContext(&ictx);
+    struct RTCRayHit rh;
+    rh.ray.org_x = o.x;
+    rh.ray.org_y = o.y;
+    rh.ray.org_z = o.z;
+    rh.ray.dir_x = d.x;
+    rh.ray.dir_y = d.y;
+    rh.ray.dir_z = d.z;
+    rh.ray.tnear = 0.0f;
+    rh.ray.tfar = tfar;
+    rh.ray.time = 0.0f;
+    rh.ray.mask = 0xffffffffu;
+    rh.ray.id = 0;
+    rh.ray.flags = 0;
+    rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+    rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+    rtcIntersect1(ps->pt->rtc, &ictx, &rh);
+    pt_hit h;
+    h.hit = rh.hit.geomID != RTC_INVALID_GEOMETRY_ID;
+    h.t = rh.ray.tfar;
+    h.obj = rh.hit.geomID;
+    h.prim = rh.hit.primID;
+    h.u = rh.hit.u;
+    h.v = rh.hit.v;
+    return h;
 }
+
+/* World position (barycentric, more precise than o + t d), outward geometric normal from the
+ * counter-clockwise winding, and interpolated shading normal. */
+static void surface_at(const pt_object *o, const pt_hit *h, nc_vec3 *p, nc_vec3 *ng, nc_vec3 *ns)
+{
+    const uint32_t *tri = o->idx + 3 * (size_t)h->prim;
+    nc_vec3 a = nc_v3a(o->pos + 3 * (size_t)tri[0]), b = nc_v3a(o->pos + 3 * (size_t)tri[1]),
+            c = nc_v3a(o->pos + 3 * (size_t)tri[2]);
+    float w = 1.0f - h->u - h->v;
+    *p = nc_add(nc_add(nc_scale(a, w), nc_scale(b, h->u)), nc_scale(c, h->v));
+    *ng = nc_normalize(nc_cross(nc_sub(b, a), nc_sub(c, a)));
+    nc_vec3 na = nc_v3a(o->nrm + 3 * (size_t)tri[0]), nb = nc_v3a(o->nrm + 3 * (size_t)tri[1]),
+            nc = nc_v3a(o->nrm + 3 * (size_t)tri[2]);
+    *ns = nc_normalize(nc_add(nc_add(nc_scale(na, w), nc_scale(nb, h->u)), nc_scale(nc, h->v)));
+}
+
+/* Start point for a ray leaving surface point p in direction d: pushed off the surface to the
+ * side d goes, so the ray does not find its own triangle again. */
+static nc_vec3 offset_origin(const pt_scene *ps, nc_vec3 p, nc_vec3 ng, nc_vec3 d)
+{
+    float s = nc_dot(d, ng) >= 0 ? ps->eps : -ps->eps;
+    return nc_add(p, nc_scale(ng, s));
+}
+
+static void sample_uniform_sphere(float u1, float u2, nc_vec3 *w)
+{
+    float z = 1.0f - 2.0f * u1, r = sqrtf(fmaxf(0.0f, 1.0f - z * z)), phi = 2.0f * PT_PI * u2;
+    *w = nc_v3(r * cosf(phi), r * sinf(phi), z);
+}
+
+/* Direction at angle acos(cos_t) from axis `n`, azimuth 2 pi u. */
+static nc_vec3 around(nc_vec3 n, float cos_t, float u)
+{
+    nc_vec3 t, b;
+    nc_basis(n, &t, &b);
+    float sin_t = sqrtf(fmaxf(0.0f, 1.0f - cos_t * cos_t)), phi = 2.0f * PT_PI * u;
+    return nc_normalize(nc_add(nc_scale(n, cos_t), nc_add(nc_scale(t, sin_t * cosf(phi)), nc_scale(b, sin_t * sinf(phi)))));
+}
+
+/* ---- media ---------------------------------------------------------------------------- */
+
+/* Rest-pose point of world point p: the inverse object transform, then, for deformed objects,
+ * the rest point stored in the voxel of the deformed mesh that holds it (nearest voxel: pattern
+ * edges move by up to half a voxel; NaN outside the voxelized mesh, i.e. medium 1). */
+static void rest_point(const pt_object *o, nc_vec3 p, float out[3])
+{
+    nc_vec3 q = nc_mat4_point(&o->world_to_rest, p);
+    if (!o->rest) {
+        out[0] = q.x, out[1] = q.y, out[2] = q.z;
+        return;
+    }
+    float qv[3] = {q.x, q.y, q.z};
+    size_t idx[3];
+    for (int a = 0; a < 3; a++) {
+        float f = floorf((qv[a] - o->rorigin[a]) / o->rvoxel);
+        f = f < 0 ? 0 : f > (float)(o->rdims[a] - 1) ? (float)(o->rdims[a] - 1) : f;
+        idx[a] = (size_t)f;
+    }
+    const float *r = o->rest + 3 * (idx[0] + o->rdims[0] * (idx[1] + o->rdims[1] * idx[2]));
+    out[0] = r[0], out[1] = r[1], out[2] = r[2];
+}
+
+static void medium_at(const pt_scene *ps, const pt_object *o, nc_vec3 p, float sa[3], float ss[3])
+{
+    if (!o->heterogeneous) {
+        memcpy(sa, o->sigma_a, sizeof(o->sigma_a));
+        memcpy(ss, o->sigma_s, sizeof(o->sigma_s));
+        return;
+    }
+    float xyz[3];
+    rest_point(o, p, xyz);
+    ps->eval(ps->scene, o->mat, xyz, 1, sa, ss);
+}
+
+/* Segments of a ray with their majorants: one segment for homogeneous media and the global
+ * majorant, otherwise the grid cells the ray crosses (DDA) and global-majorant pieces outside. */
+typedef struct maj_iter {
+    const pt_object *o;
+    int phase; /* 0: before the grid, 1: in it, 2: after it, 3: done */
+    float t, tmax, tin, tout;
+    int cell[3], step[3];
+    float tnext[3], tdelta[3];
+} maj_iter;
+
+static void maj_init(maj_iter *it, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax)
+{
+    memset(it, 0, sizeof(*it));
+    it->o = o;
+    it->tmax = tmax;
+    it->tin = it->tout = tmax; /* no grid: everything is "before the grid" */
+    if (!o->grid)
+        return;
+    float ov[3] = {org.x, org.y, org.z}, dv[3] = {dir.x, dir.y, dir.z};
+    float t0 = 0.0f, t1 = tmax;
+    for (int a = 0; a < 3; a++) {
+        float lo = o->gmin[a], hi = o->gmin[a] + o->cell[a] * (float)o->res;
+        if (dv[a] == 0.0f) {
+            if (ov[a] < lo || ov[a] > hi)
+                t1 = -1.0f;
+            continue;
+        }
+        float ta = (lo - ov[a]) / dv[a], tb = (hi - ov[a]) / dv[a];
+        if (ta > tb) {
+            float s = ta;
+            ta = tb;
+            tb = s;
+        }
+        t0 = fmaxf(t0, ta);
+        t1 = fminf(t1, tb);
+    }
+    if (!(t0 < t1))
+        return;
+    it->tin = t0;
+    it->tout = t1;
+    float tm = 0.5f * (t0 + fminf(t1, t0 + 1e-3f * (t1 - t0)));
+    for (int a = 0; a < 3; a++) {
+        float p = ov[a] + dv[a] * tm;
+        int c = (int)floorf((p - o->gmin[a]) / o->cell[a]);
+        c = c < 0 ? 0 : c >= (int)o->res ? (int)o->res - 1 : c;
+        it->cell[a] = c;
+        if (dv[a] > 0) {
+            it->step[a] = 1;
+            it->tnext[a] = (o->gmin[a] + (float)(c + 1) * o->cell[a] - ov[a]) / dv[a];
+            it->tdelta[a] = o->cell[a] / dv[a];
+        } else if (dv[a] < 0) {
+            it->step[a] = -1;
+            it->tnext[a] = (o->gmin[a] + (float)c * o->cell[a] - ov[a]) / dv[a];
+            it->tdelta[a] = -o->cell[a] / dv[a];
+        } else {
+            it->step[a] = 0;
+            it->tnext[a] = INFINITY;
+            it->tdelta[a] = INFINITY;
+        }
+    }
+}
+
+static bool maj_next(maj_iter *it, float *s0, float *s1, float *maj)
+{
+    const pt_object *o = it->o;
+    for (;;) {
+        switch (it->phase) {
+        case 0:
+            it->phase = 1;
+            if (it->tin > 0.0f) {
+                *s0 = 0.0f;
+                *s1 = it->tin;
+                *maj = o->maj_global;
+                it->t = it->tin;
+                return true;
+            }
+            it->t = it->tin;
+            break;
+        case 1: {
+            if (it->t >= it->tout || !o->grid) {
+                it->phase = 2;
+                break;
+            }
+            int a = it->tnext[0] < it->tnext[1] ? (it->tnext[0] < it->tnext[2] ? 0 : 2) : (it->tnext[1] < it->tnext[2] ? 1 : 2);
+            float end = fminf(it->tnext[a], it->tout);
+            *s0 = it->t;
+            *s1 = end;
+            *maj = o->grid[(size_t)it->cell[0] + o->res * ((size_t)it->cell[1] + o->res * (size_t)it->cell[2])];
+            it->t = end;
+            it->cell[a] += it->step[a];
+            it->tnext[a] += it->tdelta[a];
+            if (it->cell[a] < 0 || it->cell[a] >= (int)o->res)
+                it->tout = fminf(it->tout, end); /* left the grid */
+            return true;
+        }
+        case 2:
+            it->phase = 3;
+            if (it->tout < it->tmax) {
+                *s0 = it->tout;
+                *s1 = it->tmax;
+                *maj = o->maj_global;
+                return true;
+            }
+            break;
+        default:
+            return false;
+        }
+    }
+}
+
+typedef enum { FF_PASS = 0, FF_SCATTER, FF_ABSORB } ff_event;
+
+/* Homogeneous media need no null collisions: the distance is sampled from the exponential of one
+ * channel, chosen with probability proportional to the path throughput (hero channel, Wilkie et
+ * al. 2014 spectral MIS with the history-aware choice of Kutz et al. 2017), and every channel is
+ * weighted by its own density over the mixture density (one-sample balance heuristic). Grey media
+ * reduce to weight = albedo per scattering. */
+static ff_event free_flight_homogeneous(const pt_object *o, float tmax, nc_rng *rng, nc_vec3 *beta, float *t_out)
+{
+    float b[3] = {fabsf(beta->x), fabsf(beta->y), fabsf(beta->z)}, st[3];
+    float bsum = b[0] + b[1] + b[2];
+    if (!(bsum > 0.0f))
+        return FF_ABSORB;
+    for (int c = 0; c < 3; c++)
+        st[c] = o->sigma_a[c] + o->sigma_s[c];
+    float u = nc_rng_float(rng) * bsum;
+    int k = u < b[0] ? 0 : u < b[0] + b[1] ? 1 : 2;
+    float t = st[k] > 0.0f ? -logf(1.0f - nc_rng_float(rng)) / st[k] : INFINITY;
+    float tr[3], pdf = 0.0f;
+    if (t >= tmax) {
+        for (int c = 0; c < 3; c++) {
+            tr[c] = expf(-st[c] * tmax);
+            pdf += b[c] / bsum * tr[c];
+        }
+        if (!(pdf > 0.0f))
+            return FF_ABSORB;
+        *beta = nc_v3(beta->x * tr[0] / pdf, beta->y * tr[1] / pdf, beta->z * tr[2] / pdf);
+        return FF_PASS;
+    }
+    for (int c = 0; c < 3; c++) {
+        tr[c] = expf(-st[c] * t);
+        pdf += b[c] / bsum * st[c] * tr[c];
+    }
+    if (!(pdf > 0.0f))
+        return FF_ABSORB;
+    *beta = nc_v3(beta->x * o->sigma_s[0] * tr[0] / pdf, beta->y * o->sigma_s[1] * tr[1] / pdf,
+                  beta->z * o->sigma_s[2] * tr[2] / pdf);
+    *t_out = t;
+    return FF_SCATTER;
+}
+
+/* Spectral tracking from org along dir over [0, tmax]: FF_SCATTER with *t_out, FF_PASS at tmax,
+ * or FF_ABSORB. beta is updated by the per-channel weights. */
+static ff_event free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax,
+                            nc_rng *rng, nc_vec3 *beta, float *t_out)
+{
+    if (!o->heterogeneous)
+        return free_flight_homogeneous(o, tmax, rng, beta, t_out);
+    maj_iter it;
+    maj_init(&it, o, org, dir, tmax);
+    float s0, s1, m;
+    while (maj_next(&it, &s0, &s1, &m)) {
+        if (!(m > 0.0f))
+            continue;
+        float t = s0;
+        for (;;) {
+            t -= logf(1.0f - nc_rng_float(rng)) / m;
+            if (t >= s1)
+                break;
+            float sa[3], ss[3];
+            medium_at(ps, o, ray_at(org, dir, t), sa, ss);
+            float b[3] = {beta->x, beta->y, beta->z};
+            float pa = 0, pss = 0, pn = 0;
+            for (int c = 0; c < 3; c++) {
+                pa += b[c] * sa[c];
+                pss += b[c] * ss[c];
+                pn += b[c] * fabsf(m - sa[c] - ss[c]);
+            }
+            float sum = pa + pss + pn;
+            if (!(sum > 0.0f))
+                return FF_ABSORB;
+            float u = nc_rng_float(rng) * sum;
+            if (u < pa)
+                return FF_ABSORB;
+            if (u < pa + pss) {
+                float k = sum / (m * pss);
+                *beta = nc_v3(b[0] * ss[0] * k, b[1] * ss[1] * k, b[2] * ss[2] * k);
+                *t_out = t;
+                return FF_SCATTER;
+            }
+            float k = sum / (m * pn);
+            *beta = nc_v3(b[0] * (m - sa[0] - ss[0]) * k, b[1] * (m - sa[1] - ss[1]) * k, b[2] * (m - sa[2] - ss[2]) * k);
+        }
+    }
+    return FF_PASS;
+}
+
+/* Transmittance along [0, tmax]: exact for homogeneous media, ratio tracking otherwise. */
+static nc_vec3 transmittance(const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax, nc_rng *rng)
+{
+    if (!o->heterogeneous)
+        return nc_v3(expf(-(o->sigma_a[0] + o->sigma_s[0]) * tmax), expf(-(o->sigma_a[1] + o->sigma_s[1]) * tmax),
+                     expf(-(o->sigma_a[2] + o->sigma_s[2]) * tmax));
+    nc_vec3 tr = nc_v3(1, 1, 1);
+    maj_iter it;
+    maj_init(&it, o, org, dir, tmax);
+    float s0, s1, m;
+    while (maj_next(&it, &s0, &s1, &m)) {
+        if (!(m > 0.0f))
+            continue;
+        float t = s0;
+        for (;;) {
+            t -= logf(1.0f - nc_rng_float(rng)) / m;
+            if (t >= s1)
+                break;
+            float sa[3], ss[3];
+            medium_at(ps, o, ray_at(org, dir, t), sa, ss);
+            tr = nc_v3(tr.x * (1.0f - (sa[0] + ss[0]) / m), tr.y * (1.0f - (sa[1] + ss[1]) / m),
+                       tr.z * (1.0f - (sa[2] + ss[2]) / m));
+            /* Russian roulette on small estimates keeps long ratio-tracking walks cheap. */
+            float mx = fmaxf(fabsf(tr.x), fmaxf(fabsf(tr.y), fabsf(tr.z)));
+            if (mx < 0.1f) {
+                if (nc_rng_float(rng) >= 0.5f)
+                    return nc_v3(0, 0, 0);
+                tr = nc_scale(tr, 2.0f);
+            }
+        }
+    }
+    return tr;
+}
+
+/* Transmittance from p (in medium `medium`, -1 = air) to distance `dist` along wi: blocked by
+ * opaque and dielectric surfaces, through media and index-matched boundaries. */
+static bool occluded(const pt_scene *ps, nc_vec3 o, nc_vec3 d, float tfar)
+{
+    struct RTCIntersectContext ictx;
+    rtcInitIntersectContext(&ictx);
+    struct RTCRay ray;
+    ray.org_x = o.x;
+    ray.org_y = o.y;
+    ray.org_z = o.z;
+    ray.dir_x = d.x;
+    ray.dir_y = d.y;
+    ray.dir_z = d.z;
+    ray.tnear = 0.0f;
+    ray.tfar = tfar;
+    ray.time = 0.0f;
+    ray.mask = 0xffffffffu;
+    ray.id = 0;
+    ray.flags = 0;
+    rtcOccluded1(ps->pt->rtc, &ictx, &ray);
+    return ray.tfar < 0.0f; /* Embree marks an occluded ray with tfar = -inf */
+}
+
+static nc_vec3 shadow(const pt_scene *ps, nc_vec3 p, nc_vec3 wi, float dist, int medium, nc_rng *rng)
+{
+    /* Without index-matched objects, a shadow ray from air is blocked by any hit: the cheaper
+     * any-hit query answers it. */
+    if (medium < 0 && !ps->pt->any_matched)
+        return occluded(ps, p, wi, dist) ? nc_v3(0, 0, 0) : nc_v3(1, 1, 1);
+    nc_vec3 tr = nc_v3(1, 1, 1);
+    nc_vec3 o = p;
+    float remaining = dist;
+    for (int k = 0; k < MAX_CROSSINGS; k++) {
+        pt_hit h = intersect(ps, o, wi, remaining);
+        float seg = h.hit ? h.t : remaining;
+        if (medium >= 0) {
+            tr = nc_mul(tr, transmittance(ps, &ps->pt->objects[medium], o, wi, seg, rng));
+            if (tr.x == 0 && tr.y == 0 && tr.z == 0)
+                return tr;
+        }
+        if (!h.hit)
+            return tr;
+        const pt_object *ob = &ps->pt->objects[h.obj];
+        if (ob->kind != PT_MATCHED)
+            return nc_v3(0, 0, 0);
+        nc_vec3 hp, ng, ns;
+        surface_at(ob, &h, &hp, &ng, &ns);
+        medium = nc_dot(wi, ng) < 0 ? (int)h.obj : -1;
+        nc_vec3 no = offset_origin(ps, hp, ng, wi);
+        remaining -= nc_length(nc_sub(no, o));
+        o = no;
+        if (remaining <= 0)
+            return tr;
+    }
+    return nc_v3(0, 0, 0);
+}
+
+/* ---- lights ----------------------------------------------------------------------------- */
+
+static float spot_falloff(const nacre_light_desc *l, nc_vec3 from_light)
+{
+    if (l->type != NACRE_LIGHT_SPOT)
+        return 1.0f;
+    float c = nc_dot(nc_v3a(l->direction), from_light);
+    float co = cosf(l->outer_angle * NC_DEG2RAD), ci = cosf(l->inner_angle * NC_DEG2RAD);
+    if (c <= co)
+        return 0.0f;
+    if (c >= ci || ci <= co)
+        return 1.0f;
+    float t = (c - co) / (ci - co);
+    return t * t * (3.0f - 2.0f * t);
+}
+
+/* Solid-angle pdf of sampling the cone subtended by sphere light `l` from p; 0 when inside. */
+static float sphere_pdf(const pt_light *l, nc_vec3 p, float *cos_max)
+{
+    nc_vec3 d = nc_sub(l->pos, p);
+    float d2 = nc_dot(d, d), r2 = l->radius * l->radius;
+    if (d2 <= r2)
+        return 0.0f;
+    float sin2 = r2 / d2;
+    float cm = sqrtf(1.0f - sin2);
+    *cos_max = cm;
+    float one_minus = sin2 / (1.0f + cm);
+    return 1.0f / (2.0f * PT_PI * one_minus);
+}
+
+/* Distance along d from o to sphere light l, or INFINITY. */
+static float sphere_hit(const pt_light *l, nc_vec3 o, nc_vec3 d)
+{
+    nc_vec3 oc = nc_sub(o, l->pos);
+    float b = nc_dot(oc, d), c = nc_dot(oc, oc) - l->radius * l->radius;
+    float disc = b * b - c;
+    if (disc < 0)
+        return INFINITY;
+    float s = sqrtf(disc), t = -b - s;
+    if (t > 0)
+        return t;
+    t = -b + s;
+    return c > 0 || t <= 0 ? INFINITY : t; /* only hits from outside count */
+}
+
+/* One light sample from p: direction, distance, radiance (or delta value) and pdf (0: delta). */
+typedef struct light_sample {
+    nc_vec3 wi;
+    float dist;
+    nc_vec3 value;
+    float pdf;
+} light_sample;
+
+static bool sample_light(const pt_light *l, nc_vec3 p, nc_rng *rng, light_sample *s)
+{
+    float u1 = nc_rng_float(rng), u2 = nc_rng_float(rng);
+    if (l->type == NACRE_LIGHT_DIRECTIONAL) {
+        s->dist = INFINITY;
+        s->value = l->value;
+        if (l->delta) {
+            s->wi = l->to_light;
+            s->pdf = 0;
+        } else {
+            s->wi = around(l->to_light, 1.0f - u1 * (1.0f - l->cos_max), u2);
+            s->pdf = l->cone_pdf;
+        }
+        return true;
+    }
+    nc_vec3 d = nc_sub(l->pos, p);
+    float d2 = nc_dot(d, d);
+    if (d2 <= 0)
+        return false;
+    float dl = sqrtf(d2);
+    nc_vec3 axis = nc_scale(d, 1.0f / dl);
+    float fall = spot_falloff(l->desc, nc_scale(axis, -1.0f));
+    if (fall <= 0)
+        return false;
+    if (l->delta) {
+        s->wi = axis;
+        s->dist = dl;
+        s->value = nc_scale(l->value, fall / d2);
+        s->pdf = 0;
+        return true;
+    }
+    float cos_max;
+    float pdf = sphere_pdf(l, p, &cos_max);
+    if (pdf <= 0)
+        return false;
+    s->wi = around(axis, 1.0f - u1 * (1.0f - cos_max), u2);
+    float t = sphere_hit(l, p, s->wi);
+    if (!isfinite(t))
+        t = dl; /* grazing the silhouette: rounding */
+    s->dist = t;
+    s->value = nc_scale(l->value, fall);
+    s->pdf = pdf;
+    return true;
+}
+
+/* ---- opaque BSDF (phong.c conventions) ------------------------------------------------ */
+
+static float diffuse_prob(const nacre_material_desc *m)
+{
+    float kd = (m->diffuse[0] + m->diffuse[1] + m->diffuse[2]), ks = (m->specular[0] + m->specular[1] + m->specular[2]);
+    return kd + ks > 0 ? kd / (kd + ks) : 1.0f;
+}
+
+static nc_vec3 bsdf_eval(const nacre_material_desc *m, nc_vec3 n, nc_vec3 wo, nc_vec3 wi, float *pdf)
+{
+    float ci = nc_dot(n, wi), co = nc_dot(n, wo);
+    *pdf = 0;
+    if (ci <= 0 || co <= 0)
+        return nc_v3(0, 0, 0);
+    nc_vec3 h = nc_normalize(nc_add(wi, wo));
+    float nh = fmaxf(0.0f, nc_dot(n, h));
+    float s = m->shininess;
+    float spec = (s + 8.0f) / (8.0f * PT_PI) * (s > 0 ? powf(nh, s) : 1.0f);
+    float pd = diffuse_prob(m);
+    float ph = (s + 1.0f) / (2.0f * PT_PI) * (s > 0 ? powf(nh, s) : 1.0f);
+    *pdf = pd * ci / PT_PI + (1.0f - pd) * ph / (4.0f * fmaxf(nc_dot(wo, h), 1e-6f));
+    return nc_v3(m->diffuse[0] / PT_PI + m->specular[0] * spec, m->diffuse[1] / PT_PI + m->specular[1] * spec,
+                 m->diffuse[2] / PT_PI + m->specular[2] * spec);
+}
+
+static nc_vec3 bsdf_sample(const nacre_material_desc *m, nc_vec3 n, nc_vec3 wo, nc_rng *rng)
+{
+    float u0 = nc_rng_float(rng), u1 = nc_rng_float(rng), u2 = nc_rng_float(rng);
+    if (u0 < diffuse_prob(m))
+        return around(n, sqrtf(1.0f - u1), u2); /* cosine-weighted */
+    float ch = powf(1.0f - u1, 1.0f / (m->shininess + 1.0f));
+    nc_vec3 h = around(n, ch, u2);
+    return nc_sub(nc_scale(h, 2.0f * nc_dot(wo, h)), wo);
+}
+
+/* ---- the path ------------------------------------------------------------------------ */
+
+/* NEE from p over every light and the environment. `surface`: opaque vertex with shading
+ * normal n and outgoing wo (else a medium vertex with HG g, incoming direction d = -wo). */
+static nc_vec3 direct_light(const pt_scene *ps, nc_vec3 p, nc_vec3 ng, bool surface, const nacre_material_desc *m,
+                            nc_vec3 n, nc_vec3 wo, float g, int medium, nc_rng *rng)
+{
+    const nc_pathtracer *pt = ps->pt;
+    nc_vec3 sum = nc_v3(0, 0, 0);
+    for (uint32_t li = 0; li <= pt->light_count; li++) {
+        light_sample s;
+        if (li == pt->light_count) {
+            if (!ps->env_on)
+                break;
+            sample_uniform_sphere(nc_rng_float(rng), nc_rng_float(rng), &s.wi);
+            s.dist = INFINITY;
+            s.value = ps->env;
+            s.pdf = 1.0f / (4.0f * PT_PI);
+        } else if (!sample_light(&pt->lights[li], p, rng, &s)) {
+            continue;
+        }
+        nc_vec3 f;
+        float fpdf;
+        if (surface) {
+            if (nc_dot(s.wi, ng) <= 0)
+                continue;
+            f = nc_scale(bsdf_eval(m, n, wo, s.wi, &fpdf), fmaxf(0.0f, nc_dot(n, s.wi)));
+        } else {
+            fpdf = (float)nc_hg_phase(nc_dot(nc_scale(wo, -1.0f), s.wi), g);
+            f = nc_v3(fpdf, fpdf, fpdf);
+        }
+        if (max3(f) <= 0)
+            continue;
+        nc_vec3 o = surface ? offset_origin(ps, p, ng, s.wi) : p;
+        float dist = isfinite(s.dist) ? s.dist * (1.0f - 1e-4f) : INFINITY;
+        /* Sphere lights are opaque to each other and to the sky, as they are to BSDF-sampled
+         * rays (which end on them); otherwise the two MIS strategies would see different worlds. */
+        bool hidden = false;
+        for (uint32_t k = 0; k < pt->light_count && !hidden; k++) {
+            const pt_light *b = &pt->lights[k];
+            hidden = k != li && b->type != NACRE_LIGHT_DIRECTIONAL && !b->delta && sphere_hit(b, o, s.wi) < dist;
+        }
+        if (hidden)
+            continue;
+        nc_vec3 tr = shadow(ps, o, s.wi, dist, medium, rng);
+        if (tr.x == 0 && tr.y == 0 && tr.z == 0)
+            continue;
+        nc_vec3 c = nc_mul(nc_mul(f, tr), s.value);
+        if (s.pdf > 0)
+            c = nc_scale(c, power_heuristic(s.pdf, fpdf) / s.pdf);
+        sum = nc_add(sum, c);
+    }
+    return sum;
+}
+
+/* Radiance of lights seen along an escaping ray (environment and sun disks), MIS-weighted
+ * against NEE when the previous vertex was not specular. */
+static nc_vec3 escaped(const pt_scene *ps, nc_vec3 d, bool prev_delta, float prev_pdf, int guided_light,
+                       float guided_weight)
+{
+    nc_vec3 L = nc_v3(0, 0, 0);
+    if (ps->env_on)
+        L = nc_scale(ps->env, prev_delta ? 1.0f : power_heuristic(prev_pdf, 1.0f / (4.0f * PT_PI)));
+    for (uint32_t li = 0; li < ps->pt->light_count; li++) {
+        const pt_light *l = &ps->pt->lights[li];
+        if (l->type != NACRE_LIGHT_DIRECTIONAL || l->delta || nc_dot(d, l->to_light) < l->cos_max)
+            continue;
+        float w = (int)li == guided_light ? guided_weight : prev_delta ? 1.0f : power_heuristic(prev_pdf, l->cone_pdf);
+        L = nc_add(L, nc_scale(l->value, w));
+    }
+    return L;
+}
+
+/* ---- sun through a dielectric boundary ---------------------------------------------------
+ *
+ * Inside a dielectric object NEE is impossible (every shadow ray ends on the boundary) and a
+ * sun of 0.27 degrees is found by phase sampling with probability ~1e-4. A second technique
+ * samples, at each medium vertex p, a direction in a small cone around the direction that
+ * refracts out towards the sun: the "guide axis", a function of p only (refract the sun
+ * direction through the facet that the ray towards the sun meets, and repeat with the facet the
+ * refracted ray meets, up to GUIDE_ITERATIONS times). The guided direction is traced to the
+ * boundary (transmittance as for NEE), refracted out with weight (1 - F) eta^2 and, if it lands in
+ * the sun's cone and nothing occludes it, scores the sun's radiance. Phase sampling covers the
+ * same paths (free flight, one refraction, sun) and both are weighted by the power heuristic on
+ * the direction chosen at p; paths that reflect or scatter again are phase sampling's alone. Any
+ * axis gives an unbiased result; a good one makes it converge. Only the first non-delta
+ * directional light is guided. */
+#define GUIDE_ITERATIONS 4
+#define GUIDE_CONE_SCALE 1.5f /* guide cone half-angle over the sun's */
+
+typedef struct guide {
+    bool valid;
+    nc_vec3 axis;
+    float cos_a, pdf;
+} guide;
+
+/* Facet of object `obj` where the ray p + t dir leaves it (outward normal), or false. */
+static bool exit_facet(const pt_scene *ps, uint32_t obj, nc_vec3 p, nc_vec3 dir, pt_hit *h, nc_vec3 *x, nc_vec3 *n)
+{
+    *h = intersect(ps, p, dir, INFINITY);
+    if (!h->hit || h->obj != obj)
+        return false;
+    nc_vec3 ns;
+    surface_at(&ps->pt->objects[obj], h, x, n, &ns);
+    return nc_dot(dir, *n) > 0;
+}
+
+static guide make_guide(const pt_scene *ps, uint32_t obj, const pt_light *l, nc_vec3 p)
+{
+    guide g = {false, {0, 0, 0}, 1, 0};
+    const pt_object *ob = &ps->pt->objects[obj];
+    nc_vec3 dir = l->to_light, x, n;
+    pt_hit h;
+    uint32_t prev_prim = UINT32_MAX;
+    for (int it = 0; it < GUIDE_ITERATIONS; it++) {
+        if (!exit_facet(ps, obj, p, dir, &h, &x, &n))
+            return g;
+        if (h.prim == prev_prim)
+            break;
+        prev_prim = h.prim;
+        /* Light travels along -to_light, enters through the facet (normal n, eta = ob->eta). */
+        float lv[3] = {-l->to_light.x, -l->to_light.y, -l->to_light.z}, nv[3] = {n.x, n.y, n.z}, tv[3];
+        if (nc_dot(l->to_light, n) <= 0 || !nc_refract(lv, nv, ob->eta, tv))
+            return g;
+        dir = nc_normalize(nc_scale(nc_v3a(tv), -1.0f));
+    }
+    float a = fminf(GUIDE_CONE_SCALE * acosf(fminf(1.0f, l->cos_max)), 0.5f);
+    g.valid = true;
+    g.axis = dir;
+    g.cos_a = cosf(a);
+    float s = sinf(a);
+    g.pdf = 1.0f / (2.0f * PT_PI * (s * s / (1.0f + g.cos_a)));
+    return g;
+}
+
+static float guide_pdf(const guide *g, nc_vec3 w) { return g->valid && nc_dot(w, g->axis) >= g->cos_a ? g->pdf : 0.0f; }
+
+/* The guided estimate at medium vertex p (incoming direction d, HG g) for sun light l. */
+static nc_vec3 guided_sun(const pt_scene *ps, uint32_t obj, const pt_light *l, const guide *gd, nc_vec3 p, nc_vec3 d,
+                          nc_rng *rng)
+{
+    const pt_object *ob = &ps->pt->objects[obj];
+    nc_vec3 w = around(gd->axis, 1.0f - nc_rng_float(rng) * (1.0f - gd->cos_a), nc_rng_float(rng));
+    pt_hit h;
+    nc_vec3 x, n;
+    if (!exit_facet(ps, obj, p, w, &h, &x, &n))
+        return nc_v3(0, 0, 0);
+    float cos_i = nc_dot(w, n);
+    float wv[3] = {w.x, w.y, w.z}, nv[3] = {-n.x, -n.y, -n.z}, tv[3];
+    if (!nc_refract(wv, nv, 1.0f / ob->eta, tv))
+        return nc_v3(0, 0, 0); /* total internal reflection: phase sampling's path */
+    nc_vec3 out = nc_normalize(nc_v3a(tv));
+    if (nc_dot(out, l->to_light) < l->cos_max)
+        return nc_v3(0, 0, 0);
+    float phase = (float)nc_hg_phase(nc_dot(d, w), ob->g);
+    nc_vec3 tr = transmittance(ps, ob, p, w, h.t, rng);
+    if (max3(tr) <= 0 && fminf(tr.x, fminf(tr.y, tr.z)) >= 0)
+        return nc_v3(0, 0, 0);
+    nc_vec3 vis = shadow(ps, offset_origin(ps, x, n, out), out, INFINITY, -1, rng);
+    float F = (float)nc_fresnel_dielectric(cos_i, 1.0f / ob->eta);
+    float k = phase * (1.0f - F) * ob->eta * ob->eta * power_heuristic(gd->pdf, phase) / gd->pdf;
+    return nc_scale(nc_mul(nc_mul(tr, vis), l->value), k);
+}
+
+static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
+{
+    const nc_pathtracer *pt = ps->pt;
+    nc_vec3 L = nc_v3(0, 0, 0), beta = nc_v3(1, 1, 1);
+    float eta_scale = 1.0f; /* undoes the (n1/n2)^2 radiance factors for Russian roulette */
+    int medium = -1;
+    bool prev_delta = true;
+    float prev_pdf = 0;
+    nc_vec3 prev_p = o;
+    uint32_t scatters = 0;
+    /* Guided sun sampling (see guided_sun): the light, and the state of the phase-sampled
+     * continuation: 0 none, 1 flying from a guided medium vertex, 2 refracted out since. */
+    int sun = -1;
+    for (uint32_t li = 0; li < pt->light_count && sun < 0; li++)
+        if (pt->lights[li].type == NACRE_LIGHT_DIRECTIONAL && !pt->lights[li].delta)
+            sun = (int)li;
+    int direct = 0;
+    float direct_weight = 1.0f;
+    for (int vertex = 0, crossings = 0; vertex < MAX_VERTICES && crossings < 4 * MAX_VERTICES;) {
+        pt_hit h = intersect(ps, o, d, INFINITY);
+        float t_end = h.hit ? h.t : INFINITY;
+        int light_hit = -1;
+        for (uint32_t li = 0; li < pt->light_count; li++) {
+            const pt_light *l = &pt->lights[li];
+            if (l->type == NACRE_LIGHT_DIRECTIONAL || l->delta)
+                continue;
+            float tl = sphere_hit(l, o, d);
+            if (tl < t_end) {
+                t_end = tl;
+                light_hit = (int)li;
+            }
+        }
+        if (medium >= 0) {
+            float ts = 0;
+            ff_event ev = free_flight(ps, &pt->objects[medium], o, d, isfinite(t_end) ? t_end : 1e30f, rng, &beta, &ts);
+            if (ev == FF_ABSORB)
+                break;
+            if (ev == FF_SCATTER) {
+                nc_vec3 p = ray_at(o, d, ts);
+                if (ps->max_scatter && ++scatters > ps->max_scatter)
+                    break;
+                const pt_object *ob = &pt->objects[medium];
+                nc_vec3 wo = nc_scale(d, -1.0f);
+                /* Inside a closed dielectric every shadow ray ends on its boundary: no NEE, but the
+                 * sun can be sampled through the boundary. */
+                guide gd = {false, {0, 0, 0}, 1, 0};
+                if (ob->kind == PT_MATCHED) {
+                    L = nc_add(L, nc_mul(beta, direct_light(ps, p, wo, false, NULL, wo, wo, ob->g, medium, rng)));
+                } else if (sun >= 0 && !pt->opt.no_sun_guiding) {
+                    gd = make_guide(ps, (uint32_t)medium, &pt->lights[sun], p);
+                    if (gd.valid)
+                        L = nc_add(L, nc_mul(beta, guided_sun(ps, (uint32_t)medium, &pt->lights[sun], &gd, p, d, rng)));
+                }
+                float c = (float)nc_hg_sample_cos(ob->g, nc_rng_float(rng));
+                nc_vec3 wi = around(d, c, nc_rng_float(rng));
+                prev_pdf = (float)nc_hg_phase(c, ob->g);
+                float gp = guide_pdf(&gd, wi);
+                direct = gp > 0 ? 1 : 0;
+                direct_weight = gp > 0 ? power_heuristic(prev_pdf, gp) : 1.0f;
+                prev_delta = false;
+                prev_p = p;
+                o = p;
+                d = wi;
+                vertex++;
+                goto roulette;
+            }
+        }
+        if (light_hit >= 0) {
+            const pt_light *l = &pt->lights[light_hit];
+            nc_vec3 hp = ray_at(o, d, t_end);
+            float fall = spot_falloff(l->desc, nc_normalize(nc_sub(hp, l->pos)));
+            float w = 1.0f, cos_max;
+            if (!prev_delta) {
+                float lp = sphere_pdf(l, prev_p, &cos_max);
+                w = power_heuristic(prev_pdf, lp);
+            }
+            L = nc_add(L, nc_mul(beta, nc_scale(l->value, fall * w)));
+            break;
+        }
+        if (!h.hit) {
+            if (medium < 0)
+                L = nc_add(L, nc_mul(beta, escaped(ps, d, prev_delta, prev_pdf, direct == 2 ? sun : -1, direct_weight)));
+            break;
+        }
+        {
+            const pt_object *ob = &pt->objects[h.obj];
+            nc_vec3 p, ng, ns;
+            surface_at(ob, &h, &p, &ng, &ns);
+            bool entering = nc_dot(d, ng) < 0;
+            if (ob->kind == PT_MATCHED) {
+                /* Not a vertex: the path only changes medium. */
+                medium = entering ? (int)h.obj : -1;
+                o = offset_origin(ps, p, ng, d);
+                crossings++;
+                continue;
+            }
+            if (ob->kind == PT_DIELECTRIC) {
+                nc_vec3 n = entering ? ng : nc_scale(ng, -1.0f); /* on the incident side */
+                float eta = entering ? ob->eta : 1.0f / ob->eta;  /* n_transmitted / n_incident */
+                float cos_i = -nc_dot(d, n);
+                float F = (float)nc_fresnel_dielectric(cos_i, eta);
+                float dv[3] = {d.x, d.y, d.z}, nv[3] = {n.x, n.y, n.z}, tv[3];
+                if (nc_rng_float(rng) < F || !nc_refract(dv, nv, eta, tv)) {
+                    d = nc_normalize(nc_add(d, nc_scale(n, 2.0f * cos_i)));
+                    direct = 0;
+                } else {
+                    direct = direct == 1 && !entering && (int)h.obj == medium ? 2 : 0;
+                    d = nc_normalize(nc_v3a(tv));
+                    beta = nc_scale(beta, 1.0f / (eta * eta));
+                    eta_scale *= eta * eta;
+                    medium = entering ? (int)h.obj : -1;
+                }
+                o = offset_origin(ps, p, ng, d);
+                prev_delta = true;
+                prev_p = p;
+                vertex++;
+                goto roulette;
+            }
+            direct = 0;
+            /* Opaque: shading frame on the side the path came from. */
+            nc_vec3 wo = nc_scale(d, -1.0f);
+            if (nc_dot(wo, ng) < 0)
+                ng = nc_scale(ng, -1.0f);
+            if (nc_dot(ns, ng) < 0)
+                ns = nc_scale(ns, -1.0f);
+            const nacre_material_desc *m = ob->mat;
+            L = nc_add(L, nc_mul(beta, direct_light(ps, p, ng, true, m, ns, wo, 0, medium, rng)));
+            nc_vec3 wi = bsdf_sample(m, ns, wo, rng);
+            float pdf;
+            nc_vec3 f = bsdf_eval(m, ns, wo, wi, &pdf);
+            if (nc_dot(wi, ng) <= 0 || pdf <= 0 || max3(f) <= 0)
+                break;
+            beta = nc_mul(beta, nc_scale(f, nc_dot(ns, wi) / pdf));
+            prev_pdf = pdf;
+            prev_delta = false;
+            prev_p = p;
+            o = offset_origin(ps, p, ng, wi);
+            d = wi;
+            vertex++;
+        }
+    roulette:
+        if (vertex >= RR_START) {
+            float q = fminf(0.95f, fmaxf(fabsf(beta.x), fmaxf(fabsf(beta.y), fabsf(beta.z))) * eta_scale);
+            if (!(q > 0) || nc_rng_float(rng) >= q)
+                break;
+            beta = nc_scale(beta, 1.0f / q);
+        }
+    }
+    return L;
+}
+
+/* ---- camera (identical to camera_view in render/render.c) ------------------------------ */
+
+typedef struct pt_camera {
+    nc_mat4 cam_to_world;
+    bool ortho;
+    float half_w, half_h; /* perspective: tan of half fov (x, y); ortho: half extents */
+    float ortho_near;     /* ortho: view depth of the near plane */
+} pt_camera;
+
+static void make_camera(const nacre_scene *s, int32_t width, int32_t height, pt_camera *cam)
+{
+    const nacre_camera_desc *c = &s->camera;
+    nc_mat4 view = nc_mat4_look_at(nc_v3a(c->position), nc_v3a(c->target), nc_v3a(c->up));
+    nc_mat4_inverse(view, &cam->cam_to_world);
+    cam->ortho = c->projection == NACRE_ORTHOGRAPHIC;
+    float aspect = (float)width / (float)height;
+    if (cam->ortho) {
+        /* The raster pipeline's orthographic near plane sits before the nearest bound, possibly
+         * behind the eye: rays start there so both see the same objects. */
+        float dmin = INFINITY, dmax = -INFINITY;
+        for (int k = 0; k < 8; k++) {
+            nc_vec3 p = nc_v3((k & 1) ? s->bounds_max[0] : s->bounds_min[0], (k & 2) ? s->bounds_max[1] : s->bounds_min[1],
+                              (k & 4) ? s->bounds_max[2] : s->bounds_min[2]);
+            float d = -nc_mat4_point(&view, p).z;
+            dmin = fminf(dmin, d);
+            dmax = fmaxf(dmax, d);
+        }
+        if (!isfinite(dmin) || !isfinite(dmax)) {
+            dmin = 0.01f;
+            dmax = 100.0f;
+        }
+        float span = fmaxf(dmax - dmin, 1e-6f);
+        cam->ortho_near = c->near_clip > 0 ? c->near_clip : dmin - 0.01f * span;
+        cam->half_h = 0.5f * c->ortho_height;
+        cam->half_w = cam->half_h * aspect;
+    } else {
+        cam->half_h = tanf(0.5f * c->fov_y * NC_DEG2RAD);
+        cam->half_w = cam->half_h * aspect;
+    }
+}
+
+static void camera_ray(const pt_camera *cam, float sx, float sy, int32_t w, int32_t h, nc_vec3 *o, nc_vec3 *d)
+{
+    /* Pixel (x, y) covers [x, x+1) x [y, y+1) with y down; NDC y is up. */
+    float nx = 2.0f * sx / (float)w - 1.0f, ny = 1.0f - 2.0f * sy / (float)h;
+    if (cam->ortho) {
+        *o = nc_mat4_point(&cam->cam_to_world, nc_v3(nx * cam->half_w, ny * cam->half_h, -cam->ortho_near));
+        *d = nc_normalize(nc_mat4_dir(&cam->cam_to_world, nc_v3(0, 0, -1)));
+    } else {
+        *o = nc_mat4_point(&cam->cam_to_world, nc_v3(0, 0, 0));
+        *d = nc_normalize(nc_mat4_dir(&cam->cam_to_world, nc_v3(nx * cam->half_w, ny * cam->half_h, -1.0f)));
+    }
+}
+
+/* ---- state ------------------------------------------------------------------------- */
+
+bool nc_pathtrace_available(void) { return true; }
+
+nacre_result nc_pathtracer_create(nacre_context *ctx, const nc_pathtrace_options *options, nc_pathtracer **out)
+{
+    nc_pathtracer *pt = nc_calloc(ctx, 1, sizeof(*pt));
+    if (!pt)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    pt->ctx = ctx;
+    pt->opt = options ? *options : nc_pathtrace_options_defaults();
+    if (pt->opt.majorant_res > 256)
+        pt->opt.majorant_res = 256;
+    char config[64];
+    snprintf(config, sizeof(config), "threads=%d", nc_threads(ctx) > 0 ? nc_threads(ctx) : 1);
+    pt->device = rtcNewDevice(config);
+    if (!pt->device) {
+        nc_free(ctx, pt);
+        return nc_fail(ctx, NACRE_ERROR_UNSUPPORTED, "pathtrace: Embree device creation failed");
+    }
+    *out = pt;
+    return NACRE_OK;
+}
+
+static void release_scene(nc_pathtracer *pt)
+{
+    nacre_context *ctx = pt->ctx;
+    if (pt->rtc)
+        rtcReleaseScene(pt->rtc);
+    pt->rtc = NULL;
+    for (uint32_t i = 0; i < pt->object_count; i++) {
+        nc_free(ctx, pt->objects[i].grid);
+        nc_free(ctx, pt->objects[i].rest);
+    }
+    nc_free(ctx, pt->objects);
+    nc_free(ctx, pt->lights);
+    pt->objects = NULL;
+    pt->lights = NULL;
+    pt->object_count = pt->light_count = 0;
+}
+
+void nc_pathtracer_destroy(nacre_context *ctx, nc_pathtracer *pt)
+{
+    if (!pt)
+        return;
+    release_scene(pt);
+    if (pt->device)
+        rtcReleaseDevice(pt->device);
+    nc_free(ctx, pt->mean);
+    nc_free(ctx, pt->m2);
+    nc_free(ctx, pt);
+}
+
+/* Deformed heterogeneous objects: voxelize the deformed mesh in object space (the committed world
+ * positions through the inverse object transform) and record each voxel's rest-pose point. */
+#define REST_RES 64
+static nacre_result build_rest_grid(nc_pathtracer *pt, pt_object *o, const nc_object_rec *rec,
+                                    const nacre_mesh_data *md)
+{
+    nacre_context *ctx = pt->ctx;
+    float *def = nc_alloc(ctx, (size_t)md->vertex_count * 3 * sizeof(float));
+    if (!def)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    for (uint32_t v = 0; v < md->vertex_count; v++)
+        nc_v3store(nc_mat4_point(&o->world_to_rest, nc_v3a(rec->world_positions + 3 * (size_t)v)), def + 3 * (size_t)v);
+    nacre_mesh_data dm = *md;
+    dm.positions = def;
+    nacre_voxel_settings vs = nacre_voxel_settings_defaults();
+    vs.resolution = REST_RES;
+    vs.anisotropic = true;
+    nacre_voxel_grid *grid = NULL;
+    nacre_voxel_report rep;
+    nacre_result res = nacre_voxelize(ctx, &dm, &vs, &grid, &rep);
+    if (res == NACRE_OK) {
+        size_t n = (size_t)rep.dims[0] * rep.dims[1] * rep.dims[2];
+        o->rest = nc_alloc(ctx, n * 3 * sizeof(float));
+        if (!o->rest)
+            res = NACRE_ERROR_OUT_OF_MEMORY;
+        else
+            res = nacre_voxel_grid_rest_positions(grid, md, &dm, o->rest);
+        memcpy(o->rdims, rep.dims, sizeof(o->rdims));
+        memcpy(o->rorigin, rep.origin, sizeof(o->rorigin));
+        o->rvoxel = rep.voxel_size;
+    }
+    nacre_voxel_grid_destroy(grid);
+    nc_free(ctx, def);
+    return res;
+}
+
+/* Majorant grid of a heterogeneous object: world bounds cut into res^3 cells, each bounding
+ * sigma_t (max over channels) by the maximum over a 5^3 lattice of samples (cell faces included),
+ * capped by the material's global bound. */
+static nacre_result build_grid(nc_pathtracer *pt, const pt_scene *ps, pt_object *o, const nc_object_rec *rec)
+{
+    uint32_t res = pt->opt.majorant_res;
+    if (res == 0)
+        return NACRE_OK;
+    size_t n = (size_t)res * res * res;
+    o->grid = nc_alloc(pt->ctx, n * sizeof(float));
+    if (!o->grid)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    o->res = res;
+    for (int a = 0; a < 3; a++) {
+        float lo = rec->bounds_min[a], hi = rec->bounds_max[a];
+        float pad = 1e-3f * (hi - lo) + ps->eps;
+        o->gmin[a] = lo - pad;
+        o->cell[a] = (hi - lo + 2 * pad) / (float)res;
+    }
+    enum { S = 5 };
+#pragma omp parallel for schedule(static) num_threads(nc_threads(pt->ctx))
+    for (int64_t ci = 0; ci < (int64_t)n; ci++) {
+        uint32_t cx = (uint32_t)ci % res, cy = ((uint32_t)ci / res) % res, cz = (uint32_t)ci / (res * res);
+        float xyz[S * S * S * 3], sa[S * S * S * 3], ss[S * S * S * 3];
+        int k = 0;
+        for (int i = 0; i < S; i++)
+            for (int j = 0; j < S; j++)
+                for (int l = 0; l < S; l++) {
+                    nc_vec3 w = nc_v3(o->gmin[0] + o->cell[0] * ((float)cx + (float)i / (S - 1)),
+                                      o->gmin[1] + o->cell[1] * ((float)cy + (float)j / (S - 1)),
+                                      o->gmin[2] + o->cell[2] * ((float)cz + (float)l / (S - 1)));
+                    rest_point(o, w, xyz + 3 * k);
+                    k++;
+                }
+        ps->eval(ps->scene, o->mat, xyz, (size_t)k, sa, ss);
+        float m = 0;
+        for (int q = 0; q < 3 * k; q++)
+            m = fmaxf(m, sa[q] + ss[q]);
+        o->grid[ci] = fminf(m, o->maj_global);
+    }
+    return NACRE_OK;
+}
+
+static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scene *ps)
+{
+    nacre_context *ctx = pt->ctx;
+    release_scene(pt);
+    pt->objects = nc_calloc(ctx, s->object_count, sizeof(*pt->objects));
+    pt->lights = nc_calloc(ctx, s->light_count + 1, sizeof(*pt->lights));
+    if (!pt->objects || !pt->lights)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    pt->object_count = s->object_count;
+    pt->any_matched = false;
+    pt->rtc = rtcNewScene(pt->device);
+    rtcSetSceneFlags(pt->rtc, RTC_SCENE_FLAG_ROBUST);
+    rtcSetSceneBuildQuality(pt->rtc, RTC_BUILD_QUALITY_HIGH);
+    nc_pt_medium_max_fn max_fn = pt->opt.max_sigma_t ? pt->opt.max_sigma_t : nc_medium_max_sigma_t;
+    for (uint32_t i = 0; i < s->object_count; i++) {
+        const nc_object_rec *rec = &s->objects[i];
+        const nacre_mesh_data *md = &s->meshes[rec->desc.mesh.id - 1].data;
+        const nacre_material_desc *m = &s->materials[rec->desc.material.id - 1];
+        pt_object *o = &pt->objects[i];
+        o->mat = m;
+        o->pos = rec->world_positions;
+        o->nrm = rec->world_normals;
+        o->idx = md->indices;
+        o->g = m->g;
+        o->eta = m->eta;
+        if (m->type == NACRE_MATERIAL_OPAQUE) {
+            o->kind = PT_OPAQUE;
+        } else {
+            o->kind = m->eta == 1.0f ? PT_MATCHED : PT_DIELECTRIC;
+            pt->any_matched |= o->kind == PT_MATCHED;
+            o->heterogeneous = nc_medium_heterogeneous(m) || pt->opt.force_heterogeneous;
+            float mx[3];
+            max_fn(s, m, mx);
+            o->maj_global = fmaxf(mx[0], fmaxf(mx[1], mx[2]));
+            for (int c = 0; c < 3; c++) {
+                o->sigma_a[c] = m->sigma_a[c];
+                o->sigma_s[c] = m->sigma_s[c];
+            }
+            nc_mat4_inverse(rec->object_to_world, &o->world_to_rest);
+            if (o->heterogeneous) {
+                nacre_result res = rec->desc.deformer_count > 0 ? build_rest_grid(pt, o, rec, md) : NACRE_OK;
+                if (res != NACRE_OK)
+                    return res;
+                res = build_grid(pt, ps, o, rec);
+                if (res != NACRE_OK)
+                    return res;
+            }
+        }
+        RTCGeometry g = rtcNewGeometry(pt->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+        /* Embree reads vertex buffers 16 bytes at a time: its own buffers are padded for that. */
+        float *vb = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),
+                                            md->vertex_count);
+        unsigned *ib = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 3 * sizeof(unsigned),
+                                               md->triangle_count);
+        if (!vb || !ib) {
+            rtcReleaseGeometry(g);
+            return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "pathtrace: Embree buffer allocation failed");
+        }
+        memcpy(vb, rec->world_positions, (size_t)md->vertex_count * 3 * sizeof(float));
+        memcpy(ib, md->indices, (size_t)md->triangle_count * 3 * sizeof(unsigned));
+        rtcCommitGeometry(g);
+        rtcAttachGeometryByID(pt->rtc, g, i);
+        rtcReleaseGeometry(g);
+    }
+    rtcCommitScene(pt->rtc);
+    if (rtcGetDeviceError(pt->device) != RTC_ERROR_NONE)
+        return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "pathtrace: Embree scene build failed");
+
+    for (uint32_t i = 0; i < s->light_count; i++) {
+        const nacre_light_desc *ld = &s->lights[i].desc;
+        pt_light *l = &pt->lights[pt->light_count];
+        nc_vec3 strength = nc_v3a(ld->strength);
+        if (max3(strength) <= 0)
+            continue;
+        l->type = ld->type;
+        l->desc = ld;
+        if (ld->type == NACRE_LIGHT_DIRECTIONAL) {
+            l->to_light = nc_normalize(nc_scale(nc_v3a(ld->direction), -1.0f));
+            float r = ld->angular_radius * NC_DEG2RAD;
+            l->delta = !(r > 0);
+            if (l->delta) {
+                l->value = strength;
+            } else {
+                float sr = sinf(r);
+                l->cos_max = cosf(r);
+                float one_minus = sr * sr / (1.0f + l->cos_max);
+                l->cone_pdf = 1.0f / (2.0f * PT_PI * one_minus);
+                l->value = nc_scale(strength, 1.0f / (PT_PI * sr * sr));
+            }
+        } else {
+            l->pos = nc_v3a(ld->position);
+            l->radius = ld->radius;
+            l->delta = !(ld->radius > 0);
+            l->value = l->delta ? strength : nc_scale(strength, 1.0f / (PT_PI * ld->radius * ld->radius));
+        }
+        pt->light_count++;
+    }
+    return NACRE_OK;
+}
+
+nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, const nacre_scene *scene,
+                                 const nacre_render_settings *settings, nacre_image *out,
+                                 nacre_render_stats *stats)
+{
+    if (!state || !scene || !settings || !out || !out->pixels)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "pathtrace: missing argument");
+    if (settings->spp == 0 && !(settings->time_limit > 0))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: spp: must be >= 1 (or set a time limit)");
+    if (!(settings->time_limit >= 0) || !isfinite(settings->time_limit))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: time_limit: must be finite and >= 0");
+    int32_t w = settings->width, h = settings->height;
+    if (out->width != w || out->height != h || out->channels != 3)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "pathtrace: output image must be %dx%d with 3 channels", w, h);
+    nacre_result res;
+    if (!*state && (res = nc_pathtracer_create(ctx, NULL, state)) != NACRE_OK)
+        return res;
+    nc_pathtracer *pt = *state;
+    pt->valid = false;
+    uint64_t t_start = nc_now_us();
+
+    pt_scene ps;
+    memset(&ps, 0, sizeof(ps));
+    ps.scene = scene;
+    ps.pt = pt;
+    ps.eval = pt->opt.eval ? pt->opt.eval : nc_medium_eval;
+    ps.env = nc_v3a(scene->environment);
+    ps.env_on = max3(ps.env) > 0;
+    ps.max_scatter = settings->max_scatter;
+    float ext = 0;
+    for (int a = 0; a < 3; a++)
+        ext = fmaxf(ext, fmaxf(fabsf(scene->bounds_min[a]), fabsf(scene->bounds_max[a])));
+    ps.eps = fmaxf(1e-5f * ext, 1e-7f);
+    if ((res = build_scene(pt, scene, &ps)) != NACRE_OK)
+        return res;
+
+    size_t npix = (size_t)w * (size_t)h;
+    if (npix * 3 > pt->pixel_capacity) {
+        nc_free(ctx, pt->mean);
+        nc_free(ctx, pt->m2);
+        pt->mean = nc_alloc(ctx, npix * 3 * sizeof(double));
+        pt->m2 = nc_alloc(ctx, npix * 3 * sizeof(double));
+        pt->pixel_capacity = pt->mean && pt->m2 ? npix * 3 : 0;
+        if (!pt->pixel_capacity)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+    }
+    memset(pt->mean, 0, npix * 3 * sizeof(double));
+    memset(pt->m2, 0, npix * 3 * sizeof(double));
+    pt->width = w;
+    pt->height = h;
+
+    pt_camera cam;
+    make_camera(scene, w, h, &cam);
+    enum { TILE = 16 };
+    int32_t tiles_x = (w + TILE - 1) / TILE, tiles_y = (h + TILE - 1) / TILE;
+    int64_t tiles = (int64_t)tiles_x * tiles_y;
+    uint64_t t_trace = nc_now_us();
+    uint32_t pass = 0;
+    uint32_t max_pass = settings->spp ? settings->spp : UINT32_MAX;
+    /* Passes run in batches, each thread taking a tile through every pass of the batch: one
+     * barrier per batch instead of per pass (long paths make tiles unequal, and threads would
+     * idle at every pass end). Pixels still see their passes in order, so the result is the same
+     * as pass by pass. With a time limit, a batch is sized from the measured time per pass to end
+     * near the limit; the limit is checked between batches. */
+    while (pass < max_pass) {
+        double elapsed = (double)(nc_now_us() - t_start) * 1e-6;
+        uint32_t batch = max_pass - pass;
+        if (settings->time_limit > 0) {
+            if (pass > 0 && elapsed >= settings->time_limit)
+                break;
+            double per_pass = pass > 0 ? (double)(nc_now_us() - t_trace) * 1e-6 / pass : 0;
+            double left = settings->time_limit - elapsed;
+            double fit = per_pass > 0 ? floor(left / per_pass) : 1;
+            batch = fit < 1 ? 1 : fit < (double)batch ? (uint32_t)fit : batch;
+            if (pass == 0)
+                batch = 1;
+        }
+        uint32_t first = pass, last = pass + batch;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nc_threads(ctx))
+        for (int64_t tile = 0; tile < tiles; tile++) {
+            int32_t x0 = (int32_t)(tile % tiles_x) * TILE, y0 = (int32_t)(tile / tiles_x) * TILE;
+            for (uint32_t pp = first; pp < last; pp++) {
+                double inv_n = 1.0 / (double)(pp + 1);
+                for (int32_t y = y0; y < y0 + TILE && y < h; y++)
+                    for (int32_t x = x0; x < x0 + TILE && x < w; x++) {
+                        size_t pi = (size_t)y * (size_t)w + (size_t)x;
+                        nc_rng rng = nc_rng_make(((uint64_t)settings->seed << 32) | pp, pi);
+                        nc_vec3 o, d;
+                        camera_ray(&cam, (float)x + nc_rng_float(&rng), (float)y + nc_rng_float(&rng), w, h, &o, &d);
+                        nc_vec3 L = trace_path(&ps, o, d, &rng);
+                        for (int c = 0; c < 3; c++) {
+                            double v = comp(L, c);
+                            if (!isfinite(v))
+                                v = 0; /* a NaN or inf sample would poison the pixel forever */
+                            double *mu = &pt->mean[3 * pi + (size_t)c], *m2 = &pt->m2[3 * pi + (size_t)c];
+                            double delta = v - *mu;
+                            *mu += delta * inv_n;
+                            *m2 += delta * (v - *mu);
+                        }
+                    }
+            }
+        }
+        pass = last;
+    }
+    double secs = (double)(nc_now_us() - t_trace) * 1e-6;
+    for (int32_t y = 0; y < h; y++) {
+        float *row = out->pixels + (size_t)y * out->stride;
+        for (int32_t x = 0; x < w; x++)
+            for (int c = 0; c < 3; c++)
+                row[3 * x + c] = (float)pt->mean[3 * ((size_t)y * (size_t)w + (size_t)x) + (size_t)c];
+    }
+    pt->passes = pass;
+    pt->valid = true;
+    if (stats) {
+        stats->spp_done = pass;
+        stats->samples_per_second = secs > 0 ? (double)pass * (double)npix / secs : 0;
+        stats->threads = nc_threads(ctx);
+    }
+    return NACRE_OK;
+}
+
+nacre_result nc_pathtrace_variance(const nc_pathtracer *pt, nacre_context *ctx, nacre_image *out)
+{
+    if (!pt || !pt->valid)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_OPERATION, "variance: the last frame was not path traced");
+    int32_t w = pt->width, h = pt->height;
+    if (out->pixels) {
+        if (out->width != w || out->height != h || out->channels != 3 || out->stride < (size_t)w * 3)
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "variance: output image must be %dx%d with 3 channels", w, h);
+    } else {
+        nacre_result res = nacre_image_alloc(ctx, w, h, 3, out);
+        if (res != NACRE_OK)
+            return res;
+    }
+    double n = (double)pt->passes;
+    for (int32_t y = 0; y < h; y++) {
+        float *row = out->pixels + (size_t)y * out->stride;
+        for (int32_t x = 0; x < w; x++)
+            for (int c = 0; c < 3; c++) {
+                double m2 = pt->m2[3 * ((size_t)y * (size_t)w + (size_t)x) + (size_t)c];
+                /* Variance of the mean: sample variance / n; undefined with one pass (reported 0). */
+                row[3 * x + c] = n > 1 ? (float)(m2 / ((n - 1) * n)) : 0.0f;
+            }
+    }
+    return NACRE_OK;
+}
+
+#endif /* NACRE_HAVE_EMBREE */

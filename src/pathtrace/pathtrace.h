@@ -11,6 +11,24 @@
  * nc_pathtrace_render, destroyed with the renderer. */
 typedef struct nc_pathtracer nc_pathtracer;
 
+/* Options of a path tracer state. The renderer uses the defaults; tests reach in to compare the
+ * majorant grid against a single majorant and to substitute a medium. */
+typedef void (*nc_pt_medium_eval_fn)(const nacre_scene *scene, const nacre_material_desc *m,
+                                     const float *rest_xyz, size_t count, float *sigma_a, float *sigma_s);
+typedef void (*nc_pt_medium_max_fn)(const nacre_scene *scene, const nacre_material_desc *m, float out[3]);
+typedef struct nc_pathtrace_options {
+    uint32_t majorant_res;         /* cells per axis of heterogeneous media's majorant grids; 0: one
+                                      global majorant per object. Default 16. */
+    nc_pt_medium_eval_fn eval;     /* NULL: nc_medium_eval */
+    nc_pt_medium_max_fn max_sigma_t; /* NULL: nc_medium_max_sigma_t */
+    bool force_heterogeneous;      /* treat every translucent material as heterogeneous */
+    bool no_sun_guiding;           /* disable sampling the sun through dielectric boundaries */
+} nc_pathtrace_options;
+
+nc_pathtrace_options nc_pathtrace_options_defaults(void);
+/* Create a state explicitly (nc_pathtrace_render otherwise creates one with the defaults). */
+nacre_result nc_pathtracer_create(nacre_context *ctx, const nc_pathtrace_options *options, nc_pathtracer **out);
+
 /* Whether this build has the path tracer. */
 bool nc_pathtrace_available(void);
 /* Render a committed scene into `out` (already width x height x 3); fills the pathtrace fields

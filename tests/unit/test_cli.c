@@ -113,10 +113,34 @@ static void test_render_errors(void)
     snprintf(args, sizeof(args), "render -o %s/out.bmp", TMP);
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
     /* Known but not implemented method: a clear error, not a fake image. */
-    snprintf(args, sizeof(args), "render --method pathtrace -o %s", outpng);
+    snprintf(args, sizeof(args), "render --method layered -o %s", outpng);
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
     CHECK(strstr(err, "not implemented") != NULL);
     CHECK(!exists(outpng));
+    /* Path tracing with its variance image; --variance needs the path tracer. */
+    char varexr[600];
+    snprintf(varexr, sizeof(varexr), "%s/var.exr", TMP);
+    snprintf(args, sizeof(args), "render --method pathtrace --size 32x24 --spp 2 --variance %s -o %s --stats", varexr,
+             outpng);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    CHECK(exists(outpng) && exists(varexr));
+    CHECK(strstr(out, "\"spp\":2") != NULL);
+    remove(outpng);
+    snprintf(args, sizeof(args), "render --method phong --variance %s -o %s", varexr, outpng);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(!exists(outpng));
+    /* Slab measurement: JSON with R and T; bad values are usage errors. */
+    snprintf(args, sizeof(args), "slab --albedo 0.99 --json");
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    CHECK(strstr(out, "\"R\":0.75") != NULL);
+    snprintf(args, sizeof(args), "slab --albedo 0.9 --tau 1 --method pathtrace --samples 20000 --json");
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    CHECK(strstr(out, "\"R_stderr\"") != NULL);
+    snprintf(args, sizeof(args), "slab --albedo 1.5");
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "albedo") != NULL);
+    snprintf(args, sizeof(args), "slab --tau -1");
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
 
     /* Missing scene, malformed scene (line:col), unknown key: one line naming the file. */
     snprintf(args, sizeof(args), "render %s/missing.json -o %s", TMP, outpng);

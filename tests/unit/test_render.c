@@ -193,9 +193,9 @@ static void test_shadow_and_caches(void)
     CHECK(st.stage_ran[NACRE_STAGE_RASTER] && st.shadow_maps == 1);
 
     /* Unimplemented and invalid settings. */
-    rs.method = NACRE_METHOD_PATHTRACE;
+    rs.method = NACRE_METHOD_LAYERED;
     CHECK(nacre_renderer_render(r, f.scene, &rs, &img, &st) == NACRE_ERROR_UNSUPPORTED);
-    CHECK(strstr(nacre_context_last_error(f.ctx), "pathtrace") != NULL);
+    CHECK(strstr(nacre_context_last_error(f.ctx), "layered") != NULL);
     rs.method = NACRE_METHOD_PHONG;
     rs.width = 0;
     CHECK(nacre_renderer_render(r, f.scene, &rs, &img, &st) == NACRE_ERROR_INVALID_ARGUMENT);

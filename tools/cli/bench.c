@@ -45,7 +45,13 @@ static const char bench_help[] =
     "usage: nacre bench diffusion [--json] [--runs N]\n"
     "  diffusion  the seed's tables 5.1-5.3 layout (per-stage us, fps) for its meshes' stand-ins\n"
     "           at 4..128 voxels (bench/bench_diffusion.c), then iterations to converge (seed\n"
-    "           table 4.3) and converged propagation at 32^3..256^3 (bench/bench_diffusion_solver.c)\n";
+    "           table 4.3) and converged propagation at 32^3..256^3 (bench/bench_diffusion_solver.c)\n"
+    "usage: nacre bench pathtrace [--json] [--runs N]\n"
+    "  pathtrace  samples/s and extrapolated time to relative MSE 1e-3 at 512x512: translucent\n"
+    "           sphere (index matched, dielectric) and the demo scene, N x 30 s each (default 1)\n";
+
+/* bench/bench_pathtrace.c */
+int nc_bench_pathtrace(bool json, double seconds);
 
 /* Seed meshes: our stand-in file, the seed's triangle count and its voxelization time in
  * microseconds at 4^3, 12^3, 28^3 (tables 5.1, 5.2, 5.3). */
@@ -220,10 +226,11 @@ int nc_cli_bench(int argc, char **argv)
     if (nc_cli_common_flag("bench", argv[0], bench_help, &code))
         return code;
     bool voxelize = strcmp(argv[0], "voxelize") == 0, diffusion = strcmp(argv[0], "diffusion") == 0;
-    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion)
-        return nc_cli_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion)", argv[0]);
+    bool pathtrace = strcmp(argv[0], "pathtrace") == 0;
+    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace)
+        return nc_cli_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace)", argv[0]);
     bool json = false;
-    long runs = 15;
+    long runs = pathtrace ? 1 : 15;
     for (int i = 1; i < argc; i++) {
         if (nc_cli_common_flag("bench", argv[i], bench_help, &code))
             return code;
@@ -246,6 +253,8 @@ int nc_cli_bench(int argc, char **argv)
             printf("\n");
         return nc_bench_diffusion_solver(json, (int)runs);
     }
+    if (pathtrace)
+        return nc_bench_pathtrace(json, 30.0 * (double)runs);
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;

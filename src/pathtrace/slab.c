@@ -1,0 +1,191 @@
+/*
+ * slab.c: Monte Carlo measurement of light transport through an analytic plane-parallel slab
+ * (nacre_slab_measure with NACRE_METHOD_PATHTRACE), the ground truth the diffusion solver and
+ * the scene path tracer are checked against. The method is the classical photon random walk of
+ * Prahl et al. 1989 / Wang, Jacques, Zheng 1995 (MCML) reduced to one dimension: in a
+ * plane-parallel slab only the depth z and the direction cosine mu to the inward normal matter.
+ *
+ * Units: optical depth (sigma_t = 1), so free paths are Exp(1) and the slab is [0, tau]. Light
+ * arrives at z = 0 travelling +z (mu = 1) with unit power. Boundaries are smooth dielectrics of
+ * relative index eta against air on both sides; a path meeting one reflects with the Fresnel
+ * probability, otherwise leaves (no radiance scaling is needed: we count power, not radiance).
+ *
+ * Variance reduction, all unbiased:
+ *   - the specular reflection at the top is removed analytically (R_specular);
+ *   - the unscattered light, including its bounces between the two faces at normal incidence,
+ *     is scored analytically, and the first collision is forced inside the slab (on a leg of the
+ *     ballistic zig-zag chosen by its share of the collision probability), so a pure absorber
+ *     has T = exp(-tau) exactly and zero variance;
+ *   - absorption by weight (w *= albedo per scattering) with Russian roulette below 5% of the
+ *     entering weight.
+ * A path scores its final weight once, to R or to T, so the standard error of each is that of
+ * an i.i.d. mean over the paths.
+ *
+ * Determinism: paths are cut into fixed chunks of CHUNK; chunk c uses PCG32 stream c of the
+ * seed, and the chunk sums are added in chunk order, so results do not depend on threads.
+ * max_scatter K > 0 drops a path at its (K+1)-th collision (K = 1: single scattering only).
+ * Semi-infinite, non-absorbing slabs make walks with an infinite mean length; a walk is cut at
+ * MAX_COLLISIONS, which biases R down by about 1/sqrt(MAX_COLLISIONS) (1e-3) only there.
+ */
+#include "core/optics.h"
+#include "pathtrace/pathtrace.h"
+#include "pathtrace/rng.h"
+
+#include <math.h>
+#include <string.h>
+
+enum { CHUNK = 1024 };
+#define MAX_COLLISIONS (1u << 20)
+#define RR_THRESHOLD 0.05
+#define RR_SURVIVE 0.2
+#define TWO_PI 6.283185307179586
+
+typedef struct slab_sums {
+    double r, r2, t, t2;
+} slab_sums;
+
+typedef struct slab_setup {
+    double albedo, tau, g, eta_out; /* eta_out: relative index seen from inside, 1 / eta */
+    double ext;                     /* exp(-tau) */
+    double f0;                      /* Fresnel at normal incidence (same from either side) */
+    double w_collide;               /* weight of the forced first collision */
+    uint32_t max_scatter;
+    bool index_matched;
+} slab_setup;
+
+/* Fresnel reflection probability for a path meeting a face at direction cosine |mu|. */
+static double face_reflectance(const slab_setup *s, double mu)
+{
+    return s->index_matched ? 0.0 : nc_fresnel_dielectric(fabs(mu), s->eta_out);
+}
+
+/* One path from its forced first collision to its exit; adds its score to `sum`. */
+static void trace_path(const slab_setup *s, nc_rng *rng, slab_sums *sum)
+{
+    double q = s->f0 * s->ext; /* ratio of collision weight between successive ballistic legs */
+    unsigned leg = 0;
+    while (q > 0 && nc_rng_double(rng) < q && leg < 4096)
+        leg++;
+    double mu = (leg & 1) ? -1.0 : 1.0;
+    double d = -log(1.0 - nc_rng_double(rng) * (1.0 - s->ext));
+    double z = (leg & 1) ? s->tau - d : d;
+    double w = s->w_collide;
+    uint32_t scatters = 0;
+    for (uint32_t collisions = 0; collisions < MAX_COLLISIONS; collisions++) {
+        /* At a collision. */
+        if (s->max_scatter && ++scatters > s->max_scatter)
+            return;
+        w *= s->albedo;
+        if (w <= 0)
+            return;
+        if (w < RR_THRESHOLD * s->w_collide) {
+            if (nc_rng_double(rng) >= RR_SURVIVE)
+                return;
+            w /= RR_SURVIVE;
+        }
+        double c = nc_hg_sample_cos(s->g, nc_rng_double(rng));
+        double sin_t = sqrt(fmax(0.0, 1.0 - c * c));
+        double sin_mu = sqrt(fmax(0.0, 1.0 - mu * mu));
+        mu = mu * c + sin_mu * sin_t * cos(TWO_PI * nc_rng_double(rng));
+        mu = fmin(1.0, fmax(-1.0, mu));
+        /* Free flight, with any number of Fresnel reflections at the faces. */
+        for (;;) {
+            double znew = z - log(1.0 - nc_rng_double(rng)) * mu;
+            if (mu > 0 && znew > s->tau) {
+                if (nc_rng_double(rng) < face_reflectance(s, mu)) {
+                    /* The rest of the exponential flight continues after the mirror (memoryless). */
+                    z = s->tau;
+                    mu = -mu;
+                    continue;
+                }
+                sum->t += w;
+                sum->t2 += w * w;
+                return;
+            }
+            if (mu < 0 && znew < 0) {
+                if (nc_rng_double(rng) < face_reflectance(s, mu)) {
+                    z = 0;
+                    mu = -mu;
+                    continue;
+                }
+                sum->r += w;
+                sum->r2 += w * w;
+                return;
+            }
+            z = znew;
+            break;
+        }
+    }
+}
+
+nacre_result nc_slab_pathtrace(nacre_context *ctx, const nacre_slab_desc *desc, nacre_slab_result *out)
+{
+    if (!ctx || !desc || !out)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    if (!(desc->albedo >= 0 && desc->albedo <= 1))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: albedo: must be in [0, 1]");
+    if (!(desc->tau >= 0)) /* INFINITY passes: semi-infinite */
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: tau: must be >= 0 (INFINITY: semi-infinite)");
+    if (!(desc->g > -1 && desc->g < 1))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: g: must be in (-1, 1)");
+    if (!(desc->eta > 0 && isfinite(desc->eta)))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: eta: must be finite and > 0");
+    if (desc->samples < 2)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: samples: need at least 2 paths");
+    uint64_t t0 = nc_now_us();
+
+    slab_setup s;
+    memset(&s, 0, sizeof(s));
+    s.albedo = desc->albedo;
+    s.tau = desc->tau;
+    s.g = desc->g;
+    s.eta_out = 1.0 / desc->eta;
+    s.index_matched = desc->eta == 1.0;
+    s.max_scatter = desc->max_scatter;
+    s.ext = exp(-desc->tau);
+    s.f0 = (desc->eta - 1.0) / (desc->eta + 1.0);
+    s.f0 *= s.f0;
+    /* Ballistic light: enters with 1 - F0, then zig-zags at normal incidence, each leg losing
+     * exp(-tau) to collisions and each face letting 1 - F0 out. */
+    double w0 = 1.0 - s.f0, e = s.ext, f = s.f0;
+    double zigzag = 1.0 - f * f * e * e;
+    double t_ball = w0 * e * (1.0 - f) / zigzag;
+    double r_ball = w0 * e * e * f * (1.0 - f) / zigzag;
+    s.w_collide = w0 * (1.0 - e) / (1.0 - f * e);
+
+    uint64_t n = desc->samples;
+    uint64_t chunks = (n + CHUNK - 1) / CHUNK;
+    slab_sums *sums = nc_calloc(ctx, (size_t)chunks, sizeof(*sums));
+    if (!sums)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    if (s.w_collide > 0 && s.albedo > 0) {
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nc_threads(ctx))
+        for (int64_t c = 0; c < (int64_t)chunks; c++) {
+            nc_rng rng = nc_rng_make(desc->seed, (uint64_t)c);
+            uint64_t begin = (uint64_t)c * CHUNK, end = begin + CHUNK < n ? begin + CHUNK : n;
+            slab_sums acc = {0, 0, 0, 0};
+            for (uint64_t i = begin; i < end; i++)
+                trace_path(&s, &rng, &acc);
+            sums[c] = acc;
+        }
+    }
+    slab_sums tot = {0, 0, 0, 0};
+    for (uint64_t c = 0; c < chunks; c++) {
+        tot.r += sums[c].r;
+        tot.r2 += sums[c].r2;
+        tot.t += sums[c].t;
+        tot.t2 += sums[c].t2;
+    }
+    nc_free(ctx, sums);
+
+    double dn = (double)n;
+    double mr = tot.r / dn, mt = tot.t / dn;
+    memset(out, 0, sizeof(*out));
+    out->R = r_ball + mr;
+    out->T = t_ball + mt;
+    out->R_stderr = sqrt(fmax(0.0, tot.r2 / dn - mr * mr) / (dn - 1.0));
+    out->T_stderr = sqrt(fmax(0.0, tot.t2 / dn - mt * mt) / (dn - 1.0));
+    out->R_specular = s.f0;
+    out->ms = (double)(nc_now_us() - t0) * 1e-3;
+    return NACRE_OK;
+}
