@@ -8,9 +8,14 @@
  * viewer relies on: a material edit only re-shades, a light edit redraws that light's shadow
  * map, a camera move redraws the G-buffer but keeps the shadow maps.
  *
+ * The diffusion method (src/diffusion/pipeline.c) runs between the shadow and shade stages:
+ * voxelize, translucent shadow maps, inject and propagate per translucent object, with its own
+ * per-object caches; its result enters the phong pass through the subsurface hook (shade.h).
+ *
  * Camera conventions: core/math.h (right-handed, looking down -z, NDC z in [0, 1]). When the
  * scene leaves near/far at 0 they are fitted to the committed scene bounds.
  */
+#include "diffusion/pipeline.h"
 #include "pathtrace/pathtrace.h"
 #include "raster/raster.h"
 #include "scene/scene.h"
@@ -45,6 +50,7 @@ struct nacre_renderer {
     nc_shade_light *shade_lights;
     uint32_t draw_capacity, light_capacity;
     nc_pathtracer *pathtracer; /* created by the first path-traced frame */
+    nc_diff_state *diffusion;  /* created by the first diffusion frame */
 };
 
 nacre_result nacre_renderer_create(nacre_context *ctx, nacre_renderer **out)
@@ -80,6 +86,7 @@ void nacre_renderer_destroy(nacre_renderer *r)
     nc_free(ctx, r->sources);
     nc_free(ctx, r->shade_lights);
     nc_pathtracer_destroy(ctx, r->pathtracer);
+    nc_diff_state_destroy(r->diffusion);
     nc_free(ctx, r);
 }
 
@@ -106,6 +113,25 @@ static nacre_result check_settings(nacre_context *ctx, const nacre_render_settin
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: shadow_bias: must be finite and >= 0");
     if (!isfinite(s->exposure))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: exposure: must be finite");
+    if (s->method == NACRE_METHOD_DIFFUSION) {
+        /* Only the diffusion method reads these; other methods accept any value. */
+        if (s->voxel_resolution < 1 || s->voxel_resolution > 1024)
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: voxel_resolution: %u is not in 1..1024",
+                           s->voxel_resolution);
+        if (s->tsm_size < 16 || s->tsm_size > 8192)
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: tsm_size: %d is not in 16..8192",
+                           (int)s->tsm_size);
+        if (!(s->tolerance > 0.0f && s->tolerance < 1.0f))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: tolerance: %g is not in (0, 1)",
+                           (double)s->tolerance);
+        if (s->solver != NACRE_SOLVER_MULTIGRID && s->solver != NACRE_SOLVER_SEED)
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: solver: unknown (%d)", (int)s->solver);
+        if (s->source != NACRE_SOURCE_VOLUME && s->source != NACRE_SOURCE_FACE)
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: source: unknown (%d)", (int)s->source);
+        if (s->seed_iterations > 100000)
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: seed_iterations: %u is not in 0..100000",
+                           s->seed_iterations);
+    }
     return NACRE_OK;
 }
 
@@ -292,6 +318,14 @@ nacre_result nacre_renderer_render(nacre_renderer *r, const nacre_scene *s, cons
     st.stage_us[NACRE_STAGE_SHADOW] = nc_now_us() - t0;
     st.stage_ran[NACRE_STAGE_SHADOW] = st.shadow_maps > 0;
 
+    /* Diffusion: voxelize, translucent shadow maps, inject, propagate (timed inside). */
+    if (settings->method == NACRE_METHOD_DIFFUSION) {
+        if (!r->diffusion && (res = nc_diff_state_create(ctx, &r->diffusion)) != NACRE_OK)
+            goto fail;
+        if ((res = nc_diffusion_frame(r->diffusion, s, settings, r->shade_lights, s->light_count, &st)) != NACRE_OK)
+            goto fail;
+    }
+
     /* Shade */
     t0 = nc_now_us();
     nc_mat4 inv_view;
@@ -303,6 +337,8 @@ nacre_result nacre_renderer_render(nacre_renderer *r, const nacre_scene *s, cons
         .pcf_radius = settings->pcf_radius,
         .shadow_bias = settings->shadow_bias,
     };
+    if (settings->method == NACRE_METHOD_DIFFUSION)
+        nc_diffusion_shade_params(r->diffusion, s, &params);
     nc_shade_phong(s, &r->gbuffer, r->shade_lights, s->light_count, &params, out->pixels, out->stride, ctx->threads);
     st.stage_us[NACRE_STAGE_SHADE] = nc_now_us() - t0;
     st.stage_ran[NACRE_STAGE_SHADE] = true;

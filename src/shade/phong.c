@@ -9,6 +9,10 @@
  * the last term being a white uniform environment of radiance L_env seen by a Lambert surface
  * (unshadowed: no ambient occlusion). (s + 8) / (8 pi) normalizes Blinn-Phong so that ks is
  * close to the fraction of energy reflected specularly.
+ *
+ * The diffusion method reuses this pass through the subsurface hook of nc_shade_params: its
+ * translucent objects keep ambient and specular and get the diffusion radiance in place of the
+ * Lambert direct term (Blanchard 2012 section 4.6.2: the deferred passes are summed).
  */
 #include "shade/shade.h"
 #include "core/optics.h"
@@ -81,6 +85,16 @@ void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_sha
             nc_vec3 v = params->orthographic ? nc_scale(params->view_dir, -1.0f)
                                              : nc_normalize(nc_sub(params->eye, p));
             float acc[3] = {kd[0] * env[0], kd[1] * env[1], kd[2] * env[2]};
+            /* Diffusion method: the light that enters and leaves the medium replaces Lambert. */
+            float lambert = 1.0f / NC_PI;
+            if (params->subsurface_object && params->subsurface_object[gb->object[i]]) {
+                float sub[3];
+                params->subsurface(params->subsurface_user, gb->object[i], p, n, v, sub);
+                acc[0] += sub[0];
+                acc[1] += sub[1];
+                acc[2] += sub[2];
+                lambert = 0.0f;
+            }
             float spec_norm = (m->shininess + 8.0f) / (8.0f * NC_PI);
             for (uint32_t li = 0; li < light_count; li++) {
                 const nacre_light_desc *l = lights[li].desc;
@@ -112,7 +126,7 @@ void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_sha
                 float spec = m->shininess > 0 ? spec_norm * powf(nh, m->shininess) : spec_norm * 1.0f;
                 float e = scale * cos_i;
                 for (int c = 0; c < 3; c++)
-                    acc[c] += l->strength[c] * e * (kd[c] * (1.0f / NC_PI) + m->specular[c] * spec);
+                    acc[c] += l->strength[c] * e * (kd[c] * lambert + m->specular[c] * spec);
             }
             out[0] = acc[0];
             out[1] = acc[1];

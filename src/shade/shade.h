@@ -19,6 +19,13 @@ typedef struct nc_shade_params {
     nc_vec3 view_dir;        /* camera forward direction (orthographic: every view ray) */
     bool orthographic;
     float pcf_radius, shadow_bias;
+    /* Optional hook of the diffusion method: pixels of objects with subsurface_object[object]
+     * nonzero get subsurface() (the radiance leaving the medium towards v) instead of the
+     * Lambert direct term; ambient and specular stay as for any object. NULL: plain phong.
+     * Called from several threads at once (read only). */
+    const uint8_t *subsurface_object;
+    void (*subsurface)(const void *user, uint32_t object, nc_vec3 p, nc_vec3 n, nc_vec3 v, float out[3]);
+    const void *subsurface_user;
 } nc_shade_params;
 
 /* Effective Lambert albedo the phong method uses for a material: the diffuse colour of an

@@ -1,0 +1,160 @@
+/*
+ * pipeline.h: the frame pipeline of `--method diffusion` (Blanchard 2012 chapter 4) as the
+ * renderer drives it (private interface; the solver itself is diffusion.h).
+ *
+ * Per translucent object and frame: voxelize the committed world-space mesh (seed 4.2), evaluate
+ * the medium per voxel at rest-pose points, render a translucent shadow map per light (seed 4.3,
+ * tsm.c), turn its texels into per-cell sources (seed 4.4, tsm.c), solve the diffusion equation
+ * per RGB channel (seed 4.5, solver.c) and keep the exitance per cell for the deferred shading
+ * pass (seed 4.6, shade_diffusion.c).
+ *
+ * UNITS AND CONVENTIONS
+ *   - Everything is in world space (the grid is built from the committed world positions);
+ *     lengths in scene units, cell side h. Cell (x, y, z) has its centre at
+ *     origin + (x + 0.5, y + 0.5, z + 0.5) h; index i = x + nx (y + ny z).
+ *   - "Grid coordinates" are (p - origin) / h: cell (x, y, z) covers [x, x + 1) etc.
+ *   - A light's strength is irradiance (directional) or intensity (point, spot) per scene unit^2
+ *     as in phong.c; fluxes are strength x area (or x solid angle), per RGB channel.
+ *   - Sources are power per cell (W), phi is fluence, exitance is outgoing flux per unit area
+ *     (diffusion.h).
+ *   - Face ids follow the seed's table 4.1: z- = 0, z+ = 1, x- = 2, x+ = 3, y- = 4, y+ = 5.
+ */
+#ifndef NACRE_DIFFUSION_PIPELINE_H
+#define NACRE_DIFFUSION_PIPELINE_H
+
+#include "diffusion/diffusion.h"
+#include "shade/shade.h"
+
+enum { NC_FACE_ZN = 0, NC_FACE_ZP, NC_FACE_XN, NC_FACE_XP, NC_FACE_YN, NC_FACE_YP };
+
+/* The state of one translucent object, kept by the renderer across frames. Arrays hold
+ * `cells` floats (or 3 * cells for xyz triples) and are reused while the grid does not grow. */
+typedef struct nc_diff_object {
+    nacre_context *ctx;
+    /* Voxelization (level 0 of the grid is the domain) */
+    nacre_voxel_grid *grid;
+    bool rule_known;                 /* the solid rule was decided by AUTO on the first frame */
+    nacre_voxel_solid_rule rule;
+    uint32_t rule_mesh;              /* mesh id the rule was decided for */
+    uint32_t dims[3];
+    float origin[3];
+    float h;                         /* cell side, scene units */
+    size_t cells, capacity;          /* nx*ny*nz; floats allocated per array */
+    uint8_t *solid;                  /* cells: 1 = in the domain */
+    uint64_t solid_count;
+    uint32_t lo[3], hi[3];           /* bounding box of the solid cells, [lo, hi) */
+    /* Medium */
+    bool heterogeneous;
+    float eta, fdr, robin_a, fresnel_diffuse;
+    float sigma_a_const[3], sigma_sp_const[3];
+    float *rest;                     /* 3 * cells: rest-pose point of each voxel (heterogeneous) */
+    float *eval_a, *eval_s;          /* 3 * cells: interleaved nc_medium_eval output (heterogeneous) */
+    float *sigma_a[3], *sigma_sp[3]; /* cells each (used when heterogeneous; else the constants) */
+    /* Light and solution */
+    nc_diff_solver *solver;
+    float *source[3];                /* W per cell */
+    float *q[3];                     /* FACE mode: lit face flux per unit area, summed per cell */
+    int64_t *acc[3];                 /* injection scratch: fixed-point power per cell (tsm.c) */
+    float *phi[3];                   /* fluence, kept for the next frame's warm start */
+    float *exitance[3];              /* outgoing flux per unit area, read by the shading pass */
+    bool phi_valid;
+    uint32_t phi_dims[3];
+    bool lit;                        /* exitance holds this frame's result */
+    bool face_mode;                  /* ... computed with FACE sources (q holds the face term) */
+    /* Cache keys: voxels and medium, then the light-dependent part */
+    bool vox_valid, medium_valid, light_valid;
+    uint64_t key_uid, key_geometry, key_materials, key_lights;
+    uint32_t key_res;
+    nacre_render_settings key_settings;
+    /* Report of the last frame */
+    double tsm_flux[3];              /* W: sum over texels of the flux transmitted into the object */
+    double injected[3];              /* W: sum of the sources */
+    uint32_t iterations;
+    double residual;
+} nc_diff_object;
+
+/* Scratch of the translucent shadow map (one band of rows at a time), shared by all objects. */
+typedef struct nc_tsm_band {
+    size_t capacity;                 /* texels */
+    uint32_t *cell;                  /* UINT32_MAX: the texel's ray misses the domain */
+    uint8_t *face;
+    float *weight;                   /* flux per unit light strength (area or solid angle x Ft x ...) */
+    float *pos;                      /* 3: entry point, grid coordinates */
+    float *dir;                      /* 3: unit direction of travel */
+    int64_t *scratch;                /* per-thread injection accumulators (tsm.c) */
+    size_t scratch_bytes;
+} nc_tsm_band;
+
+/* Everything the diffusion method keeps in a renderer. */
+typedef struct nc_diff_state {
+    nacre_context *ctx;
+    nc_diff_object *objects;         /* one per scene object (used for translucent ones) */
+    uint32_t object_capacity;
+    uint64_t scene_uid;
+    nc_tsm_band band;
+    uint8_t *subsurface;             /* per object: 1 = shaded from the diffusion solution */
+} nc_diff_state;
+
+nacre_result nc_diff_state_create(nacre_context *ctx, nc_diff_state **out);
+void nc_diff_state_destroy(nc_diff_state *st);
+
+/* Run voxelize / TSM / inject / propagate for every translucent object of a committed scene
+ * (stages skipped when their inputs did not change), filling the diffusion fields and stage
+ * timings of `stats`. `lights` are the renderer's lights with their shadow maps (light_count of
+ * them), used to let other objects occlude the translucent shadow maps. */
+nacre_result nc_diffusion_frame(nc_diff_state *st, const nacre_scene *scene,
+                                const nacre_render_settings *settings, const nc_shade_light *lights,
+                                uint32_t light_count, nacre_render_stats *stats);
+
+/* Fill the subsurface hook of the phong pass (shade.h) from the state of the last frame. */
+void nc_diffusion_shade_params(const nc_diff_state *st, const nacre_scene *scene,
+                               nc_shade_params *params);
+
+/* ---- Per-object steps (pipeline.c), exposed for tests ---- */
+
+void nc_diff_object_free(nc_diff_object *o);
+/* Voxelize object `index` of the scene at `resolution` and evaluate its medium. */
+nacre_result nc_diff_object_voxelize(nc_diff_object *o, const nacre_scene *scene, uint32_t index,
+                                     uint32_t resolution);
+/* Evaluate the medium of object `index` per voxel (after nc_diff_object_voxelize); face_mode
+ * also allocates the per-cell q of FACE injection. */
+nacre_result nc_diff_object_medium(nc_diff_object *o, const nacre_scene *scene, uint32_t index, bool face_mode);
+/* Coefficients of cell i, channel c. */
+static inline void nc_diff_object_coeffs(const nc_diff_object *o, size_t i, int c, float *sigma_a,
+                                         float *sigma_sp)
+{
+    *sigma_a = o->heterogeneous ? o->sigma_a[c][i] : o->sigma_a_const[c];
+    *sigma_sp = o->heterogeneous ? o->sigma_sp[c][i] : o->sigma_sp_const[c];
+}
+
+/* ---- Translucent shadow maps and injection (tsm.c) ---- */
+
+/* Zero the sources (and q), then render the TSM of each light for object `o` and inject it.
+ * `shadows[li]` may be NULL; `others_cast` says whether any other object casts shadows (only then
+ * are the shadow maps consulted). Adds to o->tsm_flux and o->injected. Timings (us) are added to
+ * *tsm_us and *inject_us. */
+nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const nacre_scene *scene,
+                                   const nc_shade_light *lights, uint32_t light_count,
+                                   bool others_cast, const nacre_render_settings *settings,
+                                   uint64_t *tsm_us, uint64_t *inject_us);
+void nc_tsm_band_free(nacre_context *ctx, nc_tsm_band *band);
+
+/* ---- Exitance and shading (shade_diffusion.c) ---- */
+
+/* Depth below the surface, in cells, at which the shading pass reads the solution. */
+#define NC_DIFF_SAMPLE_DEPTH 0.5f
+
+/* After the solve of channel c: per cell, the exitance a surface NC_DIFF_SAMPLE_DEPTH cells away
+ * would have (FACE mode adds the lit faces' own term, see the file). */
+void nc_diff_compute_exitance(nc_diff_object *o, int c, const float *D, nacre_diffusion_source mode,
+                              int threads);
+/* Exitance (3 channels) at surface point p with normal n (the solution read one cell below p,
+ * plus in FACE mode the lit faces' term read at p; solid cells only). False if no solid cell is
+ * within one cell of the sample point. */
+bool nc_diff_exitance_at(const nc_diff_object *o, nc_vec3 p, nc_vec3 n, bool face_mode, float out[3]);
+/* The subsurface hook of the phong pass: radiance towards the viewer at a pixel of a translucent
+ * object. user = the nc_diff_state. */
+void nc_diff_subsurface_radiance(const void *user, uint32_t object, nc_vec3 p, nc_vec3 n, nc_vec3 v,
+                                 float out[3]);
+
+#endif /* NACRE_DIFFUSION_PIPELINE_H */
