@@ -12,8 +12,9 @@
  *     unit squared). The discrete system is the finite-volume balance of each cell:
  *       sum_faces G_f (phi_i - phi_j) + sum_boundary_faces B_f phi_i + sigma_a h^3 phi_i = S_i
  *     with G_f = h D_f, D_f the harmonic mean of the two cells' D (flux continuity), and
- *     B_f = h^2 * 2 D_i / (h + 4 A D_i): the Robin condition phi + 2 A D dphi/dn = 0 of Arbree
- *     et al. (seed eq. 4.7) imposed on the face, half a cell from the centre.
+ *     B_f = w_f h^2 * 2 D_i / (h + 4 A D_i): the Robin condition phi + 2 A D dphi/dn = 0 of
+ *     Arbree et al. (seed eq. 4.7) imposed on the face, half a cell from the centre, w_f the
+ *     face's share of true surface area (see staircase_faces; 1 on grid-aligned surfaces).
  *     The matrix is symmetric positive definite.
  *   - Energy: S (injected) = absorbed (sum sigma_a h^3 phi) + escaped (sum B_f phi).
  *   - Periodic axes (slab measurement) wrap around instead of having boundary faces.
@@ -35,6 +36,13 @@ typedef struct nc_diff_medium {
     const float *sigma_sp[3];    /* reduced scattering per cell and channel; NULL: constant */
     float sigma_a_const[3], sigma_sp_const[3];
     float eta;                   /* relative index of the boundary (one per object) */
+    /* Boundary area. A voxelized oblique surface is a staircase with up to sqrt(3) times the
+     * area of the surface it stands for, and light escapes through every exposed face. By
+     * default (false) each exposed face's Robin term is weighted by |n_face . n|, n the surface
+     * normal estimated from the smoothed occupancy around the cell, which gives a planar
+     * staircase exactly the area of its plane. true: every exposed face at full area (exact for
+     * grid-aligned boxes, whose edges the estimate rounds off). */
+    bool staircase_faces;
 } nc_diff_medium;
 
 typedef struct nc_diff_solve_opts {
@@ -70,6 +78,10 @@ nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], 
                                const nc_diff_solve_opts *opts, nc_diff_solve_report report[3]);
 /* D per cell of channel c after setup (nx*ny*nz; 0 outside), for the exitance. */
 const float *nc_diff_coefficient_d(const nc_diff_solver *s, int channel);
+
+/* The boundary area the Robin terms use after setup: sum over exposed faces of w_f h^2 (scene
+ * units squared), the surface through which light escapes. */
+double nc_diff_boundary_area(const nc_diff_solver *s);
 
 /* Robin constant A = (1 + Fdr) / (1 - Fdr) for relative index eta (Fdr: nc_fresnel_fdr). */
 double nc_diff_robin_a(double eta);

@@ -54,13 +54,17 @@ typedef struct level {
      * byte per cell instead of 80 bytes of coefficients. k = solid neighbours (0..6), 7 outside;
      * every coefficient is a function of k (the neighbours outside hold zero values). */
     uint8_t *k;
+    float *bw;    /* boundary weight sum per cell: sum of w_f over its exposed faces */
     bool homogeneous_level;
-    v4 kdiag[8], kinv[8], kg[8];
+    v4 kbase[8];  /* absorption + k G (k = 7: 1, outside) */
+    v4 kg[8];     /* G (k = 7: 0) */
+    v4 kb;        /* B per unit boundary weight */
 } level;
 
 struct nc_diff_solver {
     nacre_context *ctx;
     uint32_t dims[3];
+    float h;
     uint32_t level_count;
     level lv[MAX_LEVELS];
     size_t capacity[MAX_LEVELS]; /* padded cells allocated per level */
@@ -94,6 +98,7 @@ static void level_free(nacre_context *ctx, level *l)
 {
     nc_free(ctx, l->solid);
     nc_free(ctx, l->k);
+    nc_free(ctx, l->bw);
     for (int a = 0; a < 3; a++)
         nc_free(ctx, l->g[a]);
     nc_free(ctx, l->diag);
@@ -131,6 +136,17 @@ const float *nc_diff_coefficient_d(const nc_diff_solver *s, int channel)
     return (s && channel >= 0 && channel < 3) ? s->d_user[channel] : NULL;
 }
 
+double nc_diff_boundary_area(const nc_diff_solver *s)
+{
+    if (!s || s->level_count == 0)
+        return 0.0;
+    const level *l = &s->lv[0];
+    double sum = 0.0;
+    for (size_t i = 0; i < l->cells; i++)
+        sum += l->bw[i];
+    return sum * (double)s->h * (double)s->h;
+}
+
 static void level_shape(level *l, const uint32_t n[3])
 {
     memcpy(l->n, n, sizeof(l->n));
@@ -160,7 +176,8 @@ static nacre_result level_alloc(nc_diff_solver *s, int li, size_t user_cells)
             ok = (l->g[a] = nc_alloc(ctx, vb)) != NULL;
         ok = ok && (l->diag = nc_alloc(ctx, vb)) && (l->inv = nc_alloc(ctx, vb)) && (l->x = nc_alloc(ctx, vb)) &&
              (l->b = nc_alloc(ctx, vb)) && (l->res = nc_alloc(ctx, vb));
-        ok = ok && (li != 0 || (l->k = nc_alloc(ctx, l->cells)) != NULL);
+        ok = ok && (li != 0 || ((l->k = nc_alloc(ctx, l->cells)) != NULL &&
+                                (l->bw = nc_alloc(ctx, l->cells * sizeof(float))) != NULL));
         if (ok && li == 0) {
             extras_free(s);
             v4 **w[7] = {&s->bnd, &s->absorb, &s->pr, &s->pz, &s->pp, &s->pq, &s->px};
@@ -218,6 +235,50 @@ static void finish_level(level *l, int threads)
                 inv[c] = d[c] > 0 ? 1.0f / d[c] : 0.0f;
             l->inv[i] = inv;
         }
+}
+
+/* Sum over the exposed faces of cell i of their share of true surface area (diffusion.h,
+ * staircase_faces). The normal is the gradient of the occupancy over the 3x3x3 neighbourhood
+ * (1-2-1 weights across the axis), so a planar staircase gets the plane's normal. A face nearly
+ * parallel to the estimate keeps a floor of 0.2 so thin features still let light out. */
+static float boundary_weight(const level *l, size_t i, const int open_axes[3], bool staircase)
+{
+    const size_t st[3] = {1, l->sy, l->sz};
+    if (staircase) {
+        int open = 0;
+        for (int a = 0; a < 3; a++)
+            if (open_axes[a])
+                open += !l->solid[i - st[a]] + !l->solid[i + st[a]];
+        return (float)open;
+    }
+    float grad[3] = {0, 0, 0};
+    for (int a = 0; a < 3; a++) {
+        if (!open_axes[a])
+            continue;
+        int b = (a + 1) % 3, c = (a + 2) % 3;
+        float sum = 0.0f;
+        for (int ob = -1; ob <= 1; ob++)
+            for (int oc = -1; oc <= 1; oc++) {
+                /* the padding layer keeps every index in range for an interior cell, but an
+                 * axis of one cell has no neighbours across: use the row itself there */
+                size_t off = (size_t)((ptrdiff_t)ob * (ptrdiff_t)(open_axes[b] ? st[b] : 0) +
+                                      (ptrdiff_t)oc * (ptrdiff_t)(open_axes[c] ? st[c] : 0));
+                float wgt = (float)((2 - (ob != 0)) * (2 - (oc != 0)));
+                size_t j = i + off;
+                sum += wgt * ((float)l->solid[j - st[a]] - (float)l->solid[j + st[a]]);
+            }
+        grad[a] = sum;
+    }
+    float len = sqrtf(grad[0] * grad[0] + grad[1] * grad[1] + grad[2] * grad[2]);
+    float w = 0.0f;
+    for (int a = 0; a < 3; a++) {
+        if (!open_axes[a])
+            continue;
+        float share = len > 0 ? fabsf(grad[a]) / len : 1.0f;
+        share = share > 0.2f ? share : 0.2f;
+        w += share * (float)(!l->solid[i - st[a]] + !l->solid[i + st[a]]);
+    }
+    return w;
 }
 
 static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int threads)
@@ -296,32 +357,35 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
             }
             if (!in) {
                 l->diag[i] = V4_ZERO;
+                l->bw[i] = 0.0f;
                 continue;
             }
+            float w = open ? boundary_weight(l, i, open_axes, m->staircase_faces) : 0.0f;
+            l->bw[i] = w;
             v4 dv = d[i], bv = V4_ZERO;
             if (open)
                 for (int c = 0; c < 3; c++)
-                    bv[c] = (float)open * h * h * 2.0f * dv[c] / (h + 4.0f * A * dv[c]);
+                    bv[c] = w * h * h * 2.0f * dv[c] / (h + 4.0f * A * dv[c]);
             s->bnd[i] = bv;
             l->diag[i] = bv + s->absorb[i];
         }
     finish_level(l, threads);
+    /* A channel with D = 0 (sigma_t' = 0: no medium) would make the fast path divide by 0;
+     * the general path gives such cells inv = 0. */
+    homogeneous &= dconst[0] > 0 && dconst[1] > 0 && dconst[2] > 0;
     s->homogeneous = homogeneous;
     l->homogeneous_level = homogeneous;
     if (homogeneous) {
-        int open_faces = 2 * (open_axes[0] + open_axes[1] + open_axes[2]);
         v4 G = h * dconst, B = V4_ZERO;
         for (int c = 0; c < 3; c++)
             B[c] = h * h * 2.0f * dconst[c] / (h + 4.0f * A * dconst[c]);
         for (int k = 0; k < 7; k++) {
-            l->kdiag[k] = (float)k * G + (float)(open_faces - k) * B + aconst;
-            for (int c = 0; c < 4; c++)
-                l->kinv[k][c] = l->kdiag[k][c] > 0 ? 1.0f / l->kdiag[k][c] : 0.0f;
+            l->kbase[k] = (float)k * G + aconst;
             l->kg[k] = G;
         }
-        l->kdiag[7] = V4_ONE;
-        l->kinv[7] = V4_ZERO;
+        l->kbase[7] = V4_ONE;
         l->kg[7] = V4_ZERO;
+        l->kb = B;
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
         for (size_t z = 0; z < (size_t)nz + 2; z++)
             for (size_t i = z * sz; i < (z + 1) * sz; i++) {
@@ -396,6 +460,7 @@ nacre_result nc_diff_setup(nc_diff_solver *s, const nc_diff_medium *m)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "diffusion: grid %ux%ux%u too large", m->dims[0], m->dims[1],
                        m->dims[2]);
     memcpy(s->dims, m->dims, sizeof(s->dims));
+    s->h = m->h;
     size_t user_cells = (size_t)m->dims[0] * m->dims[1] * m->dims[2];
     /* Level sizes: coarsen each axis longer than 2 cells, down to at most 2 per axis. */
     uint32_t n[3] = {m->dims[0], m->dims[1], m->dims[2]};
@@ -460,13 +525,14 @@ static void apply(const level *l, const v4 *v, const v4 *b, v4 *out, int threads
     const size_t sy = l->sy, sz = l->sz;
     if (l->homogeneous_level) {
         const uint8_t *k = l->k;
-        const v4 *kd = l->kdiag, *kg = l->kg;
+        const float *bw = l->bw;
+        const v4 *kb = l->kbase, *kg = l->kg, kB = l->kb;
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
         for (uint32_t z = 1; z <= nz; z++)
             for (uint32_t y = 1; y <= ny; y++) {
                 size_t row = sy * y + sz * z;
                 for (size_t i = row + 1; i <= row + nx; i++) {
-                    v4 mv = kd[k[i]] * v[i] - kg[k[i]] * SUM6(v, i, sy, sz);
+                    v4 mv = (kb[k[i]] + bw[i] * kB) * v[i] - kg[k[i]] * SUM6(v, i, sy, sz);
                     out[i] = b ? b[i] - mv : mv;
                 }
             }
@@ -504,7 +570,7 @@ static v4d apply_dot(const level *l, const v4 *p, v4 *q, int threads)
             if (l->homogeneous_level) {
                 const uint8_t *k = l->k;
                 for (size_t i = row + 1; i <= row + nx; i++) {
-                    v4 mv = l->kdiag[k[i]] * p[i] - l->kg[k[i]] * SUM6(p, i, sy, sz);
+                    v4 mv = (l->kbase[k[i]] + l->bw[i] * l->kb) * p[i] - l->kg[k[i]] * SUM6(p, i, sy, sz);
                     q[i] = mv;
                     acc += p[i] * mv;
                 }
@@ -577,13 +643,15 @@ static void gs_color(const level *l, v4 *v, const v4 *b, int color, int threads)
     const size_t sy = l->sy, sz = l->sz;
     if (l->homogeneous_level) {
         const uint8_t *k = l->k;
-        const v4 *ki = l->kinv, *kg = l->kg;
+        const float *bw = l->bw;
+        const v4 *kb = l->kbase, *kg = l->kg, kB = l->kb;
+        /* Outside cells: base 1, G 0, b 0 -> 0. */
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
         for (uint32_t z = 1; z <= nz; z++)
             for (uint32_t y = 1; y <= ny; y++) {
                 size_t row = sy * y + sz * z;
                 for (size_t i = row + 1 + ((color + y + z + 1) & 1); i <= row + nx; i += 2)
-                    v[i] = ki[k[i]] * (b[i] + kg[k[i]] * SUM6(v, i, sy, sz));
+                    v[i] = (b[i] + kg[k[i]] * SUM6(v, i, sy, sz)) / (kb[k[i]] + bw[i] * kB);
             }
         return;
     }
