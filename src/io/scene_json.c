@@ -645,9 +645,9 @@ static void parse_render(loader *ld, const cJSON *obj)
     get_double(ld, obj, "time", R_FINITE, &s->time);
     /* Diffusion and path-tracer settings (nacre_render_settings); ranges match what the
      * renderers accept, so a file cannot ask for a grid or map the library would refuse. */
-    if (get_integer(ld, obj, "voxel_resolution", 1, 4096, &v))
+    if (get_integer(ld, obj, "voxel_resolution", 1, 1024, &v))
         s->voxel_resolution = (uint32_t)v;
-    if (get_integer(ld, obj, "tsm_size", 1, IMAGE_SIZE_MAX, &v))
+    if (get_integer(ld, obj, "tsm_size", 16, 8192, &v))
         s->tsm_size = (int32_t)v;
     int choice = get_choice(ld, obj, "solver", "solver", solvers, COUNT_OF(solvers));
     if (choice >= 0)

@@ -434,9 +434,9 @@ static const bad_case bad_cases[] = {
     {MAT("{\"type\": \"translucent\", \"sigma_a\": 0, \"sigma_s\": 0}"), INVALID,
      "t.json: materials.m: ", "sigma_a + sigma_s"},
     /* Diffusion and path-tracer render settings. */
-    {"{\"render\": {\"voxel_resolution\": 0}}", INVALID, "t.json: render.voxel_resolution: must be an integer in 1..4096", NULL},
+    {"{\"render\": {\"voxel_resolution\": 0}}", INVALID, "t.json: render.voxel_resolution: must be an integer in 1..1024", NULL},
     {"{\"render\": {\"voxel_resolution\": 32.5}}", INVALID, "render.voxel_resolution: must be an integer", NULL},
-    {"{\"render\": {\"tsm_size\": 0}}", INVALID, "render.tsm_size: must be an integer in 1..16384", NULL},
+    {"{\"render\": {\"tsm_size\": 0}}", INVALID, "render.tsm_size: must be an integer in 16..8192", NULL},
     {"{\"render\": {\"solver\": \"jacobi\"}}", INVALID, "render.solver: unknown solver \"jacobi\"", "multigrid, seed"},
     {"{\"render\": {\"solver\": 1}}", INVALID, "render.solver: expected a string, got a number", NULL},
     {"{\"render\": {\"source\": \"surface\"}}", INVALID, "render.source: unknown source \"surface\"", "volume, face"},
