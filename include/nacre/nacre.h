@@ -529,7 +529,9 @@ typedef struct nacre_render_settings {
                                  scene file's "render.time". The renderer itself does not read it. */
     /* diffusion */
     uint32_t voxel_resolution;       /* voxels along the longest axis of each translucent object, default 32 */
-    int32_t tsm_size;                /* translucent shadow map texels per side, default 512 */
+    int32_t tsm_size;                /* translucent shadow map: most texels per side, default 512; each map
+                                        uses 4 texels per voxel side of the object's voxels (fewer on
+                                        coarse grids), at most tsm_size */
     nacre_diffusion_solver solver;   /* default MULTIGRID */
     nacre_diffusion_source source;   /* default VOLUME */
     float tolerance;                 /* MULTIGRID: relative residual, default 1e-4 */

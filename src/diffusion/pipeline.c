@@ -40,6 +40,10 @@ static void free_arrays(nc_diff_object *o)
     nc_free(ctx, o->rest);
     nc_free(ctx, o->eval_a);
     nc_free(ctx, o->eval_s);
+    nc_free(ctx, o->packed);
+    nc_free(ctx, o->acc);
+    o->packed = NULL;
+    o->acc = NULL;
     o->solid = NULL;
     o->rest = o->eval_a = o->eval_s = NULL;
     for (int c = 0; c < 3; c++) {
@@ -49,8 +53,6 @@ static void free_arrays(nc_diff_object *o)
         nc_free(ctx, o->q[c]);
         nc_free(ctx, o->phi[c]);
         nc_free(ctx, o->exitance[c]);
-        nc_free(ctx, o->acc[c]);
-        o->acc[c] = NULL;
         o->sigma_a[c] = o->sigma_sp[c] = o->source[c] = o->q[c] = o->phi[c] = o->exitance[c] = NULL;
     }
     o->capacity = 0;
@@ -78,13 +80,14 @@ static nacre_result ensure_arrays(nc_diff_object *o, size_t cells)
     if (!nc_mul_size_ok(cells, 3 * sizeof(float), &bytes))
         return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: voxel grid too large");
     o->solid = nc_calloc(o->ctx, cells, 1);
-    bool ok = o->solid != NULL;
+    o->packed = nc_calloc(o->ctx, cells, 4 * sizeof(float));
+    o->acc = nc_calloc(o->ctx, cells, 3 * sizeof(int64_t));
+    bool ok = o->solid != NULL && o->packed != NULL && o->acc != NULL;
     for (int c = 0; c < 3 && ok; c++) {
         o->source[c] = nc_calloc(o->ctx, cells, sizeof(float));
         o->phi[c] = nc_calloc(o->ctx, cells, sizeof(float));
         o->exitance[c] = nc_calloc(o->ctx, cells, sizeof(float));
-        o->acc[c] = nc_calloc(o->ctx, cells, sizeof(int64_t));
-        ok = o->source[c] && o->phi[c] && o->exitance[c] && o->acc[c];
+        ok = o->source[c] && o->phi[c] && o->exitance[c];
     }
     if (!ok) {
         free_arrays(o);
@@ -213,6 +216,8 @@ nacre_result nc_diff_object_medium(nc_diff_object *o, const nacre_scene *s, uint
         o->fdr = (float)nc_fresnel_fdr(m->eta);
         o->robin_a = (float)nc_diff_robin_a(m->eta);
         o->fresnel_diffuse = (float)nc_fresnel_diffuse(m->eta);
+        o->inv_eta2 = 1.0f / (o->eta * o->eta);
+        o->radiance_k = 1.0f / (NC_PI * (1.0f - o->fresnel_diffuse));
     }
     for (int c = 0; c < 3; c++) {
         o->sigma_a_const[c] = m->sigma_a[c];
@@ -311,6 +316,7 @@ static nacre_result object_solve(nc_diff_object *o, const nacre_render_settings 
         o->residual = rep[c].residual > o->residual ? rep[c].residual : o->residual;
         nc_diff_compute_exitance(o, c, nc_diff_coefficient_d(o->solver, c), settings->source, threads);
     }
+    nc_diff_pack_exitance(o, threads);
     o->phi_valid = true;
     memcpy(o->phi_dims, o->dims, sizeof(o->dims));
     o->face_mode = settings->source == NACRE_SOURCE_FACE;

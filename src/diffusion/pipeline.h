@@ -46,6 +46,7 @@ typedef struct nc_diff_object {
     /* Medium */
     bool heterogeneous;
     float eta, fdr, robin_a, fresnel_diffuse;
+    float inv_eta2, radiance_k;      /* shading constants: 1 / eta^2, 1 / (pi (1 - fresnel_diffuse)) */
     float sigma_a_const[3], sigma_sp_const[3];
     float *rest;                     /* 3 * cells: rest-pose point of each voxel (heterogeneous) */
     float *eval_a, *eval_s;          /* 3 * cells: interleaved nc_medium_eval output (heterogeneous) */
@@ -54,9 +55,12 @@ typedef struct nc_diff_object {
     nc_diff_solver *solver;
     float *source[3];                /* W per cell */
     float *q[3];                     /* FACE mode: lit face flux per unit area, summed per cell */
-    int64_t *acc[3];                 /* injection scratch: fixed-point power per cell (tsm.c) */
+    int64_t *acc;                    /* 3 * cells: injection scratch, fixed-point power per cell,
+                                      * channels interleaved (tsm.c) */
     float *phi[3];                   /* fluence, kept for the next frame's warm start */
-    float *exitance[3];              /* outgoing flux per unit area, read by the shading pass */
+    float *exitance[3];              /* outgoing flux per unit area */
+    float *packed;                   /* 4 * cells: exitance RGB and solid (1/0) per cell, the shading
+                                      * pass's copy (one 16-byte read per interpolation corner) */
     bool phi_valid;
     uint32_t phi_dims[3];
     bool lit;                        /* exitance holds this frame's result */
@@ -83,6 +87,12 @@ typedef struct nc_tsm_band {
     float *dir;                      /* 3: unit direction of travel */
     int64_t *scratch;                /* per-thread injection accumulators (tsm.c) */
     size_t scratch_bytes;
+    /* Orthographic maps are rasterized from the exposed faces (tsm.c): */
+    uint32_t *faces;                 /* exposed, light-facing faces: cell index * 8 + face id */
+    size_t face_capacity;
+    float *depth;                    /* per band texel: distance along the light to the nearest face */
+    uint32_t *hit;                   /* per band texel: index into faces, UINT32_MAX: none */
+    size_t raster_capacity;          /* texels of depth and hit */
 } nc_tsm_band;
 
 /* Everything the diffusion method keeps in a renderer. */
@@ -148,6 +158,8 @@ void nc_tsm_band_free(nacre_context *ctx, nc_tsm_band *band);
  * would have (FACE mode adds the lit faces' own term, see the file). */
 void nc_diff_compute_exitance(nc_diff_object *o, int c, const float *D, nacre_diffusion_source mode,
                               int threads);
+/* After the three channels' exitance: fill o->packed from o->exitance and o->solid. */
+void nc_diff_pack_exitance(nc_diff_object *o, int threads);
 /* Exitance (3 channels) at surface point p with normal n (the solution read one cell below p,
  * plus in FACE mode the lit faces' term read at p; solid cells only). False if no solid cell is
  * within one cell of the sample point. */

@@ -72,6 +72,19 @@ void nc_diff_compute_exitance(nc_diff_object *o, int c, const float *D, nacre_di
     }
 }
 
+/* nc_fresnel_dielectric in float, for the per-pixel call (the double version with its divisions
+ * was a visible part of the shading pass); relative difference ~1e-7. cos_i in [0, 1]. */
+static inline float fresnel_f(float cos_i, float eta, float inv_eta2)
+{
+    float sin2_t = (1.0f - cos_i * cos_i) * inv_eta2;
+    if (sin2_t >= 1.0f)
+        return 1.0f;
+    float cos_t = sqrtf(1.0f - sin2_t);
+    float rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    float rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    return 0.5f * (rs * rs + rp * rp);
+}
+
 /* Trilinear interpolation of a per-cell field (3 channels) over solid cells. */
 static bool sample_field(const nc_diff_object *o, float *const field[3], nc_vec3 p, float out[3])
 {
@@ -132,9 +145,58 @@ static bool sample_field(const nc_diff_object *o, float *const field[3], nc_vec3
     return true;
 }
 
+void nc_diff_pack_exitance(nc_diff_object *o, int threads)
+{
+    const size_t cells = o->cells;
+    const uint8_t *solid = o->solid;
+    const float *E0 = o->exitance[0], *E1 = o->exitance[1], *E2 = o->exitance[2];
+    float *pk = o->packed;
+#pragma omp parallel for schedule(static) num_threads(threads) if (cells > 65536)
+    for (size_t i = 0; i < cells; i++) {
+        pk[4 * i + 0] = E0[i];
+        pk[4 * i + 1] = E1[i];
+        pk[4 * i + 2] = E2[i];
+        pk[4 * i + 3] = solid[i] ? 1.0f : 0.0f;
+    }
+}
+
+/* sample_field over o->packed for the exitance: the same weights, corners and order, with
+ * the solid test folded into the data (exitance is 0 and the 4th value is 0 outside the
+ * domain, so adding w x 0 leaves the sums unchanged) and no per-corner branch. Points whose 8
+ * corners are not all inside the grid, or that have no solid corner with weight, take
+ * sample_field (the nearest-cell fallback). */
+static bool sample_exitance(const nc_diff_object *o, nc_vec3 p, float out[3])
+{
+    if (!o->solid || o->solid_count == 0 || !o->packed)
+        return sample_field(o, o->exitance, p, out);
+    const int nx = (int)o->dims[0], ny = (int)o->dims[1], nz = (int)o->dims[2];
+    const float inv_h = 1.0f / o->h;
+    float gx = (p.x - o->origin[0]) * inv_h - 0.5f, gy = (p.y - o->origin[1]) * inv_h - 0.5f,
+          gz = (p.z - o->origin[2]) * inv_h - 0.5f;
+    if (!(gx >= 0.0f && gy >= 0.0f && gz >= 0.0f && gx < (float)(nx - 1) && gy < (float)(ny - 1) &&
+          gz < (float)(nz - 1)))
+        return sample_field(o, o->exitance, p, out);
+    int x0 = (int)floorf(gx), y0 = (int)floorf(gy), z0 = (int)floorf(gz);
+    float fx = gx - (float)x0, fy = gy - (float)y0, fz = gz - (float)z0;
+    const size_t sy = (size_t)nx, sz = (size_t)nx * (size_t)ny;
+    const float *base = o->packed + 4 * ((size_t)x0 + sy * (size_t)y0 + sz * (size_t)z0);
+    float acc[4] = {0, 0, 0, 0};
+    for (int k = 0; k < 8; k++) {
+        const float *v = base + 4 * ((size_t)(k & 1) + sy * (size_t)((k >> 1) & 1) + sz * (size_t)((k >> 2) & 1));
+        float w = ((k & 1) ? fx : 1.0f - fx) * ((k & 2) ? fy : 1.0f - fy) * ((k & 4) ? fz : 1.0f - fz);
+        for (int c = 0; c < 4; c++)
+            acc[c] += w * v[c];
+    }
+    if (!(acc[3] > 1e-6f))
+        return sample_field(o, o->exitance, p, out);
+    for (int c = 0; c < 3; c++)
+        out[c] = acc[c] / acc[3];
+    return true;
+}
+
 bool nc_diff_exitance_at(const nc_diff_object *o, nc_vec3 p, nc_vec3 n, bool face_mode, float out[3])
 {
-    if (!sample_field(o, o->exitance, nc_sub(p, nc_scale(n, NC_DIFF_SAMPLE_DEPTH * o->h)), out))
+    if (!sample_exitance(o, nc_sub(p, nc_scale(n, NC_DIFF_SAMPLE_DEPTH * o->h)), out))
         return false;
     float qt[3];
     if (face_mode && o->q[0] && sample_field(o, o->q, p, qt))
@@ -154,8 +216,8 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, nc_vec3 p, n
     }
     float cos_o = nc_dot(n, v);
     cos_o = cos_o < 0.0f ? 0.0f : (cos_o > 1.0f ? 1.0f : cos_o);
-    float ft = (float)(1.0 - nc_fresnel_dielectric(cos_o, o->eta));
-    float k = ft / (NC_PI * (1.0f - o->fresnel_diffuse));
+    float ft = 1.0f - fresnel_f(cos_o, o->eta, o->inv_eta2);
+    float k = ft * o->radiance_k;
     for (int c = 0; c < 3; c++)
         out[c] = E[c] * k;
 }

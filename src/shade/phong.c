@@ -10,6 +10,10 @@
  * (unshadowed: no ambient occlusion). (s + 8) / (8 pi) normalizes Blinn-Phong so that ks is
  * close to the fraction of energy reflected specularly.
  *
+ * A light's shadow lookup is skipped when its unshadowed term is below 2^-16 of what the pixel
+ * already holds (NEGLIGIBLE), which for the translucent objects of the diffusion method (no
+ * Lambert term, a narrow highlight) removes most lookups; pixels change by less than that bound.
+ *
  * The diffusion method reuses this pass through the subsurface hook of nc_shade_params: its
  * translucent objects keep ambient and specular and get the diffusion radiance in place of the
  * Lambert direct term (Blanchard 2012 section 4.6.2: the deferred passes are summed).
@@ -18,6 +22,10 @@
 #include "core/optics.h"
 
 #include <math.h>
+
+/* Relative contribution below which a light's shadow lookup is skipped (see nc_shade_phong):
+ * 2^-16, 32 times below the resolution of a half-float EXR. */
+#define NEGLIGIBLE (1.0f / 65536.0f)
 
 void nc_material_albedo(const nacre_material_desc *m, float out[3])
 {
@@ -54,12 +62,17 @@ void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_sha
     /* Per-material constants, looked up per pixel by index. Materials are few; a fixed cap keeps
      * this allocation-free, and larger scenes fall back to recomputing. */
     enum { CACHE = 256 };
-    float albedo[CACHE][3];
+    float albedo[CACHE][3], spec_norms[CACHE];
     uint32_t cached = scene->material_count < CACHE ? scene->material_count : CACHE;
-    for (uint32_t i = 0; i < cached; i++)
+    for (uint32_t i = 0; i < cached; i++) {
         nc_material_albedo(&scene->materials[i], albedo[i]);
+        spec_norms[i] = (scene->materials[i].shininess + 8.0f) / (8.0f * NC_PI);
+    }
 
-#pragma omp parallel for schedule(static) num_threads(threads)
+    /* Rows in small dynamic chunks: objects cover the image unevenly, and static halves left one
+     * thread idle for a large part of the pass. Pixels are independent, so the image does not
+     * depend on the schedule. */
+#pragma omp parallel for schedule(dynamic, 8) num_threads(threads)
     for (int32_t y = 0; y < h; y++) {
         float *row = rgb + (size_t)y * stride;
         for (int32_t x = 0; x < w; x++) {
@@ -95,7 +108,7 @@ void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_sha
                 acc[2] += sub[2];
                 lambert = 0.0f;
             }
-            float spec_norm = (m->shininess + 8.0f) / (8.0f * NC_PI);
+            float spec_norm = mi < cached ? spec_norms[mi] : (m->shininess + 8.0f) / (8.0f * NC_PI);
             for (uint32_t li = 0; li < light_count; li++) {
                 const nacre_light_desc *l = lights[li].desc;
                 nc_vec3 wi;
@@ -115,15 +128,28 @@ void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_sha
                 float cos_i = nc_dot(n, wi);
                 if (cos_i <= 0 || scale <= 0)
                     continue;
-                if (lights[li].shadow) {
-                    scale *= nc_shadow_lookup(lights[li].shadow, p, ng, params->pcf_radius, params->shadow_bias);
-                    if (scale <= 0)
-                        continue;
-                }
                 nc_vec3 hv = nc_normalize(nc_add(wi, v));
                 float nh = nc_dot(n, hv);
                 nh = nh > 0.0f ? nh : 0.0f;
                 float spec = m->shininess > 0 ? spec_norm * powf(nh, m->shininess) : spec_norm * 1.0f;
+                if (lights[li].shadow) {
+                    /* The shadow lookup (PCF) is the most expensive part of a pixel. When this
+                     * light's unshadowed term is below NEGLIGIBLE of what the pixel already has
+                     * (typically the specular highlight of a subsurface pixel away from the
+                     * highlight), it cannot change the pixel beyond that bound: skip the light. */
+                    float unshadowed = 0.0f, have = 0.0f;
+                    /* Plain comparisons: fmaxf is a library call here (NaN rules). */
+                    for (int c = 0; c < 3; c++) {
+                        float u = fabsf(l->strength[c] * scale * cos_i * (kd[c] * lambert + m->specular[c] * spec));
+                        unshadowed = u > unshadowed ? u : unshadowed;
+                        have = acc[c] > have ? acc[c] : have;
+                    }
+                    if (unshadowed <= NEGLIGIBLE * have)
+                        continue;
+                    scale *= nc_shadow_lookup(lights[li].shadow, p, ng, params->pcf_radius, params->shadow_bias);
+                    if (scale <= 0)
+                        continue;
+                }
                 float e = scale * cos_i;
                 for (int c = 0; c < 3; c++)
                     acc[c] += l->strength[c] * e * (kd[c] * lambert + m->specular[c] * spec);

@@ -230,6 +230,47 @@ static void test_sphere_power(void)
     fx_free(&f);
 }
 
+/* tsm_size is a maximum: the map follows the voxel size (tsm.c adapt_size), so on a coarse grid
+ * any cap above the adapted side gives the same sources, and a cap below it still conserves the
+ * flux to within the sampling error of the silhouette. */
+static void test_tsm_size_cap(void)
+{
+    fixture f;
+    fx_init(&f);
+    nacre_material_desc md = thick_medium();
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_SPHERE);
+    sd.radius = 5.0f;
+    add_shape(&f, sd, add_material(&f, &md), NULL);
+    add_light(&f, NACRE_LIGHT_DIRECTIONAL, nc_normalize(nc_v3(0.3f, -0.8f, -0.5f)), nc_v3(0, 0, 0), 2.0f);
+    const int32_t caps[3] = {512, 8192, 24};
+    double flux[3], src0 = 0.0;
+    bool same = true;
+    nc_diff_object first;
+    memset(&first, 0, sizeof(first));
+    for (int k = 0; k < 3; k++) {
+        nc_diff_object o;
+        memset(&o, 0, sizeof(o));
+        run_inject(&f, &o, 10, caps[k], NACRE_SOURCE_VOLUME);
+        flux[k] = o.tsm_flux[0];
+        if (k == 0) {
+            first = o;
+            src0 = o.injected[0];
+            continue;
+        }
+        if (k == 1)
+            for (size_t i = 0; i < o.cells && same; i++)
+                same = o.source[0][i] == first.source[0][i] && o.source[2][i] == first.source[2][i];
+        nc_diff_object_free(&o);
+    }
+    printf("tsm_size cap: flux %.6g W (512), %.6g W (8192), %.6g W (24); source %.6g W\n", flux[0], flux[1], flux[2],
+           src0);
+    CHECK(same);
+    CHECK(flux[0] == flux[1]);
+    CHECK_NEAR(flux[2] / flux[0], 1.0, 2e-2);
+    nc_diff_object_free(&first);
+    fx_free(&f);
+}
+
 /* Point and spot lights above a cube: flux through the top face by quadrature,
  * integral of I cos / r^2 Ft(cos) (x spot falloff) over the face. */
 static double quad_top(nc_vec3 lp, double I, double eta, const nacre_light_desc *spot, int n)
@@ -728,6 +769,7 @@ int main(void)
     test_cube_power();
     test_sphere_power();
     test_point_spot_power();
+    test_tsm_size_cap();
     test_twisted_checker();
     test_light_types();
     test_convergence();
