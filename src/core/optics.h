@@ -11,11 +11,26 @@
 #ifndef NACRE_OPTICS_H
 #define NACRE_OPTICS_H
 
+#include <math.h>
+
 #include <stdbool.h>
 
 /* Unpolarized Fresnel reflectance for light arriving at cos_i (>= 0) on a boundary of relative
  * index eta; 1 under total internal reflection. */
 double nc_fresnel_dielectric(double cos_i, double eta);
+/* The same in float for per-pixel use, with 1 / eta^2 precomputed by the caller; cos_i in
+ * [0, 1]. Relative difference from the double version ~1e-7. */
+static inline float nc_fresnel_dielectric_f(float cos_i, float eta, float inv_eta2)
+{
+    float sin2_t = (1.0f - cos_i * cos_i) * inv_eta2;
+    if (sin2_t >= 1.0f)
+        return 1.0f;
+    float cos_t = sqrtf(1.0f - sin2_t);
+    float rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    float rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    return 0.5f * (rs * rs + rp * rp);
+}
+
 /* Hemispherical average 2 * integral_0^1 F(mu, eta) mu dmu (numerical, 1e-7): the fraction of
  * diffuse (Lambertian) light arriving from the incident side that is reflected. */
 double nc_fresnel_diffuse(double eta);

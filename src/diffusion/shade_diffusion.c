@@ -72,19 +72,6 @@ void nc_diff_compute_exitance(nc_diff_object *o, int c, const float *D, nacre_di
     }
 }
 
-/* nc_fresnel_dielectric in float, for the per-pixel call (the double version with its divisions
- * was a visible part of the shading pass); relative difference ~1e-7. cos_i in [0, 1]. */
-static inline float fresnel_f(float cos_i, float eta, float inv_eta2)
-{
-    float sin2_t = (1.0f - cos_i * cos_i) * inv_eta2;
-    if (sin2_t >= 1.0f)
-        return 1.0f;
-    float cos_t = sqrtf(1.0f - sin2_t);
-    float rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-    float rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-    return 0.5f * (rs * rs + rp * rp);
-}
-
 /* Trilinear interpolation of a per-cell field (3 channels) over solid cells. */
 static bool sample_field(const nc_diff_object *o, float *const field[3], nc_vec3 p, float out[3])
 {
@@ -216,7 +203,7 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, nc_vec3 p, n
     }
     float cos_o = nc_dot(n, v);
     cos_o = cos_o < 0.0f ? 0.0f : (cos_o > 1.0f ? 1.0f : cos_o);
-    float ft = 1.0f - fresnel_f(cos_o, o->eta, o->inv_eta2);
+    float ft = 1.0f - nc_fresnel_dielectric_f(cos_o, o->eta, o->inv_eta2);
     float k = ft * o->radiance_k;
     for (int c = 0; c < 3; c++)
         out[c] = E[c] * k;
