@@ -621,6 +621,23 @@ static void residual_exact(const level *l, const v4 *v, const v4 *b, v4 *out, in
 {
     const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
     const size_t sy = l->sy, sz = l->sz;
+    if (l->homogeneous_level) {
+        const uint8_t *k = l->k;
+        const float *bw = l->bw;
+        const v4 *kb = l->kbase, *kg = l->kg, kB = l->kb;
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+        for (uint32_t z = 1; z <= nz; z++)
+            for (uint32_t y = 1; y <= ny; y++) {
+                size_t row = sy * y + sz * z;
+                for (size_t i = row + 1; i <= row + nx; i++) {
+                    v4d sum = widen(v[i + 1]) + widen(v[i - 1]) + widen(v[i + sy]) + widen(v[i - sy]) +
+                              widen(v[i + sz]) + widen(v[i - sz]);
+                    v4d diag = widen(kb[k[i]]) + (double)bw[i] * widen(kB);
+                    out[i] = __builtin_convertvector(widen(b[i]) - diag * widen(v[i]) + widen(kg[k[i]]) * sum, v4);
+                }
+            }
+        return;
+    }
     const v4 *const *g = (const v4 *const *)l->g;
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
     for (uint32_t z = 1; z <= nz; z++)

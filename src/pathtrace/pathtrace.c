@@ -44,11 +44,35 @@
  * was scaled by (n1 / n2)^2 when the light crossed the other way, so throughput gets (n1 / n2)^2
  * (Veach 1997, ch. 5); Russian roulette uses the throughput without that factor.
  *
+ * Russian roulette (after RR_START vertices) survives with probability min(1, throughput), with
+ * no cap below 1: in a nearly white medium (marble: albedo 0.998) a cap of 0.95 cut walks after
+ * ~20 of their hundreds of vertices and the survivors' 1/0.95^k weights reached ~100, a heavy
+ * tail that dominated the demo's error (2.5x the variance per sample, growing with spp).
+ * Paths run longer instead, and the per-vertex cost is kept down by:
+ * - clearance grids (see clearance()): a free flight shorter than a conservative bound on the
+ *   distance to any surface skips the Embree query (same result bit for bit);
+ * - guided sun sampling (dielectric media) and NEE (index-matched media) run with a probability
+ *   that falls with that bound (guide_probability), weighted by its inverse and MIS-combined with
+ *   the expected density; the guide axis is seeded from the previous vertex's facet (make_guide)
+ *   and evaluated lazily for the MIS weight of phase-sampled paths (needed only when one
+ *   refracts out into the sun).
+ *
  * Determinism: each pixel of each pass has its own PCG32 stream (seed, pass, pixel); per-pixel
  * mean and M2 (Welford) are updated in pass order, so images do not depend on threads.
  * Not handled: fog volumes in open space (the scene API has none), nested or overlapping
  * translucent objects (a path is in air or in one object), the phong specular lobe on translucent
- * objects (their specular is the Fresnel reflection), cast_shadows = false (every object occludes).
+ * objects (their specular is the Fresnel reflection), double_sided (surfaces are shaded from the
+ * side the path arrives on either way; there is no culling), cast_shadows = false on translucent
+ * objects (their boundary still blocks NEE: letting shadow rays through would skip the light that
+ * refracts through them) and on lights (a light's shadow rays cross media, whose attenuation is
+ * not a shadow to be switched off; what a non-casting light should do there is undefined).
+ *
+ * cast_shadows = false on an opaque object makes it transparent to shadow rays (NEE, and the
+ * guided sun's ray after leaving a dielectric). Paths still hit it, so NEE and BSDF/phase
+ * sampling would see different worlds and their MIS combination would mix them; with any such
+ * object in the scene, direct light comes from NEE alone (lights reached by a sampled direction
+ * after a non-specular vertex score 0; guided sun samples take their whole cone). Exact for the
+ * modified transport, but noisier on glossy highlights.
  */
 #include "pathtrace/pathtrace.h"
 
@@ -105,13 +129,14 @@ void nc_pathtracer_destroy(nacre_context *ctx, nc_pathtracer *state) { (void)ctx
 
 #define PT_PI 3.14159265358979323846f
 #define MAX_VERTICES 65536 /* real vertices per path; walks this long carry ~0 weight */
-#define RR_START 8
+#define RR_START 8 /* vertices before Russian roulette (see the top of the file) */
 #define MAX_CROSSINGS 256 /* index-matched boundaries a shadow ray may pass */
 
 enum { PT_OPAQUE = 0, PT_DIELECTRIC, PT_MATCHED };
 
 typedef struct pt_object {
     int kind;
+    bool casts;              /* blocks shadow rays (cast_shadows; always for non-opaque objects) */
     const nacre_material_desc *mat;
     const float *pos;       /* world positions */
     const float *nrm;       /* world normals */
@@ -128,6 +153,10 @@ typedef struct pt_object {
     float *grid;             /* majorant grid (heterogeneous, res^3) or NULL */
     uint32_t res;
     float gmin[3], cell[3];
+    uint32_t tri_count;
+    uint8_t *dist;           /* media: clearance grid (see build_clearance) or NULL */
+    uint32_t ddims[3];
+    float dorigin[3], dcell, dinv, dmargin;
 } pt_object;
 
 typedef struct pt_light {
@@ -152,6 +181,8 @@ struct nc_pathtracer {
     pt_light *lights;
     uint32_t light_count;
     bool any_matched;      /* some object is index matched (shadow rays may pass surfaces) */
+    bool any_noncaster;    /* some opaque object has cast_shadows = false */
+    bool nee_only;         /* shadow rays see another world than paths: no MIS (see top) */
     int32_t width, height;
     double *mean, *m2;     /* per pixel and channel */
     size_t pixel_capacity;
@@ -395,6 +426,36 @@ static bool maj_next(maj_iter *it, float *s0, float *s1, float *maj)
     }
 }
 
+/* ---- clearance grids ---------------------------------------------------------------------
+ *
+ * In a dense medium (marble: a mean free path of 0.4 mm in a 60 mm block) a path scatters
+ * thousands of times, and each free flight would ask Embree where the boundary is. A clearance
+ * grid over each medium object stores per cell the chessboard distance, in cells, to the nearest
+ * cell touched by any surface of the scene, by a sphere light or by the outside of the grid
+ * (build_clearance). A surface point in a cell k cells away from point p's cell differs from p
+ * by at least k - 1 cells along one axis, so (k - 1) cells is a lower bound on the distance from
+ * p to any surface: a flight shorter than that needs no query, since the query could not change
+ * it. The flight is sampled before the query either way, so the image is the same bit for bit. */
+#define CLEARANCE_RES 192    /* at most this many cells along the object's longest axis */
+#define CLEARANCE_MIN_RES 32 /* and at least this many */
+
+/* Lower bound on the distance from p to any surface (<= 0: unknown, ask Embree). */
+static float clearance(const pt_object *o, nc_vec3 p)
+{
+    if (!o->dist)
+        return 0.0f;
+    float pv[3] = {p.x, p.y, p.z};
+    size_t idx[3];
+    for (int a = 0; a < 3; a++) {
+        float f = (pv[a] - o->dorigin[a]) * o->dinv;
+        if (!(f >= 0.0f) || f >= (float)o->ddims[a])
+            return 0.0f;
+        idx[a] = (size_t)f;
+    }
+    uint8_t k = o->dist[idx[0] + o->ddims[0] * (idx[1] + o->ddims[1] * idx[2])];
+    return ((float)k - 1.0f) * o->dcell - o->dmargin;
+}
+
 typedef enum { FF_PASS = 0, FF_SCATTER, FF_ABSORB } ff_event;
 
 /* Homogeneous media need no null collisions: the distance is sampled from the exponential of one
@@ -402,17 +463,28 @@ typedef enum { FF_PASS = 0, FF_SCATTER, FF_ABSORB } ff_event;
  * al. 2014 spectral MIS with the history-aware choice of Kutz et al. 2017), and every channel is
  * weighted by its own density over the mixture density (one-sample balance heuristic). Grey media
  * reduce to weight = albedo per scattering. */
-static ff_event free_flight_homogeneous(const pt_object *o, float tmax, nc_rng *rng, nc_vec3 *beta, float *t_out)
+static bool flight_sample_homogeneous(const pt_object *o, nc_vec3 beta, nc_rng *rng, float *t)
+{
+    float b[3] = {fabsf(beta.x), fabsf(beta.y), fabsf(beta.z)};
+    float bsum = b[0] + b[1] + b[2];
+    if (!(bsum > 0.0f))
+        return false;
+    float u = nc_rng_float(rng) * bsum;
+    int k = u < b[0] ? 0 : u < b[0] + b[1] ? 1 : 2;
+    float st = o->sigma_a[k] + o->sigma_s[k];
+    *t = st > 0.0f ? -logf(1.0f - nc_rng_float(rng)) / st : INFINITY;
+    return true;
+}
+
+/* The weights of a flight of length t sampled by flight_sample_homogeneous, given the boundary
+ * at tmax. Sampling (two random numbers) comes first so that the caller can decide from t
+ * alone whether it needs the boundary (see clearance()). */
+static ff_event flight_resolve_homogeneous(const pt_object *o, float t, float tmax, nc_vec3 *beta, float *t_out)
 {
     float b[3] = {fabsf(beta->x), fabsf(beta->y), fabsf(beta->z)}, st[3];
     float bsum = b[0] + b[1] + b[2];
-    if (!(bsum > 0.0f))
-        return FF_ABSORB;
     for (int c = 0; c < 3; c++)
         st[c] = o->sigma_a[c] + o->sigma_s[c];
-    float u = nc_rng_float(rng) * bsum;
-    int k = u < b[0] ? 0 : u < b[0] + b[1] ? 1 : 2;
-    float t = st[k] > 0.0f ? -logf(1.0f - nc_rng_float(rng)) / st[k] : INFINITY;
     float tr[3], pdf = 0.0f;
     if (t >= tmax) {
         for (int c = 0; c < 3; c++) {
@@ -436,13 +508,11 @@ static ff_event free_flight_homogeneous(const pt_object *o, float tmax, nc_rng *
     return FF_SCATTER;
 }
 
-/* Spectral tracking from org along dir over [0, tmax]: FF_SCATTER with *t_out, FF_PASS at tmax,
- * or FF_ABSORB. beta is updated by the per-channel weights. */
+/* Spectral tracking from org along dir over [0, tmax] in a heterogeneous medium: FF_SCATTER with
+ * *t_out, FF_PASS at tmax, or FF_ABSORB. beta is updated by the per-channel weights. */
 static ff_event free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax,
                             nc_rng *rng, nc_vec3 *beta, float *t_out)
 {
-    if (!o->heterogeneous)
-        return free_flight_homogeneous(o, tmax, rng, beta, t_out);
     maj_iter it;
     maj_init(&it, o, org, dir, tmax);
     float s0, s1, m;
@@ -543,7 +613,7 @@ static nc_vec3 shadow(const pt_scene *ps, nc_vec3 p, nc_vec3 wi, float dist, int
 {
     /* Without index-matched objects, a shadow ray from air is blocked by any hit: the cheaper
      * any-hit query answers it. */
-    if (medium < 0 && !ps->pt->any_matched)
+    if (medium < 0 && !ps->pt->any_matched && !ps->pt->any_noncaster)
         return occluded(ps, p, wi, dist) ? nc_v3(0, 0, 0) : nc_v3(1, 1, 1);
     nc_vec3 tr = nc_v3(1, 1, 1);
     nc_vec3 o = p;
@@ -559,11 +629,12 @@ static nc_vec3 shadow(const pt_scene *ps, nc_vec3 p, nc_vec3 wi, float dist, int
         if (!h.hit)
             return tr;
         const pt_object *ob = &ps->pt->objects[h.obj];
-        if (ob->kind != PT_MATCHED)
+        if (ob->kind != PT_MATCHED && ob->casts)
             return nc_v3(0, 0, 0);
         nc_vec3 hp, ng, ns;
         surface_at(ob, &h, &hp, &ng, &ns);
-        medium = nc_dot(wi, ng) < 0 ? (int)h.obj : -1;
+        if (ob->kind == PT_MATCHED)
+            medium = nc_dot(wi, ng) < 0 ? (int)h.obj : -1;
         nc_vec3 no = offset_origin(ps, hp, ng, wi);
         remaining -= nc_length(nc_sub(no, o));
         o = no;
@@ -709,9 +780,10 @@ static nc_vec3 bsdf_sample(const nacre_material_desc *m, nc_vec3 n, nc_vec3 wo, 
 /* ---- the path ------------------------------------------------------------------------ */
 
 /* NEE from p over every light and the environment. `surface`: opaque vertex with shading
- * normal n and outgoing wo (else a medium vertex with HG g, incoming direction d = -wo). */
+ * normal n and outgoing wo (else a medium vertex with HG g, incoming direction d = -wo). Run
+ * with probability q (see nee_probability): weighted by 1 / q, MIS with the density q pdf. */
 static nc_vec3 direct_light(const pt_scene *ps, nc_vec3 p, nc_vec3 ng, bool surface, const nacre_material_desc *m,
-                            nc_vec3 n, nc_vec3 wo, float g, int medium, nc_rng *rng)
+                            nc_vec3 n, nc_vec3 wo, float g, int medium, float q, nc_rng *rng)
 {
     const nc_pathtracer *pt = ps->pt;
     nc_vec3 sum = nc_v3(0, 0, 0);
@@ -755,7 +827,9 @@ static nc_vec3 direct_light(const pt_scene *ps, nc_vec3 p, nc_vec3 ng, bool surf
             continue;
         nc_vec3 c = nc_mul(nc_mul(f, tr), s.value);
         if (s.pdf > 0)
-            c = nc_scale(c, power_heuristic(s.pdf, fpdf) / s.pdf);
+            c = nc_scale(c, (pt->nee_only ? 1.0f : power_heuristic(q * s.pdf, fpdf)) / (q * s.pdf));
+        else
+            c = nc_scale(c, 1.0f / q);
         sum = nc_add(sum, c);
     }
     return sum;
@@ -763,17 +837,20 @@ static nc_vec3 direct_light(const pt_scene *ps, nc_vec3 p, nc_vec3 ng, bool surf
 
 /* Radiance of lights seen along an escaping ray (environment and sun disks), MIS-weighted
  * against NEE when the previous vertex was not specular. */
-static nc_vec3 escaped(const pt_scene *ps, nc_vec3 d, bool prev_delta, float prev_pdf, int guided_light,
-                       float guided_weight)
+static nc_vec3 escaped(const pt_scene *ps, nc_vec3 d, bool prev_delta, float prev_pdf, float prev_q,
+                       int guided_light, float guided_weight)
 {
     nc_vec3 L = nc_v3(0, 0, 0);
     if (ps->env_on)
-        L = nc_scale(ps->env, prev_delta ? 1.0f : power_heuristic(prev_pdf, 1.0f / (4.0f * PT_PI)));
+        L = nc_scale(ps->env, prev_delta ? 1.0f : ps->pt->nee_only ? 0.0f : power_heuristic(prev_pdf, prev_q / (4.0f * PT_PI)));
     for (uint32_t li = 0; li < ps->pt->light_count; li++) {
         const pt_light *l = &ps->pt->lights[li];
         if (l->type != NACRE_LIGHT_DIRECTIONAL || l->delta || nc_dot(d, l->to_light) < l->cos_max)
             continue;
-        float w = (int)li == guided_light ? guided_weight : prev_delta ? 1.0f : power_heuristic(prev_pdf, l->cone_pdf);
+        float w = (int)li == guided_light ? guided_weight
+                  : prev_delta          ? 1.0f
+                  : ps->pt->nee_only    ? 0.0f
+                                        : power_heuristic(prev_pdf, prev_q * l->cone_pdf);
         L = nc_add(L, nc_scale(l->value, w));
     }
     return L;
@@ -794,12 +871,19 @@ static nc_vec3 escaped(const pt_scene *ps, nc_vec3 d, bool prev_delta, float pre
  * axis gives an unbiased result; a good one makes it converge. Only the first non-delta
  * directional light is guided. */
 #define GUIDE_ITERATIONS 4
-#define GUIDE_CONE_SCALE 1.5f /* guide cone half-angle over the sun's */
+#define GUIDE_CONE_SCALE 1.05f /* guide cone half-angle over the sun's */
+/* A fraction of the guided samples goes to a wider cone, so that where the axis is off (the
+ * iteration stopped between two facets of a curved surface) phase-sampled paths into the sun
+ * still meet a guided density far above theirs, rather than scoring the sun's full radiance
+ * with MIS weight 1 (fireflies of ~4e4 seen on the demo's torus with the narrow cone alone). */
+#define GUIDE_WIDE_FRACTION 0.1f
+#define GUIDE_WIDE_ANGLE 0.05f /* radians, about 3 degrees */
 
 typedef struct guide {
     bool valid;
     nc_vec3 axis;
-    float cos_a, pdf;
+    float cos_a, pdf;     /* narrow cone: cos of its half-angle, its own uniform pdf */
+    float cos_w, pdf_w;   /* wide cone, the same */
 } guide;
 
 /* Facet of object `obj` where the ray p + t dir leaves it (outward normal), or false. */
@@ -813,42 +897,123 @@ static bool exit_facet(const pt_scene *ps, uint32_t obj, nc_vec3 p, nc_vec3 dir,
     return nc_dot(dir, *n) > 0;
 }
 
-static guide make_guide(const pt_scene *ps, uint32_t obj, const pt_light *l, nc_vec3 p)
+/* Whether the ray p + t dir (t > 0) crosses triangle `prim` of `o` (Moller and Trumbore 1997).
+ * Lets make_guide see that its refracted direction still leaves through the same facet without
+ * asking Embree: the guide axis need not be exact, only a function of p. */
+static bool crosses_triangle(const pt_object *o, uint32_t prim, nc_vec3 p, nc_vec3 dir)
 {
-    guide g = {false, {0, 0, 0}, 1, 0};
+    const uint32_t *tri = o->idx + 3 * (size_t)prim;
+    nc_vec3 a = nc_v3a(o->pos + 3 * (size_t)tri[0]), b = nc_v3a(o->pos + 3 * (size_t)tri[1]),
+            c = nc_v3a(o->pos + 3 * (size_t)tri[2]);
+    nc_vec3 e1 = nc_sub(b, a), e2 = nc_sub(c, a), pv = nc_cross(dir, e2);
+    float det = nc_dot(e1, pv);
+    if (fabsf(det) < 1e-20f)
+        return false;
+    float inv = 1.0f / det;
+    nc_vec3 tv = nc_sub(p, a);
+    float u = nc_dot(tv, pv) * inv;
+    if (u < 0.0f || u > 1.0f)
+        return false;
+    nc_vec3 qv = nc_cross(tv, e1);
+    float v = nc_dot(dir, qv) * inv;
+    if (v < 0.0f || u + v > 1.0f)
+        return false;
+    return nc_dot(e2, qv) * inv > 0.0f;
+}
+
+/* Outward geometric normal of triangle `prim` (counter-clockwise winding, as surface_at). */
+static nc_vec3 facet_normal(const pt_object *o, uint32_t prim)
+{
+    const uint32_t *tri = o->idx + 3 * (size_t)prim;
+    nc_vec3 a = nc_v3a(o->pos + 3 * (size_t)tri[0]), b = nc_v3a(o->pos + 3 * (size_t)tri[1]),
+            c = nc_v3a(o->pos + 3 * (size_t)tri[2]);
+    return nc_normalize(nc_cross(nc_sub(b, a), nc_sub(c, a)));
+}
+
+/* The guide at p. `seed` (UINT32_MAX: none) is a facet to try first, the last facet of the
+ * previous guide on the path: vertices a mean free path apart usually refract the sun through
+ * the same facet, and then no query is needed at all. The axis depends on (p, seed), both known
+ * at the vertex, so the MIS weights stay consistent (the lazy re-evaluation in trace_path passes
+ * the same seed). *last receives the facet the axis was refracted through. */
+static guide make_guide(const pt_scene *ps, uint32_t obj, const pt_light *l, nc_vec3 p, uint32_t seed, uint32_t *last)
+{
+    guide g = {false, {0, 0, 0}, 1, 0, 1, 0};
     const pt_object *ob = &ps->pt->objects[obj];
-    nc_vec3 dir = l->to_light, x, n;
+    nc_vec3 dir = l->to_light, x, n = {0, 0, 0};
     pt_hit h;
-    uint32_t prev_prim = UINT32_MAX;
+    uint32_t prim = UINT32_MAX;
+    float lv[3] = {-l->to_light.x, -l->to_light.y, -l->to_light.z}, tv[3];
+    *last = UINT32_MAX;
+    if (seed != UINT32_MAX) {
+        n = facet_normal(ob, seed);
+        float nv[3] = {n.x, n.y, n.z};
+        if (nc_dot(l->to_light, n) > 0 && nc_refract(lv, nv, ob->eta, tv)) {
+            dir = nc_normalize(nc_scale(nc_v3a(tv), -1.0f));
+            prim = seed;
+        }
+    }
     for (int it = 0; it < GUIDE_ITERATIONS; it++) {
+        /* Converged once the refracted direction leaves through the facet it was refracted by
+         * (checked without a query: nearly always so on flat or finely tessellated parts). */
+        if (prim != UINT32_MAX && crosses_triangle(ob, prim, p, dir))
+            break;
         if (!exit_facet(ps, obj, p, dir, &h, &x, &n))
             return g;
-        if (h.prim == prev_prim)
-            break;
-        prev_prim = h.prim;
+        prim = h.prim;
         /* Light travels along -to_light, enters through the facet (normal n, eta = ob->eta). */
-        float lv[3] = {-l->to_light.x, -l->to_light.y, -l->to_light.z}, nv[3] = {n.x, n.y, n.z}, tv[3];
+        float nv[3] = {n.x, n.y, n.z};
         if (nc_dot(l->to_light, n) <= 0 || !nc_refract(lv, nv, ob->eta, tv))
             return g;
         dir = nc_normalize(nc_scale(nc_v3a(tv), -1.0f));
     }
+    *last = prim;
     float a = fminf(GUIDE_CONE_SCALE * acosf(fminf(1.0f, l->cos_max)), 0.5f);
     g.valid = true;
     g.axis = dir;
     g.cos_a = cosf(a);
     float s = sinf(a);
     g.pdf = 1.0f / (2.0f * PT_PI * (s * s / (1.0f + g.cos_a)));
+    float aw = fmaxf(a, GUIDE_WIDE_ANGLE), sw = sinf(aw);
+    g.cos_w = cosf(aw);
+    g.pdf_w = 1.0f / (2.0f * PT_PI * (sw * sw / (1.0f + g.cos_w)));
     return g;
 }
 
-static float guide_pdf(const guide *g, nc_vec3 w) { return g->valid && nc_dot(w, g->axis) >= g->cos_a ? g->pdf : 0.0f; }
+/* Probability q of running the guided technique at a vertex p of homogeneous medium `o` that is
+ * at least `clear` from any surface: whatever it finds is attenuated by at least
+ * exp(-min_c sigma_t,c clear) on the way out, so deep vertices run it rarely (and weigh it by
+ * 1 / q when they do; the MIS weights use the expected density q pdf). A function of p only,
+ * as the MIS weight of the phase-sampled path needs it again. The floor GUIDE_Q_MIN keeps q pdf
+ * far above any phase pdf: otherwise a phase-sampled path flying out of a deep vertex straight
+ * into the sun (rare, but scoring the sun's full radiance, ~4e4) would get an MIS weight near 1
+ * and a firefly with it. */
+#define GUIDE_Q_SCALE 1.0f
+#define GUIDE_Q_MIN 0.05f
+static float guide_probability(const pt_object *o, float clear)
+{
+    if (o->heterogeneous || !(clear > 0.0f))
+        return 1.0f;
+    float st = fminf(o->sigma_a[0] + o->sigma_s[0], fminf(o->sigma_a[1] + o->sigma_s[1], o->sigma_a[2] + o->sigma_s[2]));
+    return fmaxf(GUIDE_Q_MIN, fminf(1.0f, GUIDE_Q_SCALE * expf(-st * clear)));
+}
 
-/* The guided estimate at medium vertex p (incoming direction d, HG g) for sun light l. */
-static nc_vec3 guided_sun(const pt_scene *ps, uint32_t obj, const pt_light *l, const guide *gd, nc_vec3 p, nc_vec3 d,
-                          nc_rng *rng)
+/* Density of the guided direction: the mixture of the narrow and the wide cone. */
+static float guide_pdf(const guide *g, nc_vec3 w)
+{
+    if (!g->valid)
+        return 0.0f;
+    float c = nc_dot(w, g->axis);
+    return (c >= g->cos_a ? (1.0f - GUIDE_WIDE_FRACTION) * g->pdf : 0.0f) + (c >= g->cos_w ? GUIDE_WIDE_FRACTION * g->pdf_w : 0.0f);
+}
+
+/* The guided estimate at medium vertex p (incoming direction d, HG g) for sun light l, run with
+ * probability q. */
+static nc_vec3 guided_sun(const pt_scene *ps, uint32_t obj, const pt_light *l, const guide *gd, float q, nc_vec3 p,
+                          nc_vec3 d, nc_rng *rng)
 {
     const pt_object *ob = &ps->pt->objects[obj];
-    nc_vec3 w = around(gd->axis, 1.0f - nc_rng_float(rng) * (1.0f - gd->cos_a), nc_rng_float(rng));
+    float cos_c = nc_rng_float(rng) < GUIDE_WIDE_FRACTION ? gd->cos_w : gd->cos_a;
+    nc_vec3 w = around(gd->axis, 1.0f - nc_rng_float(rng) * (1.0f - cos_c), nc_rng_float(rng));
     pt_hit h;
     nc_vec3 x, n;
     if (!exit_facet(ps, obj, p, w, &h, &x, &n))
@@ -866,7 +1031,9 @@ static nc_vec3 guided_sun(const pt_scene *ps, uint32_t obj, const pt_light *l, c
         return nc_v3(0, 0, 0);
     nc_vec3 vis = shadow(ps, offset_origin(ps, x, n, out), out, INFINITY, -1, rng);
     float F = (float)nc_fresnel_dielectric(cos_i, 1.0f / ob->eta);
-    float k = phase * (1.0f - F) * ob->eta * ob->eta * power_heuristic(gd->pdf, phase) / gd->pdf;
+    float qp = q * guide_pdf(gd, w);
+    /* nee_only: the guided technique alone covers its cone (see trace_path). */
+    float k = phase * (1.0f - F) * ob->eta * ob->eta * (ps->pt->nee_only ? 1.0f : power_heuristic(qp, phase)) / qp;
     return nc_scale(nc_mul(nc_mul(tr, vis), l->value), k);
 }
 
@@ -878,6 +1045,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
     int medium = -1;
     bool prev_delta = true;
     float prev_pdf = 0;
+    float prev_q = 1.0f; /* probability that NEE ran at the previous vertex */
     nc_vec3 prev_p = o;
     uint32_t scatters = 0;
     /* Guided sun sampling (see guided_sun): the light, and the state of the phase-sampled
@@ -887,26 +1055,67 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
         if (pt->lights[li].type == NACRE_LIGHT_DIRECTIONAL && !pt->lights[li].delta)
             sun = (int)li;
     int direct = 0;
-    float direct_weight = 1.0f;
+    guide guide_cached = {false, {0, 0, 0}, 1, 0, 1, 0};
+    bool guide_known = false;
+    nc_vec3 guide_vertex = o, guide_dir = d;
+    uint32_t guide_obj = 0;
+    float guide_q = 1.0f;
+    uint32_t seed = UINT32_MAX, guide_seed = UINT32_MAX; /* see make_guide */
+    int seed_obj = -1;
+    float clear_here = -1.0f; /* clearance of o when o is a scattering vertex that looked it up */
     for (int vertex = 0, crossings = 0; vertex < MAX_VERTICES && crossings < 4 * MAX_VERTICES;) {
-        pt_hit h = intersect(ps, o, d, INFINITY);
-        float t_end = h.hit ? h.t : INFINITY;
-        int light_hit = -1;
-        for (uint32_t li = 0; li < pt->light_count; li++) {
-            const pt_light *l = &pt->lights[li];
-            if (l->type == NACRE_LIGHT_DIRECTIONAL || l->delta)
-                continue;
-            float tl = sphere_hit(l, o, d);
-            if (tl < t_end) {
-                t_end = tl;
-                light_hit = (int)li;
+        /* In a medium the flight is sampled first: when it ends short of the clearance bound no
+         * surface can intervene and the boundary query is skipped. Heterogeneous media track up
+         * to the bound, then (memoryless) on from there. */
+        const pt_object *mo = medium >= 0 ? &pt->objects[medium] : NULL;
+        ff_event ev = FF_PASS;
+        float ts = 0, t_hom = 0;
+        bool query = true;
+        if (mo) {
+            /* A scattering vertex looked its clearance up already (for the guide). */
+            float clear = clear_here >= 0.0f ? clear_here : clearance(mo, o);
+            if (!mo->heterogeneous) {
+                if (!flight_sample_homogeneous(mo, beta, rng, &t_hom))
+                    break;
+                if (t_hom < clear) {
+                    ev = flight_resolve_homogeneous(mo, t_hom, INFINITY, &beta, &ts);
+                    query = false;
+                }
+            } else if (clear > 0) {
+                ev = free_flight(ps, mo, o, d, clear, rng, &beta, &ts);
+                if (ev == FF_PASS)
+                    o = ray_at(o, d, clear);
+                else
+                    query = false;
             }
         }
-        if (medium >= 0) {
-            float ts = 0;
-            ff_event ev = free_flight(ps, &pt->objects[medium], o, d, isfinite(t_end) ? t_end : 1e30f, rng, &beta, &ts);
-            if (ev == FF_ABSORB)
-                break;
+        clear_here = -1.0f;
+        pt_hit h;
+        memset(&h, 0, sizeof(h));
+        float t_end = INFINITY;
+        int light_hit = -1;
+        if (query) {
+            h = intersect(ps, o, d, INFINITY);
+            t_end = h.hit ? h.t : INFINITY;
+            for (uint32_t li = 0; li < pt->light_count; li++) {
+                const pt_light *l = &pt->lights[li];
+                if (l->type == NACRE_LIGHT_DIRECTIONAL || l->delta)
+                    continue;
+                float tl = sphere_hit(l, o, d);
+                if (tl < t_end) {
+                    t_end = tl;
+                    light_hit = (int)li;
+                }
+            }
+            if (mo) {
+                float tmax = isfinite(t_end) ? t_end : 1e30f;
+                ev = mo->heterogeneous ? free_flight(ps, mo, o, d, tmax, rng, &beta, &ts)
+                                       : flight_resolve_homogeneous(mo, t_hom, tmax, &beta, &ts);
+            }
+        }
+        if (ev == FF_ABSORB)
+            break;
+        if (mo) {
             if (ev == FF_SCATTER) {
                 nc_vec3 p = ray_at(o, d, ts);
                 if (ps->max_scatter && ++scatters > ps->max_scatter)
@@ -915,24 +1124,52 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
                 nc_vec3 wo = nc_scale(d, -1.0f);
                 /* Inside a closed dielectric every shadow ray ends on its boundary: no NEE, but the
                  * sun can be sampled through the boundary. */
-                guide gd = {false, {0, 0, 0}, 1, 0};
+                guide gd = {false, {0, 0, 0}, 1, 0, 1, 0};
+                float clear_p = -1.0f;
+                bool guiding = false;
+                float q = 1.0f;
                 if (ob->kind == PT_MATCHED) {
-                    L = nc_add(L, nc_mul(beta, direct_light(ps, p, wo, false, NULL, wo, wo, ob->g, medium, rng)));
+                    /* NEE attenuated by at least the clearance: run it less often deep inside, as
+                     * the guided technique (guide_probability has the same argument). */
+                    clear_p = fmaxf(0.0f, clearance(ob, p));
+                    q = guide_probability(ob, clear_p);
+                    if (q >= 1.0f || nc_rng_float(rng) < q)
+                        L = nc_add(L, nc_mul(beta, direct_light(ps, p, wo, false, NULL, wo, wo, ob->g, medium, q, rng)));
                 } else if (sun >= 0 && !pt->opt.no_sun_guiding) {
-                    gd = make_guide(ps, (uint32_t)medium, &pt->lights[sun], p);
-                    if (gd.valid)
-                        L = nc_add(L, nc_mul(beta, guided_sun(ps, (uint32_t)medium, &pt->lights[sun], &gd, p, d, rng)));
+                    guiding = true;
+                    clear_p = fmaxf(0.0f, clearance(ob, p));
+                    q = guide_probability(ob, clear_p);
+                    seed = seed_obj == medium ? seed : UINT32_MAX;
+                    guide_seed = seed;
+                    if (q >= 1.0f || nc_rng_float(rng) < q) {
+                        gd = make_guide(ps, (uint32_t)medium, &pt->lights[sun], p, seed, &seed);
+                        seed_obj = medium;
+                        if (gd.valid)
+                            L = nc_add(L, nc_mul(beta, guided_sun(ps, (uint32_t)medium, &pt->lights[sun], &gd, q, p, d, rng)));
+                        guide_known = true;
+                    } else {
+                        guide_known = false;
+                    }
                 }
                 float c = (float)nc_hg_sample_cos(ob->g, nc_rng_float(rng));
                 nc_vec3 wi = around(d, c, nc_rng_float(rng));
                 prev_pdf = (float)nc_hg_phase(c, ob->g);
-                float gp = guide_pdf(&gd, wi);
-                direct = gp > 0 ? 1 : 0;
-                direct_weight = gp > 0 ? power_heuristic(prev_pdf, gp) : 1.0f;
+                prev_q = ob->kind == PT_MATCHED ? q : 1.0f;
+                /* The MIS weight against the guided technique is needed only if this direction
+                 * refracts straight out into the sun (rare): the guide is then made if it was not. */
+                direct = guiding ? 1 : 0;
+                if (guiding) {
+                    guide_vertex = p;
+                    guide_dir = wi;
+                    guide_obj = (uint32_t)medium;
+                    guide_q = q;
+                    guide_cached = gd;
+                }
                 prev_delta = false;
                 prev_p = p;
                 o = p;
                 d = wi;
+                clear_here = clear_p;
                 vertex++;
                 goto roulette;
             }
@@ -944,14 +1181,25 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
             float w = 1.0f, cos_max;
             if (!prev_delta) {
                 float lp = sphere_pdf(l, prev_p, &cos_max);
-                w = power_heuristic(prev_pdf, lp);
+                w = pt->nee_only ? 0.0f : power_heuristic(prev_pdf, prev_q * lp);
             }
             L = nc_add(L, nc_mul(beta, nc_scale(l->value, fall * w)));
             break;
         }
         if (!h.hit) {
-            if (medium < 0)
-                L = nc_add(L, nc_mul(beta, escaped(ps, d, prev_delta, prev_pdf, direct == 2 ? sun : -1, direct_weight)));
+            if (medium < 0) {
+                float gw = 1.0f;
+                int gl = -1;
+                if (direct == 2 && nc_dot(d, pt->lights[sun].to_light) >= pt->lights[sun].cos_max) {
+                    uint32_t unused;
+                    if (!guide_known)
+                        guide_cached = make_guide(ps, guide_obj, &pt->lights[sun], guide_vertex, guide_seed, &unused);
+                    float gp = guide_pdf(&guide_cached, guide_dir);
+                    gw = !(gp > 0) ? 1.0f : pt->nee_only ? 0.0f : power_heuristic(prev_pdf, guide_q * gp);
+                    gl = sun;
+                }
+                L = nc_add(L, nc_mul(beta, escaped(ps, d, prev_delta, prev_pdf, prev_q, gl, gw)));
+            }
             break;
         }
         {
@@ -996,7 +1244,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
             if (nc_dot(ns, ng) < 0)
                 ns = nc_scale(ns, -1.0f);
             const nacre_material_desc *m = ob->mat;
-            L = nc_add(L, nc_mul(beta, direct_light(ps, p, ng, true, m, ns, wo, 0, medium, rng)));
+            L = nc_add(L, nc_mul(beta, direct_light(ps, p, ng, true, m, ns, wo, 0, medium, 1.0f, rng)));
             nc_vec3 wi = bsdf_sample(m, ns, wo, rng);
             float pdf;
             nc_vec3 f = bsdf_eval(m, ns, wo, wi, &pdf);
@@ -1004,6 +1252,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
                 break;
             beta = nc_mul(beta, nc_scale(f, nc_dot(ns, wi) / pdf));
             prev_pdf = pdf;
+            prev_q = 1.0f;
             prev_delta = false;
             prev_p = p;
             o = offset_origin(ps, p, ng, wi);
@@ -1012,7 +1261,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
         }
     roulette:
         if (vertex >= RR_START) {
-            float q = fminf(0.95f, fmaxf(fabsf(beta.x), fmaxf(fabsf(beta.y), fabsf(beta.z))) * eta_scale);
+            float q = fminf(1.0f, fmaxf(fabsf(beta.x), fmaxf(fabsf(beta.y), fabsf(beta.z))) * eta_scale);
             if (!(q > 0) || nc_rng_float(rng) >= q)
                 break;
             beta = nc_scale(beta, 1.0f / q);
@@ -1108,6 +1357,7 @@ static void release_scene(nc_pathtracer *pt)
     for (uint32_t i = 0; i < pt->object_count; i++) {
         nc_free(ctx, pt->objects[i].grid);
         nc_free(ctx, pt->objects[i].rest);
+        nc_free(ctx, pt->objects[i].dist);
     }
     nc_free(ctx, pt->objects);
     nc_free(ctx, pt->lights);
@@ -1207,6 +1457,124 @@ static nacre_result build_grid(nc_pathtracer *pt, const pt_scene *ps, pt_object 
     return NACRE_OK;
 }
 
+/* Mark cells overlapped by the box [lo, hi] (world) as surface cells. */
+static void mark_box(pt_object *o, const float lo[3], const float hi[3])
+{
+    uint32_t i0[3], i1[3];
+    for (int a = 0; a < 3; a++) {
+        float f0 = floorf((lo[a] - o->dmargin - o->dorigin[a]) / o->dcell);
+        float f1 = floorf((hi[a] + o->dmargin - o->dorigin[a]) / o->dcell);
+        float top = (float)(o->ddims[a] - 1);
+        if (!(f1 >= 0.0f) || !(f0 <= top))
+            return; /* outside (or NaN): the grid's border already bounds it */
+        i0[a] = f0 < 0.0f ? 0u : (uint32_t)f0;
+        i1[a] = f1 > top ? o->ddims[a] - 1 : (uint32_t)f1;
+    }
+    for (uint32_t z = i0[2]; z <= i1[2]; z++)
+        for (uint32_t y = i0[1]; y <= i1[1]; y++)
+            memset(o->dist + i0[0] + (size_t)o->ddims[0] * (y + (size_t)o->ddims[1] * z), 0, i1[0] - i0[0] + 1);
+}
+
+/* One raster pass of the chessboard distance transform: each cell takes the minimum over its
+ * 13 neighbours already visited in scan order (dir = +1 forward, -1 backward) plus one. Two
+ * passes give the exact chessboard distance (Rosenfeld and Pfaltz 1966). */
+static void chamfer_pass(uint8_t *d, const uint32_t dims[3], int dir)
+{
+    int64_t nx = dims[0], ny = dims[1], nz = dims[2];
+    for (int64_t zz = 0; zz < nz; zz++)
+        for (int64_t yy = 0; yy < ny; yy++)
+            for (int64_t xx = 0; xx < nx; xx++) {
+                int64_t x = dir > 0 ? xx : nx - 1 - xx, y = dir > 0 ? yy : ny - 1 - yy, z = dir > 0 ? zz : nz - 1 - zz;
+                uint8_t *c = d + x + nx * (y + ny * z);
+                int best = *c;
+                if (best == 0)
+                    continue;
+                for (int dz = -1; dz <= 0; dz++)
+                    for (int dy = -1; dy <= 1; dy++)
+                        for (int dx = -1; dx <= 1; dx++) {
+                            if (dz == 0 && (dy > 0 || (dy == 0 && dx >= 0)))
+                                continue; /* not yet visited in this scan order */
+                            int64_t qx = x + dir * dx, qy = y + dir * dy, qz = z + dir * dz;
+                            if (qx < 0 || qy < 0 || qz < 0 || qx >= nx || qy >= ny || qz >= nz)
+                                continue;
+                            int v = d[qx + nx * (qy + ny * qz)] + 1;
+                            best = v < best ? v : best;
+                        }
+                *c = (uint8_t)best;
+            }
+}
+
+/* Clearance grid of medium object `o` (see clearance()): cubic cells over its bounds plus one
+ * cell of border; cells touched by the bounding box of any triangle of any object, or of any
+ * sphere light, are surface cells; cells are also at most their chessboard distance from the
+ * outside of the grid, which stands for everything beyond it. The margin absorbs rounding in
+ * cell lookups and Embree's hits reported a little before the surface. */
+static nacre_result build_clearance(nc_pathtracer *pt, const pt_scene *ps, pt_object *o, const nc_object_rec *rec)
+{
+    if (pt->opt.no_clearance)
+        return NACRE_OK;
+    float ext = 0;
+    for (int a = 0; a < 3; a++)
+        ext = fmaxf(ext, rec->bounds_max[a] - rec->bounds_min[a]);
+    if (!(ext > 0) || !isfinite(ext))
+        return NACRE_OK;
+    /* Cells of about half a mean free path of the densest channel make most flights provably
+     * short; at most CLEARANCE_RES cells along the longest axis bound memory and build time. */
+    float st = o->heterogeneous ? o->maj_global
+                                : fminf(o->sigma_a[0] + o->sigma_s[0],
+                                        fminf(o->sigma_a[1] + o->sigma_s[1], o->sigma_a[2] + o->sigma_s[2]));
+    o->dcell = ext / (float)CLEARANCE_RES;
+    if (st > 0.0f && 0.5f / st > o->dcell)
+        o->dcell = fminf(0.5f / st, ext / (float)CLEARANCE_MIN_RES);
+    o->dinv = 1.0f / o->dcell;
+    o->dmargin = 0.01f * o->dcell + 4.0f * ps->eps;
+    size_t n = 1;
+    for (int a = 0; a < 3; a++) {
+        o->dorigin[a] = rec->bounds_min[a] - o->dcell;
+        float cells = ceilf((rec->bounds_max[a] - rec->bounds_min[a]) / o->dcell) + 2.0f;
+        o->ddims[a] = cells < 1.0f ? 1u : cells > (float)(CLEARANCE_RES + 4) ? CLEARANCE_RES + 4 : (uint32_t)cells;
+        n *= o->ddims[a];
+    }
+    o->dist = nc_alloc(pt->ctx, n);
+    if (!o->dist)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    for (uint32_t z = 0; z < o->ddims[2]; z++)
+        for (uint32_t y = 0; y < o->ddims[1]; y++)
+            for (uint32_t x = 0; x < o->ddims[0]; x++) {
+                uint32_t c[3] = {x, y, z}, k = 255;
+                for (int a = 0; a < 3; a++) {
+                    uint32_t e = c[a] + 1 < o->ddims[a] - c[a] ? c[a] + 1 : o->ddims[a] - c[a];
+                    k = e < k ? e : k;
+                }
+                o->dist[x + (size_t)o->ddims[0] * (y + (size_t)o->ddims[1] * z)] = (uint8_t)k;
+            }
+    for (uint32_t j = 0; j < pt->object_count; j++) {
+        const pt_object *q = &pt->objects[j];
+        for (uint32_t t = 0; t < q->tri_count; t++) {
+            const uint32_t *tri = q->idx + 3 * (size_t)t;
+            float lo[3], hi[3];
+            for (int a = 0; a < 3; a++) {
+                float v0 = q->pos[3 * (size_t)tri[0] + (size_t)a], v1 = q->pos[3 * (size_t)tri[1] + (size_t)a],
+                      v2 = q->pos[3 * (size_t)tri[2] + (size_t)a];
+                lo[a] = fminf(v0, fminf(v1, v2));
+                hi[a] = fmaxf(v0, fmaxf(v1, v2));
+            }
+            mark_box(o, lo, hi);
+        }
+    }
+    for (uint32_t li = 0; li < pt->light_count; li++) {
+        const pt_light *l = &pt->lights[li];
+        if (l->type == NACRE_LIGHT_DIRECTIONAL || l->delta)
+            continue;
+        float lo[3] = {l->pos.x - l->radius, l->pos.y - l->radius, l->pos.z - l->radius};
+        float hi[3] = {l->pos.x + l->radius, l->pos.y + l->radius, l->pos.z + l->radius};
+        mark_box(o, lo, hi);
+    }
+    chamfer_pass(o->dist, o->ddims, 1);
+    chamfer_pass(o->dist, o->ddims, -1);
+    return NACRE_OK;
+}
+
 static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scene *ps)
 {
     nacre_context *ctx = pt->ctx;
@@ -1217,6 +1585,8 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
         return NACRE_ERROR_OUT_OF_MEMORY;
     pt->object_count = s->object_count;
     pt->any_matched = false;
+    pt->any_noncaster = false;
+    pt->nee_only = false;
     pt->rtc = rtcNewScene(pt->device);
     rtcSetSceneFlags(pt->rtc, RTC_SCENE_FLAG_ROBUST);
     rtcSetSceneBuildQuality(pt->rtc, RTC_BUILD_QUALITY_HIGH);
@@ -1230,12 +1600,16 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
         o->pos = rec->world_positions;
         o->nrm = rec->world_normals;
         o->idx = md->indices;
+        o->tri_count = md->triangle_count;
         o->g = m->g;
         o->eta = m->eta;
         if (m->type == NACRE_MATERIAL_OPAQUE) {
             o->kind = PT_OPAQUE;
+            o->casts = rec->desc.cast_shadows;
+            pt->any_noncaster |= !o->casts;
         } else {
             o->kind = m->eta == 1.0f ? PT_MATCHED : PT_DIELECTRIC;
+            o->casts = true;
             pt->any_matched |= o->kind == PT_MATCHED;
             o->heterogeneous = nc_medium_heterogeneous(m) || pt->opt.force_heterogeneous;
             float mx[3];
@@ -1303,6 +1677,15 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
             l->value = l->delta ? strength : nc_scale(strength, 1.0f / (PT_PI * ld->radius * ld->radius));
         }
         pt->light_count++;
+    }
+    pt->nee_only = pt->any_noncaster;
+    /* After every object and light is known: the grids record all of them. */
+    for (uint32_t i = 0; i < pt->object_count; i++) {
+        if (pt->objects[i].kind == PT_OPAQUE)
+            continue;
+        nacre_result res = build_clearance(pt, ps, &pt->objects[i], &s->objects[i]);
+        if (res != NACRE_OK)
+            return res;
     }
     return NACRE_OK;
 }

@@ -4,6 +4,9 @@
  * heterogeneous; inside a smooth dielectric of eta 1.5, where a wrong eta^2 factor shows), the
  * majorant grid against one global majorant, convergence as 1/sqrt(spp), determinism across
  * thread counts, a lit Lambert plane against its closed form, and clean errors for bad settings.
+ * Speed-ups checked against their absence: clearance grids (same image bit for bit where they
+ * only skip queries; same within noise where they also thin out guided sun samples), and
+ * cast_shadows = false on an opaque occluder against the closed form of the unshadowed plane.
  * Procedural shapes only; small images so every case stays within seconds under ASan.
  */
 #include "test_util.h"
@@ -301,6 +304,86 @@ int main(void)
         nacre_scene_destroy(s);
     }
 
+    /* Clearance grids skip boundary queries for flights that provably end inside the medium:
+     * with nothing else depending on them (a dielectric without sun guiding) the image is the
+     * same bit for bit, which also shows the bound is never wrong (a missed boundary would change
+     * the path). Deep vertices also run NEE (index matched) or the guided sun technique
+     * (dielectric) with probability q < 1: the same image within noise. Dense media, so most
+     * flights are short. */
+    {
+        nc_pathtrace_options off = def;
+        off.no_clearance = true;
+        const float etas[2] = {1.0f, 1.3f};
+        for (int k = 0; k < 2; k++) {
+            md = medium(0.05f, 20.0f, 0.3f, etas[k]);
+            md.sigma_s[2] = 8.0f;
+            nacre_scene *s = sphere_scene(ctx, &md, 0.2f);
+            nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
+            ld.direction[0] = -0.3f, ld.direction[1] = -0.6f, ld.direction[2] = -0.74f;
+            ld.strength[0] = ld.strength[1] = ld.strength[2] = 2.0f;
+            nacre_light l;
+            CHECK(nacre_scene_add_light(s, &ld, &l) == NACRE_OK);
+            CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
+            nacre_render_settings rs = pt_settings(12, 4);
+            nacre_image a, b;
+            if (k == 1) {
+                nc_pathtrace_options on = def, off2 = off;
+                on.no_sun_guiding = off2.no_sun_guiding = true;
+                a = render_with(ctx, s, &rs, &on, NULL);
+                b = render_with(ctx, s, &rs, &off2, NULL);
+                CHECK(memcmp(a.pixels, b.pixels, sizeof(float) * 12 * 12 * 3) == 0);
+                nacre_image_free(ctx, &a);
+                nacre_image_free(ctx, &b);
+            }
+            {
+                /* Clearance on and off, independent seeds. */
+                rs = pt_settings(12, 24);
+                nacre_image va = {0}, vb = {0};
+                a = render_with(ctx, s, &rs, &def, &va);
+                rs.seed = 4321;
+                b = render_with(ctx, s, &rs, &off, &vb);
+                double ma[3], sa[3], mb[3], sb[3];
+                disk_mean(&a, &va, 0.8f, ma, sa);
+                disk_mean(&b, &vb, 0.8f, mb, sb);
+                printf("  clearance (eta %.1f) on %.4f %.4f %.4f  off %.4f %.4f %.4f (stderr %.4f)\n", etas[k], ma[0],
+                       ma[1], ma[2], mb[0], mb[1], mb[2], sa[0]);
+                for (int c = 0; c < 3; c++)
+                    CHECK_NEAR(ma[c], mb[c], 4 * sqrt(sa[c] * sa[c] + sb[c] * sb[c]) + 1e-3);
+                nacre_image_free(ctx, &a);
+                nacre_image_free(ctx, &b);
+                nacre_image_free(ctx, &va);
+                nacre_image_free(ctx, &vb);
+            }
+            nacre_scene_destroy(s);
+        }
+        /* Heterogeneous media track up to the bound, then on from it: same within noise. */
+        nc_pathtrace_options het = def;
+        het.eval = checker_absorb_eval;
+        het.max_sigma_t = checker_max;
+        het.force_heterogeneous = true;
+        nc_pathtrace_options het_off = het;
+        het_off.no_clearance = true;
+        md = medium(0.0f, 1.0f, 0.0f, 1.0f);
+        nacre_scene *s = sphere_scene(ctx, &md, 0.5f);
+        nacre_render_settings rs = pt_settings(12, 24);
+        nacre_image va = {0}, vb = {0};
+        nacre_image a = render_with(ctx, s, &rs, &het, &va);
+        rs.seed = 555;
+        nacre_image b = render_with(ctx, s, &rs, &het_off, &vb);
+        double ma[3], sa[3], mb[3], sb[3];
+        disk_mean(&a, &va, 0.8f, ma, sa);
+        disk_mean(&b, &vb, 0.8f, mb, sb);
+        printf("  heterogeneous clearance on %.4f %.4f %.4f  off %.4f %.4f %.4f (stderr %.4f)\n", ma[0], ma[1], ma[2],
+               mb[0], mb[1], mb[2], sa[0]);
+        for (int c = 0; c < 3; c++)
+            CHECK_NEAR(ma[c], mb[c], 4 * sqrt(sa[c] * sa[c] + sb[c] * sb[c]) + 1e-3);
+        nacre_image_free(ctx, &a);
+        nacre_image_free(ctx, &b);
+        nacre_image_free(ctx, &va);
+        nacre_image_free(ctx, &vb);
+        nacre_scene_destroy(s);
+    }
+
     /* A Lambert plane under a delta sun and a black sky: L = kd E cos / pi exactly. */
     {
         nacre_scene *s = NULL;
@@ -391,6 +474,60 @@ int main(void)
         CHECK_NEAR(img.pixels[mid], centre, 0.01 * centre);
         nacre_image_free(ctx, &pimg);
         nacre_image_free(ctx, &img);
+        /* An opaque sphere between the centre and the sun (out of view) shadows the centre;
+         * with cast_shadows = false the centre is lit as if it were not there: exactly for a
+         * delta sun, and within noise for a 2-degree sun (direct light by NEE alone then). */
+        {
+            nacre_shape_desc bd = nacre_shape_desc_defaults(NACRE_SHAPE_SPHERE);
+            nacre_mesh_data bdata = {0};
+            CHECK(nacre_mesh_make_shape(ctx, &bd, &bdata) == NACRE_OK);
+            nacre_mesh bmesh;
+            CHECK(nacre_scene_add_mesh(s, &bdata, &bmesh) == NACRE_OK);
+            nacre_mesh_data_free(ctx, &bdata);
+            /* Black, so that it adds no indirect light to the centre either. */
+            nacre_material_desc black_m = nacre_material_desc_defaults(NACRE_MATERIAL_OPAQUE);
+            for (int c = 0; c < 3; c++)
+                black_m.diffuse[c] = black_m.specular[c] = 0;
+            nacre_material bmat;
+            CHECK(nacre_scene_add_material(s, &black_m, &bmat) == NACRE_OK);
+            nacre_object_desc bo = nacre_object_desc_defaults();
+            bo.mesh = bmesh;
+            bo.material = bmat;
+            bo.transform.translate[0] = -1.2f, bo.transform.translate[1] = 1.6f;
+            bo.transform.scale[0] = bo.transform.scale[1] = bo.transform.scale[2] = 0.3f;
+            nacre_object blocker;
+            ld = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
+            ld.direction[0] = 0.6f, ld.direction[1] = -0.8f, ld.direction[2] = 0;
+            ld.strength[0] = ld.strength[1] = ld.strength[2] = 3.0f;
+            ld.angular_radius = 0;
+            CHECK(nacre_scene_set_light(s, l, &ld) == NACRE_OK);
+            rs = pt_settings(8, 2);
+            CHECK(nacre_scene_add_object(s, &bo, &blocker) == NACRE_OK);
+            CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
+            const size_t cpix = 3 * (4 * 8 + 4);
+            double lit = 0.8 * 3.0 * 0.8 / 3.14159265358979;
+            img = render_with(ctx, s, &rs, &def, NULL);
+            CHECK(img.pixels[cpix] == 0.0f);
+            nacre_image_free(ctx, &img);
+            bo.cast_shadows = false;
+            CHECK(nacre_scene_set_object(s, blocker, &bo) == NACRE_OK);
+            CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
+            img = render_with(ctx, s, &rs, &def, NULL);
+            printf("  cast_shadows=false: %.5f expect %.5f\n", img.pixels[cpix], lit);
+            CHECK_NEAR(img.pixels[cpix], lit, 1e-3 * lit);
+            nacre_image_free(ctx, &img);
+            ld.angular_radius = 2.0f;
+            CHECK(nacre_scene_set_light(s, l, &ld) == NACRE_OK);
+            CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
+            nacre_render_settings rs2 = pt_settings(8, 64);
+            nacre_image vimg = {0};
+            img = render_with(ctx, s, &rs2, &def, &vimg);
+            double se = sqrt(vimg.pixels[cpix]);
+            printf("  cast_shadows=false, 2-degree sun: %.5f (stderr %.5f) expect %.5f\n", img.pixels[cpix], se, lit);
+            CHECK_NEAR(img.pixels[cpix], lit, 4 * se + 5e-3 * lit);
+            nacre_image_free(ctx, &img);
+            nacre_image_free(ctx, &vimg);
+        }
         nacre_scene_destroy(s);
     }
 
