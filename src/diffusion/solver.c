@@ -241,6 +241,16 @@ static void finish_level(level *l, int threads)
  * staircase_faces). The normal is the gradient of the occupancy over the 3x3x3 neighbourhood
  * (1-2-1 weights across the axis), so a planar staircase gets the plane's normal. A face nearly
  * parallel to the estimate keeps a floor of 0.2 so thin features still let light out. */
+static int exposed_faces(const level *l, size_t i, const int open_axes[3])
+{
+    const size_t st[3] = {1, l->sy, l->sz};
+    int open = 0;
+    for (int a = 0; a < 3; a++)
+        if (open_axes[a])
+            open += !l->solid[i - st[a]] + !l->solid[i + st[a]];
+    return open;
+}
+
 static float boundary_weight(const level *l, size_t i, const int open_axes[3], bool staircase)
 {
     const size_t st[3] = {1, l->sy, l->sz};
@@ -355,15 +365,46 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
                 if (in && open_axes[a])
                     open += !l->solid[i - st[a]] + !l->solid[i + st[a]];
             }
-            if (!in) {
+            l->bw[i] = in && open ? boundary_weight(l, i, open_axes, m->staircase_faces) : 0.0f;
+        }
+    if (!m->staircase_faces) {
+        /* The normal estimate is noisy from cell to cell, and so would be the escape through
+         * neighbouring faces (blotches in the image): each cell takes the mean share of true
+         * area per exposed face over its 3x3x3 neighbourhood, times its own exposed faces. */
+        float *smooth = (float *)s->pr; /* scratch: the PCG vectors are free during setup */
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+        for (size_t z = 1; z <= (size_t)nz; z++)
+            for (size_t i = z * sz; i < (z + 1) * sz; i++) {
+                smooth[i] = l->bw[i];
+                if (l->bw[i] == 0.0f)
+                    continue;
+                float wsum = 0.0f, osum = 0.0f;
+                for (int dz = -1; dz <= 1; dz++)
+                    for (int dy = -1; dy <= 1; dy++)
+                        for (int dx = -1; dx <= 1; dx++) {
+                            size_t j = (size_t)((ptrdiff_t)i + dx + (ptrdiff_t)dy * (ptrdiff_t)sy + (ptrdiff_t)dz * (ptrdiff_t)sz);
+                            if (j >= l->cells || l->bw[j] == 0.0f)
+                                continue;
+                            wsum += l->bw[j];
+                            osum += (float)exposed_faces(l, j, open_axes);
+                        }
+                smooth[i] = osum > 0 ? (float)exposed_faces(l, i, open_axes) * wsum / osum : l->bw[i];
+            }
+        for (size_t z = 1; z <= (size_t)nz; z++)
+            memcpy(l->bw + z * sz, smooth + z * sz, sz * sizeof(float));
+        memset(smooth, 0, l->cells * sizeof(v4));
+    }
+    /* Pass 3: Robin terms and diagonal. */
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (size_t z = 0; z < (size_t)nz + 2; z++)
+        for (size_t i = z * sz; i < (z + 1) * sz; i++) {
+            if (!l->solid[i]) {
                 l->diag[i] = V4_ZERO;
-                l->bw[i] = 0.0f;
                 continue;
             }
-            float w = open ? boundary_weight(l, i, open_axes, m->staircase_faces) : 0.0f;
-            l->bw[i] = w;
+            float w = l->bw[i];
             v4 dv = d[i], bv = V4_ZERO;
-            if (open)
+            if (w > 0)
                 for (int c = 0; c < 3; c++)
                     bv[c] = w * h * h * 2.0f * dv[c] / (h + 4.0f * A * dv[c]);
             s->bnd[i] = bv;
