@@ -63,7 +63,8 @@ typedef struct level {
 
 struct nc_diff_solver {
     nacre_context *ctx;
-    uint32_t dims[3];
+    uint32_t dims[3];   /* the caller's grid */
+    uint32_t off[3];    /* the solver works on the solid cells' bounding box, from here */
     float h;
     uint32_t level_count;
     level lv[MAX_LEVELS];
@@ -296,9 +297,13 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
     level *l = &s->lv[0];
     const float h = m->h;
     const float A = (float)nc_diff_robin_a(m->eta);
-    const uint32_t nx = m->dims[0], ny = m->dims[1], nz = m->dims[2];
+    const uint32_t nx = m->dims[0], ny = m->dims[1], nz = l->n[2];
+    const uint32_t cx = l->n[0], cy = l->n[1], *off = s->off;
     const size_t sy = l->sy, sz = l->sz;
     v4 *d = s->pz; /* scratch until the first solve */
+    const size_t user_cells = (size_t)m->dims[0] * m->dims[1] * m->dims[2];
+    for (int c = 0; c < 3; c++)
+        memset(s->d_user[c], 0, user_cells * sizeof(float));
     bool homogeneous = true;
     for (int c = 0; c < 3; c++)
         homogeneous &= !m->sigma_a[c] && !m->sigma_sp[c];
@@ -315,17 +320,14 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
     /* Pass 1: domain, D and absorption per cell. */
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
     for (uint32_t z = 0; z < nz; z++)
-        for (uint32_t y = 0; y < ny; y++) {
-            size_t u0 = (size_t)nx * (y + (size_t)ny * z), i0 = pidx(l, 0, y, z);
-            for (uint32_t x = 0; x < nx; x++) {
+        for (uint32_t y = 0; y < cy; y++) {
+            size_t u0 = (size_t)off[0] + (size_t)nx * ((y + off[1]) + (size_t)ny * (z + off[2])), i0 = pidx(l, 0, y, z);
+            for (uint32_t x = 0; x < cx; x++) {
                 size_t u = u0 + x, i = i0 + x;
                 bool in = m->solid[u] != 0;
                 l->solid[i] = in;
-                if (!in) {
-                    for (int c = 0; c < 3; c++)
-                        s->d_user[c][u] = 0.0f;
+                if (!in)
                     continue;
-                }
                 v4 dv = dconst, av = aconst;
                 if (!homogeneous)
                     for (int c = 0; c < 3; c++) {
@@ -503,8 +505,27 @@ nacre_result nc_diff_setup(nc_diff_solver *s, const nc_diff_medium *m)
     memcpy(s->dims, m->dims, sizeof(s->dims));
     s->h = m->h;
     size_t user_cells = (size_t)m->dims[0] * m->dims[1] * m->dims[2];
+    /* Work on the bounding box of the solid cells: a cubic grid around a slender mesh (Lucy
+     * fills a third of its 128^3) would otherwise spend most passes on empty cells. */
+    uint32_t lo[3] = {m->dims[0], m->dims[1], m->dims[2]}, hi[3] = {0, 0, 0};
+    for (uint32_t z = 0; z < m->dims[2]; z++)
+        for (uint32_t y = 0; y < m->dims[1]; y++) {
+            const uint8_t *row = m->solid + (size_t)m->dims[0] * (y + (size_t)m->dims[1] * z);
+            for (uint32_t x = 0; x < m->dims[0]; x++)
+                if (row[x]) {
+                    lo[0] = x < lo[0] ? x : lo[0];
+                    hi[0] = x > hi[0] ? x : hi[0];
+                    lo[1] = y < lo[1] ? y : lo[1];
+                    hi[1] = y > hi[1] ? y : hi[1];
+                    lo[2] = z < lo[2] ? z : lo[2];
+                    hi[2] = z > hi[2] ? z : hi[2];
+                }
+        }
+    if (lo[0] > hi[0]) /* no solid cell: a one-cell empty grid */
+        lo[0] = lo[1] = lo[2] = hi[0] = hi[1] = hi[2] = 0;
+    memcpy(s->off, lo, sizeof(lo));
     /* Level sizes: coarsen each axis longer than 2 cells, down to at most 2 per axis. */
-    uint32_t n[3] = {m->dims[0], m->dims[1], m->dims[2]};
+    uint32_t n[3] = {hi[0] - lo[0] + 1, hi[1] - lo[1] + 1, hi[2] - lo[2] + 1};
     uint32_t count = 0;
     s->lv[0].r[0] = s->lv[0].r[1] = s->lv[0].r[2] = 1;
     for (;;) {
@@ -936,14 +957,15 @@ nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], 
     if (!s || !source || !phi || !opts || s->level_count == 0)
         return NACRE_ERROR_INVALID_ARGUMENT;
     level *l = &s->lv[0];
-    const uint32_t nx = s->dims[0], ny = s->dims[1], nz = s->dims[2];
+    const uint32_t nx = s->dims[0], ny = s->dims[1], *off = s->off;
+    const uint32_t cx = l->n[0], cy = l->n[1], cz = l->n[2];
     v4 *b = l->b, *x = s->px;
     /* Into the padded layout; outside cells take no source. A NULL channel solves nothing. */
     bool clean = true;
-    for (uint32_t z = 0; z < nz; z++)
-        for (uint32_t y = 0; y < ny; y++) {
-            size_t u = (size_t)nx * (y + (size_t)ny * z), i = pidx(l, 0, y, z);
-            for (uint32_t xx = 0; xx < nx; xx++) {
+    for (uint32_t z = 0; z < cz; z++)
+        for (uint32_t y = 0; y < cy; y++) {
+            size_t u = (size_t)off[0] + (size_t)nx * ((y + off[1]) + (size_t)ny * (z + off[2])), i = pidx(l, 0, y, z);
+            for (uint32_t xx = 0; xx < cx; xx++) {
                 v4 bv = V4_ZERO, xv = V4_ZERO;
                 if (l->solid[i + xx])
                     for (int c = 0; c < 3; c++) {
@@ -981,10 +1003,12 @@ nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], 
         rep[c].escaped = esc[c];
         if (!phi[c])
             continue;
-        for (uint32_t z = 0; z < nz; z++)
-            for (uint32_t y = 0; y < ny; y++) {
-                size_t u = (size_t)nx * (y + (size_t)ny * z), i = pidx(l, 0, y, z);
-                for (uint32_t xx = 0; xx < nx; xx++)
+        /* 0 outside the domain, the bounding box included */
+        memset(phi[c], 0, (size_t)nx * ny * s->dims[2] * sizeof(float));
+        for (uint32_t z = 0; z < cz; z++)
+            for (uint32_t y = 0; y < cy; y++) {
+                size_t u = (size_t)off[0] + (size_t)nx * ((y + off[1]) + (size_t)ny * (z + off[2])), i = pidx(l, 0, y, z);
+                for (uint32_t xx = 0; xx < cx; xx++)
                     phi[c][u + xx] = x[i + xx][c];
             }
     }

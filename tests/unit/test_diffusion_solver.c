@@ -411,6 +411,66 @@ static void test_boundary_area(nacre_context *ctx)
     }
 }
 
+/* The solver works on the solid cells' bounding box: a domain placed anywhere in a larger grid
+ * gives the same fluence as in a tight grid, and 0 elsewhere. */
+static void test_offset_domain(nacre_context *ctx)
+{
+    sphere_case c;
+    sphere_make(&c, 16, false);
+    const uint32_t N[3] = {27, 22, 20}, off[3] = {7, 3, 2};
+    size_t big = (size_t)N[0] * N[1] * N[2];
+    uint8_t *solid = calloc(big, 1);
+    float *src = calloc(big, sizeof(float)), *phi = malloc(big * sizeof(float));
+    for (size_t i = 0; i < big; i++)
+        phi[i] = 5.0f; /* garbage that must come back as 0 outside */
+    for (uint32_t z = 0; z < 16; z++)
+        for (uint32_t y = 0; y < 16; y++)
+            for (uint32_t x = 0; x < 16; x++) {
+                size_t t = x + 16 * (y + 16 * z), u = (x + off[0]) + N[0] * ((y + off[1]) + (size_t)N[1] * (z + off[2]));
+                solid[u] = c.solid[t];
+                src[u] = c.src[t];
+            }
+    nc_diff_medium m = {.dims = {16, 16, 16}, .h = 1.0f, .solid = c.solid, .eta = 1.3f,
+                        .sigma_a_const = {0.01f, 0.01f, 0.01f}, .sigma_sp_const = {2.0f, 2.0f, 2.0f}};
+    nc_diff_solver *s = NULL;
+    CHECK(nc_diff_solver_create(ctx, &s) == NACRE_OK);
+    CHECK(nc_diff_setup(s, &m) == NACRE_OK);
+    nc_diff_solve_opts o = {.solver = NACRE_SOLVER_MULTIGRID, .tolerance = 1e-6f};
+    nc_diff_solve_report rep;
+    CHECK(nc_diff_solve(s, 0, c.src, c.phi, &o, &rep) == NACRE_OK);
+    m.dims[0] = N[0];
+    m.dims[1] = N[1];
+    m.dims[2] = N[2];
+    m.solid = solid;
+    CHECK(nc_diff_setup(s, &m) == NACRE_OK);
+    CHECK(nc_diff_solve(s, 0, src, phi, &o, &rep) == NACRE_OK);
+    double worst = 0.0, maxv = 0.0;
+    size_t outside_nonzero = 0;
+    for (uint32_t z = 0; z < N[2]; z++)
+        for (uint32_t y = 0; y < N[1]; y++)
+            for (uint32_t x = 0; x < N[0]; x++) {
+                size_t u = x + N[0] * (y + (size_t)N[1] * z);
+                bool in = x >= off[0] && x < off[0] + 16 && y >= off[1] && y < off[1] + 16 && z >= off[2] && z < off[2] + 16;
+                if (!in || !solid[u]) {
+                    outside_nonzero += phi[u] != 0.0f;
+                    continue;
+                }
+                float ref = c.phi[(x - off[0]) + 16 * ((y - off[1]) + 16 * (z - off[2]))];
+                worst = fmax(worst, fabs(phi[u] - ref));
+                maxv = fmax(maxv, fabs(ref));
+            }
+    printf("offset domain: max difference %.2e of %.3g, %zu nonzero cells outside\n", worst, maxv, outside_nonzero);
+    CHECK(worst <= 1e-5 * maxv);
+    CHECK(outside_nonzero == 0);
+    const float *D = nc_diff_coefficient_d(s, 0);
+    CHECK(D && D[0] == 0.0f && D[off[0] + 8 + N[0] * ((off[1] + 8) + (size_t)N[1] * (off[2] + 8))] > 0.0f);
+    nc_diff_solver_destroy(s);
+    free(solid);
+    free(src);
+    free(phi);
+    sphere_free(&c);
+}
+
 int main(void)
 {
     nacre_context *ctx = make_ctx(2);
@@ -421,6 +481,7 @@ int main(void)
     test_multigrid_scaling(ctx);
     test_rgb(ctx);
     test_boundary_area(ctx);
+    test_offset_domain(ctx);
     nacre_context_destroy(ctx);
     return TEST_MAIN_END();
 }
