@@ -48,7 +48,7 @@ typedef struct level {
     size_t sy, sz; /* strides */
     uint8_t *solid;
     v4 *g[3];      /* conductance to the +x, +y, +z neighbour (0 when either cell is outside) */
-    v4 *diag, *inv; /* diagonal and its inverse (1 outside the domain) */
+    v4 *diag;      /* diagonal (1 outside the domain) */
     v4 *x, *b, *res; /* V-cycle work */
     /* Homogeneous fast path (level 0 of a medium with constant coefficients): the kernels read a
      * byte per cell instead of 80 bytes of coefficients. k = solid neighbours (0..6), 7 outside;
@@ -103,7 +103,6 @@ static void level_free(nacre_context *ctx, level *l)
     for (int a = 0; a < 3; a++)
         nc_free(ctx, l->g[a]);
     nc_free(ctx, l->diag);
-    nc_free(ctx, l->inv);
     nc_free(ctx, l->x);
     nc_free(ctx, l->b);
     nc_free(ctx, l->res);
@@ -175,7 +174,7 @@ static nacre_result level_alloc(nc_diff_solver *s, int li, size_t user_cells)
         ok = (l->solid = nc_alloc(ctx, l->cells)) != NULL;
         for (int a = 0; a < 3 && ok; a++)
             ok = (l->g[a] = nc_alloc(ctx, vb)) != NULL;
-        ok = ok && (l->diag = nc_alloc(ctx, vb)) && (l->inv = nc_alloc(ctx, vb)) && (l->x = nc_alloc(ctx, vb)) &&
+        ok = ok && (l->diag = nc_alloc(ctx, vb)) && (l->x = nc_alloc(ctx, vb)) &&
              (l->b = nc_alloc(ctx, vb)) && (l->res = nc_alloc(ctx, vb));
         ok = ok && (li != 0 || ((l->k = nc_alloc(ctx, l->cells)) != NULL &&
                                 (l->bw = nc_alloc(ctx, l->cells * sizeof(float))) != NULL));
@@ -214,8 +213,10 @@ static inline size_t pidx(const level *l, uint32_t x, uint32_t y, uint32_t z)
 static const v4 V4_ZERO = {0, 0, 0, 0};
 static const v4 V4_ONE = {1, 1, 1, 1};
 
-/* diag (holding boundary + absorption on entry) += the six face conductances; inv = 1 / diag.
- * Gathered per cell (its own +faces and its neighbours' -faces), so z slabs run in parallel. */
+/* diag (holding boundary + absorption on entry) += the six face conductances. Gathered per cell
+ * (its own +faces and its neighbours' -faces), so z slabs run in parallel. Lanes that would be
+ * 0 (the unused fourth lane, a channel without medium: sigma_t' = 0 decouples the cell) get 1,
+ * so the kernels can divide by the diagonal without a test. */
 static void finish_level(level *l, int threads)
 {
     const size_t sy = l->sy, sz = l->sz;
@@ -225,16 +226,13 @@ static void finish_level(level *l, int threads)
         for (size_t i = z * sz; i < (z + 1) * sz; i++) {
             if (!l->solid[i]) {
                 l->diag[i] = V4_ONE;
-                l->inv[i] = V4_ONE;
                 continue;
             }
             /* solid cells are interior, so i - sz etc. are in range */
             v4 d = l->diag[i] + l->g[0][i] + l->g[0][i - 1] + l->g[1][i] + l->g[1][i - sy] + l->g[2][i] + l->g[2][i - sz];
-            l->diag[i] = d;
-            v4 inv;
             for (int c = 0; c < 4; c++)
-                inv[c] = d[c] > 0 ? 1.0f / d[c] : 0.0f;
-            l->inv[i] = inv;
+                d[c] = d[c] > 0 ? d[c] : 1.0f;
+            l->diag[i] = d;
         }
 }
 
@@ -413,8 +411,8 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
             l->diag[i] = bv + s->absorb[i];
         }
     finish_level(l, threads);
-    /* A channel with D = 0 (sigma_t' = 0: no medium) would make the fast path divide by 0;
-     * the general path gives such cells inv = 0. */
+    /* A channel with D = 0 (sigma_t' = 0: no medium) would make the fast path divide by 0; the
+     * general path gives such cells a unit diagonal (finish_level). */
     homogeneous &= dconst[0] > 0 && dconst[1] > 0 && dconst[2] > 0;
     s->homogeneous = homogeneous;
     l->homogeneous_level = homogeneous;
@@ -424,6 +422,7 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
             B[c] = h * h * 2.0f * dconst[c] / (h + 4.0f * A * dconst[c]);
         for (int k = 0; k < 7; k++) {
             l->kbase[k] = (float)k * G + aconst;
+            l->kbase[k][3] = 1.0f; /* the unused lane: divide by 1, not 0 */
             l->kg[k] = G;
         }
         l->kbase[7] = V4_ONE;
@@ -572,77 +571,71 @@ nacre_result nc_diff_setup(nc_diff_solver *s, const nc_diff_medium *m)
 /* Kernels                                                                                  */
 /* ---------------------------------------------------------------------------------------- */
 
-/* Sum of g * v over the six neighbours of padded cell i. */
-#define NEIGHBOURS(g, v, i, sy, sz)                                                                        \
-    ((g)[0][i] * (v)[(i) + 1] + (g)[0][(i) - 1] * (v)[(i) - 1] + (g)[1][i] * (v)[(i) + (sy)] +           \
-     (g)[1][(i) - (sy)] * (v)[(i) - (sy)] + (g)[2][i] * (v)[(i) + (sz)] + (g)[2][(i) - (sz)] * (v)[(i) - (sz)])
-
-/* out = b - M v, or M v when b is NULL. Cells outside the domain have zero conductances, unit
- * diagonal and zero b and v, so they come out 0 without a test. */
-#define SUM6(v, i, sy, sz) ((v)[(i) + 1] + (v)[(i) - 1] + (v)[(i) + (sy)] + (v)[(i) - (sy)] + (v)[(i) + (sz)] + (v)[(i) - (sz)])
-
-static void apply(const level *l, const v4 *v, const v4 *b, v4 *out, int threads)
+/* The operator at padded cell i: M v = diag * v - offdiag(v). The homogeneous fast path reads
+ * a byte and a float per cell (every coefficient a function of the solid-neighbour count k),
+ * the general path the stored conductances. Cells outside the domain have zero conductances,
+ * a unit diagonal and zero b and v, so every kernel leaves them at 0 without a test. */
+static inline v4 cell_diag(const level *l, size_t i)
 {
-    const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
+    if (l->homogeneous_level)
+        return l->kbase[l->k[i]] + l->bw[i] * l->kb;
+    return l->diag[i];
+}
+
+static inline v4 cell_offdiag(const level *l, const v4 *v, size_t i)
+{
     const size_t sy = l->sy, sz = l->sz;
-    if (l->homogeneous_level) {
-        const uint8_t *k = l->k;
-        const float *bw = l->bw;
-        const v4 *kb = l->kbase, *kg = l->kg, kB = l->kb;
-#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
-        for (uint32_t z = 1; z <= nz; z++)
-            for (uint32_t y = 1; y <= ny; y++) {
-                size_t row = sy * y + sz * z;
-                for (size_t i = row + 1; i <= row + nx; i++) {
-                    v4 mv = (kb[k[i]] + bw[i] * kB) * v[i] - kg[k[i]] * SUM6(v, i, sy, sz);
-                    out[i] = b ? b[i] - mv : mv;
-                }
-            }
-        return;
-    }
-    const v4 *g[3] = {l->g[0], l->g[1], l->g[2]};
-    const v4 *diag = l->diag;
-#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
-    for (uint32_t z = 1; z <= nz; z++)
-        for (uint32_t y = 1; y <= ny; y++) {
-            size_t row = sy * y + sz * z;
-            if (b) {
-                for (size_t i = row + 1; i <= row + nx; i++)
-                    out[i] = b[i] - (diag[i] * v[i] - NEIGHBOURS(g, v, i, sy, sz));
-            } else {
-                for (size_t i = row + 1; i <= row + nx; i++)
-                    out[i] = diag[i] * v[i] - NEIGHBOURS(g, v, i, sy, sz);
-            }
-        }
+    if (l->homogeneous_level)
+        return l->kg[l->k[i]] * (v[i + 1] + v[i - 1] + v[i + sy] + v[i - sy] + v[i + sz] + v[i - sz]);
+    const v4 *const *g = (const v4 *const *)l->g;
+    return g[0][i] * v[i + 1] + g[0][i - 1] * v[i - 1] + g[1][i] * v[i + sy] + g[1][i - sy] * v[i - sy] +
+           g[2][i] * v[i + sz] + g[2][i - sz] * v[i - sz];
 }
 
 static inline v4d widen(v4 a) { return __builtin_convertvector(a, v4d); }
+
+/* The same off-diagonal sum with every product in double (residual_exact). */
+static inline v4d cell_offdiag_d(const level *l, const v4 *v, size_t i)
+{
+    const size_t sy = l->sy, sz = l->sz;
+    if (l->homogeneous_level)
+        return widen(l->kg[l->k[i]]) * (widen(v[i + 1]) + widen(v[i - 1]) + widen(v[i + sy]) + widen(v[i - sy]) +
+                                        widen(v[i + sz]) + widen(v[i - sz]));
+    const v4 *const *g = (const v4 *const *)l->g;
+    return widen(g[0][i]) * widen(v[i + 1]) + widen(g[0][i - 1]) * widen(v[i - 1]) + widen(g[1][i]) * widen(v[i + sy]) +
+           widen(g[1][i - sy]) * widen(v[i - sy]) + widen(g[2][i]) * widen(v[i + sz]) +
+           widen(g[2][i - sz]) * widen(v[i - sz]);
+}
+
+/* out = b - M v, or M v when b is NULL. */
+static void apply(const level *l, const v4 *v, const v4 *b, v4 *out, int threads)
+{
+    const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (uint32_t z = 1; z <= nz; z++)
+        for (uint32_t y = 1; y <= ny; y++) {
+            size_t row = l->sy * y + l->sz * z;
+            for (size_t i = row + 1; i <= row + nx; i++) {
+                v4 mv = cell_diag(l, i) * v[i] - cell_offdiag(l, v, i);
+                out[i] = b ? b[i] - mv : mv;
+            }
+        }
+}
 
 /* q = M p and the per-channel p . q in the same pass (rows summed in float, rows in double). */
 static v4d apply_dot(const level *l, const v4 *p, v4 *q, int threads)
 {
     const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
-    const size_t sy = l->sy, sz = l->sz;
     double s0 = 0, s1 = 0, s2 = 0;
 #pragma omp parallel for num_threads(threads) reduction(+ : s0, s1, s2) schedule(static) if (l->cells > 32768)
     for (uint32_t z = 1; z <= nz; z++)
         for (uint32_t y = 1; y <= ny; y++) {
-            size_t row = sy * y + sz * z;
+            size_t row = l->sy * y + l->sz * z;
             v4 acc = V4_ZERO;
-            if (l->homogeneous_level) {
-                const uint8_t *k = l->k;
-                for (size_t i = row + 1; i <= row + nx; i++) {
-                    v4 mv = (l->kbase[k[i]] + l->bw[i] * l->kb) * p[i] - l->kg[k[i]] * SUM6(p, i, sy, sz);
-                    q[i] = mv;
-                    acc += p[i] * mv;
-                }
-            } else {
-                const v4 *g[3] = {l->g[0], l->g[1], l->g[2]};
-                for (size_t i = row + 1; i <= row + nx; i++) {
-                    v4 mv = l->diag[i] * p[i] - NEIGHBOURS(g, p, i, sy, sz);
-                    q[i] = mv;
-                    acc += p[i] * mv;
-                }
+            for (size_t i = row + 1; i <= row + nx; i++) {
+                v4 mv = cell_diag(l, i) * p[i] - cell_offdiag(l, p, i);
+                q[i] = mv;
+                acc += p[i] * mv;
             }
             s0 += acc[0];
             s1 += acc[1];
@@ -682,34 +675,12 @@ static v4d update_xr(v4 *x, v4 *r, const v4 *p, const v4 *q, v4 alpha, size_t n,
 static void residual_exact(const level *l, const v4 *v, const v4 *b, v4 *out, int threads)
 {
     const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
-    const size_t sy = l->sy, sz = l->sz;
-    if (l->homogeneous_level) {
-        const uint8_t *k = l->k;
-        const float *bw = l->bw;
-        const v4 *kb = l->kbase, *kg = l->kg, kB = l->kb;
-#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
-        for (uint32_t z = 1; z <= nz; z++)
-            for (uint32_t y = 1; y <= ny; y++) {
-                size_t row = sy * y + sz * z;
-                for (size_t i = row + 1; i <= row + nx; i++) {
-                    v4d sum = widen(v[i + 1]) + widen(v[i - 1]) + widen(v[i + sy]) + widen(v[i - sy]) +
-                              widen(v[i + sz]) + widen(v[i - sz]);
-                    v4d diag = widen(kb[k[i]]) + (double)bw[i] * widen(kB);
-                    out[i] = __builtin_convertvector(widen(b[i]) - diag * widen(v[i]) + widen(kg[k[i]]) * sum, v4);
-                }
-            }
-        return;
-    }
-    const v4 *const *g = (const v4 *const *)l->g;
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
     for (uint32_t z = 1; z <= nz; z++)
         for (uint32_t y = 1; y <= ny; y++) {
-            size_t row = sy * y + sz * z;
+            size_t row = l->sy * y + l->sz * z;
             for (size_t i = row + 1; i <= row + nx; i++) {
-                v4d acc = widen(b[i]) - widen(l->diag[i]) * widen(v[i]);
-                acc += widen(g[0][i]) * widen(v[i + 1]) + widen(g[0][i - 1]) * widen(v[i - 1]);
-                acc += widen(g[1][i]) * widen(v[i + sy]) + widen(g[1][i - sy]) * widen(v[i - sy]);
-                acc += widen(g[2][i]) * widen(v[i + sz]) + widen(g[2][i - sz]) * widen(v[i - sz]);
+                v4d acc = widen(b[i]) - widen(cell_diag(l, i)) * widen(v[i]) + cell_offdiag_d(l, v, i);
                 out[i] = __builtin_convertvector(acc, v4);
             }
         }
@@ -719,29 +690,12 @@ static void residual_exact(const level *l, const v4 *v, const v4 *b, v4 *out, in
 static void gs_color(const level *l, v4 *v, const v4 *b, int color, int threads)
 {
     const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
-    const size_t sy = l->sy, sz = l->sz;
-    if (l->homogeneous_level) {
-        const uint8_t *k = l->k;
-        const float *bw = l->bw;
-        const v4 *kb = l->kbase, *kg = l->kg, kB = l->kb;
-        /* Outside cells: base 1, G 0, b 0 -> 0. */
-#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
-        for (uint32_t z = 1; z <= nz; z++)
-            for (uint32_t y = 1; y <= ny; y++) {
-                size_t row = sy * y + sz * z;
-                for (size_t i = row + 1 + ((color + y + z + 1) & 1); i <= row + nx; i += 2)
-                    v[i] = (b[i] + kg[k[i]] * SUM6(v, i, sy, sz)) / (kb[k[i]] + bw[i] * kB);
-            }
-        return;
-    }
-    const v4 *g[3] = {l->g[0], l->g[1], l->g[2]};
-    const v4 *inv = l->inv;
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
     for (uint32_t z = 1; z <= nz; z++)
         for (uint32_t y = 1; y <= ny; y++) {
-            size_t row = sy * y + sz * z;
+            size_t row = l->sy * y + l->sz * z;
             for (size_t i = row + 1 + ((color + y + z + 1) & 1); i <= row + nx; i += 2)
-                v[i] = inv[i] * (b[i] + NEIGHBOURS(g, v, i, sy, sz));
+                v[i] = (b[i] + cell_offdiag(l, v, i)) / cell_diag(l, i);
         }
 }
 
@@ -938,7 +892,7 @@ static void solve_seed(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solv
         for (uint32_t k = 0; k < sweeps; k++) {
             apply(l, xl, bl, l->res, threads);
             for (size_t i = 0; i < l->cells; i++)
-                xl[i] += l->inv[i] * l->res[i];
+                xl[i] += l->res[i] / cell_diag(l, i);
         }
         total += sweeps;
     }
