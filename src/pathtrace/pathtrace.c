@@ -426,6 +426,44 @@ static bool maj_next(maj_iter *it, float *s0, float *s1, float *maj)
     }
 }
 
+/* Tentative collisions along the ray: exponential steps at each piece's majorant (delta,
+ * spectral and ratio tracking all walk this way; they differ in what they do at a collision). */
+typedef struct collision_walk {
+    maj_iter it;
+    float t, s1, m;
+    bool in_piece;
+} collision_walk;
+
+static void walk_init(collision_walk *w, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax)
+{
+    maj_init(&w->it, o, org, dir, tmax);
+    w->in_piece = false;
+}
+
+/* The next tentative collision distance *t and the majorant *m there; false past tmax. */
+static bool walk_next(collision_walk *w, nc_rng *rng, float *t, float *m)
+{
+    for (;;) {
+        if (!w->in_piece) {
+            float s0;
+            if (!maj_next(&w->it, &s0, &w->s1, &w->m))
+                return false;
+            if (!(w->m > 0.0f))
+                continue;
+            w->t = s0;
+            w->in_piece = true;
+        }
+        w->t -= logf(1.0f - nc_rng_float(rng)) / w->m;
+        if (w->t >= w->s1) {
+            w->in_piece = false;
+            continue;
+        }
+        *t = w->t;
+        *m = w->m;
+        return true;
+    }
+}
+
 /* ---- clearance grids ---------------------------------------------------------------------
  *
  * In a dense medium (marble: a mean free path of 0.4 mm in a 60 mm block) a path scatters
@@ -513,41 +551,33 @@ static ff_event flight_resolve_homogeneous(const pt_object *o, float t, float tm
 static ff_event free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax,
                             nc_rng *rng, nc_vec3 *beta, float *t_out)
 {
-    maj_iter it;
-    maj_init(&it, o, org, dir, tmax);
-    float s0, s1, m;
-    while (maj_next(&it, &s0, &s1, &m)) {
-        if (!(m > 0.0f))
-            continue;
-        float t = s0;
-        for (;;) {
-            t -= logf(1.0f - nc_rng_float(rng)) / m;
-            if (t >= s1)
-                break;
-            float sa[3], ss[3];
-            medium_at(ps, o, ray_at(org, dir, t), sa, ss);
-            float b[3] = {beta->x, beta->y, beta->z};
-            float pa = 0, pss = 0, pn = 0;
-            for (int c = 0; c < 3; c++) {
-                pa += b[c] * sa[c];
-                pss += b[c] * ss[c];
-                pn += b[c] * fabsf(m - sa[c] - ss[c]);
-            }
-            float sum = pa + pss + pn;
-            if (!(sum > 0.0f))
-                return FF_ABSORB;
-            float u = nc_rng_float(rng) * sum;
-            if (u < pa)
-                return FF_ABSORB;
-            if (u < pa + pss) {
-                float k = sum / (m * pss);
-                *beta = nc_v3(b[0] * ss[0] * k, b[1] * ss[1] * k, b[2] * ss[2] * k);
-                *t_out = t;
-                return FF_SCATTER;
-            }
-            float k = sum / (m * pn);
-            *beta = nc_v3(b[0] * (m - sa[0] - ss[0]) * k, b[1] * (m - sa[1] - ss[1]) * k, b[2] * (m - sa[2] - ss[2]) * k);
+    collision_walk w;
+    walk_init(&w, o, org, dir, tmax);
+    float t, m;
+    while (walk_next(&w, rng, &t, &m)) {
+        float sa[3], ss[3];
+        medium_at(ps, o, ray_at(org, dir, t), sa, ss);
+        float b[3] = {beta->x, beta->y, beta->z};
+        float pa = 0, pss = 0, pn = 0;
+        for (int c = 0; c < 3; c++) {
+            pa += b[c] * sa[c];
+            pss += b[c] * ss[c];
+            pn += b[c] * fabsf(m - sa[c] - ss[c]);
         }
+        float sum = pa + pss + pn;
+        if (!(sum > 0.0f))
+            return FF_ABSORB;
+        float u = nc_rng_float(rng) * sum;
+        if (u < pa)
+            return FF_ABSORB;
+        if (u < pa + pss) {
+            float k = sum / (m * pss);
+            *beta = nc_v3(b[0] * ss[0] * k, b[1] * ss[1] * k, b[2] * ss[2] * k);
+            *t_out = t;
+            return FF_SCATTER;
+        }
+        float k = sum / (m * pn);
+        *beta = nc_v3(b[0] * (m - sa[0] - ss[0]) * k, b[1] * (m - sa[1] - ss[1]) * k, b[2] * (m - sa[2] - ss[2]) * k);
     }
     return FF_PASS;
 }
@@ -559,28 +589,20 @@ static nc_vec3 transmittance(const pt_scene *ps, const pt_object *o, nc_vec3 org
         return nc_v3(expf(-(o->sigma_a[0] + o->sigma_s[0]) * tmax), expf(-(o->sigma_a[1] + o->sigma_s[1]) * tmax),
                      expf(-(o->sigma_a[2] + o->sigma_s[2]) * tmax));
     nc_vec3 tr = nc_v3(1, 1, 1);
-    maj_iter it;
-    maj_init(&it, o, org, dir, tmax);
-    float s0, s1, m;
-    while (maj_next(&it, &s0, &s1, &m)) {
-        if (!(m > 0.0f))
-            continue;
-        float t = s0;
-        for (;;) {
-            t -= logf(1.0f - nc_rng_float(rng)) / m;
-            if (t >= s1)
-                break;
-            float sa[3], ss[3];
-            medium_at(ps, o, ray_at(org, dir, t), sa, ss);
-            tr = nc_v3(tr.x * (1.0f - (sa[0] + ss[0]) / m), tr.y * (1.0f - (sa[1] + ss[1]) / m),
-                       tr.z * (1.0f - (sa[2] + ss[2]) / m));
-            /* Russian roulette on small estimates keeps long ratio-tracking walks cheap. */
-            float mx = fmaxf(fabsf(tr.x), fmaxf(fabsf(tr.y), fabsf(tr.z)));
-            if (mx < 0.1f) {
-                if (nc_rng_float(rng) >= 0.5f)
-                    return nc_v3(0, 0, 0);
-                tr = nc_scale(tr, 2.0f);
-            }
+    collision_walk w;
+    walk_init(&w, o, org, dir, tmax);
+    float t, m;
+    while (walk_next(&w, rng, &t, &m)) {
+        float sa[3], ss[3];
+        medium_at(ps, o, ray_at(org, dir, t), sa, ss);
+        tr = nc_v3(tr.x * (1.0f - (sa[0] + ss[0]) / m), tr.y * (1.0f - (sa[1] + ss[1]) / m),
+                   tr.z * (1.0f - (sa[2] + ss[2]) / m));
+        /* Russian roulette on small estimates keeps long ratio-tracking walks cheap. */
+        float mx = fmaxf(fabsf(tr.x), fmaxf(fabsf(tr.y), fabsf(tr.z)));
+        if (mx < 0.1f) {
+            if (nc_rng_float(rng) >= 0.5f)
+                return nc_v3(0, 0, 0);
+            tr = nc_scale(tr, 2.0f);
         }
     }
     return tr;
