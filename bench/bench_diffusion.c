@@ -37,22 +37,6 @@ static const struct {
 };
 static const uint32_t resolutions[] = {4, 12, 28, 64, 128};
 
-static bool find_mesh(const char *file, char *path, size_t size)
-{
-    const char *dirs[3] = {getenv("NACRE_MESH_DIR"), "../shared/meshes", "/work/shared/meshes"};
-    for (int d = 0; d < 3; d++) {
-        if (!dirs[d] || !dirs[d][0])
-            continue;
-        snprintf(path, size, "%s/%s", dirs[d], file);
-        FILE *f = fopen(path, "rb");
-        if (f) {
-            fclose(f);
-            return true;
-        }
-    }
-    return false;
-}
-
 enum { COL_VOX, COL_TSM, COL_INJ, COL_PROP, COL_SHADE, COL_TOTAL, COL_RASTER, COL_COUNT };
 
 /* Build the scene for one mesh: scaled to 50 mm, jade, a sun from the upper right. */
@@ -204,7 +188,7 @@ int nc_bench_diffusion_pipeline(bool json, int runs)
                "shade", "total", "fps", "raster", "iter");
     for (size_t mi = 0; mi < sizeof(meshes) / sizeof(meshes[0]); mi++) {
         char path[4096];
-        if (!find_mesh(meshes[mi].file, path, sizeof(path))) {
+        if (!nc_cli_find_mesh(meshes[mi].file, path, sizeof(path))) {
             fprintf(stderr, "nacre bench diffusion: %s not found, skipped\n", meshes[mi].file);
             continue;
         }

@@ -21,30 +21,6 @@
 
 static const char usage_cmd[] = "bench raster";
 
-static bool file_exists(const char *path)
-{
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return false;
-    fclose(f);
-    return true;
-}
-
-/* The first existing candidate, written to buf; false if none. */
-static bool find_mesh(char *buf, size_t size)
-{
-    const char *env = getenv("NACRE_MESH_DIR");
-    const char *dirs[3] = {env, "../shared/meshes", "/work/shared/meshes"};
-    for (int i = 0; i < 3; i++) {
-        if (!dirs[i] || !dirs[i][0])
-            continue;
-        snprintf(buf, size, "%s/%s", dirs[i], MESH_NAME);
-        if (file_exists(buf))
-            return true;
-    }
-    return false;
-}
-
 typedef struct stat3 {
     double median, min, max;
 } stat3;
@@ -81,7 +57,7 @@ int nc_bench_raster(int argc, char **argv)
     }
     char found[4096];
     if (!mesh_path) {
-        if (!find_mesh(found, sizeof(found))) {
+        if (!nc_cli_find_mesh(MESH_NAME, found, sizeof(found))) {
             fprintf(stderr,
                     "nacre bench raster: %s not found in $NACRE_MESH_DIR, ../shared/meshes "
                     "or /work/shared/meshes (use --mesh PATH)\n",

@@ -516,6 +516,12 @@ typedef enum nacre_diffusion_source {
     NACRE_SOURCE_FACE        /* the seed: flux on the exposed voxel faces (Robin boundary source) */
 } nacre_diffusion_source;
 
+/* "multigrid", "seed"; "volume", "face". The from_name functions return false if unknown. */
+NACRE_API const char *nacre_solver_name(nacre_diffusion_solver solver);
+NACRE_API bool nacre_solver_from_name(const char *name, nacre_diffusion_solver *out);
+NACRE_API const char *nacre_source_name(nacre_diffusion_source source);
+NACRE_API bool nacre_source_from_name(const char *name, nacre_diffusion_source *out);
+
 typedef struct nacre_render_settings {
     nacre_method method;
     int32_t width, height;    /* default 640 x 480; 1..16384 each, at most 2^26 pixels */

@@ -609,8 +609,9 @@ static void parse_render(loader *ld, const cJSON *obj)
                                        "pcf_radius", "shadow_bias", "spp", "seed", "time",
                                        "voxel_resolution", "tsm_size", "solver", "source",
                                        "tolerance", "seed_iterations", "time_limit", "max_scatter"};
-    static const char *const solvers[] = {"multigrid", "seed"};
-    static const char *const sources[] = {"volume", "face"};
+    /* indexed by the enums' values */
+    const char *const solvers[] = {nacre_solver_name(NACRE_SOLVER_MULTIGRID), nacre_solver_name(NACRE_SOLVER_SEED)};
+    const char *const sources[] = {nacre_source_name(NACRE_SOURCE_VOLUME), nacre_source_name(NACRE_SOURCE_FACE)};
     size_t mark = push_key(ld, "render");
     if (!expect_object(ld, obj) || !check_keys(ld, obj, keys, COUNT_OF(keys))) {
         pop(ld, mark);
@@ -651,10 +652,10 @@ static void parse_render(loader *ld, const cJSON *obj)
         s->tsm_size = (int32_t)v;
     int choice = get_choice(ld, obj, "solver", "solver", solvers, COUNT_OF(solvers));
     if (choice >= 0)
-        s->solver = choice == 0 ? NACRE_SOLVER_MULTIGRID : NACRE_SOLVER_SEED;
+        s->solver = (nacre_diffusion_solver)choice;
     choice = get_choice(ld, obj, "source", "source", sources, COUNT_OF(sources));
     if (choice >= 0)
-        s->source = choice == 0 ? NACRE_SOURCE_VOLUME : NACRE_SOURCE_FACE;
+        s->source = (nacre_diffusion_source)choice;
     static const range tolerance_range = {0.0, 1.0, true, true};
     get_number(ld, obj, "tolerance", tolerance_range, &s->tolerance);
     if (get_integer(ld, obj, "seed_iterations", 0, 1000000, &v))

@@ -174,15 +174,51 @@ const char *nacre_method_name(nacre_method method)
     return (unsigned)method < NACRE_METHOD_COUNT ? method_names[method] : "unknown";
 }
 
+
+
+static const char *const solver_names[] = {"multigrid", "seed"};
+static const char *const source_names[] = {"volume", "face"};
+
+const char *nacre_solver_name(nacre_diffusion_solver solver)
+{
+    return (unsigned)solver < 2 ? solver_names[solver] : "unknown";
+}
+
+const char *nacre_source_name(nacre_diffusion_source source)
+{
+    return (unsigned)source < 2 ? source_names[source] : "unknown";
+}
+
+static int name_index(const char *name, const char *const *names, int count)
+{
+    for (int i = 0; name && i < count; i++)
+        if (strcmp(name, names[i]) == 0)
+            return i;
+    return -1;
+}
+
 bool nacre_method_from_name(const char *name, nacre_method *out)
 {
-    for (int i = 0; name && i < NACRE_METHOD_COUNT; i++) {
-        if (strcmp(name, method_names[i]) == 0) {
-            *out = (nacre_method)i;
-            return true;
-        }
-    }
-    return false;
+    int i = name_index(name, method_names, NACRE_METHOD_COUNT);
+    if (i >= 0)
+        *out = (nacre_method)i;
+    return i >= 0;
+}
+
+bool nacre_solver_from_name(const char *name, nacre_diffusion_solver *out)
+{
+    int i = name_index(name, solver_names, 2);
+    if (i >= 0)
+        *out = (nacre_diffusion_solver)i;
+    return i >= 0;
+}
+
+bool nacre_source_from_name(const char *name, nacre_diffusion_source *out)
+{
+    int i = name_index(name, source_names, 2);
+    if (i >= 0)
+        *out = (nacre_diffusion_source)i;
+    return i >= 0;
 }
 
 bool nacre_method_available(nacre_method method)

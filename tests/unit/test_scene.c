@@ -222,9 +222,29 @@ static void test_scene_commit(void)
     nacre_context_destroy(ctx);
 }
 
+/* Names of methods, solvers and sources round-trip; unknown names are refused. */
+static void test_names(void)
+{
+    for (int m = 0; m < NACRE_METHOD_COUNT; m++) {
+        nacre_method back = NACRE_METHOD_COUNT;
+        CHECK(nacre_method_from_name(nacre_method_name((nacre_method)m), &back) && back == (nacre_method)m);
+    }
+    nacre_diffusion_solver sv;
+    CHECK(nacre_solver_from_name("seed", &sv) && sv == NACRE_SOLVER_SEED);
+    CHECK(strcmp(nacre_solver_name(NACRE_SOLVER_MULTIGRID), "multigrid") == 0);
+    CHECK(!nacre_solver_from_name("jacobi", &sv) && !nacre_solver_from_name(NULL, &sv));
+    nacre_diffusion_source so;
+    CHECK(nacre_source_from_name("face", &so) && so == NACRE_SOURCE_FACE);
+    CHECK(strcmp(nacre_source_name(NACRE_SOURCE_VOLUME), "volume") == 0);
+    CHECK(!nacre_source_from_name("Face", &so));
+    nacre_method me;
+    CHECK(!nacre_method_from_name("raytrace", &me));
+}
+
 int main(void)
 {
     test_math();
+    test_names();
     test_deformers();
     test_scene_commit();
     return TEST_MAIN_END();

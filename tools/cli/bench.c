@@ -68,11 +68,11 @@ static const struct {
 };
 static const uint32_t vox_res[] = {4, 12, 28, 64, 128, 256};
 
-static bool find_mesh(const char *file, char *path, size_t size)
+bool nc_cli_find_mesh(const char *file, char *path, size_t size)
 {
     const char *dirs[3] = {getenv("NACRE_MESH_DIR"), "../shared/meshes", "/work/shared/meshes"};
     for (int d = 0; d < 3; d++) {
-        if (!dirs[d])
+        if (!dirs[d] || !dirs[d][0])
             continue;
         snprintf(path, size, "%s/%s", dirs[d], file);
         FILE *f = fopen(path, "rb");
@@ -99,7 +99,7 @@ static int bench_voxelize(bool json, int runs)
                nacre_context_threads(ctx), runs, "mesh", "tris", "res", "rule", "surface", "solid", "ms", "seed_ms");
     for (size_t m = 0; m < sizeof(vox_meshes) / sizeof(vox_meshes[0]); m++) {
         char path[4096];
-        if (!find_mesh(vox_meshes[m].file, path, sizeof(path))) {
+        if (!nc_cli_find_mesh(vox_meshes[m].file, path, sizeof(path))) {
             fprintf(stderr, "nacre bench voxelize: %s not found, skipped\n", vox_meshes[m].file);
             continue;
         }

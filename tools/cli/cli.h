@@ -30,6 +30,9 @@ static inline uint64_t nc_cli_now_us(void)
     return (uint64_t)ts.tv_sec * 1000000u + (uint64_t)ts.tv_nsec / 1000u;
 }
 
+/* Path of a benchmark mesh: the first of $NACRE_MESH_DIR, ../shared/meshes and
+ * /work/shared/meshes that holds `file`, written to path; false if none does. */
+bool nc_cli_find_mesh(const char *file, char *path, size_t size);
 /* Median of n values (sorts in place). */
 double nc_cli_median(double *values, int n);
 

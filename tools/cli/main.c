@@ -160,7 +160,7 @@ static void print_stats(const char *scene_name, const nacre_render_settings *rs,
            (unsigned long long)st->triangles, (unsigned long long)st->triangles_drawn, st->shadow_maps);
     if (rs->method == NACRE_METHOD_DIFFUSION)
         printf(",\"solver\":\"%s\",\"iterations\":%u,\"residual\":%.3g,\"voxel_dims\":[%u,%u,%u]",
-               st->solver == NACRE_SOLVER_SEED ? "seed" : "multigrid", st->iterations, st->residual,
+               nacre_solver_name(st->solver), st->iterations, st->residual,
                st->voxel_dims[0], st->voxel_dims[1], st->voxel_dims[2]);
     if (rs->method == NACRE_METHOD_PATHTRACE)
         printf(",\"spp\":%u,\"samples_per_second\":%.6g", st->spp_done, st->samples_per_second);
@@ -182,6 +182,8 @@ static int cmd_render(int argc, char **argv)
 {
     const char *scene_path = NULL, *out_path = "nacre.png", *method_name = NULL, *variance_path = NULL;
     const char *solver_name = NULL, *source_name = NULL;
+    nacre_diffusion_solver solver = NACRE_SOLVER_MULTIGRID;
+    nacre_diffusion_source source = NACRE_SOURCE_VOLUME;
     long width = 0, height = 0, threads = 0, voxel_res = -1, tsm_size = -1, seed_iters = -1, spp = -1, seed = -1,
          max_scatter = -1;
     double exposure = NAN, time = NAN, tolerance = NAN, time_limit = NAN;
@@ -231,13 +233,13 @@ static int cmd_render(int argc, char **argv)
             if (!has_value)
                 return nc_cli_usage("render", "--solver needs multigrid or seed");
             solver_name = argv[++i];
-            if (strcmp(solver_name, "multigrid") != 0 && strcmp(solver_name, "seed") != 0)
+            if (!nacre_solver_from_name(solver_name, &solver))
                 return nc_cli_usage("render", "--solver '%s': expected multigrid or seed", solver_name);
         } else if (strcmp(a, "--source") == 0) {
             if (!has_value)
                 return nc_cli_usage("render", "--source needs volume or face");
             source_name = argv[++i];
-            if (strcmp(source_name, "volume") != 0 && strcmp(source_name, "face") != 0)
+            if (!nacre_source_from_name(source_name, &source))
                 return nc_cli_usage("render", "--source '%s': expected volume or face", source_name);
         } else if (strcmp(a, "--tolerance") == 0) {
             if (!has_value || !nc_cli_parse_float(argv[++i], &tolerance) || !(tolerance > 0 && tolerance < 1))
@@ -324,9 +326,9 @@ static int cmd_render(int argc, char **argv)
     if (tsm_size > 0)
         rs.tsm_size = (int32_t)tsm_size;
     if (solver_name)
-        rs.solver = strcmp(solver_name, "seed") == 0 ? NACRE_SOLVER_SEED : NACRE_SOLVER_MULTIGRID;
+        rs.solver = solver;
     if (source_name)
-        rs.source = strcmp(source_name, "face") == 0 ? NACRE_SOURCE_FACE : NACRE_SOURCE_VOLUME;
+        rs.source = source;
     if (!isnan(tolerance))
         rs.tolerance = (float)tolerance;
     if (seed_iters > 0)

@@ -80,20 +80,10 @@ int nc_cli_slab(int argc, char **argv)
                 return nc_cli_usage("slab", "--cells-per-mfp needs an integer in 1..1024");
             d.cells_per_mfp = (uint32_t)v;
         } else if (strcmp(a, "--solver") == 0) {
-            const char *m = has ? argv[++i] : "";
-            if (strcmp(m, "multigrid") == 0)
-                d.solver = NACRE_SOLVER_MULTIGRID;
-            else if (strcmp(m, "seed") == 0)
-                d.solver = NACRE_SOLVER_SEED;
-            else
+            if (!has || !nacre_solver_from_name(argv[++i], &d.solver))
                 return nc_cli_usage("slab", "--solver needs multigrid or seed");
         } else if (strcmp(a, "--source") == 0) {
-            const char *m = has ? argv[++i] : "";
-            if (strcmp(m, "volume") == 0)
-                d.source = NACRE_SOURCE_VOLUME;
-            else if (strcmp(m, "face") == 0)
-                d.source = NACRE_SOURCE_FACE;
-            else
+            if (!has || !nacre_source_from_name(argv[++i], &d.source))
                 return nc_cli_usage("slab", "--source needs volume or face");
         } else if (strcmp(a, "--tolerance") == 0) {
             if (!has || !nc_cli_parse_float(argv[++i], &f) || !(f > 0 && f < 1))
@@ -141,7 +131,7 @@ int nc_cli_slab(int argc, char **argv)
                    (unsigned long long)d.samples);
         else
             printf(",\"solver\":\"%s\",\"source\":\"%s\",\"iterations\":%u,\"residual\":%.3g",
-                   d.solver == NACRE_SOLVER_SEED ? "seed" : "multigrid", d.source == NACRE_SOURCE_FACE ? "face" : "volume",
+                   nacre_solver_name(d.solver), nacre_source_name(d.source),
                    r.iterations, r.residual);
         printf(",\"R_specular\":%.6f,\"ms\":%.3f}\n", r.R_specular, r.ms);
     } else {
