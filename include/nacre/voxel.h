@@ -95,6 +95,11 @@ NACRE_API bool nacre_voxel_grid_dims(const nacre_voxel_grid *grid, uint32_t leve
 /* Whether voxel (x, y, z) of `level` is in `set`; false outside the grid. */
 NACRE_API bool nacre_voxel_grid_get(const nacre_voxel_grid *grid, nacre_voxel_set set,
                                     uint32_t level, uint32_t x, uint32_t y, uint32_t z);
+/* The whole of `set` at `level` as bytes (1 set, 0 not), out[x + nx * (y + ny * z)], out holding
+ * nx * ny * nz bytes; much faster than a nacre_voxel_grid_get per voxel. False (out untouched)
+ * when the level does not exist. */
+NACRE_API bool nacre_voxel_grid_unpack(const nacre_voxel_grid *grid, nacre_voxel_set set, uint32_t level,
+                                       uint8_t *out);
 /* Voxels set in `set` at `level`. */
 NACRE_API uint64_t nacre_voxel_grid_count(const nacre_voxel_grid *grid, nacre_voxel_set set,
                                           uint32_t level);

@@ -166,6 +166,7 @@ nacre_result nc_diff_object_voxelize(nc_diff_object *o, const nacre_scene *s, ui
     const nacre_voxel_grid *grid = o->grid;
     uint64_t count = 0;
     uint32_t lo[3] = {UINT32_MAX, UINT32_MAX, UINT32_MAX}, hi[3] = {0, 0, 0};
+    nacre_voxel_grid_unpack(grid, NACRE_VOXEL_SOLID, 0, solid);
     /* Per-slab bounds reduced after the loop; slabs are independent. */
 #pragma omp parallel num_threads(nc_threads(ctx)) if (o->cells > 32768)
     {
@@ -175,9 +176,7 @@ nacre_result nc_diff_object_voxelize(nc_diff_object *o, const nacre_scene *s, ui
         for (uint32_t z = 0; z < nz; z++)
             for (uint32_t y = 0; y < ny; y++)
                 for (uint32_t x = 0; x < nx; x++) {
-                    bool in = nacre_voxel_grid_get(grid, NACRE_VOXEL_SOLID, 0, x, y, z);
-                    solid[x + (size_t)nx * (y + (size_t)ny * z)] = in;
-                    if (!in)
+                    if (!solid[x + (size_t)nx * (y + (size_t)ny * z)])
                         continue;
                     tcount++;
                     uint32_t p[3] = {x, y, z};

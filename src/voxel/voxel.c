@@ -859,6 +859,22 @@ bool nacre_voxel_grid_get(const nacre_voxel_grid *grid, nacre_voxel_set set, uin
     return get_bit(s, (size_t)y * b->dims[0] + x, b->words, z);
 }
 
+bool nacre_voxel_grid_unpack(const nacre_voxel_grid *grid, nacre_voxel_set set, uint32_t level, uint8_t *out)
+{
+    if (!grid || !out || level >= grid->levels)
+        return false;
+    const bitset *b = &grid->level[level];
+    const uint64_t *s = set == NACRE_VOXEL_SOLID ? b->solid : b->surface;
+    const size_t nx = b->dims[0], slab = nx * b->dims[1];
+    /* Column by column: each 64-bit word holds 64 consecutive z of one (x, y). */
+    for (size_t col = 0; col < slab; col++) {
+        const uint64_t *w = s + col * b->words;
+        for (uint32_t z = 0; z < b->dims[2]; z++)
+            out[col + slab * z] = (uint8_t)((w[z / 64] >> (z % 64)) & 1u);
+    }
+    return true;
+}
+
 uint64_t nacre_voxel_grid_count(const nacre_voxel_grid *grid, nacre_voxel_set set, uint32_t level)
 {
     if (!grid || level >= grid->levels)

@@ -239,6 +239,39 @@ static void test_aligned_cube(nacre_context *ctx)
     nacre_mesh_data_free(ctx, &m);
 }
 
+/* Unpacking a whole set gives what voxel-by-voxel queries give, on a grid taller than 64 (more
+ * than one word per column) and on a coarse level. */
+static void test_unpack(nacre_context *ctx)
+{
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_TORUS);
+    nacre_mesh_data m = {0};
+    CHECK(nacre_mesh_make_shape(ctx, &sd, &m) == NACRE_OK);
+    nacre_voxel_report rep;
+    nacre_voxel_grid *g = vox(ctx, &m, 70, false, NACRE_VOXEL_SOLID_AUTO, &rep);
+    for (uint32_t level = 0; level < 2; level++)
+        for (int set = 0; set < 2; set++) {
+            uint32_t d[3];
+            CHECK(nacre_voxel_grid_dims(g, level, d));
+            uint8_t *out = malloc((size_t)d[0] * d[1] * d[2]);
+            CHECK(nacre_voxel_grid_unpack(g, (nacre_voxel_set)set, level, out));
+            size_t bad = 0, ones = 0;
+            for (uint32_t z = 0; z < d[2]; z++)
+                for (uint32_t y = 0; y < d[1]; y++)
+                    for (uint32_t x = 0; x < d[0]; x++) {
+                        uint8_t v = out[x + (size_t)d[0] * (y + (size_t)d[1] * z)];
+                        bad += v != (uint8_t)nacre_voxel_grid_get(g, (nacre_voxel_set)set, level, x, y, z);
+                        ones += v;
+                    }
+            CHECK(bad == 0);
+            CHECK(ones == nacre_voxel_grid_count(g, (nacre_voxel_set)set, level));
+            free(out);
+        }
+    uint8_t one;
+    CHECK(!nacre_voxel_grid_unpack(g, NACRE_VOXEL_SOLID, 99, &one));
+    nacre_voxel_grid_destroy(g);
+    nacre_mesh_data_free(ctx, &m);
+}
+
 static void rotate(nacre_mesh_data *m)
 {
     const double a = 0.37, b = 0.61;
@@ -706,6 +739,7 @@ int main(void)
         check_volume(ctx, torus, res + 1);
     }
     test_aligned_cube(ctx);
+    test_unpack(ctx);
     test_conservative(ctx);
     test_shared_edges(ctx);
     test_broken(ctx);
