@@ -35,13 +35,10 @@ typedef struct exr_stream {
     char message[256]; /* first message OpenEXR reported (read contexts only) */
 } exr_stream;
 
-static int64_t stream_read(exr_const_context_t exr, void *user, void *buffer, uint64_t size,
-                           uint64_t offset, exr_stream_error_func_ptr_t error_cb)
+/* pread or pwrite all of [offset, offset + size), retrying interrupted calls; returns the count
+ * done (short at end of file, or when a write makes no progress) or -1 with io_errno set. */
+static int64_t stream_io(exr_stream *s, uint8_t *rbuf, const uint8_t *wbuf, uint64_t size, uint64_t offset)
 {
-    (void)exr;
-    (void)error_cb;
-    exr_stream *s = user;
-    uint8_t *p = buffer;
     uint64_t done = 0;
     if (offset > (uint64_t)INT64_MAX - size)
         return -1;
@@ -49,7 +46,8 @@ static int64_t stream_read(exr_const_context_t exr, void *user, void *buffer, ui
         uint64_t want = size - done;
         if (want > (uint64_t)SSIZE_MAX)
             want = (uint64_t)SSIZE_MAX;
-        ssize_t k = pread(s->fd, p + done, (size_t)want, (off_t)(offset + done));
+        ssize_t k = rbuf ? pread(s->fd, rbuf + done, (size_t)want, (off_t)(offset + done))
+                         : pwrite(s->fd, wbuf + done, (size_t)want, (off_t)(offset + done));
         if (k < 0) {
             if (errno == EINTR)
                 continue;
@@ -62,6 +60,14 @@ static int64_t stream_read(exr_const_context_t exr, void *user, void *buffer, ui
         done += (uint64_t)k;
     }
     return (int64_t)done;
+}
+
+static int64_t stream_read(exr_const_context_t exr, void *user, void *buffer, uint64_t size,
+                           uint64_t offset, exr_stream_error_func_ptr_t error_cb)
+{
+    (void)exr;
+    (void)error_cb;
+    return stream_io(user, buffer, NULL, size, offset);
 }
 
 static int64_t stream_size(exr_const_context_t exr, void *user)
@@ -79,26 +85,7 @@ static int64_t stream_write(exr_const_context_t exr, void *user, const void *buf
 {
     (void)exr;
     (void)error_cb;
-    exr_stream *s = user;
-    const uint8_t *p = buffer;
-    uint64_t done = 0;
-    if (offset > (uint64_t)INT64_MAX - size)
-        return -1;
-    while (done < size) {
-        uint64_t want = size - done;
-        if (want > (uint64_t)SSIZE_MAX)
-            want = (uint64_t)SSIZE_MAX;
-        ssize_t k = pwrite(s->fd, p + done, (size_t)want, (off_t)(offset + done));
-        if (k < 0) {
-            if (errno == EINTR)
-                continue;
-            if (!s->io_errno)
-                s->io_errno = errno;
-            return -1;
-        }
-        done += (uint64_t)k;
-    }
-    return (int64_t)done;
+    return stream_io(user, NULL, buffer, size, offset);
 }
 
 static void read_error_cb(exr_const_context_t exr, exr_result_t code, const char *msg)
