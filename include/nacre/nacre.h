@@ -447,6 +447,42 @@ typedef struct nacre_camera_desc {
 
 NACRE_API nacre_camera_desc nacre_camera_desc_defaults(void);
 
+/* Participating media in open space ("fog"; Hubert 2020: distance, height and local fog). A fog
+ * fills the air around objects: a GLOBAL fog everywhere, a BOX fog inside a box. Translucent
+ * objects displace it (inside them only their own medium counts); opaque objects sit in it.
+ * Overlapping fogs add their coefficients (the phase function is their sigma_s-weighted mix).
+ * Coefficients at a point p:
+ *   sigma = height(p) * pattern(local(p)) with pattern() = sigma_a/sigma_s or the pattern's mix
+ *   (as for materials: RANDOM_MIX, CHECKER, NOISE blend medium 1 and 2; VOLUME scales medium 1
+ *   by the volume's density), local(p) = R^-1 (p - center) in scene units (R from `rotate`), and
+ *   height(p) = exp(-height_falloff * (p.y - height_base)) (world y is up), its exponent capped
+ *   at 60 so that the density stays finite far below.
+ * Rendered by the path tracer; the real-time methods ignore fog so far. */
+typedef enum nacre_fog_shape { NACRE_FOG_GLOBAL = 0, NACRE_FOG_BOX } nacre_fog_shape;
+
+typedef struct { uint32_t id; } nacre_fog;
+
+typedef struct nacre_fog_desc {
+    nacre_fog_shape shape;
+    float center[3];              /* origin of the local frame; BOX: the box's centre */
+    float size[3];                /* BOX: edge lengths along the local axes, > 0 */
+    float rotate[3];              /* Euler degrees, about x, then y, then z (as nacre_transform) */
+    float sigma_a[3], sigma_s[3]; /* per scene unit, >= 0 */
+    float g;                      /* Henyey-Greenstein anisotropy, in (-1, 1) */
+    float height_falloff;         /* per scene unit, >= 0; 0: no height dependence */
+    float height_base;            /* world y where height() = 1 */
+    nacre_medium_pattern pattern; /* default NONE; medium 2 may be 0 (clear air) */
+} nacre_fog_desc;
+
+#define NACRE_MAX_FOGS 32
+
+/* Defaults: GLOBAL, sigma_a 0, sigma_s 0.001 per unit, g 0, no height falloff, size 1. */
+NACRE_API nacre_fog_desc nacre_fog_desc_defaults(nacre_fog_shape shape);
+/* At most NACRE_MAX_FOGS per scene. */
+NACRE_API nacre_result nacre_scene_add_fog(nacre_scene *scene, const nacre_fog_desc *desc, nacre_fog *out);
+NACRE_API nacre_result nacre_scene_set_fog(nacre_scene *scene, nacre_fog fog, const nacre_fog_desc *desc);
+NACRE_API uint32_t nacre_scene_fog_count(const nacre_scene *scene);
+
 /* Create an empty scene (units: millimetres). */
 NACRE_API nacre_result nacre_scene_create(nacre_context *ctx, nacre_scene **out);
 NACRE_API void nacre_scene_destroy(nacre_scene *scene);

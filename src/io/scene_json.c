@@ -1383,13 +1383,50 @@ static void parse_object(loader *ld, const cJSON *obj)
         fail_inner(ld, r);
 }
 
+/* "fog": participating media in open space (nacre_fog_desc). */
+static void parse_fog(loader *ld, const cJSON *obj)
+{
+    static const char *const shapes[] = {"global", "box"};
+    static const char *const keys[] = {"shape", "center", "size", "rotate", "sigma_a", "sigma_s", "g",
+                                       "height_falloff", "height_base", "pattern"};
+    if (!expect_object(ld, obj) || !require(ld, obj, "shape"))
+        return;
+    int shape = get_choice(ld, obj, "shape", "fog shape", shapes, COUNT_OF(shapes));
+    if (shape < 0)
+        return;
+    nacre_fog_desc d = nacre_fog_desc_defaults(shape == 0 ? NACRE_FOG_GLOBAL : NACRE_FOG_BOX);
+    check_keys(ld, obj, keys, COUNT_OF(keys));
+    if (shape == 1)
+        require(ld, obj, "size");
+    if (!ld->err && shape == 0 && member(obj, "size"))
+        fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "\"size\" applies to box fogs only");
+    static const range g_range = {-1.0, 1.0, true, true};
+    get_floats(ld, obj, "center", 3, R_FINITE, false, d.center);
+    get_floats(ld, obj, "size", 3, R_POSITIVE, true, d.size);
+    get_floats(ld, obj, "rotate", 3, R_FINITE, false, d.rotate);
+    get_floats(ld, obj, "sigma_a", 3, R_NONNEG, true, d.sigma_a);
+    get_floats(ld, obj, "sigma_s", 3, R_NONNEG, true, d.sigma_s);
+    get_number(ld, obj, "g", g_range, &d.g);
+    get_number(ld, obj, "height_falloff", R_NONNEG, &d.height_falloff);
+    get_number(ld, obj, "height_base", R_FINITE, &d.height_base);
+    const cJSON *pattern = member(obj, "pattern");
+    if (pattern && !ld->err)
+        parse_pattern(ld, pattern, &d.pattern);
+    if (ld->err)
+        return;
+    nacre_fog handle;
+    nacre_result r = nacre_scene_add_fog(ld->scene, &d, &handle);
+    if (r != NACRE_OK)
+        fail_inner(ld, r);
+}
+
 
 /* Sections in dependency order, whatever their order in the file: units scale the presets,
  * materials must exist before objects name them. */
 static void parse_scene(loader *ld, const cJSON *root)
 {
     static const char *const keys[] = {"units", "render", "camera", "environment", "materials",
-                                       "lights", "objects"};
+                                       "lights", "objects", "fog"};
     if (!cJSON_IsObject(root)) {
         fail(ld, NACRE_ERROR_PARSE, "the top level must be an object, got %s", type_name(root));
         return;
@@ -1412,6 +1449,8 @@ static void parse_scene(loader *ld, const cJSON *root)
         parse_array(ld, item, "lights", parse_light);
     if ((item = member(root, "objects")) && !ld->err)
         parse_array(ld, item, "objects", parse_object);
+    if ((item = member(root, "fog")) && !ld->err)
+        parse_array(ld, item, "fog", parse_fog);
 }
 
 /* ------------------------------------------------------------------------------------------ */

@@ -59,8 +59,13 @@
  *
  * Determinism: each pixel of each pass has its own PCG32 stream (seed, pass, pixel); per-pixel
  * mean and M2 (Welford) are updated in pass order, so images do not depend on threads.
- * Not handled: fog volumes in open space (the scene API has none), nested or overlapping
- * translucent objects (a path is in air or in one object), the phong specular lobe on translucent
+ * Fog (nacre_fog_desc) fills the air: a path outside every object tracks the sum of the fogs'
+ * coefficients by the same spectral tracking and ratio tracking, over majorant pieces cut where
+ * a fog begins or ends and where height fog changes by a factor of 2 (see "fog" below); shadow
+ * rays through air are attenuated by it, scattering vertices in it use NEE and phase sampling.
+ * Translucent objects displace fog (inside one, only its medium counts).
+ *
+ * Not handled: nested or overlapping translucent objects (a path is in air or in one object), the phong specular lobe on translucent
  * objects (their specular is the Fresnel reflection), double_sided (surfaces are shaded from the
  * side the path arrives on either way; there is no culling), cast_shadows = false on translucent
  * objects (their boundary still blocks NEE: letting shadow rays through would skip the light that
@@ -171,6 +176,15 @@ typedef struct pt_light {
     const nacre_light_desc *desc;
 } pt_light;
 
+/* A fog of the scene (see "fog" below). */
+typedef struct pt_fog {
+    const nc_fog_rec *rec;
+    bool box, patterned, height;
+    float half[3];        /* box: half edge lengths */
+    float maj;            /* scalar bound of sigma_t where height() = 1 */
+    float falloff, base, g;
+} pt_fog;
+
 struct nc_pathtracer {
     nacre_context *ctx;
     nc_pathtrace_options opt;
@@ -180,6 +194,9 @@ struct nc_pathtracer {
     uint32_t object_count;
     pt_light *lights;
     uint32_t light_count;
+    pt_fog fogs[NACRE_MAX_FOGS];
+    uint32_t fog_count;
+    bool fog_mixed_g;      /* fogs differ in g: a scattering picks one fog's phase */
     bool any_matched;      /* some object is index matched (shadow rays may pass surfaces) */
     bool any_noncaster;    /* some opaque object has cast_shadows = false */
     bool nee_only;         /* shadow rays see another world than paths: no MIS (see top) */
@@ -426,17 +443,203 @@ static bool maj_next(maj_iter *it, float *s0, float *s1, float *maj)
     }
 }
 
+/* ---- fog: participating media in open space ----------------------------------------------
+ *
+ * Fogs fill the air (the path is in no object). Along a ray each fog occupies one interval (a box
+ * clipped by the slab test in its local frame, or everything), and their coefficients add. The
+ * majorant of a piece of the ray is the sum over the fogs present of their pattern bound times
+ * the largest height() on the piece; height() = exp(-falloff (y - base)) is monotone in y, so its
+ * largest value is at the lower end, and pieces are cut where height() changes by a factor of 2
+ * (y steps of ln 2 / falloff) so that null collisions stay below half of the tentative ones. A
+ * ray climbing out of height fog would produce ever thinner pieces forever: the walk stops when
+ * no fog lies ahead and the optical depth that the majorants of every remaining piece could add
+ * is below FOG_TAIL (a transmittance error below 1e-7, under float resolution). */
+#define FOG_TAIL 1e-7f
+#define FOG_LN2 0.69314718f
+
+static float fog_height(const pt_fog *f, float y)
+{
+    return f->height ? expf(fminf(60.0f, -f->falloff * (y - f->base))) : 1.0f;
+}
+
+typedef struct fog_iter {
+    const pt_scene *ps;
+    nc_vec3 org, dir;
+    float t, tmax;
+    float a[NACRE_MAX_FOGS], b[NACRE_MAX_FOGS]; /* each fog's interval on the ray */
+} fog_iter;
+
+static void fog_init(fog_iter *it, const pt_scene *ps, nc_vec3 org, nc_vec3 dir, float tmax)
+{
+    const nc_pathtracer *pt = ps->pt;
+    it->ps = ps;
+    it->org = org;
+    it->dir = dir;
+    it->t = 0.0f;
+    it->tmax = tmax;
+    for (uint32_t i = 0; i < pt->fog_count; i++) {
+        const pt_fog *f = &pt->fogs[i];
+        float t0 = 0.0f, t1 = tmax;
+        if (f->box) {
+            nc_vec3 q = nc_mat4_point(&f->rec->world_to_local, org), v = nc_mat4_dir(&f->rec->world_to_local, dir);
+            float qv[3] = {q.x, q.y, q.z}, vv[3] = {v.x, v.y, v.z};
+            for (int a = 0; a < 3; a++) {
+                if (vv[a] == 0.0f) {
+                    if (fabsf(qv[a]) > f->half[a])
+                        t1 = -1.0f;
+                    continue;
+                }
+                float ta = (-f->half[a] - qv[a]) / vv[a], tb = (f->half[a] - qv[a]) / vv[a];
+                t0 = fmaxf(t0, fminf(ta, tb));
+                t1 = fminf(t1, fmaxf(ta, tb));
+            }
+        }
+        if (!(t0 < t1))
+            t0 = t1 = INFINITY; /* never present */
+        it->a[i] = t0;
+        it->b[i] = t1;
+    }
+}
+
+static bool fog_next(fog_iter *it, float *s0, float *s1, float *maj)
+{
+    const nc_pathtracer *pt = it->ps->pt;
+    while (it->t < it->tmax) {
+        float t = it->t, next = it->tmax, m = 0.0f, rest = 0.0f;
+        bool ahead = false;
+        for (uint32_t i = 0; i < pt->fog_count; i++) {
+            const pt_fog *f = &pt->fogs[i];
+            if (!(it->b[i] > t))
+                continue;
+            if (it->a[i] > t) {
+                next = fminf(next, it->a[i]);
+                ahead = true;
+                continue;
+            }
+            float end = it->b[i], mi = f->maj;
+            float y0 = it->org.y + it->dir.y * t;
+            if (f->height && fabsf(it->dir.y) > 1e-6f) {
+                end = fminf(end, t + FOG_LN2 / (f->falloff * fabsf(it->dir.y)));
+                float y1 = it->org.y + it->dir.y * end;
+                mi *= fog_height(f, fminf(y0, y1));
+                /* Optical depth still ahead, bounded: rising, the integral of the height
+                 * profile to infinity; falling, the densest point (the far end) times length. */
+                if (it->dir.y > 0)
+                    rest += f->maj * fog_height(f, y0) / (f->falloff * it->dir.y);
+                else
+                    rest += isfinite(it->b[i]) ? f->maj * fog_height(f, it->org.y + it->dir.y * it->b[i]) * (it->b[i] - t)
+                                               : INFINITY;
+            } else {
+                mi *= fog_height(f, y0);
+                rest += mi * (it->b[i] - t);
+            }
+            m += mi;
+            next = fminf(next, end);
+        }
+        if (!ahead && rest < FOG_TAIL)
+            return false;
+        *s0 = t;
+        *s1 = next;
+        *maj = m;
+        it->t = next;
+        return true;
+    }
+    return false;
+}
+
+/* One fog's coefficients at the point of parameter t (inside its interval), or 0. */
+static bool fog_one(const fog_iter *it, uint32_t i, float t, nc_vec3 p, float sa[3], float ss[3])
+{
+    const pt_fog *f = &it->ps->pt->fogs[i];
+    if (!(it->a[i] <= t && t < it->b[i]))
+        return false;
+    if (f->patterned) {
+        nc_vec3 q = nc_mat4_point(&f->rec->world_to_local, p);
+        float qv[3] = {q.x, q.y, q.z};
+        it->ps->eval(it->ps->scene, &f->rec->medium, qv, 1, sa, ss);
+    } else {
+        memcpy(sa, f->rec->desc.sigma_a, 3 * sizeof(float));
+        memcpy(ss, f->rec->desc.sigma_s, 3 * sizeof(float));
+    }
+    float h = fog_height(f, p.y);
+    for (int c = 0; c < 3; c++) {
+        sa[c] *= h;
+        ss[c] *= h;
+    }
+    return true;
+}
+
+static void fog_at(const fog_iter *it, float t, nc_vec3 p, float sa[3], float ss[3])
+{
+    sa[0] = sa[1] = sa[2] = ss[0] = ss[1] = ss[2] = 0.0f;
+    for (uint32_t i = 0; i < it->ps->pt->fog_count; i++) {
+        float a[3], b[3];
+        if (fog_one(it, i, t, p, a, b))
+            for (int c = 0; c < 3; c++) {
+                sa[c] += a[c];
+                ss[c] += b[c];
+            }
+    }
+}
+
+/* Where fogs of different g overlap, the phase function is their mix weighted by each fog's
+ * sigma_s, per channel. A scattering picks fog i with probability P_i proportional to
+ * sum_c beta_c sigma_s,i,c and weights channel c by sigma_s,i,c / (sigma_s,c P_i): unbiased, and
+ * NEE and phase sampling then use one HG lobe. */
+static float fog_pick_phase(const fog_iter *it, float t, nc_vec3 p, nc_vec3 *beta, nc_rng *rng)
+{
+    const nc_pathtracer *pt = it->ps->pt;
+    if (!pt->fog_mixed_g)
+        return pt->fogs[0].g;
+    float ss_i[NACRE_MAX_FOGS][3], ss[3] = {0, 0, 0}, w[NACRE_MAX_FOGS], wsum = 0.0f;
+    float b[3] = {fabsf(beta->x), fabsf(beta->y), fabsf(beta->z)};
+    for (uint32_t i = 0; i < pt->fog_count; i++) {
+        float sa[3];
+        if (!fog_one(it, i, t, p, sa, ss_i[i]))
+            ss_i[i][0] = ss_i[i][1] = ss_i[i][2] = 0.0f;
+        w[i] = b[0] * ss_i[i][0] + b[1] * ss_i[i][1] + b[2] * ss_i[i][2];
+        wsum += w[i];
+        for (int c = 0; c < 3; c++)
+            ss[c] += ss_i[i][c];
+    }
+    if (!(wsum > 0.0f))
+        return pt->fogs[0].g;
+    float u = nc_rng_float(rng) * wsum, acc = 0.0f;
+    uint32_t k = 0;
+    for (uint32_t i = 0; i < pt->fog_count; i++) {
+        if (!(w[i] > 0.0f))
+            continue;
+        k = i; /* the last positive one if rounding leaves u >= the sum */
+        acc += w[i];
+        if (u < acc)
+            break;
+    }
+    float P = w[k] / wsum;
+    float wc[3];
+    for (int c = 0; c < 3; c++)
+        wc[c] = ss[c] > 0.0f ? ss_i[k][c] / (ss[c] * P) : 0.0f;
+    *beta = nc_v3(beta->x * wc[0], beta->y * wc[1], beta->z * wc[2]);
+    return pt->fogs[k].g;
+}
+
 /* Tentative collisions along the ray: exponential steps at each piece's majorant (delta,
- * spectral and ratio tracking all walk this way; they differ in what they do at a collision). */
+ * spectral and ratio tracking all walk this way; they differ in what they do at a collision).
+ * In an object's medium (o) the pieces come from its majorant grid, in the air from the fogs. */
 typedef struct collision_walk {
+    const pt_object *o; /* NULL: fog */
     maj_iter it;
+    fog_iter fog;
     float t, s1, m;
     bool in_piece;
 } collision_walk;
 
-static void walk_init(collision_walk *w, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax)
+static void walk_init(collision_walk *w, const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax)
 {
-    maj_init(&w->it, o, org, dir, tmax);
+    w->o = o;
+    if (o)
+        maj_init(&w->it, o, org, dir, tmax);
+    else
+        fog_init(&w->fog, ps, org, dir, tmax);
     w->in_piece = false;
 }
 
@@ -446,7 +649,7 @@ static bool walk_next(collision_walk *w, nc_rng *rng, float *t, float *m)
     for (;;) {
         if (!w->in_piece) {
             float s0;
-            if (!maj_next(&w->it, &s0, &w->s1, &w->m))
+            if (!(w->o ? maj_next(&w->it, &s0, &w->s1, &w->m) : fog_next(&w->fog, &s0, &w->s1, &w->m)))
                 return false;
             if (!(w->m > 0.0f))
                 continue;
@@ -462,6 +665,15 @@ static bool walk_next(collision_walk *w, nc_rng *rng, float *t, float *m)
         *m = w->m;
         return true;
     }
+}
+
+/* The coefficients at the walk's collision t, point p. */
+static void walk_medium(const pt_scene *ps, const collision_walk *w, float t, nc_vec3 p, float sa[3], float ss[3])
+{
+    if (w->o)
+        medium_at(ps, w->o, p, sa, ss);
+    else
+        fog_at(&w->fog, t, p, sa, ss);
 }
 
 /* ---- clearance grids ---------------------------------------------------------------------
@@ -546,17 +758,19 @@ static ff_event flight_resolve_homogeneous(const pt_object *o, float t, float tm
     return FF_SCATTER;
 }
 
-/* Spectral tracking from org along dir over [0, tmax] in a heterogeneous medium: FF_SCATTER with
- * *t_out, FF_PASS at tmax, or FF_ABSORB. beta is updated by the per-channel weights. */
+/* Spectral tracking from org along dir over [0, tmax] in a heterogeneous medium (o) or the fog
+ * (o == NULL): FF_SCATTER with *t_out and the phase's *g_out, FF_PASS at tmax, or FF_ABSORB.
+ * beta is updated by the per-channel weights. */
 static ff_event free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax,
-                            nc_rng *rng, nc_vec3 *beta, float *t_out)
+                            nc_rng *rng, nc_vec3 *beta, float *t_out, float *g_out)
 {
     collision_walk w;
-    walk_init(&w, o, org, dir, tmax);
+    walk_init(&w, ps, o, org, dir, tmax);
     float t, m;
     while (walk_next(&w, rng, &t, &m)) {
         float sa[3], ss[3];
-        medium_at(ps, o, ray_at(org, dir, t), sa, ss);
+        nc_vec3 p = ray_at(org, dir, t);
+        walk_medium(ps, &w, t, p, sa, ss);
         float b[3] = {beta->x, beta->y, beta->z};
         float pa = 0, pss = 0, pn = 0;
         for (int c = 0; c < 3; c++) {
@@ -574,6 +788,7 @@ static ff_event free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org,
             float k = sum / (m * pss);
             *beta = nc_v3(b[0] * ss[0] * k, b[1] * ss[1] * k, b[2] * ss[2] * k);
             *t_out = t;
+            *g_out = o ? o->g : fog_pick_phase(&w.fog, t, p, beta, rng);
             return FF_SCATTER;
         }
         float k = sum / (m * pn);
@@ -582,19 +797,20 @@ static ff_event free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org,
     return FF_PASS;
 }
 
-/* Transmittance along [0, tmax]: exact for homogeneous media, ratio tracking otherwise. */
+/* Transmittance along [0, tmax]: exact for homogeneous media, ratio tracking otherwise (and in
+ * fog, o == NULL). */
 static nc_vec3 transmittance(const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax, nc_rng *rng)
 {
-    if (!o->heterogeneous)
+    if (o && !o->heterogeneous)
         return nc_v3(expf(-(o->sigma_a[0] + o->sigma_s[0]) * tmax), expf(-(o->sigma_a[1] + o->sigma_s[1]) * tmax),
                      expf(-(o->sigma_a[2] + o->sigma_s[2]) * tmax));
     nc_vec3 tr = nc_v3(1, 1, 1);
     collision_walk w;
-    walk_init(&w, o, org, dir, tmax);
+    walk_init(&w, ps, o, org, dir, tmax);
     float t, m;
     while (walk_next(&w, rng, &t, &m)) {
         float sa[3], ss[3];
-        medium_at(ps, o, ray_at(org, dir, t), sa, ss);
+        walk_medium(ps, &w, t, ray_at(org, dir, t), sa, ss);
         tr = nc_v3(tr.x * (1.0f - (sa[0] + ss[0]) / m), tr.y * (1.0f - (sa[1] + ss[1]) / m),
                    tr.z * (1.0f - (sa[2] + ss[2]) / m));
         /* Russian roulette on small estimates keeps long ratio-tracking walks cheap. */
@@ -635,7 +851,8 @@ static nc_vec3 shadow(const pt_scene *ps, nc_vec3 p, nc_vec3 wi, float dist, int
 {
     /* Without index-matched objects, a shadow ray from air is blocked by any hit: the cheaper
      * any-hit query answers it. */
-    if (medium < 0 && !ps->pt->any_matched && !ps->pt->any_noncaster)
+    const bool fog = ps->pt->fog_count > 0;
+    if (medium < 0 && !ps->pt->any_matched && !ps->pt->any_noncaster && !fog)
         return occluded(ps, p, wi, dist) ? nc_v3(0, 0, 0) : nc_v3(1, 1, 1);
     nc_vec3 tr = nc_v3(1, 1, 1);
     nc_vec3 o = p;
@@ -648,11 +865,17 @@ static nc_vec3 shadow(const pt_scene *ps, nc_vec3 p, nc_vec3 wi, float dist, int
             if (tr.x == 0 && tr.y == 0 && tr.z == 0)
                 return tr;
         }
-        if (!h.hit)
-            return tr;
-        const pt_object *ob = &ps->pt->objects[h.obj];
-        if (ob->kind != PT_MATCHED && ob->casts)
+        const pt_object *ob = h.hit ? &ps->pt->objects[h.obj] : NULL;
+        if (ob && ob->kind != PT_MATCHED && ob->casts)
             return nc_v3(0, 0, 0);
+        /* Fog after the occlusion test: a blocked ray needs no tracking. */
+        if (medium < 0 && fog) {
+            tr = nc_mul(tr, transmittance(ps, NULL, o, wi, seg, rng));
+            if (tr.x == 0 && tr.y == 0 && tr.z == 0)
+                return tr;
+        }
+        if (!ob)
+            return tr;
         nc_vec3 hp, ng, ns;
         surface_at(ob, &h, &hp, &ng, &ns);
         if (ob->kind == PT_MATCHED)
@@ -1091,7 +1314,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
          * to the bound, then (memoryless) on from there. */
         const pt_object *mo = medium >= 0 ? &pt->objects[medium] : NULL;
         ff_event ev = FF_PASS;
-        float ts = 0, t_hom = 0;
+        float ts = 0, t_hom = 0, g = mo ? mo->g : 0.0f;
         bool query = true;
         if (mo) {
             /* A scattering vertex looked its clearance up already (for the guide). */
@@ -1104,7 +1327,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
                     query = false;
                 }
             } else if (clear > 0) {
-                ev = free_flight(ps, mo, o, d, clear, rng, &beta, &ts);
+                ev = free_flight(ps, mo, o, d, clear, rng, &beta, &ts, &g);
                 if (ev == FF_PASS)
                     o = ray_at(o, d, clear);
                 else
@@ -1129,72 +1352,74 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
                     light_hit = (int)li;
                 }
             }
-            if (mo) {
-                float tmax = isfinite(t_end) ? t_end : 1e30f;
-                ev = mo->heterogeneous ? free_flight(ps, mo, o, d, tmax, rng, &beta, &ts)
+            float tmax = isfinite(t_end) ? t_end : 1e30f;
+            if (mo)
+                ev = mo->heterogeneous ? free_flight(ps, mo, o, d, tmax, rng, &beta, &ts, &g)
                                        : flight_resolve_homogeneous(mo, t_hom, tmax, &beta, &ts);
-            }
+            else if (pt->fog_count)
+                ev = free_flight(ps, NULL, o, d, tmax, rng, &beta, &ts, &g);
         }
         if (ev == FF_ABSORB)
             break;
-        if (mo) {
-            if (ev == FF_SCATTER) {
-                nc_vec3 p = ray_at(o, d, ts);
-                if (ps->max_scatter && ++scatters > ps->max_scatter)
-                    break;
-                const pt_object *ob = &pt->objects[medium];
-                nc_vec3 wo = nc_scale(d, -1.0f);
-                /* Inside a closed dielectric every shadow ray ends on its boundary: no NEE, but the
-                 * sun can be sampled through the boundary. */
-                guide gd = {false, {0, 0, 0}, 1, 0, 1, 0};
-                float clear_p = -1.0f;
-                bool guiding = false;
-                float q = 1.0f;
-                if (ob->kind == PT_MATCHED) {
-                    /* NEE attenuated by at least the clearance: run it less often deep inside, as
-                     * the guided technique (guide_probability has the same argument). */
-                    clear_p = fmaxf(0.0f, clearance(ob, p));
-                    q = guide_probability(ob, clear_p);
-                    if (q >= 1.0f || nc_rng_float(rng) < q)
-                        L = nc_add(L, nc_mul(beta, direct_light(ps, p, wo, false, NULL, wo, wo, ob->g, medium, q, rng)));
-                } else if (sun >= 0 && !pt->opt.no_sun_guiding) {
-                    guiding = true;
-                    clear_p = fmaxf(0.0f, clearance(ob, p));
-                    q = guide_probability(ob, clear_p);
-                    seed = seed_obj == medium ? seed : UINT32_MAX;
-                    guide_seed = seed;
-                    if (q >= 1.0f || nc_rng_float(rng) < q) {
-                        gd = make_guide(ps, (uint32_t)medium, &pt->lights[sun], p, seed, &seed);
-                        seed_obj = medium;
-                        if (gd.valid)
-                            L = nc_add(L, nc_mul(beta, guided_sun(ps, (uint32_t)medium, &pt->lights[sun], &gd, q, p, d, rng)));
-                        guide_known = true;
-                    } else {
-                        guide_known = false;
-                    }
+        if (ev == FF_SCATTER) {
+            nc_vec3 p = ray_at(o, d, ts);
+            if (ps->max_scatter && ++scatters > ps->max_scatter)
+                break;
+            const pt_object *ob = mo; /* NULL: a fog vertex */
+            nc_vec3 wo = nc_scale(d, -1.0f);
+            /* Inside a closed dielectric every shadow ray ends on its boundary: no NEE, but the
+             * sun can be sampled through the boundary. */
+            guide gd = {false, {0, 0, 0}, 1, 0, 1, 0};
+            float clear_p = -1.0f;
+            bool guiding = false;
+            float q = 1.0f;
+            if (!ob) {
+                /* Fog: plain NEE (no clearance grid in the open). */
+                L = nc_add(L, nc_mul(beta, direct_light(ps, p, wo, false, NULL, wo, wo, g, -1, 1.0f, rng)));
+            } else if (ob->kind == PT_MATCHED) {
+                /* NEE attenuated by at least the clearance: run it less often deep inside, as
+                 * the guided technique (guide_probability has the same argument). */
+                clear_p = fmaxf(0.0f, clearance(ob, p));
+                q = guide_probability(ob, clear_p);
+                if (q >= 1.0f || nc_rng_float(rng) < q)
+                    L = nc_add(L, nc_mul(beta, direct_light(ps, p, wo, false, NULL, wo, wo, ob->g, medium, q, rng)));
+            } else if (sun >= 0 && !pt->opt.no_sun_guiding) {
+                guiding = true;
+                clear_p = fmaxf(0.0f, clearance(ob, p));
+                q = guide_probability(ob, clear_p);
+                seed = seed_obj == medium ? seed : UINT32_MAX;
+                guide_seed = seed;
+                if (q >= 1.0f || nc_rng_float(rng) < q) {
+                    gd = make_guide(ps, (uint32_t)medium, &pt->lights[sun], p, seed, &seed);
+                    seed_obj = medium;
+                    if (gd.valid)
+                        L = nc_add(L, nc_mul(beta, guided_sun(ps, (uint32_t)medium, &pt->lights[sun], &gd, q, p, d, rng)));
+                    guide_known = true;
+                } else {
+                    guide_known = false;
                 }
-                float c = (float)nc_hg_sample_cos(ob->g, nc_rng_float(rng));
-                nc_vec3 wi = around(d, c, nc_rng_float(rng));
-                prev_pdf = (float)nc_hg_phase(c, ob->g);
-                prev_q = ob->kind == PT_MATCHED ? q : 1.0f;
-                /* The MIS weight against the guided technique is needed only if this direction
-                 * refracts straight out into the sun (rare): the guide is then made if it was not. */
-                direct = guiding ? 1 : 0;
-                if (guiding) {
-                    guide_vertex = p;
-                    guide_dir = wi;
-                    guide_obj = (uint32_t)medium;
-                    guide_q = q;
-                    guide_cached = gd;
-                }
-                prev_delta = false;
-                prev_p = p;
-                o = p;
-                d = wi;
-                clear_here = clear_p;
-                vertex++;
-                goto roulette;
             }
+            float c = (float)nc_hg_sample_cos(g, nc_rng_float(rng));
+            nc_vec3 wi = around(d, c, nc_rng_float(rng));
+            prev_pdf = (float)nc_hg_phase(c, g);
+            prev_q = ob && ob->kind == PT_MATCHED ? q : 1.0f;
+            /* The MIS weight against the guided technique is needed only if this direction
+             * refracts straight out into the sun (rare): the guide is then made if it was not. */
+            direct = guiding ? 1 : 0;
+            if (guiding) {
+                guide_vertex = p;
+                guide_dir = wi;
+                guide_obj = (uint32_t)medium;
+                guide_q = q;
+                guide_cached = gd;
+            }
+            prev_delta = false;
+            prev_p = p;
+            o = p;
+            d = wi;
+            clear_here = clear_p;
+            vertex++;
+            goto roulette;
         }
         if (light_hit >= 0) {
             const pt_light *l = &pt->lights[light_hit];
@@ -1700,6 +1925,25 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
         }
         pt->light_count++;
     }
+    pt->fog_count = s->fog_count;
+    pt->fog_mixed_g = false;
+    for (uint32_t i = 0; i < s->fog_count; i++) {
+        const nc_fog_rec *rec = &s->fogs[i];
+        pt_fog *f = &pt->fogs[i];
+        f->rec = rec;
+        f->box = rec->desc.shape == NACRE_FOG_BOX;
+        for (int a = 0; a < 3; a++)
+            f->half[a] = 0.5f * rec->desc.size[a];
+        f->patterned = nc_medium_heterogeneous(&rec->medium);
+        float mx[3];
+        max_fn(s, &rec->medium, mx);
+        f->maj = fmaxf(mx[0], fmaxf(mx[1], mx[2]));
+        f->height = rec->desc.height_falloff > 0;
+        f->falloff = rec->desc.height_falloff;
+        f->base = rec->desc.height_base;
+        f->g = rec->desc.g;
+        pt->fog_mixed_g |= f->g != pt->fogs[0].g;
+    }
     pt->nee_only = pt->any_noncaster;
     /* After every object and light is known: the grids record all of them. */
     for (uint32_t i = 0; i < pt->object_count; i++) {
@@ -1743,7 +1987,7 @@ nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, cons
     float ext = 0;
     for (int a = 0; a < 3; a++)
         ext = fmaxf(ext, fmaxf(fabsf(scene->bounds_min[a]), fabsf(scene->bounds_max[a])));
-    ps.eps = fmaxf(1e-5f * ext, 1e-7f);
+    ps.eps = isfinite(ext) ? fmaxf(1e-5f * ext, 1e-7f) : 1e-5f; /* no objects: only fog */
     if ((res = build_scene(pt, scene, &ps)) != NACRE_OK)
         return res;
 

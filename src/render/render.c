@@ -220,7 +220,9 @@ nacre_result nacre_renderer_render(nacre_renderer *r, const nacre_scene *s, cons
         return res;
     if (!s->committed_valid || memcmp(&s->committed, &s->versions, sizeof(s->versions)) != 0)
         return nc_fail(ctx, NACRE_ERROR_INVALID_OPERATION, "render: scene changed since the last nacre_scene_commit");
-    if (s->object_count == 0)
+    /* Fog alone is a scene for the path tracer; the raster methods need geometry for their
+     * camera planes and ignore fog anyway. */
+    if (s->object_count == 0 && !(settings->method == NACRE_METHOD_PATHTRACE && s->fog_count > 0))
         return nc_fail(ctx, NACRE_ERROR_INVALID_OPERATION, "render: scene has no objects");
     int32_t w = settings->width, h = settings->height;
     bool allocated = false;

@@ -247,33 +247,36 @@ static bool finite3(const float *v) { return isfinite(v[0]) && isfinite(v[1]) &&
 static bool nonneg3(const float *v) { return finite3(v) && v[0] >= 0 && v[1] >= 0 && v[2] >= 0; }
 static bool nonzero3(const float *v) { return finite3(v) && (v[0] != 0 || v[1] != 0 || v[2] != 0); }
 
-/* Medium 2 and the pattern's parameters; only translucent materials read them. */
-static nacre_result check_pattern(const nacre_scene *s, const nacre_medium_pattern *p)
+/* Medium 2 and the pattern's parameters (translucent materials and fogs read them). `what` names
+ * the owner in messages. A fog's medium 2 may be empty (clear air, `clear_ok`); a material's must
+ * extinguish in every channel (the diffusion solver divides by sigma_t). */
+static nacre_result check_pattern(const nacre_scene *s, const nacre_medium_pattern *p, const char *what,
+                                  bool clear_ok)
 {
     nacre_context *ctx = s->ctx;
     if (p->type < NACRE_PATTERN_NONE || p->type > NACRE_PATTERN_VOLUME)
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.type: unknown (%d)", (int)p->type);
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: pattern.type: unknown (%d)", what, (int)p->type);
     if (p->type == NACRE_PATTERN_NONE)
         return NACRE_OK;
     if (p->type != NACRE_PATTERN_VOLUME) {
         if (!nonneg3(p->sigma_a2))
-            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.sigma_a2: must be finite and >= 0");
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: pattern.sigma_a2: must be finite and >= 0", what);
         if (!nonneg3(p->sigma_s2))
-            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.sigma_s2: must be finite and >= 0");
-        for (int c = 0; c < 3; c++)
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: pattern.sigma_s2: must be finite and >= 0", what);
+        for (int c = 0; c < 3 && !clear_ok; c++)
             if (p->sigma_a2[c] + p->sigma_s2[c] <= 0)
                 return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
-                               "material: pattern.sigma_a2 + sigma_s2: must be positive in every channel");
+                               "%s: pattern.sigma_a2 + sigma_s2: must be positive in every channel", what);
         /* Cells far below float resolution of typical coordinates make no sense either. */
         if (!(isfinite(p->cell_size) && p->cell_size > 0))
-            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.cell_size: must be finite and > 0");
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: pattern.cell_size: must be finite and > 0", what);
     }
     if (p->type == NACRE_PATTERN_RANDOM_MIX && !(p->fraction >= 0 && p->fraction <= 1))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.fraction: must be in [0, 1]");
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: pattern.fraction: must be in [0, 1]", what);
     if (p->type == NACRE_PATTERN_NOISE && (p->octaves < 1 || p->octaves > 12))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.octaves: must be in 1..12");
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: pattern.octaves: must be in 1..12", what);
     if (p->type == NACRE_PATTERN_VOLUME && !nc_scene_volume(s, p->volume))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: pattern.volume: invalid handle %u", p->volume.id);
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: pattern.volume: invalid handle %u", what, p->volume.id);
     return NACRE_OK;
 }
 
@@ -301,7 +304,7 @@ static nacre_result check_material(const nacre_scene *s, const nacre_material_de
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: g: must be in (-1, 1)");
         if (!(isfinite(d->eta) && d->eta > 0))
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: eta: must be positive");
-        nacre_result r = check_pattern(s, &d->pattern);
+        nacre_result r = check_pattern(s, &d->pattern, "material", false);
         if (r != NACRE_OK)
             return r;
     }
@@ -740,6 +743,90 @@ nacre_result nacre_scene_set_environment(nacre_scene *s, const float radiance[3]
     s->versions.environment++;
     return NACRE_OK;
 }
+
+nacre_fog_desc nacre_fog_desc_defaults(nacre_fog_shape shape)
+{
+    nacre_fog_desc d;
+    memset(&d, 0, sizeof(d));
+    d.shape = shape;
+    d.size[0] = d.size[1] = d.size[2] = 1.0f;
+    d.sigma_s[0] = d.sigma_s[1] = d.sigma_s[2] = 0.001f;
+    return d;
+}
+
+static nacre_result check_fog(const nacre_scene *s, const nacre_fog_desc *d)
+{
+    nacre_context *ctx = s->ctx;
+    if (d->shape != NACRE_FOG_GLOBAL && d->shape != NACRE_FOG_BOX)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: shape: unknown (%d)", (int)d->shape);
+    if (!finite3(d->center))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: center: must be finite");
+    if (!finite3(d->rotate))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: rotate: must be finite");
+    if (d->shape == NACRE_FOG_BOX && !(nonneg3(d->size) && d->size[0] > 0 && d->size[1] > 0 && d->size[2] > 0))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: size: must be finite and > 0");
+    if (!nonneg3(d->sigma_a))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: sigma_a: must be finite and >= 0");
+    if (!nonneg3(d->sigma_s))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: sigma_s: must be finite and >= 0");
+    if (!(isfinite(d->g) && d->g > -1 && d->g < 1))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: g: must be in (-1, 1)");
+    if (!(isfinite(d->height_falloff) && d->height_falloff >= 0))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: height_falloff: must be finite and >= 0");
+    if (!isfinite(d->height_base))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: height_base: must be finite");
+    return check_pattern(s, &d->pattern, "fog", true);
+}
+
+static void store_fog(nc_fog_rec *rec, const nacre_fog_desc *d)
+{
+    rec->desc = *d;
+    nacre_material_desc m = nacre_material_desc_defaults(NACRE_MATERIAL_TRANSLUCENT);
+    memcpy(m.sigma_a, d->sigma_a, sizeof(m.sigma_a));
+    memcpy(m.sigma_s, d->sigma_s, sizeof(m.sigma_s));
+    m.g = d->g;
+    m.eta = 1.0f;
+    m.pattern = d->pattern;
+    rec->medium = m;
+    nacre_transform t;
+    memset(&t, 0, sizeof(t));
+    memcpy(t.translate, d->center, sizeof(t.translate));
+    memcpy(t.rotate, d->rotate, sizeof(t.rotate));
+    t.scale[0] = t.scale[1] = t.scale[2] = 1.0f;
+    nc_mat4_inverse(nc_transform_matrix(&t), &rec->world_to_local);
+}
+
+nacre_result nacre_scene_add_fog(nacre_scene *s, const nacre_fog_desc *desc, nacre_fog *out)
+{
+    if (!s || !desc || !out)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    out->id = 0;
+    if (s->fog_count >= NACRE_MAX_FOGS)
+        return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: at most %d fogs per scene", NACRE_MAX_FOGS);
+    nacre_result r = check_fog(s, desc);
+    if (r != NACRE_OK)
+        return r;
+    store_fog(&s->fogs[s->fog_count], desc);
+    out->id = ++s->fog_count;
+    s->versions.environment++;
+    return NACRE_OK;
+}
+
+nacre_result nacre_scene_set_fog(nacre_scene *s, nacre_fog fog, const nacre_fog_desc *desc)
+{
+    if (!s || !desc)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    if (fog.id < 1 || fog.id > s->fog_count)
+        return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: invalid handle %u", fog.id);
+    nacre_result r = check_fog(s, desc);
+    if (r != NACRE_OK)
+        return r;
+    store_fog(&s->fogs[fog.id - 1], desc);
+    s->versions.environment++;
+    return NACRE_OK;
+}
+
+uint32_t nacre_scene_fog_count(const nacre_scene *s) { return s ? s->fog_count : 0; }
 
 nacre_result nacre_scene_set_unit_mm(nacre_scene *s, float unit_mm)
 {

@@ -36,6 +36,14 @@ typedef struct nc_volume_rec {
     float min_value, max_value; /* over all samples: trilinear + clamp stays inside */
 } nc_volume_rec;
 
+/* A fog (nacre_fog_desc) with what the renderers derive from it once. */
+typedef struct nc_fog_rec {
+    nacre_fog_desc desc;
+    nacre_material_desc medium; /* sigma_a, sigma_s, g, pattern as a translucent material, so that
+                                   nc_medium_eval serves fogs and objects alike */
+    nc_mat4 world_to_local;     /* p -> R^-1 (p - center) */
+} nc_fog_rec;
+
 typedef struct nc_light_rec {
     nacre_light_desc desc; /* normalised direction */
 } nc_light_rec;
@@ -45,7 +53,7 @@ typedef struct nc_versions {
     uint64_t materials;
     uint64_t lights;
     uint64_t camera;
-    uint64_t environment;
+    uint64_t environment; /* and fogs */
 } nc_versions;
 
 struct nacre_scene {
@@ -61,6 +69,8 @@ struct nacre_scene {
     uint32_t light_count, light_capacity;
     nc_volume_rec *volumes;
     uint32_t volume_count, volume_capacity;
+    nc_fog_rec fogs[NACRE_MAX_FOGS];
+    uint32_t fog_count;
     nacre_camera_desc camera;
     bool has_camera;
     float environment[3];

@@ -360,6 +360,9 @@ static int cmd_render(int argc, char **argv)
         nc_cli_fail(ctx);
         goto out;
     }
+    if (nacre_scene_fog_count(scene) > 0 && rs.method != NACRE_METHOD_PATHTRACE)
+        fprintf(stderr, "nacre: note: the scene's fog is rendered by --method pathtrace only; method '%s' ignores it\n",
+                nacre_method_name(rs.method));
     if (variance_path) {
         nacre_image var = {0};
         nacre_image_write_options vo = {.exr_type = NACRE_EXR_FLOAT};
