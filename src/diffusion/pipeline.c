@@ -43,6 +43,7 @@ static void free_arrays(nc_diff_object *o)
     nc_free(ctx, o->packed);
     nc_free(ctx, o->acc);
     o->packed = NULL;
+    o->packed_capacity = 0;
     o->acc = NULL;
     o->solid = NULL;
     o->rest = o->eval_a = o->eval_s = NULL;
@@ -80,9 +81,8 @@ static nacre_result ensure_arrays(nc_diff_object *o, size_t cells)
     if (!nc_mul_size_ok(cells, 3 * sizeof(float), &bytes))
         return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: voxel grid too large");
     o->solid = nc_calloc(o->ctx, cells, 1);
-    o->packed = nc_calloc(o->ctx, cells, 4 * sizeof(float));
     o->acc = nc_calloc(o->ctx, cells, 3 * sizeof(int64_t));
-    bool ok = o->solid != NULL && o->packed != NULL && o->acc != NULL;
+    bool ok = o->solid != NULL && o->acc != NULL;
     for (int c = 0; c < 3 && ok; c++) {
         o->source[c] = nc_calloc(o->ctx, cells, sizeof(float));
         o->phi[c] = nc_calloc(o->ctx, cells, sizeof(float));
@@ -315,9 +315,10 @@ static nacre_result object_solve(nc_diff_object *o, const nacre_render_settings 
         o->residual = rep[c].residual > o->residual ? rep[c].residual : o->residual;
         nc_diff_compute_exitance(o, c, nc_diff_coefficient_d(o->solver, c), settings->source, threads);
     }
-    nc_diff_pack_exitance(o, threads);
     o->phi_valid = true;
     memcpy(o->phi_dims, o->dims, sizeof(o->dims));
+    if ((res = nc_diff_pack_exitance(o, threads)) != NACRE_OK)
+        return res;
     o->face_mode = settings->source == NACRE_SOURCE_FACE;
     o->lit = true;
     return NACRE_OK;

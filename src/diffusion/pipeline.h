@@ -59,8 +59,12 @@ typedef struct nc_diff_object {
                                       * channels interleaved (tsm.c) */
     float *phi[3];                   /* fluence, kept for the next frame's warm start */
     float *exitance[3];              /* outgoing flux per unit area */
-    float *packed;                   /* 4 * cells: exitance RGB and solid (1/0) per cell, the shading
-                                      * pass's copy (one 16-byte read per interpolation corner) */
+    float *packed;                   /* exitance RGB and solid (1/0) per cell, 4 floats each, the
+                                      * shading pass's copy (one 16-byte read per interpolation
+                                      * corner) on the grid padded by one empty cell per side,
+                                      * (nx + 2) (ny + 2) (nz + 2) cells, so that every point within
+                                      * half a cell of the grid interpolates without bounds tests */
+    size_t packed_capacity;          /* padded cells allocated in packed */
     bool phi_valid;
     uint32_t phi_dims[3];
     bool lit;                        /* exitance holds this frame's result */
@@ -158,8 +162,9 @@ void nc_tsm_band_free(nacre_context *ctx, nc_tsm_band *band);
  * would have (FACE mode adds the lit faces' own term, see the file). */
 void nc_diff_compute_exitance(nc_diff_object *o, int c, const float *D, nacre_diffusion_source mode,
                               int threads);
-/* After the three channels' exitance: fill o->packed from o->exitance and o->solid. */
-void nc_diff_pack_exitance(nc_diff_object *o, int threads);
+/* After the three channels' exitance: fill o->packed (padded, see nc_diff_object) from
+ * o->exitance and o->solid, growing it if needed. */
+nacre_result nc_diff_pack_exitance(nc_diff_object *o, int threads);
 /* Exitance (3 channels) at surface point p with normal n (the solution read one cell below p,
  * plus in FACE mode the lit faces' term read at p; solid cells only). False if no solid cell is
  * within one cell of the sample point. */

@@ -45,6 +45,7 @@
 #include "core/optics.h"
 
 #include <math.h>
+#include <string.h>
 
 void nc_diff_compute_exitance(nc_diff_object *o, int c, const float *D, nacre_diffusion_source mode, int threads)
 {
@@ -132,52 +133,83 @@ static bool sample_field(const nc_diff_object *o, float *const field[3], nc_vec3
     return true;
 }
 
-void nc_diff_pack_exitance(nc_diff_object *o, int threads)
+nacre_result nc_diff_pack_exitance(nc_diff_object *o, int threads)
 {
-    const size_t cells = o->cells;
+    const size_t nx = o->dims[0], ny = o->dims[1], nz = o->dims[2];
+    const size_t px = nx + 2, py = ny + 2, pz = nz + 2;
+    size_t padded, bytes;
+    if (!nc_mul_size_ok(px, py, &padded) || !nc_mul_size_ok(padded, pz, &padded) ||
+        !nc_mul_size_ok(padded, 4 * sizeof(float), &bytes))
+        return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: voxel grid too large");
+    if (padded > o->packed_capacity) {
+        nc_free(o->ctx, o->packed);
+        o->packed_capacity = 0;
+        o->packed = nc_alloc(o->ctx, bytes);
+        if (!o->packed)
+            return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the exitance grid");
+        o->packed_capacity = padded;
+    }
     const uint8_t *solid = o->solid;
     const float *E0 = o->exitance[0], *E1 = o->exitance[1], *E2 = o->exitance[2];
     float *pk = o->packed;
-#pragma omp parallel for schedule(static) num_threads(threads) if (cells > 65536)
-    for (size_t i = 0; i < cells; i++) {
-        pk[4 * i + 0] = E0[i];
-        pk[4 * i + 1] = E1[i];
-        pk[4 * i + 2] = E2[i];
-        pk[4 * i + 3] = solid[i] ? 1.0f : 0.0f;
-    }
+#pragma omp parallel for schedule(static) num_threads(threads) if (padded > 65536)
+    for (size_t z = 0; z < pz; z++)
+        for (size_t y = 0; y < py; y++) {
+            float *row = pk + 4 * px * (y + py * z);
+            if (z == 0 || y == 0 || z == pz - 1 || y == py - 1) {
+                memset(row, 0, 4 * px * sizeof(float));
+                continue;
+            }
+            size_t u = nx * ((y - 1) + ny * (z - 1));
+            memset(row, 0, 4 * sizeof(float));
+            memset(row + 4 * (px - 1), 0, 4 * sizeof(float));
+            for (size_t x = 0; x < nx; x++) {
+                float *v = row + 4 * (x + 1);
+                v[0] = E0[u + x];
+                v[1] = E1[u + x];
+                v[2] = E2[u + x];
+                v[3] = solid[u + x] ? 1.0f : 0.0f;
+            }
+        }
+    return NACRE_OK;
 }
 
-/* sample_field over o->packed for the exitance: the same weights, corners and order, with
- * the solid test folded into the data (exitance is 0 and the 4th value is 0 outside the
- * domain, so adding w x 0 leaves the sums unchanged) and no per-corner branch. Points whose 8
- * corners are not all inside the grid, or that have no solid corner with weight, take
- * sample_field (the nearest-cell fallback). */
+/* sample_field over o->packed for the exitance: the same weights and corners, with the solid
+ * test folded into the data (exitance is 0 and the 4th value is 0 outside the domain and in
+ * the padding, so adding w x 0 leaves the sums unchanged) and no per-corner branch: one
+ * 4-wide multiply-add per corner. Points farther than half a cell outside the grid, or with no
+ * solid corner with weight, take sample_field (the nearest-cell fallback). */
 static bool sample_exitance(const nc_diff_object *o, nc_vec3 p, float out[3])
 {
+    typedef float v4f __attribute__((vector_size(16)));
     if (!o->solid || o->solid_count == 0 || !o->packed)
         return sample_field(o, o->exitance, p, out);
     const int nx = (int)o->dims[0], ny = (int)o->dims[1], nz = (int)o->dims[2];
     const float inv_h = 1.0f / o->h;
-    float gx = (p.x - o->origin[0]) * inv_h - 0.5f, gy = (p.y - o->origin[1]) * inv_h - 0.5f,
-          gz = (p.z - o->origin[2]) * inv_h - 0.5f;
-    if (!(gx >= 0.0f && gy >= 0.0f && gz >= 0.0f && gx < (float)(nx - 1) && gy < (float)(ny - 1) &&
-          gz < (float)(nz - 1)))
+    /* Coordinates relative to the padded grid's cell centres (hence + 1 - 0.5). */
+    float gx = (p.x - o->origin[0]) * inv_h + 0.5f, gy = (p.y - o->origin[1]) * inv_h + 0.5f,
+          gz = (p.z - o->origin[2]) * inv_h + 0.5f;
+    if (!(gx >= 0.0f && gy >= 0.0f && gz >= 0.0f && gx < (float)(nx + 1) && gy < (float)(ny + 1) &&
+          gz < (float)(nz + 1)))
         return sample_field(o, o->exitance, p, out);
-    int x0 = (int)floorf(gx), y0 = (int)floorf(gy), z0 = (int)floorf(gz);
+    int x0 = (int)gx, y0 = (int)gy, z0 = (int)gz; /* non-negative: truncation is floor */
     float fx = gx - (float)x0, fy = gy - (float)y0, fz = gz - (float)z0;
-    const size_t sy = (size_t)nx, sz = (size_t)nx * (size_t)ny;
-    const float *base = o->packed + 4 * ((size_t)x0 + sy * (size_t)y0 + sz * (size_t)z0);
-    float acc[4] = {0, 0, 0, 0};
-    for (int k = 0; k < 8; k++) {
-        const float *v = base + 4 * ((size_t)(k & 1) + sy * (size_t)((k >> 1) & 1) + sz * (size_t)((k >> 2) & 1));
-        float w = ((k & 1) ? fx : 1.0f - fx) * ((k & 2) ? fy : 1.0f - fy) * ((k & 4) ? fz : 1.0f - fz);
-        for (int c = 0; c < 4; c++)
-            acc[c] += w * v[c];
-    }
+    const size_t sy = 4 * ((size_t)nx + 2), sz = sy * ((size_t)ny + 2);
+    const float *base = o->packed + 4 * (size_t)x0 + sy * (size_t)y0 + sz * (size_t)z0;
+    v4f c[8];
+    for (int k = 0; k < 8; k++)
+        memcpy(&c[k], base + 4 * (size_t)(k & 1) + sy * (size_t)((k >> 1) & 1) + sz * (size_t)((k >> 2) & 1),
+               sizeof(v4f));
+    /* Trilinear as three lerps: the same weights as the per-corner products of sample_field. */
+    const float gx0 = 1.0f - fx, gy0 = 1.0f - fy, gz0 = 1.0f - fz;
+    v4f c00 = c[0] * gx0 + c[1] * fx, c10 = c[2] * gx0 + c[3] * fx;
+    v4f c01 = c[4] * gx0 + c[5] * fx, c11 = c[6] * gx0 + c[7] * fx;
+    v4f acc = (c00 * gy0 + c10 * fy) * gz0 + (c01 * gy0 + c11 * fy) * fz;
     if (!(acc[3] > 1e-6f))
         return sample_field(o, o->exitance, p, out);
-    for (int c = 0; c < 3; c++)
-        out[c] = acc[c] / acc[3];
+    float inv = 1.0f / acc[3];
+    for (int k = 0; k < 3; k++)
+        out[k] = acc[k] * inv;
     return true;
 }
 

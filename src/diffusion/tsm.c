@@ -764,6 +764,7 @@ static void inject_volume(const nc_diff_object *o, int64_t *acc, bool atomic, do
             }
             coef_cell = last_solid;
         }
+        float att[3] = {0.0f, 0.0f, 0.0f};
         for (int ch = 0; ch < 3; ch++) {
             /* A channel already below the cutoff has deposited all it will. */
             if (remain[ch] < VOLUME_CUTOFF)
@@ -771,7 +772,16 @@ static void inject_volume(const nc_diff_object *o, int64_t *acc, bool atomic, do
             float st = st_c[ch];
             if (!(st > 0.0f))
                 continue;
-            float r1 = remain[ch] * expf(-st * seg);
+            /* Channels with the same sigma_t' (jade's red and blue, grey media) share the
+             * segment's attenuation, one expf fewer per step. An earlier channel still above
+             * the cutoff has computed its att this step (remain only decreases). */
+            if (ch > 0 && st == st_c[ch - 1] && remain[ch - 1] >= VOLUME_CUTOFF)
+                att[ch] = att[ch - 1];
+            else if (ch > 1 && st == st_c[0] && remain[0] >= VOLUME_CUTOFF)
+                att[ch] = att[0];
+            else
+                att[ch] = expf(-st * seg);
+            float r1 = remain[ch] * att[ch];
             accumulate(&acc[3 * last_solid + (size_t)ch], dep_c[ch] * (double)(remain[ch] - r1), 1.0, atomic);
             remain[ch] = r1;
             most = r1 > most ? r1 : most;

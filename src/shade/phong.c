@@ -13,6 +13,8 @@
  * A light's shadow lookup is skipped when its unshadowed term is below 2^-16 of what the pixel
  * already holds (NEGLIGIBLE), which for the translucent objects of the diffusion method (no
  * Lambert term, a narrow highlight) removes most lookups; pixels change by less than that bound.
+ * The Blinn-Phong lobe is 0 below 2^-64 of its peak (SPEC_FLOOR): this skips powf, and the
+ * slow denormal arithmetic, over most of a glossy object.
  *
  * The diffusion method reuses this pass through the subsurface hook of nc_shade_params: its
  * translucent objects keep ambient and specular and get the diffusion radiance in place of the
@@ -26,6 +28,9 @@
 /* Relative contribution below which a light's shadow lookup is skipped (see nc_shade_phong):
  * 2^-16, 32 times below the resolution of a half-float EXR. */
 #define NEGLIGIBLE (1.0f / 65536.0f)
+/* Blinn-Phong lobe values below this are 0 (see spec_cut): 2^-64 times the lobe's peak, far
+ * below anything a pixel can show next to the ambient term. */
+#define SPEC_FLOOR 5.421011e-20f
 
 void nc_material_albedo(const nacre_material_desc *m, float out[3])
 {
@@ -38,6 +43,14 @@ void nc_material_albedo(const nacre_material_desc *m, float out[3])
         double st = sp + (double)m->sigma_a[c];
         out[c] = st > 0 ? (float)nc_dipole_rd(sp / st, m->eta) : 0.0f;
     }
+}
+
+/* cos theta_h below which cos^s theta_h < SPEC_FLOOR: there the specular lobe is taken as 0,
+ * which saves powf and keeps its denormal results (slow to multiply) out of the pixel's
+ * arithmetic. -1 (never) for s = 0. */
+static float spec_cut(float shininess)
+{
+    return shininess > 0.0f ? powf(SPEC_FLOOR, 1.0f / shininess) : -1.0f;
 }
 
 /* Smooth spot falloff between the inner and outer cone (Hermite in cos angle). */
@@ -62,11 +75,12 @@ void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_sha
     /* Per-material constants, looked up per pixel by index. Materials are few; a fixed cap keeps
      * this allocation-free, and larger scenes fall back to recomputing. */
     enum { CACHE = 256 };
-    float albedo[CACHE][3], spec_norms[CACHE];
+    float albedo[CACHE][3], spec_norms[CACHE], nh_cuts[CACHE];
     uint32_t cached = scene->material_count < CACHE ? scene->material_count : CACHE;
     for (uint32_t i = 0; i < cached; i++) {
         nc_material_albedo(&scene->materials[i], albedo[i]);
         spec_norms[i] = (scene->materials[i].shininess + 8.0f) / (8.0f * NC_PI);
+        nh_cuts[i] = spec_cut(scene->materials[i].shininess);
     }
 
     /* Rows in small dynamic chunks: objects cover the image unevenly, and static halves left one
@@ -131,7 +145,12 @@ void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_sha
                 nc_vec3 hv = nc_normalize(nc_add(wi, v));
                 float nh = nc_dot(n, hv);
                 nh = nh > 0.0f ? nh : 0.0f;
-                float spec = m->shininess > 0 ? spec_norm * powf(nh, m->shininess) : spec_norm * 1.0f;
+                float nh_cut = mi < cached ? nh_cuts[mi] : spec_cut(m->shininess);
+                float spec = 0.0f;
+                if (nh > nh_cut)
+                    spec = m->shininess > 0 ? spec_norm * powf(nh, m->shininess) : spec_norm;
+                else if (lambert == 0.0f)
+                    continue; /* no Lambert term and no highlight: nothing to add */
                 if (lights[li].shadow) {
                     /* The shadow lookup (PCF) is the most expensive part of a pixel. When this
                      * light's unshadowed term is below NEGLIGIBLE of what the pixel already has
