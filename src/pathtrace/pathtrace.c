@@ -518,7 +518,7 @@ static bool fog_next(fog_iter *it, float *s0, float *s1, float *maj)
             }
             float end = it->b[i], mi = f->maj;
             float y0 = it->org.y + it->dir.y * t;
-            if (f->height && fabsf(it->dir.y) > 1e-6f) {
+            if (f->height && fabsf(it->dir.y) > 1e-20f) { /* else: level, constant density */
                 end = fminf(end, t + FOG_LN2 / (f->falloff * fabsf(it->dir.y)));
                 float y1 = it->org.y + it->dir.y * end;
                 mi *= fog_height(f, fminf(y0, y1));
