@@ -28,6 +28,15 @@
  *
  * Sources are restricted to the coarse levels by summation (power is additive), which is the
  * seed's "inject on every level" (section 4.4) done once.
+ *
+ * Memory traffic (the solver is bandwidth-bound): kernels visit each row only from its first to
+ * its last solid cell (a sphere fills about half of its bounding box); cells outside these spans
+ * are never written and stay zero, and a new setup clears only the cells that left them. Passes
+ * are fused where the data dependencies allow it without changing the arithmetic: the residual
+ * is restricted as it is formed (never stored), the CG update of x and r carries the next
+ * V-cycle's first half sweep, the last half sweep carries r . z, and the new direction p is
+ * formed inside the operator pass (double-buffered). Reductions are summed per z slab and the
+ * slabs added in order, so results do not depend on the number of threads.
  */
 #include "diffusion/diffusion.h"
 #include "core/optics.h"
@@ -47,6 +56,10 @@ typedef struct level {
     size_t cells;  /* padded: (n + 2) per axis */
     size_t sy, sz; /* strides */
     uint8_t *solid;
+    /* Active span of each padded row r = y + (ny + 2) z: padded x in [ext[2 r], ext[2 r + 1]),
+     * from its first to its last solid cell (1, 1 when none). Kernels visit these spans only; cells
+     * outside them are never written and read as zero (see zero_outside). */
+    const uint32_t *ext;
     v4 *g[3];      /* conductance to the +x, +y, +z neighbour (0 when either cell is outside) */
     v4 *diag;      /* diagonal (1 outside the domain) */
     v4 *x, *b, *res; /* V-cycle work */
@@ -73,6 +86,16 @@ struct nc_diff_solver {
     v4 *bnd;     /* boundary conductance sum per cell (escape) */
     v4 *absorb;  /* sigma_a h^3 per cell */
     v4 *pr, *pz, *pp, *pq, *px; /* conjugate-gradient vectors */
+    v4 *pp2;     /* the other buffer of the direction p (apply_dot_dir) */
+    /* Row spans per level (level.ext points into span), the previous setup's spans, and
+     * whether the work arrays are zero outside them (then a new setup only clears the cells
+     * that left the spans). */
+    uint32_t *span[MAX_LEVELS], *span_old[MAX_LEVELS];
+    size_t span_capacity[MAX_LEVELS];
+    uint32_t span_n[MAX_LEVELS][3];
+    bool span_valid[MAX_LEVELS];
+    v4d *part;   /* per-slab partial sums of the reductions, 3 (nz + 2) */
+    size_t part_capacity;
     float *d_user[3]; /* D per cell in the caller's layout */
     size_t user_capacity;
     bool homogeneous; /* level 0 uses the fast path */
@@ -112,8 +135,8 @@ static void level_free(nacre_context *ctx, level *l)
 static void extras_free(nc_diff_solver *s)
 {
     nacre_context *ctx = s->ctx;
-    v4 **w[7] = {&s->bnd, &s->absorb, &s->pr, &s->pz, &s->pp, &s->pq, &s->px};
-    for (int k = 0; k < 7; k++) {
+    v4 **w[8] = {&s->bnd, &s->absorb, &s->pr, &s->pz, &s->pp, &s->pq, &s->px, &s->pp2};
+    for (int k = 0; k < 8; k++) {
         nc_free(ctx, *w[k]);
         *w[k] = NULL;
     }
@@ -123,8 +146,12 @@ void nc_diff_solver_destroy(nc_diff_solver *s)
 {
     if (!s)
         return;
-    for (int i = 0; i < MAX_LEVELS; i++)
+    for (int i = 0; i < MAX_LEVELS; i++) {
         level_free(s->ctx, &s->lv[i]);
+        nc_free(s->ctx, s->span[i]);
+        nc_free(s->ctx, s->span_old[i]);
+    }
+    nc_free(s->ctx, s->part);
     extras_free(s);
     for (int c = 0; c < 3; c++)
         nc_free(s->ctx, s->d_user[c]);
@@ -164,6 +191,7 @@ static nacre_result level_alloc(nc_diff_solver *s, int li, size_t user_cells)
     if (s->capacity[li] < l->cells || !l->solid) {
         level keep = *l;
         level_free(ctx, l);
+        s->span_valid[li] = false; /* fresh arrays: nothing known to be zero */
         memcpy(l->n, keep.n, sizeof(keep.n));
         memcpy(l->r, keep.r, sizeof(keep.r));
         l->cells = keep.cells;
@@ -180,8 +208,8 @@ static nacre_result level_alloc(nc_diff_solver *s, int li, size_t user_cells)
                                 (l->bw = nc_alloc(ctx, l->cells * sizeof(float))) != NULL));
         if (ok && li == 0) {
             extras_free(s);
-            v4 **w[7] = {&s->bnd, &s->absorb, &s->pr, &s->pz, &s->pp, &s->pq, &s->px};
-            for (int k = 0; k < 7; k++)
+            v4 **w[8] = {&s->bnd, &s->absorb, &s->pr, &s->pz, &s->pp, &s->pq, &s->px, &s->pp2};
+            for (int k = 0; k < 8; k++)
                 ok = ok && (*w[k] = nc_alloc(ctx, vb)) != NULL;
         }
         if (ok)
@@ -257,16 +285,6 @@ static void finish_level(level *l, int threads)
  * staircase_faces). The normal is the gradient of the occupancy over the 3x3x3 neighbourhood
  * (1-2-1 weights across the axis), so a planar staircase gets the plane's normal. A face nearly
  * parallel to the estimate keeps a floor of 0.2 so thin features still let light out. */
-static int exposed_faces(const level *l, size_t i, const int open_axes[3])
-{
-    const size_t st[3] = {1, l->sy, l->sz};
-    int open = 0;
-    for (int a = 0; a < 3; a++)
-        if (open_axes[a])
-            open += !l->solid[i - st[a]] + !l->solid[i + st[a]];
-    return open;
-}
-
 static float boundary_weight(const level *l, size_t i, const int open_axes[3], bool staircase)
 {
     const size_t st[3] = {1, l->sy, l->sz};
@@ -315,7 +333,7 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
     const uint32_t nx = m->dims[0], ny = m->dims[1], nz = l->n[2];
     const uint32_t cx = l->n[0], cy = l->n[1], *off = s->off;
     const size_t sy = l->sy, sz = l->sz;
-    v4 *d = s->pz; /* scratch until the first solve */
+    v4 *d = l->res; /* scratch: level 0's res serves the seed scheme only, which writes it first */
     const size_t user_cells = (size_t)m->dims[0] * m->dims[1] * m->dims[2];
     for (int c = 0; c < 3; c++)
         memset(s->d_user[c], 0, user_cells * sizeof(float));
@@ -323,7 +341,7 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
     for (int c = 0; c < 3; c++)
         homogeneous &= !m->sigma_a[c] && !m->sigma_sp[c];
     memset(l->solid, 0, l->cells);
-    memset(d, 0, l->cells * sizeof(v4));
+    /* d is read at solid cells only (pass 1 writes those) */
     memset(s->absorb, 0, l->cells * sizeof(v4));
     memset(s->bnd, 0, l->cells * sizeof(v4));
     v4 dconst = V4_ZERO, aconst = V4_ZERO;
@@ -362,6 +380,11 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
      * cell to itself: no flux and no boundary there. */
     int open_axes[3] = {!m->periodic[0], !m->periodic[1], !m->periodic[2]};
     const size_t st[3] = {1, sy, sz};
+    /* The homogeneous fast path (below) needs neither the conductances nor the diagonal of
+     * this level: every coefficient follows from k and bw, and build_coarse forms level 1 from
+     * those too. A channel with D = 0 (sigma_t' = 0: no medium) would make it divide by 0; the
+     * general path gives such cells a unit diagonal (finish_level). */
+    const bool fast = homogeneous && dconst[0] > 0 && dconst[1] > 0 && dconst[2] > 0;
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
     for (size_t z = 0; z < (size_t)nz + 2; z++)
         for (size_t i = z * sz; i < (z + 1) * sz; i++) {
@@ -370,7 +393,7 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
             for (int a = 0; a < 3; a++) {
                 size_t j = i + st[a];
                 v4 g = V4_ZERO;
-                if (in && j < l->cells && l->solid[j]) {
+                if (!fast && in && j < l->cells && l->solid[j]) {
                     v4 di = d[i], dj = d[j];
                     if (homogeneous)
                         g = h * di;
@@ -378,10 +401,12 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
                         for (int c = 0; c < 3; c++)
                             g[c] = di[c] > 0 && dj[c] > 0 ? h * 2.0f * di[c] * dj[c] / (di[c] + dj[c]) : 0.0f;
                 }
-                l->g[a][i] = g;
+                if (!fast)
+                    l->g[a][i] = g;
                 if (in && open_axes[a])
                     open += !l->solid[i - st[a]] + !l->solid[i + st[a]];
             }
+            l->k[i] = (uint8_t)(in ? open : 0); /* exposed faces, for the smoothing below */
             l->bw[i] = in && open ? boundary_weight(l, i, open_axes, m->staircase_faces) : 0.0f;
         }
     if (!m->staircase_faces) {
@@ -403,9 +428,9 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
                             if (j >= l->cells || l->bw[j] == 0.0f)
                                 continue;
                             wsum += l->bw[j];
-                            osum += (float)exposed_faces(l, j, open_axes);
+                            osum += (float)l->k[j];
                         }
-                smooth[i] = osum > 0 ? (float)exposed_faces(l, i, open_axes) * wsum / osum : l->bw[i];
+                smooth[i] = osum > 0 ? (float)l->k[i] * wsum / osum : l->bw[i];
             }
         for (size_t z = 1; z <= (size_t)nz; z++)
             memcpy(l->bw + z * sz, smooth + z * sz, sz * sizeof(float));
@@ -415,7 +440,8 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
     for (size_t z = 0; z < (size_t)nz + 2; z++)
         for (size_t i = z * sz; i < (z + 1) * sz; i++) {
             if (!l->solid[i]) {
-                l->diag[i] = V4_ZERO;
+                if (!fast)
+                    l->diag[i] = V4_ZERO;
                 continue;
             }
             float w = l->bw[i];
@@ -424,12 +450,12 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
                 for (int c = 0; c < 3; c++)
                     bv[c] = w * h * h * 2.0f * dv[c] / (h + 4.0f * A * dv[c]);
             s->bnd[i] = bv;
-            l->diag[i] = bv + s->absorb[i];
+            if (!fast)
+                l->diag[i] = bv + s->absorb[i];
         }
-    finish_level(l, threads);
-    /* A channel with D = 0 (sigma_t' = 0: no medium) would make the fast path divide by 0; the
-     * general path gives such cells a unit diagonal (finish_level). */
-    homogeneous &= dconst[0] > 0 && dconst[1] > 0 && dconst[2] > 0;
+    if (!fast)
+        finish_level(l, threads);
+    homogeneous = fast;
     s->homogeneous = homogeneous;
     l->homogeneous_level = homogeneous;
     if (homogeneous) {
@@ -466,7 +492,10 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
 static void build_coarse(nc_diff_solver *s, int li, int threads)
 {
     level *f = &s->lv[li - 1], *l = &s->lv[li];
-    (void)s;
+    /* A homogeneous fine level stores neither conductances nor diagonal (build_fine): its
+     * conductance is G between solid cells, its boundary + absorption in bnd and absorb. */
+    const bool hom = f->homogeneous_level;
+    const v4 G = f->kg[0];
     memset(l->solid, 0, l->cells);
     memset(l->diag, 0, l->cells * sizeof(v4));
     for (int a = 0; a < 3; a++)
@@ -486,17 +515,87 @@ static void build_coarse(nc_diff_solver *s, int li, int threads)
                     size_t I = pidx(l, cp[0], cp[1], cp[2]);
                     l->solid[I] = 1;
                     /* diag minus the six conductances = boundary + absorption of the fine cell */
-                    v4 nonc = f->diag[i];
-                    for (int a = 0; a < 3; a++)
-                        nonc -= f->g[a][i] + f->g[a][i - fst[a]];
+                    v4 nonc;
+                    if (hom) {
+                        nonc = s->bnd[i] + s->absorb[i];
+                    } else {
+                        nonc = f->diag[i];
+                        for (int a = 0; a < 3; a++)
+                            nonc -= f->g[a][i] + f->g[a][i - fst[a]];
+                    }
                     for (int c = 0; c < 4; c++)
                         nonc[c] = nonc[c] > 0 ? nonc[c] : 0.0f;
                     l->diag[I] += nonc;
                     for (int a = 0; a < 3; a++)
                         if ((p[a] + 1) / l->r[a] != cp[a]) /* faces inside the aggregate cancel */
-                            l->g[a][I] += f->g[a][i] * inv_r[a];
+                            l->g[a][I] += (hom ? (f->solid[i + fst[a]] ? G : V4_ZERO) : f->g[a][i]) * inv_r[a];
                 }
     finish_level(l, threads);
+}
+
+/* The active span of each row of level li (level.ext), from its solid cells; the previous
+ * setup's spans move to span_old. */
+static nacre_result level_spans(nc_diff_solver *s, uint32_t li, int threads)
+{
+    level *l = &s->lv[li];
+    const size_t ry = (size_t)l->n[1] + 2, rows = ry * ((size_t)l->n[2] + 2);
+    if (s->span_capacity[li] < rows) {
+        nc_free(s->ctx, s->span[li]);
+        nc_free(s->ctx, s->span_old[li]);
+        s->span[li] = nc_alloc(s->ctx, 2 * rows * sizeof(uint32_t));
+        s->span_old[li] = nc_alloc(s->ctx, 2 * rows * sizeof(uint32_t));
+        s->span_valid[li] = false;
+        s->span_capacity[li] = s->span[li] && s->span_old[li] ? rows : 0;
+        if (!s->span_capacity[li])
+            return nc_fail(s->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory");
+    }
+    uint32_t *e = s->span_old[li];
+    s->span_old[li] = s->span[li];
+    s->span[li] = e;
+    const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (uint32_t z = 0; z <= nz + 1; z++)
+        for (uint32_t y = 0; y <= ny + 1; y++) {
+            uint32_t lo = 1, hi = 1;
+            if (z >= 1 && z <= nz && y >= 1 && y <= ny) {
+                const uint8_t *row = l->solid + l->sy * y + l->sz * z;
+                uint32_t x = 1;
+                while (x <= nx && !row[x])
+                    x++;
+                if (x <= nx) {
+                    lo = x;
+                    hi = nx;
+                    while (!row[hi])
+                        hi--;
+                    hi++;
+                }
+            }
+            e[2 * (y + ry * z)] = lo;
+            e[2 * (y + ry * z) + 1] = hi;
+        }
+    l->ext = e;
+    return NACRE_OK;
+}
+
+/* Zero the interior cells of array a outside the current spans of level l: all of them (old
+ * NULL), or only those inside the spans `old` (the array is known to be zero outside those). */
+static void zero_outside(const level *l, v4 *a, const uint32_t *old, int threads)
+{
+    const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
+    const size_t ry = (size_t)ny + 2;
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (uint32_t z = 1; z <= nz; z++)
+        for (uint32_t y = 1; y <= ny; y++) {
+            size_t r = y + ry * z, row = l->sy * y + l->sz * z;
+            uint32_t lo = l->ext[2 * r], hi = l->ext[2 * r + 1];
+            uint32_t olo = old ? old[2 * r] : 1, ohi = old ? old[2 * r + 1] : nx + 1;
+            if (lo == hi) /* empty: everything of the old range goes */
+                lo = hi = ohi;
+            for (uint32_t x = olo; x < lo && x < ohi; x++)
+                a[row + x] = V4_ZERO;
+            for (uint32_t x = hi > olo ? hi : olo; x < ohi; x++)
+                a[row + x] = V4_ZERO;
+        }
 }
 
 nacre_result nc_diff_setup(nc_diff_solver *s, const nc_diff_medium *m)
@@ -563,27 +662,47 @@ nacre_result nc_diff_setup(nc_diff_solver *s, const nc_diff_medium *m)
         }
     }
     s->level_count = count;
-    /* Kernels write interior cells only: the padding of every work array must read as zero,
-     * whatever a previous, differently shaped grid left there. Interior cells are always
-     * written before they are read, so only the padding is cleared: clearing whole arrays was
-     * a quarter of the propagation stage of a deforming object at 64^3 and more at 128^3. */
-    for (uint32_t li = 0; li < count; li++) {
-        level *l = &s->lv[li];
-        zero_padding(l, l->x);
-        zero_padding(l, l->b);
-        zero_padding(l, l->res);
-    }
-    v4 *work[3] = {s->pp, s->pq, s->px};
-    for (int k = 0; k < 3; k++)
-        zero_padding(&s->lv[0], work[k]);
     nacre_result res = build_fine(s, m, ctx->threads);
     if (res != NACRE_OK)
         return res;
-    /* pr and pz were scratch (smoothed boundary weights, D) */
-    zero_padding(&s->lv[0], s->pr);
-    zero_padding(&s->lv[0], s->pz);
+    zero_padding(&s->lv[0], s->pr); /* pr was scratch (smoothed boundary weights) */
     for (uint32_t li = 1; li < count; li++)
         build_coarse(s, (int)li, ctx->threads);
+    size_t part = 3 * ((size_t)s->lv[0].n[2] + 2);
+    if (s->part_capacity < part) {
+        nc_free(ctx, s->part);
+        s->part = nc_alloc(ctx, part * sizeof(v4d));
+        s->part_capacity = s->part ? part : 0;
+        if (!s->part)
+            return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory");
+    }
+    /* Kernels visit the active row spans only. The arrays that neighbour sums read (x of the
+     * coarse levels; z, both directions and the solution at level 0) are read at cells outside
+     * the spans too, which must hold zero: the padding and every cell outside the spans. The
+     * kernels never write there, so when a level keeps its shape from the previous setup only
+     * the cells that have left the spans are cleared (clearing whole arrays was a quarter of the
+     * propagation stage of a deforming object at 64^3); other arrays are read at active cells
+     * only, after being written. */
+    for (uint32_t li = 0; li < count; li++) {
+        level *l = &s->lv[li];
+        if ((res = level_spans(s, li, ctx->threads)) != NACRE_OK)
+            return res;
+        bool diff = s->span_valid[li] && memcmp(s->span_n[li], l->n, sizeof(l->n)) == 0;
+        v4 *zeroed[4] = {l->x, NULL, NULL, NULL};
+        if (li == 0) {
+            zeroed[0] = s->pz;
+            zeroed[1] = s->pp;
+            zeroed[2] = s->pp2;
+            zeroed[3] = s->px;
+        }
+        for (int k = 0; k < 4 && zeroed[k]; k++) {
+            if (!diff)
+                zero_padding(l, zeroed[k]);
+            zero_outside(l, zeroed[k], diff ? s->span_old[li] : NULL, ctx->threads);
+        }
+        s->span_valid[li] = true;
+        memcpy(s->span_n[li], l->n, sizeof(l->n));
+    }
     return NACRE_OK;
 }
 
@@ -627,96 +746,182 @@ static inline v4d cell_offdiag_d(const level *l, const v4 *v, size_t i)
            widen(g[2][i - sz]) * widen(v[i - sz]);
 }
 
-/* out = b - M v, or M v when b is NULL. */
-static void apply(const level *l, const v4 *v, const v4 *b, v4 *out, int threads)
+/* The active cells [*a, *e) (padded indices) of interior row (y, z), 1-based padded y and z;
+ * an empty row gives a == e. */
+static inline void row_span(const level *l, uint32_t y, uint32_t z, size_t *a, size_t *e)
 {
-    const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
-#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
-    for (uint32_t z = 1; z <= nz; z++)
-        for (uint32_t y = 1; y <= ny; y++) {
-            size_t row = l->sy * y + l->sz * z;
-            for (size_t i = row + 1; i <= row + nx; i++) {
-                v4 mv = cell_diag(l, i) * v[i] - cell_offdiag(l, v, i);
-                out[i] = b ? b[i] - mv : mv;
-            }
-        }
+    const uint32_t *x = l->ext + 2 * ((size_t)y + ((size_t)l->n[1] + 2) * z);
+    size_t row = l->sy * y + l->sz * z;
+    *a = row + x[0];
+    *e = row + x[1];
 }
 
-/* q = M p and the per-channel p . q in the same pass (rows summed in float, rows in double). */
-static v4d apply_dot(const level *l, const v4 *p, v4 *q, int threads)
+/* First cell of `color` ((x + y + z) % 2, padded coordinates) at or after padded index a of row
+ * (y, z) whose first padded cell is `row`. */
+static inline size_t color_start(size_t a, size_t row, uint32_t y, uint32_t z, int color)
 {
-    const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
-    double s0 = 0, s1 = 0, s2 = 0;
-#pragma omp parallel for num_threads(threads) reduction(+ : s0, s1, s2) schedule(static) if (l->cells > 32768)
+    return a + (((size_t)color + (a - row) + y + z) & 1);
+}
+
+/* Per-slab partial sums of the reductions, added in slab order: the result does not depend on
+ * the number of threads or the schedule. */
+static v4d sum_slabs(const v4d *part, uint32_t nz)
+{
+    v4d r = {0.0, 0.0, 0.0, 0.0};
     for (uint32_t z = 1; z <= nz; z++)
-        for (uint32_t y = 1; y <= ny; y++) {
-            size_t row = l->sy * y + l->sz * z;
-            v4 acc = V4_ZERO;
-            for (size_t i = row + 1; i <= row + nx; i++) {
-                v4 mv = cell_diag(l, i) * p[i] - cell_offdiag(l, p, i);
-                q[i] = mv;
-                acc += p[i] * mv;
-            }
-            s0 += acc[0];
-            s1 += acc[1];
-            s2 += acc[2];
-        }
-    v4d r = {s0, s1, s2, 0.0};
+        r += part[z];
     return r;
 }
 
-/* x += alpha p, r -= alpha q, and the per-channel r . r, in one pass. */
-static v4d update_xr(v4 *x, v4 *r, const v4 *p, const v4 *q, v4 alpha, size_t n, int threads)
+/* out = b - M v over the active cells (the seed scheme's Jacobi update reads it). */
+static void apply(const level *l, const v4 *v, const v4 *b, v4 *out, int threads)
 {
-    double s0 = 0, s1 = 0, s2 = 0;
-    const size_t block = 1024;
-    size_t blocks = (n + block - 1) / block;
-#pragma omp parallel for num_threads(threads) reduction(+ : s0, s1, s2) schedule(static) if (n > 65536)
-    for (size_t bi = 0; bi < blocks; bi++) {
-        size_t end = (bi + 1) * block < n ? (bi + 1) * block : n;
-        v4 acc = V4_ZERO;
-        for (size_t i = bi * block; i < end; i++) {
-            x[i] += alpha * p[i];
-            v4 ri = r[i] - alpha * q[i];
-            r[i] = ri;
-            acc += ri * ri;
+    const uint32_t ny = l->n[1], nz = l->n[2];
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (uint32_t z = 1; z <= nz; z++)
+        for (uint32_t y = 1; y <= ny; y++) {
+            size_t a, e;
+            row_span(l, y, z, &a, &e);
+            for (size_t i = a; i < e; i++)
+                out[i] = b[i] - (cell_diag(l, i) * v[i] - cell_offdiag(l, v, i));
         }
-        s0 += acc[0];
-        s1 += acc[1];
-        s2 += acc[2];
+}
+
+/* Conjugate-gradient direction and its image in one pass: p_new = z + beta p_old (p_old not
+ * read when first: p_new = z) and q = M p_new, with the per-channel p_new . q. q needs p_new at
+ * the six neighbours, which are formed on the fly from z and p_old (double buffer: p_old is
+ * not overwritten while neighbours still read it); this saves the separate pass that updated p
+ * in place and the re-read of p by the operator. */
+static v4d apply_dot_dir(const level *l, const v4 *z, const v4 *p_old, v4 *p_new, v4 *q, v4 beta, bool first,
+                         v4d *part, int threads)
+{
+    const uint32_t ny = l->n[1], nz = l->n[2];
+    const size_t sy = l->sy, sz = l->sz;
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (uint32_t zz = 1; zz <= nz; zz++) {
+        v4d slab = {0.0, 0.0, 0.0, 0.0};
+        for (uint32_t y = 1; y <= ny; y++) {
+            size_t a, e;
+            row_span(l, y, zz, &a, &e);
+            v4 acc = V4_ZERO;
+            if (first) {
+                for (size_t i = a; i < e; i++) {
+                    v4 pi = z[i];
+                    v4 mv = cell_diag(l, i) * pi - cell_offdiag(l, z, i);
+                    p_new[i] = pi;
+                    q[i] = mv;
+                    acc += pi * mv;
+                }
+            } else {
+#define DIR(j) (z[j] + beta * p_old[j])
+                for (size_t i = a; i < e; i++) {
+                    v4 pi = DIR(i), off;
+                    if (l->homogeneous_level) {
+                        off = l->kg[l->k[i]] *
+                              (DIR(i + 1) + DIR(i - 1) + DIR(i + sy) + DIR(i - sy) + DIR(i + sz) + DIR(i - sz));
+                    } else {
+                        const v4 *const *g = (const v4 *const *)l->g;
+                        off = g[0][i] * DIR(i + 1) + g[0][i - 1] * DIR(i - 1) + g[1][i] * DIR(i + sy) +
+                              g[1][i - sy] * DIR(i - sy) + g[2][i] * DIR(i + sz) + g[2][i - sz] * DIR(i - sz);
+                    }
+#undef DIR
+                    v4 mv = cell_diag(l, i) * pi - off;
+                    p_new[i] = pi;
+                    q[i] = mv;
+                    acc += pi * mv;
+                }
+            }
+            slab += widen(acc);
+        }
+        part[zz] = slab;
     }
-    v4d res = {s0, s1, s2, 0.0};
-    return res;
+    return sum_slabs(part, nz);
+}
+
+/* x += alpha p, r -= alpha q and the per-channel r . r, and the first Gauss-Seidel half sweep
+ * of the next V-cycle on r (z = r / diag on color-0 cells, see gs_first), in one pass: the
+ * half sweep reads only r and the diagonal of the cell, so it needs no neighbour of this pass. */
+static v4d update_xr_first(const level *l, v4 *x, v4 *r, const v4 *p, const v4 *q, v4 alpha, v4 *zv, v4d *part,
+                           int threads)
+{
+    const uint32_t ny = l->n[1], nz = l->n[2];
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (uint32_t z = 1; z <= nz; z++) {
+        v4d slab = {0.0, 0.0, 0.0, 0.0};
+        for (uint32_t y = 1; y <= ny; y++) {
+            size_t a, e, row = l->sy * y + l->sz * z;
+            row_span(l, y, z, &a, &e);
+            v4 acc = V4_ZERO;
+            for (size_t i = a; i < e; i++) {
+                x[i] += alpha * p[i];
+                v4 ri = r[i] - alpha * q[i];
+                r[i] = ri;
+                acc += ri * ri;
+            }
+            for (size_t i = color_start(a, row, y, z, 0); i < e; i += 2)
+                zv[i] = r[i] / cell_diag(l, i);
+            slab += widen(acc);
+        }
+        part[z] = slab;
+    }
+    return sum_slabs(part, nz);
 }
 
 /* out = b - M v with the products summed in double: near convergence b and M v agree to many
  * digits (high albedo makes the diagonal almost equal the neighbour sum), so a float sum would
- * put a floor of ~1e-5 under the relative residual. */
-static void residual_exact(const level *l, const v4 *v, const v4 *b, v4 *out, int threads)
+ * put a floor of ~1e-5 under the relative residual. Returns the per-channel out . out. */
+static v4d residual_exact(const level *l, const v4 *v, const v4 *b, v4 *out, v4d *part, int threads)
 {
-    const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
+    const uint32_t ny = l->n[1], nz = l->n[2];
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
-    for (uint32_t z = 1; z <= nz; z++)
+    for (uint32_t z = 1; z <= nz; z++) {
+        v4d slab = {0.0, 0.0, 0.0, 0.0};
         for (uint32_t y = 1; y <= ny; y++) {
-            size_t row = l->sy * y + l->sz * z;
-            for (size_t i = row + 1; i <= row + nx; i++) {
-                v4d acc = widen(b[i]) - widen(cell_diag(l, i)) * widen(v[i]) + cell_offdiag_d(l, v, i);
-                out[i] = __builtin_convertvector(acc, v4);
+            size_t a, e;
+            row_span(l, y, z, &a, &e);
+            v4 acc = V4_ZERO;
+            for (size_t i = a; i < e; i++) {
+                v4d d = widen(b[i]) - widen(cell_diag(l, i)) * widen(v[i]) + cell_offdiag_d(l, v, i);
+                v4 o = __builtin_convertvector(d, v4);
+                out[i] = o;
+                acc += o * o;
             }
+            slab += widen(acc);
         }
+        part[z] = slab;
+    }
+    return sum_slabs(part, nz);
 }
 
-/* One red-black Gauss-Seidel half sweep over the cells with (x + y + z) % 2 == color. */
-static void gs_color(const level *l, v4 *v, const v4 *b, int color, int threads)
+/* One red-black Gauss-Seidel half sweep over the cells with (x + y + z) % 2 == color. With
+ * `part`, also the per-channel b . v over all active cells after the sweep (the last sweep of a
+ * V-cycle gives the conjugate-gradient r . z this way: the row's cells are in cache). */
+static v4d gs_color(const level *l, v4 *v, const v4 *b, int color, v4d *part, int threads)
 {
-    const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
+    const uint32_t ny = l->n[1], nz = l->n[2];
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
-    for (uint32_t z = 1; z <= nz; z++)
+    for (uint32_t z = 1; z <= nz; z++) {
+        v4d slab = {0.0, 0.0, 0.0, 0.0};
         for (uint32_t y = 1; y <= ny; y++) {
-            size_t row = l->sy * y + l->sz * z;
-            for (size_t i = row + 1 + ((color + y + z + 1) & 1); i <= row + nx; i += 2)
+            size_t a, e, row = l->sy * y + l->sz * z;
+            row_span(l, y, z, &a, &e);
+            for (size_t i = color_start(a, row, y, z, color); i < e; i += 2)
                 v[i] = (b[i] + cell_offdiag(l, v, i)) / cell_diag(l, i);
+            if (part) {
+                v4 acc = V4_ZERO;
+                for (size_t i = a; i < e; i++)
+                    acc += b[i] * v[i];
+                slab += widen(acc);
+            }
         }
+        if (part)
+            part[z] = slab;
+    }
+    if (!part) {
+        v4d zero = {0.0, 0.0, 0.0, 0.0};
+        return zero;
+    }
+    return sum_slabs(part, nz);
 }
 
 /* The first half sweep (color 0) from v = 0, without clearing v first: color-0 cells get
@@ -726,101 +931,132 @@ static void gs_color(const level *l, v4 *v, const v4 *b, int color, int threads)
  * neighbour reads. */
 static void gs_first(const level *l, v4 *v, const v4 *b, int threads)
 {
-    const uint32_t nx = l->n[0], ny = l->n[1], nz = l->n[2];
+    const uint32_t ny = l->n[1], nz = l->n[2];
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
     for (uint32_t z = 1; z <= nz; z++)
         for (uint32_t y = 1; y <= ny; y++) {
-            size_t row = l->sy * y + l->sz * z;
-            for (size_t i = row + 1 + ((y + z + 1) & 1); i <= row + nx; i += 2)
+            size_t a, e, row = l->sy * y + l->sz * z;
+            row_span(l, y, z, &a, &e);
+            for (size_t i = color_start(a, row, y, z, 0); i < e; i += 2)
                 v[i] = b[i] / cell_diag(l, i);
         }
 }
 
-/* Coarse b = sum of the fine values of its children. */
-static void restrict_sum(const level *f, const level *l, const v4 *fine, v4 *coarse)
+/* Coarse b = sum over the children of the fine residual b - M v (v non-NULL) or of the fine b
+ * itself (v NULL). The residual is formed row by row and summed at once, never stored. Each
+ * coarse slab gathers its own children in a fixed order, so slabs run in parallel and the sums
+ * do not depend on the thread count. Coarse cells outside the coarse rows' spans are not
+ * written (they stay 0); every fine active cell lies inside its parent's span. */
+static void restrict_rows(const level *f, const level *l, const v4 *v, const v4 *b, v4 *coarse, int threads)
 {
-    for (size_t i = 0; i < l->cells; i++)
-        coarse[i] = V4_ZERO;
     const uint32_t sh = l->r[0] == 2 ? 1 : 0;
-    for (uint32_t z = 0; z < f->n[2]; z++)
-        for (uint32_t y = 0; y < f->n[1]; y++) {
-            size_t row = pidx(f, 0, y, z), crow = pidx(l, 0, y / l->r[1], z / l->r[2]);
-            for (uint32_t x = 0; x < f->n[0]; x++)
-                coarse[crow + (x >> sh)] += fine[row + x];
+#pragma omp parallel for num_threads(threads) schedule(static) if (f->cells > 32768)
+    for (uint32_t Z = 1; Z <= l->n[2]; Z++) {
+        for (uint32_t Y = 1; Y <= l->n[1]; Y++) {
+            size_t a, e;
+            row_span(l, Y, Z, &a, &e);
+            for (size_t i = a; i < e; i++)
+                coarse[i] = V4_ZERO;
         }
+        for (uint32_t z = (Z - 1) * l->r[2] + 1; z <= Z * l->r[2] && z <= f->n[2]; z++)
+            for (uint32_t y = 1; y <= f->n[1]; y++) {
+                size_t a, e, row = f->sy * y + f->sz * z;
+                row_span(f, y, z, &a, &e);
+                /* padded fine x -> padded coarse X: (x - 1) / r + 1 */
+                size_t crow = l->sy * ((y - 1) / l->r[1] + 1) + l->sz * Z + 1;
+                if (v)
+                    for (size_t i = a; i < e; i++)
+                        coarse[crow + ((i - row - 1) >> sh)] += b[i] - (cell_diag(f, i) * v[i] - cell_offdiag(f, v, i));
+                else
+                    for (size_t i = a; i < e; i++)
+                        coarse[crow + ((i - row - 1) >> sh)] += b[i];
+            }
+    }
 }
 
-/* fine += the coarse value of the parent (piecewise constant), inside the domain only. */
-static void prolong_add(const level *f, const level *l, const v4 *coarse, v4 *fine)
+/* fine += the coarse value of the parent (piecewise constant), inside the domain only; with
+ * color_only, on color-0 cells alone (the color-1 half sweep that follows overwrites the others
+ * without reading them). */
+static void prolong_add(const level *f, const level *l, const v4 *coarse, v4 *fine, bool color_only, int threads)
 {
     const uint32_t sh = l->r[0] == 2 ? 1 : 0;
-    for (uint32_t z = 0; z < f->n[2]; z++)
-        for (uint32_t y = 0; y < f->n[1]; y++) {
-            size_t row = pidx(f, 0, y, z), crow = pidx(l, 0, y / l->r[1], z / l->r[2]);
-            for (uint32_t x = 0; x < f->n[0]; x++)
-                if (f->solid[row + x])
-                    fine[row + x] += coarse[crow + (x >> sh)];
+    const size_t stride = color_only ? 2 : 1;
+#pragma omp parallel for num_threads(threads) schedule(static) if (f->cells > 32768)
+    for (uint32_t z = 1; z <= f->n[2]; z++)
+        for (uint32_t y = 1; y <= f->n[1]; y++) {
+            size_t a, e, row = f->sy * y + f->sz * z;
+            row_span(f, y, z, &a, &e);
+            size_t crow = l->sy * ((y - 1) / l->r[1] + 1) + l->sz * ((z - 1) / l->r[2] + 1) + 1;
+            for (size_t i = color_only ? color_start(a, row, y, z, 0) : a; i < e; i += stride)
+                if (f->solid[i])
+                    fine[i] += coarse[crow + ((i - row - 1) >> sh)];
         }
 }
 
 /* Symmetric V-cycle: x = V(b) with x starting at zero (a fixed linear operator of b); x's
- * previous contents are ignored. */
-static void vcycle(nc_diff_solver *s, uint32_t li, const v4 *b, v4 *x, int threads)
+ * previous contents are ignored. first_done: the first half sweep (gs_first) has been done by
+ * the caller (update_xr_first). With bz, the last half sweep also returns b . x there. */
+static void vcycle(nc_diff_solver *s, uint32_t li, const v4 *b, v4 *x, bool first_done, v4d *bz, int threads)
 {
     level *l = &s->lv[li];
+    v4d *part = s->part;
     if (li + 1 == s->level_count) {
         memset(x, 0, l->cells * sizeof(v4));
         /* Coarsest (at most 2 cells per axis, or what could not be coarsened): enough symmetric
          * sweeps to solve it, the count fixed so the cycle stays linear. */
         uint32_t sweeps = 4 + 2 * (l->n[0] + l->n[1] + l->n[2]);
         for (uint32_t k = 0; k < sweeps; k++) {
-            gs_color(l, x, b, 0, threads);
-            gs_color(l, x, b, 1, threads);
-            gs_color(l, x, b, 1, threads);
-            gs_color(l, x, b, 0, threads);
+            gs_color(l, x, b, 0, NULL, threads);
+            gs_color(l, x, b, 1, NULL, threads);
+            gs_color(l, x, b, 1, NULL, threads);
+            v4d d = gs_color(l, x, b, 0, bz && k + 1 == sweeps ? part : NULL, threads);
+            if (bz && k + 1 == sweeps)
+                *bz = d;
         }
         return;
     }
     level *lc = &s->lv[li + 1];
-    gs_first(l, x, b, threads); /* x starts at zero (the padding is zero already) */
-    gs_color(l, x, b, 1, threads);
-    apply(l, x, b, l->res, threads);
-    restrict_sum(l, lc, l->res, lc->b);
-    vcycle(s, li + 1, lc->b, lc->x, threads);
-    prolong_add(l, lc, lc->x, x);
-    gs_color(l, x, b, 1, threads);
-    gs_color(l, x, b, 0, threads);
+    if (!first_done)
+        gs_first(l, x, b, threads); /* x starts at zero (the padding is zero already) */
+    gs_color(l, x, b, 1, NULL, threads);
+    restrict_rows(l, lc, x, b, lc->b, threads);
+    vcycle(s, li + 1, lc->b, lc->x, false, NULL, threads);
+    prolong_add(l, lc, lc->x, x, true, threads);
+    gs_color(l, x, b, 1, NULL, threads);
+    v4d d = gs_color(l, x, b, 0, bz ? part : NULL, threads);
+    if (bz)
+        *bz = d;
 }
 
-/* Per-channel dot products: blocks of 1024 cells summed in float, blocks in double. */
-static v4d dot(const v4 *a, const v4 *b, size_t n, int threads)
+/* Per-channel a . b over the active cells of level 0. */
+static v4d dot(const level *l, const v4 *a, const v4 *b, v4d *part, int threads)
 {
-    double s0 = 0, s1 = 0, s2 = 0;
-    const size_t block = 1024;
-    size_t blocks = (n + block - 1) / block;
-#pragma omp parallel for num_threads(threads) reduction(+ : s0, s1, s2) schedule(static) if (n > 65536)
-    for (size_t bi = 0; bi < blocks; bi++) {
-        size_t end = (bi + 1) * block < n ? (bi + 1) * block : n;
-        v4 acc = V4_ZERO;
-        for (size_t i = bi * block; i < end; i++)
-            acc += a[i] * b[i];
-        s0 += acc[0];
-        s1 += acc[1];
-        s2 += acc[2];
+    const uint32_t ny = l->n[1], nz = l->n[2];
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (uint32_t z = 1; z <= nz; z++) {
+        v4d slab = {0.0, 0.0, 0.0, 0.0};
+        for (uint32_t y = 1; y <= ny; y++) {
+            size_t s, e;
+            row_span(l, y, z, &s, &e);
+            v4 acc = V4_ZERO;
+            for (size_t i = s; i < e; i++)
+                acc += a[i] * b[i];
+            slab += widen(acc);
+        }
+        part[z] = slab;
     }
-    v4d r = {s0, s1, s2, 0.0};
-    return r;
+    return sum_slabs(part, nz);
 }
 
 static void solve_pcg(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solve_opts *o, nc_diff_solve_report rep[3])
 {
     level *l = &s->lv[0];
-    const size_t n = l->cells;
     const int threads = s->ctx->threads;
-    v4 *r = s->pr, *z = s->pz, *p = s->pp, *q = s->pq;
+    v4 *r = s->pr, *z = s->pz, *p = s->pp, *p2 = s->pp2, *q = s->pq;
+    v4d *part = s->part;
     const double tol = o->tolerance > 0 ? o->tolerance : 1e-4;
     const uint32_t max_it = o->max_iterations ? o->max_iterations : 200;
-    v4d bb = dot(b, b, n, threads);
+    v4d bb = dot(l, b, b, part, threads);
     double bnorm[3];
     for (int c = 0; c < 3; c++)
         bnorm[c] = sqrt(bb[c]);
@@ -829,8 +1065,7 @@ static void solve_pcg(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solve
      * from the exact residual whenever the recursively updated one (float) claims a convergence
      * that the exact one does not confirm. */
     for (int restart = 0; restart < 8 && it < max_it; restart++) {
-        residual_exact(l, x, b, r, threads);
-        v4d rr = dot(r, r, n, threads);
+        v4d rr = residual_exact(l, x, b, r, part, threads);
         bool active[3], any = false;
         for (int c = 0; c < 3; c++) {
             active[c] = sqrt(rr[c]) > tol * bnorm[c];
@@ -838,11 +1073,16 @@ static void solve_pcg(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solve
         }
         if (!any)
             break;
-        vcycle(s, 0, r, z, threads);
-        memcpy(p, z, n * sizeof(v4));
-        v4d rz = dot(r, z, n, threads);
+        v4d rz;
+        vcycle(s, 0, r, z, false, &rz, threads);
+        v4 beta = V4_ZERO;
+        bool first = true; /* p = z */
         while (it < max_it) {
-            v4d pq = apply_dot(l, p, q, threads);
+            v4d pq = apply_dot_dir(l, z, p, p2, q, beta, first, part, threads);
+            v4 *t = p; /* p2 holds the new direction */
+            p = p2;
+            p2 = t;
+            first = false;
             v4 alpha = V4_ZERO;
             bool stalled = true;
             for (int c = 0; c < 3; c++)
@@ -852,7 +1092,7 @@ static void solve_pcg(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solve
                 }
             if (stalled)
                 break;
-            rr = update_xr(x, r, p, q, alpha, n, threads);
+            rr = update_xr_first(l, x, r, p, q, alpha, z, part, threads);
             it++;
             any = false;
             for (int c = 0; c < 3; c++) {
@@ -862,20 +1102,18 @@ static void solve_pcg(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solve
             }
             if (!any)
                 break;
-            vcycle(s, 0, r, z, threads);
-            v4d rz_new = dot(r, z, n, threads);
-            v4 beta = V4_ZERO;
+            v4d rz_new;
+            vcycle(s, 0, r, z, true, &rz_new, threads);
             for (int c = 0; c < 3; c++)
                 beta[c] = active[c] && rz[c] != 0 ? (float)(rz_new[c] / rz[c]) : 0.0f;
             rz = rz_new;
-#pragma omp parallel for num_threads(threads) schedule(static) if (n > 65536)
-            for (size_t i = 0; i < n; i++)
-                p[i] = z[i] + beta * p[i];
         }
     }
+    /* Keep the buffers' roles for the next solve (both directions stay zero outside the spans). */
+    s->pp = p;
+    s->pp2 = p2;
     /* Report the true residual, not the recursively updated one. */
-    residual_exact(l, x, b, r, threads);
-    v4d rr = dot(r, r, n, threads);
+    v4d rr = residual_exact(l, x, b, r, part, threads);
     for (int c = 0; c < 3; c++) {
         rep[c].iterations = it;
         rep[c].residual = bnorm[c] > 0 ? sqrt(rr[c]) / bnorm[c] : 0.0;
@@ -914,7 +1152,7 @@ static void solve_seed(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solv
         top = li;
     }
     for (uint32_t li = 1; li <= top; li++)
-        restrict_sum(&s->lv[li - 1], &s->lv[li], li == 1 ? b : s->lv[li - 1].b, s->lv[li].b);
+        restrict_rows(&s->lv[li - 1], &s->lv[li], NULL, li == 1 ? b : s->lv[li - 1].b, s->lv[li].b, threads);
     uint32_t total = 0;
     for (int li = (int)top; li >= 0; li--) {
         level *l = &s->lv[li];
@@ -922,21 +1160,26 @@ static void solve_seed(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solv
         const v4 *bl = li == 0 ? b : l->b;
         if (li < (int)top) {
             memset(xl, 0, l->cells * sizeof(v4));
-            prolong_add(l, &s->lv[li + 1], s->lv[li + 1].x, xl);
+            prolong_add(l, &s->lv[li + 1], s->lv[li + 1].x, xl, false, threads);
         } else if (!(li == 0 && o->warm_start)) {
             memset(xl, 0, l->cells * sizeof(v4));
         }
         uint32_t sweeps = (li == 0 && o->seed_iterations) ? o->seed_iterations : seed_sweeps(max_dim(l));
         for (uint32_t k = 0; k < sweeps; k++) {
             apply(l, xl, bl, l->res, threads);
-            for (size_t i = 0; i < l->cells; i++)
-                xl[i] += l->res[i] / cell_diag(l, i);
+            for (uint32_t z = 1; z <= l->n[2]; z++)
+                for (uint32_t y = 1; y <= l->n[1]; y++) {
+                    size_t a, e;
+                    row_span(l, y, z, &a, &e);
+                    for (size_t i = a; i < e; i++)
+                        xl[i] += l->res[i] / cell_diag(l, i);
+                }
         }
         total += sweeps;
     }
     level *l0 = &s->lv[0];
-    residual_exact(l0, x, b, l0->res, threads);
-    v4d bb = dot(b, b, l0->cells, threads), rr = dot(l0->res, l0->res, l0->cells, threads);
+    v4d rr = residual_exact(l0, x, b, l0->res, s->part, threads);
+    v4d bb = dot(l0, b, b, s->part, threads);
     for (int c = 0; c < 3; c++) {
         rep[c].iterations = total;
         rep[c].residual = bb[c] > 0 ? sqrt(rr[c] / bb[c]) : 0.0;
@@ -950,30 +1193,37 @@ nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], 
         return NACRE_ERROR_INVALID_ARGUMENT;
     level *l = &s->lv[0];
     const uint32_t nx = s->dims[0], ny = s->dims[1], *off = s->off;
-    const uint32_t cx = l->n[0], cy = l->n[1], cz = l->n[2];
+    const uint32_t cy = l->n[1], cz = l->n[2];
+    const int threads = s->ctx->threads;
     v4 *b = l->b, *x = s->px;
-    /* Into the padded layout; outside cells take no source. A NULL channel solves nothing. */
-    bool clean = true;
-    for (uint32_t z = 0; z < cz; z++)
-        for (uint32_t y = 0; y < cy; y++) {
-            size_t u = (size_t)off[0] + (size_t)nx * ((y + off[1]) + (size_t)ny * (z + off[2])), i = pidx(l, 0, y, z);
-            for (uint32_t xx = 0; xx < cx; xx++) {
+    /* Into the padded layout, active spans only (x is zero elsewhere, b is not read there);
+     * outside cells take no source. A NULL channel solves nothing. */
+    int dirty = 0;
+#pragma omp parallel for num_threads(threads) schedule(static) reduction(| : dirty) if (l->cells > 32768)
+    for (uint32_t z = 1; z <= cz; z++)
+        for (uint32_t y = 1; y <= cy; y++) {
+            size_t a, e, row = l->sy * y + l->sz * z;
+            row_span(l, y, z, &a, &e);
+            /* user index of padded cell i: u0 + (i - row) */
+            size_t u0 = (size_t)off[0] - 1 + (size_t)nx * ((y - 1 + off[1]) + (size_t)ny * (z - 1 + off[2]));
+            for (size_t i = a; i < e; i++) {
+                size_t u = u0 + (i - row);
                 v4 bv = V4_ZERO, xv = V4_ZERO;
-                if (l->solid[i + xx])
+                if (l->solid[i])
                     for (int c = 0; c < 3; c++) {
                         if (!source[c])
                             continue;
-                        float v = source[c][u + xx];
-                        clean &= isfinite(v) != 0;
+                        float v = source[c][u];
+                        dirty |= !isfinite(v);
                         bv[c] = v;
-                        if (opts->warm_start && phi[c] && isfinite(phi[c][u + xx]))
-                            xv[c] = phi[c][u + xx];
+                        if (opts->warm_start && phi[c] && isfinite(phi[c][u]))
+                            xv[c] = phi[c][u];
                     }
-                b[i + xx] = bv;
-                x[i + xx] = xv;
+                b[i] = bv;
+                x[i] = xv;
             }
         }
-    if (!clean)
+    if (dirty)
         return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "diffusion: non-finite source");
     nc_diff_solve_report rep[3];
     memset(rep, 0, sizeof(rep));
@@ -981,14 +1231,27 @@ nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], 
         solve_seed(s, b, x, opts, rep);
     else
         solve_pcg(s, b, x, opts, rep);
-    /* Energy from the final phi: injected = absorbed + escaped at convergence. */
-    double inj[3] = {0, 0, 0}, abs_[3] = {0, 0, 0}, esc[3] = {0, 0, 0};
-    for (size_t i = 0; i < l->cells; i++)
-        for (int c = 0; c < 3; c++) {
-            inj[c] += b[i][c];
-            abs_[c] += (double)s->absorb[i][c] * x[i][c];
-            esc[c] += (double)s->bnd[i][c] * x[i][c];
+    /* Energy from the final phi: injected = absorbed + escaped at convergence. Per-slab sums
+     * added in slab order (independent of the thread count). */
+    v4d *part = s->part, *pabs = s->part + (cz + 2), *pesc = s->part + 2 * ((size_t)cz + 2);
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (uint32_t z = 1; z <= cz; z++) {
+        v4d si = {0, 0, 0, 0}, sa = {0, 0, 0, 0}, se = {0, 0, 0, 0};
+        for (uint32_t y = 1; y <= cy; y++) {
+            size_t a, e;
+            row_span(l, y, z, &a, &e);
+            for (size_t i = a; i < e; i++) {
+                v4d xi = widen(x[i]);
+                si += widen(b[i]);
+                sa += widen(s->absorb[i]) * xi;
+                se += widen(s->bnd[i]) * xi;
+            }
         }
+        part[z] = si;
+        pabs[z] = sa;
+        pesc[z] = se;
+    }
+    v4d inj = sum_slabs(part, cz), abs_ = sum_slabs(pabs, cz), esc = sum_slabs(pesc, cz);
     for (int c = 0; c < 3; c++) {
         rep[c].injected = inj[c];
         rep[c].absorbed = abs_[c];
@@ -996,12 +1259,16 @@ nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], 
         if (!phi[c])
             continue;
         /* 0 outside the domain, the bounding box included */
-        memset(phi[c], 0, (size_t)nx * ny * s->dims[2] * sizeof(float));
-        for (uint32_t z = 0; z < cz; z++)
-            for (uint32_t y = 0; y < cy; y++) {
-                size_t u = (size_t)off[0] + (size_t)nx * ((y + off[1]) + (size_t)ny * (z + off[2])), i = pidx(l, 0, y, z);
-                for (uint32_t xx = 0; xx < cx; xx++)
-                    phi[c][u + xx] = x[i + xx][c];
+        float *out = phi[c];
+        memset(out, 0, (size_t)nx * ny * s->dims[2] * sizeof(float));
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+        for (uint32_t z = 1; z <= cz; z++)
+            for (uint32_t y = 1; y <= cy; y++) {
+                size_t a, e, row = l->sy * y + l->sz * z;
+                row_span(l, y, z, &a, &e);
+                size_t u0 = (size_t)off[0] - 1 + (size_t)nx * ((y - 1 + off[1]) + (size_t)ny * (z - 1 + off[2]));
+                for (size_t i = a; i < e; i++)
+                    out[u0 + (i - row)] = x[i][c];
             }
     }
     if (report)
