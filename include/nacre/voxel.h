@@ -19,10 +19,11 @@
  *
  * COST: one pass over the vertices (bounds) and one over the triangles (surface and z parity, both
  * with atomic bit operations), then a prefix XOR per column; ROBUST adds the x and y parities (in
- * the same triangle pass) and a per-voxel vote. SOLID_AUTO also runs nacre_mesh_analyze (welding,
- * edge sort), which costs more than the voxelization on large meshes: per-frame callers should
- * decide the rule once (topology does not change under deformation), pass PARITY or ROBUST and use
- * nacre_voxelize_update on a grid kept across frames.
+ * the same triangle pass), a running XOR along x and y and a vote, all word-wise (64 voxels per
+ * operation). SOLID_AUTO also runs nacre_mesh_analyze (welding, edge sort), which costs more than
+ * the voxelization on large meshes: per-frame callers should decide the rule once (topology does
+ * not change under deformation), pass PARITY or ROBUST and use nacre_voxelize_update on a grid
+ * kept across frames.
  *
  * THREADING: voxelization uses OpenMP with the context's thread count; the result does not
  * depend on it. A finished grid may be queried from several threads at once.

@@ -10,10 +10,13 @@
  *
  * Surface: per triangle, the voxel bounding box; one voxel or one column (or one row along any
  * axis) is marked directly, since a triangle inside a 1 x 1 prism touches every voxel of the
- * prism its extent crosses; otherwise the SS10 test: plane test with the critical-point offsets
- * d1, d2, then the xy, yz and zx edge functions offset to the box corner that maximises them.
- * Touching counts (<= / >=), so the set is conservative: with exact arithmetic it equals the set
- * of closed boxes the closed triangle meets.
+ * prism its extent crosses. A triangle inside one layer along some axis (bounding box one voxel
+ * thick) touches a voxel of the layer exactly when its projection along that axis touches the
+ * voxel's square, so the three edge functions of that projection decide (SS10's 2D test).
+ * Otherwise the full SS10 test: plane test with the critical-point offsets d1, d2, then the xy,
+ * yz and zx edge functions offset to the box corner that maximises them. Touching counts
+ * (<= / >=), so the set is conservative: with exact arithmetic it equals the set of closed boxes
+ * the closed triangle meets. The per-voxel tests run on 2 x 2 tiles of voxels, four lanes at once.
  *
  * Solid (parity): a column line through voxel centres (i + 0.5, j + 0.5) crosses a triangle
  * when the point is inside its xy projection; the crossing toggles one bit (the first voxel
@@ -27,15 +30,24 @@
  * Robust (meshes not closed): the same parity along x, y and z, and a voxel is solid when at least
  * two agree. A hole or flipped patch spoils the lines through it along one axis; the other two
  * usually miss it. A duplicated patch adds two crossings at the same place and cancels itself.
+ * The x and y toggles are stored in the layout of the solid set (bit z of column x + nx * y), so
+ * the running XOR along x or y and the vote are word operations on 64 voxels at a time.
  *
- * Parallelism: triangles are split statically over threads and bits are set with atomic OR/XOR,
- * which commute, so the result does not depend on the thread count or the schedule.
+ * Triangle pass (AVX2): four triangles at a time, one per lane (load4, triangles4): grid
+ * coordinates, normal, voxel bounds and column-centre ranges in doubles with the same operations
+ * as the scalar path (triangle_one, used without AVX2, for meshes with a non-finite vertex and
+ * for the last triangles), so both give the same bits. Bounds of one voxel or two in a line are
+ * marked in the lanes; crossings that are the only column centre of their triangle are toggled in
+ * the lanes (parity4); the rest go to surface_bounded / parity_triangle one triangle at a time.
+ *
+ * Parallelism: chunks of triangles go to whichever thread is free and bits are set with atomic
+ * OR/XOR, which commute, so the result does not depend on the thread count or the schedule.
  */
 #include "core/core.h"
 
 #include <errno.h>
 #include <math.h>
-#ifdef __AVX2__
+#if defined(__AVX2__) || defined(__BMI2__)
 #include <immintrin.h>
 #endif
 #include <stdio.h>
@@ -44,6 +56,8 @@
 #define VOXEL_MAX_RES 4096u
 #define VOXEL_MAX_LEVELS 16
 #define VOXEL_PARALLEL_MIN 4096
+#define VOXEL_CHUNK 1024 /* triangles (vertices) per scheduling unit of the triangle (bounds) pass */
+#define VOXEL_BOUNDS_PARALLEL 65536
 
 /* Branch-free min/max without libm's NaN rules (inputs are finite here): the libm calls cost
  * more than the rest of the per-triangle work. */
@@ -65,7 +79,7 @@ struct nacre_voxel_grid {
     uint32_t levels;
     bitset level[VOXEL_MAX_LEVELS];
     size_t cap[VOXEL_MAX_LEVELS]; /* words allocated for each of surface and solid, per level */
-    uint64_t *px, *py;            /* ROBUST scratch: x and y parities, kept for nacre_voxelize_update */
+    uint64_t *px, *py;            /* ROBUST scratch: x and y parities (level-0 layout), kept across updates */
     size_t cap_px, cap_py;        /* words allocated in px, py */
 };
 
@@ -175,7 +189,7 @@ typedef struct edge2 {
 /* The three edge functions of the projection onto axes (a, b), c the third axis of the
  * right-handed triple, offset so that "n . p + d >= 0 for all three" means the unit square at p
  * touches the projected triangle (SS10 eq. 4.3). */
-static void setup_edges(const double v[3][3], const double n[3], int a, int b, int c, edge2 e[3])
+static inline void setup_edges(const double v[3][3], const double n[3], int a, int b, int c, edge2 e[3])
 {
     double s = n[c] >= 0 ? 1.0 : -1.0;
     for (int i = 0; i < 3; i++) {
@@ -188,31 +202,189 @@ static void setup_edges(const double v[3][3], const double n[3], int a, int b, i
     }
 }
 
-static inline bool edges_pass(const edge2 e[3], double pa, double pb)
+/* Everything the per-voxel SS10 test needs, set up once per triangle. */
+typedef struct ss10 {
+    double n[3], d1, d2;
+    edge2 exy[3], eyz[3], ezx[3];
+} ss10;
+
+static void ss10_setup(const double v[3][3], const double n[3], ss10 *s)
 {
-    return e[0].nx * pa + e[0].ny * pb + e[0].d >= 0 && e[1].nx * pa + e[1].ny * pb + e[1].d >= 0 &&
-           e[2].nx * pa + e[2].ny * pb + e[2].d >= 0;
+    double c[3];
+    for (int a = 0; a < 3; a++) {
+        s->n[a] = n[a];
+        c[a] = n[a] > 0 ? 1.0 : 0.0;
+    }
+    s->d1 = n[0] * (c[0] - v[0][0]) + n[1] * (c[1] - v[0][1]) + n[2] * (c[2] - v[0][2]);
+    s->d2 = n[0] * (1 - c[0] - v[0][0]) + n[1] * (1 - c[1] - v[0][1]) + n[2] * (1 - c[2] - v[0][2]);
+    setup_edges(v, n, 0, 1, 2, s->exy);
+    setup_edges(v, n, 1, 2, 0, s->eyz);
+    setup_edges(v, n, 2, 0, 1, s->ezx);
 }
 
-static void surface_triangle(const bitset *b, const double v[3][3])
+/* The per-voxel tests work on 2 x 2 tiles of voxels, lane t at offset (t & 1, t >> 1) in the
+ * two axes of the tile: four voxels per AVX2 instruction, and no branch per voxel. The scalar
+ * version does the same double operations in the same order, so both give the same bits. */
+#ifdef __AVX2__
+typedef __m256d tile;
+static inline tile tile_set(double base, int axis) /* axis 0: offsets 0 1 0 1, 1: 0 0 1 1 */
 {
-    int lo[3], hi[3];
-    for (int a = 0; a < 3; a++) {
-        double mn = dmin(v[0][a], dmin(v[1][a], v[2][a]));
-        double mx = dmax(v[0][a], dmax(v[1][a], v[2][a]));
-        /* Closed boxes: a coordinate exactly on a voxel face touches both voxels. */
-        double l = ceil(mn) - 1.0, h = floor(mx);
-        if (l < 0)
-            l = 0;
-        if (h > (double)b->dims[a] - 1)
-            h = (double)b->dims[a] - 1;
-        if (l > h)
-            return;
-        lo[a] = (int)l;
-        hi[a] = (int)h;
+    __m256d off = axis ? _mm256_set_pd(1, 1, 0, 0) : _mm256_set_pd(1, 0, 1, 0);
+    return _mm256_add_pd(_mm256_set1_pd(base), off);
+}
+static inline tile tile_one(double x) { return _mm256_set1_pd(x); }
+static inline tile tile_lin(const edge2 *e, tile pa, tile pb) /* e.nx * pa + e.ny * pb + e.d */
+{
+    __m256d f = _mm256_add_pd(_mm256_mul_pd(_mm256_set1_pd(e->nx), pa), _mm256_mul_pd(_mm256_set1_pd(e->ny), pb));
+    return _mm256_add_pd(f, _mm256_set1_pd(e->d));
+}
+static inline unsigned tile_ge0(tile f)
+{
+    return (unsigned)_mm256_movemask_pd(_mm256_cmp_pd(f, _mm256_setzero_pd(), _CMP_GE_OQ));
+}
+/* Plane test of SS10: (t + d1) (t + d2) <= 0, t = n . p, in the order of the scalar code. */
+static inline unsigned tile_plane(const ss10 *s, tile x, tile y, tile z)
+{
+    tile np = _mm256_add_pd(_mm256_mul_pd(_mm256_set1_pd(s->n[0]), x),
+                            _mm256_mul_pd(_mm256_set1_pd(s->n[1]), y));
+    tile t = _mm256_add_pd(np, _mm256_mul_pd(_mm256_set1_pd(s->n[2]), z));
+    tile p = _mm256_mul_pd(_mm256_add_pd(t, _mm256_set1_pd(s->d1)),
+                           _mm256_add_pd(t, _mm256_set1_pd(s->d2)));
+    return (unsigned)_mm256_movemask_pd(_mm256_cmp_pd(p, _mm256_setzero_pd(), _CMP_NGT_UQ));
+}
+#else
+typedef struct tile {
+    double l[4];
+} tile;
+static inline tile tile_set(double base, int axis)
+{
+    tile r;
+    for (int t = 0; t < 4; t++)
+        r.l[t] = base + (double)(axis ? t >> 1 : t & 1);
+    return r;
+}
+static inline tile tile_one(double x)
+{
+    tile r = {{x, x, x, x}};
+    return r;
+}
+static inline tile tile_lin(const edge2 *e, tile pa, tile pb)
+{
+    tile r;
+    for (int t = 0; t < 4; t++)
+        r.l[t] = e->nx * pa.l[t] + e->ny * pb.l[t] + e->d;
+    return r;
+}
+static inline unsigned tile_ge0(tile f)
+{
+    unsigned m = 0;
+    for (int t = 0; t < 4; t++)
+        m |= (unsigned)(f.l[t] >= 0) << t;
+    return m;
+}
+static inline unsigned tile_plane(const ss10 *s, tile x, tile y, tile z)
+{
+    unsigned m = 0;
+    for (int t = 0; t < 4; t++) {
+        double tt = s->n[0] * x.l[t] + s->n[1] * y.l[t] + s->n[2] * z.l[t];
+        m |= (unsigned)!((tt + s->d1) * (tt + s->d2) > 0) << t;
     }
-    /* Fast paths: a triangle within a 1 x 1 prism along any axis touches every voxel of it that
-     * its extent reaches (the prism cross-section contains its whole projection). */
+    return m;
+}
+#endif
+
+/* Lanes of a tile that pass all three edge functions of one projection. */
+static inline unsigned tile_edges(const edge2 e[3], tile pa, tile pb)
+{
+    return tile_ge0(tile_lin(&e[0], pa, pb)) & tile_ge0(tile_lin(&e[1], pa, pb)) & tile_ge0(tile_lin(&e[2], pa, pb));
+}
+
+/* Lanes of the tile starting at (i, j) that lie in the bounds (i <= hi_i, j <= hi_j). */
+static inline unsigned tile_valid(int i, int hi_i, int j, int hi_j)
+{
+    return (i + 1 <= hi_i ? 0xFu : 0x5u) & (j + 1 <= hi_j ? 0xFu : 0x3u);
+}
+
+static inline void set_voxel(uint64_t *set, const bitset *b, uint32_t x, uint32_t y, uint32_t z)
+{
+    atomic_or(set + ((size_t)y * b->dims[0] + x) * b->words + z / 64, 1ull << (z % 64));
+}
+
+/* A triangle inside one closed layer along axis c touches a voxel of that layer exactly when its
+ * projection along c touches the voxel's square (the layer holds the whole triangle), and every
+ * square of the clamped bounds overlaps the projection's bounding box, so the three edge
+ * functions of that projection decide alone (SS10's 2D test): the plane test and the two other
+ * projections would only repeat it. */
+static void surface_flat(const bitset *b, const double v[3][3], const double n[3], int c, const int lo[3],
+                         const int hi[3])
+{
+    const int a = (c + 1) % 3, bb = (c + 2) % 3; /* (a, bb, c) right-handed, as setup_edges wants */
+    edge2 e[3];
+    setup_edges(v, n, a, bb, c, e);
+    uint32_t p[3];
+    p[c] = (uint32_t)lo[c];
+    for (int j = lo[bb]; j <= hi[bb]; j += 2) {
+        tile pb = tile_set(j, 1);
+        for (int i = lo[a]; i <= hi[a]; i += 2) {
+            unsigned m = tile_edges(e, tile_set(i, 0), pb) & tile_valid(i, hi[a], j, hi[bb]);
+            for (; m; m &= m - 1) {
+                unsigned t = (unsigned)__builtin_ctz(m);
+                p[a] = (uint32_t)i + (t & 1u);
+                p[bb] = (uint32_t)j + (t >> 1);
+                set_voxel(b->surface, b, p[0], p[1], p[2]);
+            }
+        }
+    }
+}
+
+/* The full SS10 test over the bounds: per 2 x 2 tile of columns the xy edge functions, then per
+ * layer the plane test (critical-point offsets d1, d2) and the yz and zx edge functions offset to
+ * the box corner that maximises them. Bits of a column are gathered per 64-bit word. */
+static void surface_box(const bitset *b, const double v[3][3], const double n[3], const int lo[3], const int hi[3])
+{
+    ss10 s;
+    ss10_setup(v, n, &s);
+    for (int y = lo[1]; y <= hi[1]; y += 2) {
+        tile ty = tile_set(y, 1);
+        for (int x = lo[0]; x <= hi[0]; x += 2) {
+            tile tx = tile_set(x, 0);
+            unsigned mxy = tile_edges(s.exy, tx, ty) & tile_valid(x, hi[0], y, hi[1]);
+            if (!mxy)
+                continue;
+            uint64_t *col[4], acc[4] = {0, 0, 0, 0};
+            for (unsigned t = 0; t < 4; t++) {
+                size_t cy = (size_t)y + (t >> 1), cx = (size_t)x + (t & 1);
+                col[t] = b->surface + (cy * b->dims[0] + cx) * b->words;
+            }
+            int accw = lo[2] / 64;
+            for (int z = lo[2]; z <= hi[2]; z++) {
+                if (z / 64 != accw) {
+                    for (unsigned t = 0; t < 4; t++)
+                        if (acc[t])
+                            atomic_or(col[t] + accw, acc[t]);
+                    acc[0] = acc[1] = acc[2] = acc[3] = 0;
+                    accw = z / 64;
+                }
+                tile tz = tile_one(z);
+                unsigned m = mxy & tile_plane(&s, tx, ty, tz);
+                m &= tile_edges(s.eyz, ty, tz) & tile_edges(s.ezx, tz, tx);
+                for (unsigned t = 0; t < 4; t++)
+                    acc[t] |= (uint64_t)((m >> t) & 1u) << (z % 64);
+            }
+            for (unsigned t = 0; t < 4; t++)
+                if (acc[t])
+                    atomic_or(col[t] + accw, acc[t]);
+        }
+    }
+}
+
+/* Surface voxels of a triangle with non-empty clamped voxel bounds lo..hi. Fast paths: a
+ * triangle within a 1 x 1 prism along any axis touches every voxel of it that its extent
+ * reaches (the prism cross-section contains its whole projection); one inside a single layer
+ * needs only the 2D test of that layer (surface_flat). */
+static void surface_bounded(const bitset *b, const double v[3][3], const double n[3], const int lo[3],
+                            const int hi[3])
+{
     if (lo[0] == hi[0] && lo[1] == hi[1]) {
         mark_run(b->surface, b, (uint32_t)lo[0], (uint32_t)lo[1], (uint32_t)lo[2], (uint32_t)hi[2]);
         return;
@@ -223,75 +395,79 @@ static void surface_triangle(const bitset *b, const double v[3][3])
                 mark_run(b->surface, b, (uint32_t)x, (uint32_t)y, (uint32_t)lo[2], (uint32_t)lo[2]);
         return;
     }
-    double e1[3], e2[3], n[3];
-    for (int a = 0; a < 3; a++) {
-        e1[a] = v[1][a] - v[0][a];
-        e2[a] = v[2][a] - v[0][a];
-    }
-    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
-    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
-    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
-    double c[3];
-    for (int a = 0; a < 3; a++)
-        c[a] = n[a] > 0 ? 1.0 : 0.0;
-    double d1 = n[0] * (c[0] - v[0][0]) + n[1] * (c[1] - v[0][1]) + n[2] * (c[2] - v[0][2]);
-    double d2 = n[0] * (1 - c[0] - v[0][0]) + n[1] * (1 - c[1] - v[0][1]) + n[2] * (1 - c[2] - v[0][2]);
-    edge2 exy[3], eyz[3], ezx[3];
-    setup_edges(v, n, 0, 1, 2, exy);
-    setup_edges(v, n, 1, 2, 0, eyz);
-    setup_edges(v, n, 2, 0, 1, ezx);
-    for (int y = lo[1]; y <= hi[1]; y++) {
-        for (int x = lo[0]; x <= hi[0]; x++) {
-            if (!edges_pass(exy, x, y))
-                continue;
-            double np = n[0] * x + n[1] * y;
-            uint64_t *col = b->surface + ((size_t)y * b->dims[0] + (size_t)x) * b->words;
-            uint64_t acc = 0;
-            int accw = lo[2] / 64;
-            for (int z = lo[2]; z <= hi[2]; z++) {
-                double t = np + n[2] * z;
-                if ((t + d1) * (t + d2) > 0 || !edges_pass(eyz, y, z) || !edges_pass(ezx, z, x))
-                    continue;
-                if (z / 64 != accw) {
-                    if (acc)
-                        atomic_or(col + accw, acc);
-                    acc = 0;
-                    accw = z / 64;
-                }
-                acc |= 1ull << (z % 64);
-            }
-            if (acc)
-                atomic_or(col + accw, acc);
+    for (int c = 0; c < 3; c++) {
+        double l = lo[c], h = l + 1.0;
+        if (lo[c] == hi[c] && v[0][c] >= l && v[1][c] >= l && v[2][c] >= l && v[0][c] <= h && v[1][c] <= h &&
+            v[2][c] <= h) {
+            surface_flat(b, v, n, c, lo, hi);
+            return;
         }
     }
+    surface_box(b, v, n, lo, hi);
+}
+
+/* Closed boxes: a coordinate exactly on a voxel face touches both voxels, hence ceil - 1. */
+static void surface_triangle(const bitset *b, const double v[3][3], const double n[3])
+{
+    int lo[3], hi[3];
+    for (int a = 0; a < 3; a++) {
+        double mn = dmin(v[0][a], dmin(v[1][a], v[2][a]));
+        double mx = dmax(v[0][a], dmax(v[1][a], v[2][a]));
+        double l = dmax(ceil(mn) - 1.0, 0.0), h = dmin(floor(mx), (double)b->dims[a] - 1);
+        if (l > h)
+            return;
+        lo[a] = (int)l;
+        hi[a] = (int)h;
+    }
+    surface_bounded(b, v, n, lo, hi);
 }
 
 /* ------------------------------------------------------------------------------------------ */
 /* Solid: column parity                                                                       */
 /* ------------------------------------------------------------------------------------------ */
 
-/* Edge function of (p -> q) at (x, y) in the (a, b) plane, evaluated with the endpoints in
- * canonical (lexicographic) order so that the reversed edge gives exactly the negated value. */
-static inline double edge_fn(const double *p, const double *q, int a, int b, double x, double y)
-{
-    bool swap = p[a] > q[a] || (p[a] == q[a] && p[b] > q[b]);
-    const double *s = swap ? q : p, *t = swap ? p : q;
-    double f = (t[a] - s[a]) * (y - s[b]) - (t[b] - s[b]) * (x - s[a]);
-    return swap ? -f : f;
-}
-
 /* Top-left rule for edge p -> q of a counter-clockwise triangle in the (a, b) plane (b up):
  * left edges go down, top edges are horizontal and go left. */
 static inline bool top_left(const double *p, const double *q, int a, int b)
 {
-    return q[b] < p[b] || (q[b] == p[b] && q[a] < p[a]);
+    return (q[b] < p[b]) | ((q[b] == p[b]) & (q[a] < p[a]));
 }
 
-/* Toggle, in `flip` (column axis c, columns over (a, b) with dims da x db, nc voxels per column,
- * `words` per column), the first voxel above each crossing of the column centre lines. */
-static void parity_triangle(uint64_t *flip, uint32_t da, uint32_t db, uint32_t nc, uint32_t words,
-                            const double v[3][3], int a, int b, int c)
+/* Edge function of (p -> q) in the (a, b) plane, set up with the endpoints in canonical
+ * (lexicographic) order so that the reversed edge gives exactly the negated value. */
+typedef struct edge_canon {
+    const double *s;
+    double ea, eb, sign;
+    bool tl; /* top-left (owns points on it) */
+} edge_canon;
+
+static inline void edge_canon_setup(const double *p, const double *q, int a, int b, edge_canon *e)
 {
+    /* Bitwise, not short-circuit: the order of two vertices is a coin toss, and branches on it
+     * cost more than the arithmetic (most triangles reaching here cover one column centre). */
+    bool swap = (p[a] > q[a]) | ((p[a] == q[a]) & (p[b] > q[b]));
+    const double *s = swap ? q : p, *t = swap ? p : q;
+    e->s = s;
+    e->ea = t[a] - s[a];
+    e->eb = t[b] - s[b];
+    e->sign = swap ? -1.0 : 1.0;
+    e->tl = top_left(p, q, a, b);
+}
+
+static inline bool edge_owns(const edge_canon *e, int a, int b, double x, double y)
+{
+    double f = e->sign * (e->ea * (y - e->s[b]) - e->eb * (x - e->s[a]));
+    return (f > 0) | ((f == 0) & e->tl);
+}
+
+/* Toggle, in `flip` (laid out like the level-0 sets of b: bit z of column x + nx * y), the first
+ * voxel above each crossing of the lines along axis c through the voxel centres of the (a, b)
+ * plane. Every flip set shares that layout so that the ROBUST vote is word-wise (see
+ * robust_solid). */
+static void parity_triangle(uint64_t *flip, const bitset *bs, const double v[3][3], const double n[3], int a,
+                            int b, int c)
+{
+    const uint32_t da = bs->dims[a], db = bs->dims[b], nc = bs->dims[c];
     const double *p0 = v[0], *p1 = v[1], *p2 = v[2];
     /* Column centres in the projected bounding box: i + 0.5 in [min, max]. Most triangles of a
      * fine mesh contain none, so this comes first. */
@@ -303,33 +479,27 @@ static void parity_triangle(uint64_t *flip, uint32_t da, uint32_t db, uint32_t n
     double ib0 = dmax(0.0, ceil(mnb - 0.5)), ib1 = dmin((double)db - 1, floor(mxb - 0.5));
     if (ib0 > ib1)
         return;
-    double area = (p1[a] - p0[a]) * (p2[b] - p0[b]) - (p1[b] - p0[b]) * (p2[a] - p0[a]);
-    if (area == 0)
+    /* n[c] is the doubled projected area, with the same operations as the 2D cross product. */
+    if (n[c] == 0)
         return; /* edge-on: the neighbours' top-left rule owns the lines through it */
-    if (area < 0) {
+    if (n[c] < 0) {
         const double *t = p1;
         p1 = p2;
         p2 = t;
     }
-    bool tl0 = top_left(p0, p1, a, b), tl1 = top_left(p1, p2, a, b), tl2 = top_left(p2, p0, a, b);
-    /* Plane: c = p0[c] + ga * (x - p0[a]) + gb * (y - p0[b]). */
-    double n[3], e1[3], e2[3];
-    for (int k = 0; k < 3; k++) {
-        e1[k] = v[1][k] - v[0][k];
-        e2[k] = v[2][k] - v[0][k];
-    }
-    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
-    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
-    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    edge_canon e0, e1, e2;
+    edge_canon_setup(p0, p1, a, b, &e0);
+    edge_canon_setup(p1, p2, a, b, &e1);
+    edge_canon_setup(p2, p0, a, b, &e2);
+    /* Plane: c = v0[c] + ga * (x - v0[a]) + gb * (y - v0[b]). */
     double ga = -n[a] / n[c], gb = -n[b] / n[c];
+    /* Bit address of voxel (x, y, z) is 64 * words * (x + nx * y) + z. */
+    size_t stride[3] = {(size_t)64 * bs->words, (size_t)64 * bs->words * bs->dims[0], 1};
     for (int j = (int)ib0; j <= (int)ib1; j++) {
         double y = j + 0.5;
         for (int i = (int)ia0; i <= (int)ia1; i++) {
             double x = i + 0.5;
-            double w0 = edge_fn(p0, p1, a, b, x, y), w1 = edge_fn(p1, p2, a, b, x, y),
-                   w2 = edge_fn(p2, p0, a, b, x, y);
-            if (!(w0 > 0 || (w0 == 0 && tl0)) || !(w1 > 0 || (w1 == 0 && tl1)) ||
-                !(w2 > 0 || (w2 == 0 && tl2)))
+            if (!(edge_owns(&e0, a, b, x, y) & edge_owns(&e1, a, b, x, y) & edge_owns(&e2, a, b, x, y)))
                 continue;
             double zc = v[0][c] + ga * (x - v[0][a]) + gb * (y - v[0][b]);
             /* First voxel whose centre k + 0.5 lies strictly above the crossing. */
@@ -338,9 +508,8 @@ static void parity_triangle(uint64_t *flip, uint32_t da, uint32_t db, uint32_t n
                 k0 = 0;
             if (k0 >= (double)nc)
                 continue;
-            uint32_t k = (uint32_t)k0;
-            uint64_t *col = flip + ((size_t)j * da + (size_t)i) * words;
-            __atomic_fetch_xor(col + k / 64, 1ull << (k % 64), __ATOMIC_RELAXED);
+            size_t bit = (size_t)i * stride[a] + (size_t)j * stride[b] + (size_t)k0 * stride[c];
+            __atomic_fetch_xor(flip + bit / 64, 1ull << (bit % 64), __ATOMIC_RELAXED);
         }
     }
 }
@@ -349,7 +518,7 @@ static void parity_triangle(uint64_t *flip, uint32_t da, uint32_t db, uint32_t n
 static void prefix_xor(uint64_t *flip, size_t columns, uint32_t nc, uint32_t words, int threads)
 {
     uint64_t last = nc % 64 ? (1ull << (nc % 64)) - 1 : ~0ull;
-#pragma omp parallel for schedule(static) num_threads(threads) if (columns > 4096)
+#pragma omp parallel for schedule(static) num_threads(threads) if (columns * words > 16384)
     for (size_t col = 0; col < columns; col++) {
         uint64_t carry = 0;
         uint64_t *w = flip + col * words;
@@ -380,8 +549,9 @@ typedef struct tri_source {
     bool all_finite; /* no vertex is NaN or infinite: skip the per-corner checks */
 } tri_source;
 
-/* Grid coordinates of triangle t; false if a vertex is not finite or the area is zero. */
-static inline int load_triangle(const tri_source *s, size_t t, double v[3][3])
+/* Grid coordinates of triangle t and its normal (e1 x e2); 1 if a vertex is not finite, 2 if
+ * the area is zero, else 0. */
+static inline int load_triangle(const tri_source *s, size_t t, double v[3][3], double n[3])
 {
     for (int k = 0; k < 3; k++) {
         const float *p = s->pos + 3 * (size_t)s->idx[3 * t + (size_t)k];
@@ -395,134 +565,347 @@ static inline int load_triangle(const tri_source *s, size_t t, double v[3][3])
         e1[a] = v[1][a] - v[0][a];
         e2[a] = v[2][a] - v[0][a];
     }
-    if (e1[1] * e2[2] - e1[2] * e2[1] == 0 && e1[2] * e2[0] - e1[0] * e2[2] == 0 &&
-        e1[0] * e2[1] - e1[1] * e2[0] == 0)
-        return 2;
-    return 0;
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    return n[0] == 0 && n[1] == 0 && n[2] == 0 ? 2 : 0;
 }
 
-/* ROBUST: the x and y flip sets, filled in the same triangle pass as the surface and z parity
- * (parity_triangle is the same function with the same coordinates as in a pass of its own, and
- * the XOR toggles commute, so the result is the same). x columns over (y, z), y over (z, x). */
-typedef struct robust_sets {
+/* Where a triangle's bits go: level 0 and, for ROBUST, the x and y toggle sets (NULL otherwise),
+ * laid out like the solid set; filled in the same triangle pass as the surface and z parity (the
+ * XOR toggles commute, so the result is the same as in passes of their own). */
+typedef struct tri_out {
+    const bitset *b;
     uint64_t *px, *py;
-    uint32_t wx, wy; /* words per column */
-} robust_sets;
+} tri_out;
 
-static inline void parity_xy(const bitset *b, const robust_sets *rs, const double v[3][3], bool px, bool py)
+typedef struct tri_counts {
+    uint32_t degenerate, nonfinite, bad_index;
+} tri_counts;
+
+/* The reference path for one triangle: any vertex values, indices checked. */
+static void triangle_one(const tri_out *o, const tri_source *src, uint32_t nv, size_t t, tri_counts *cnt)
 {
-    if (px)
-        parity_triangle(rs->px, b->dims[1], b->dims[2], b->dims[0], rs->wx, v, 1, 2, 0);
-    if (py)
-        parity_triangle(rs->py, b->dims[2], b->dims[0], b->dims[1], rs->wy, v, 2, 0, 1);
+    const uint32_t *ti = src->idx + 3 * t;
+    if (ti[0] >= nv || ti[1] >= nv || ti[2] >= nv) {
+        cnt->bad_index++;
+        return;
+    }
+    double v[3][3], n[3];
+    int st = load_triangle(src, t, v, n);
+    cnt->degenerate += st == 2;
+    cnt->nonfinite += st == 1;
+    if (st != 0)
+        return;
+    surface_triangle(o->b, (const double(*)[3])v, n);
+    parity_triangle(o->b->solid, o->b, (const double(*)[3])v, n, 0, 1, 2);
+    if (o->px) {
+        parity_triangle(o->px, o->b, (const double(*)[3])v, n, 1, 2, 0);
+        parity_triangle(o->py, o->b, (const double(*)[3])v, n, 2, 0, 1);
+    }
 }
 
 #ifdef __AVX2__
-typedef struct fast_consts {
-    __m256d origin, inv_h, dimm1; /* lane 3 zero */
-} fast_consts;
+typedef struct soa_consts {
+    __m256d origin[3], inv_h, dimm1[3];
+} soa_consts;
 
-/* One finite triangle (all_finite sources only): the same double operations as load_triangle,
- * surface_triangle's bounds and parity_triangle's column-centre test, with the three axes in
- * lanes 0..2 of a vector, so every decision is bit-identical to the scalar path. The common
- * cases (no surface voxel or one 1 x 1 column run, no column centre) finish here; the rest go
- * to surface_triangle / parity_triangle. Returns 2 for a zero-area triangle, else 0. */
-static inline void triangle_avx_load(const float *pos, const uint32_t *ti, const fast_consts *fc, __m256d v[3])
+/* Corner ti of `pos` as four floats, the fourth being the next vertex's x (ignored) unless ti is
+ * the last vertex, where a masked load keeps the read inside the array. */
+static inline __m128 vertex_load(const float *pos, uint32_t ti, bool last)
 {
-    const __m128i m3 = _mm_set_epi32(0, -1, -1, -1);
-    for (int k = 0; k < 3; k++) {
-        __m128 f = _mm_maskload_ps(pos + 3 * (size_t)ti[k], m3);
-        v[k] = _mm256_mul_pd(_mm256_sub_pd(_mm256_cvtps_pd(f), fc->origin), fc->inv_h);
+    const float *p = pos + 3 * (size_t)ti;
+    return last ? _mm_maskload_ps(p, _mm_set_epi32(0, -1, -1, -1)) : _mm_loadu_ps(p);
+}
+
+/* Four triangles (12 valid indices at ti, finite vertices) in grid coordinates, one triangle per
+ * lane: v[corner][axis], with the same double operations as load_triangle. `last`: some index is
+ * the last vertex's. */
+static inline void load4(const float *pos, const uint32_t *ti, bool last, const soa_consts *k, __m256d v[3][3])
+{
+    for (int c = 0; c < 3; c++) {
+        __m128 r0 = vertex_load(pos, ti[c], last), r1 = vertex_load(pos, ti[3 + c], last);
+        __m128 r2 = vertex_load(pos, ti[6 + c], last), r3 = vertex_load(pos, ti[9 + c], last);
+        _MM_TRANSPOSE4_PS(r0, r1, r2, r3);
+        v[c][0] = _mm256_mul_pd(_mm256_sub_pd(_mm256_cvtps_pd(r0), k->origin[0]), k->inv_h);
+        v[c][1] = _mm256_mul_pd(_mm256_sub_pd(_mm256_cvtps_pd(r1), k->origin[1]), k->inv_h);
+        v[c][2] = _mm256_mul_pd(_mm256_sub_pd(_mm256_cvtps_pd(r2), k->origin[2]), k->inv_h);
     }
 }
 
-static inline int triangle_avx(const bitset *b, const __m256d v[3], const fast_consts *fc, const robust_sets *rs)
+/* parity_triangle for the lanes in `lanes`, each with exactly one column centre (pl[a] + 0.5,
+ * pl[b] + 0.5) in its projected bounds: the same double operations lane by lane (orientation
+ * swap, canonical edge order, top-left rule, crossing height). Returns the lanes done (all of
+ * `lanes`, toggled or not). */
+static unsigned parity4(uint64_t *flip, const bitset *bs, __m256d v[3][3], const __m256d n[3], const __m256d pl[3],
+                        unsigned lanes, int a, int b, int c)
 {
-    __m256d e1 = _mm256_sub_pd(v[1], v[0]), e2 = _mm256_sub_pd(v[2], v[0]);
-    /* n = e1.yzx * e2.zxy - e1.zxy * e2.yzx, lane 3 is 0 - 0. */
-    __m256d n = _mm256_sub_pd(
-        _mm256_mul_pd(_mm256_permute4x64_pd(e1, _MM_SHUFFLE(3, 0, 2, 1)),
-                      _mm256_permute4x64_pd(e2, _MM_SHUFFLE(3, 1, 0, 2))),
-        _mm256_mul_pd(_mm256_permute4x64_pd(e1, _MM_SHUFFLE(3, 1, 0, 2)),
-                      _mm256_permute4x64_pd(e2, _MM_SHUFFLE(3, 0, 2, 1))));
-    if (_mm256_movemask_pd(_mm256_cmp_pd(n, _mm256_setzero_pd(), _CMP_EQ_OQ)) == 0xF)
-        return 2;
-    __m256d mn = _mm256_min_pd(v[0], _mm256_min_pd(v[1], v[2]));
-    __m256d mx = _mm256_max_pd(v[0], _mm256_max_pd(v[1], v[2]));
-    /* Surface bounds as in surface_triangle. */
-    __m256d l = _mm256_max_pd(_mm256_sub_pd(_mm256_ceil_pd(mn), _mm256_set1_pd(1.0)), _mm256_setzero_pd());
-    __m256d h = _mm256_min_pd(_mm256_floor_pd(mx), fc->dimm1);
-    /* Column centres i + 0.5 in the xy bounds as in parity_triangle (c = z). */
-    __m256d half = _mm256_set1_pd(0.5);
-    __m256d pl = _mm256_max_pd(_mm256_ceil_pd(_mm256_sub_pd(mn, half)), _mm256_setzero_pd());
-    __m256d ph = _mm256_min_pd(_mm256_floor_pd(_mm256_sub_pd(mx, half)), fc->dimm1);
-    int pmask = _mm256_movemask_pd(_mm256_cmp_pd(pl, ph, _CMP_GT_OQ));
-    bool parity = (pmask & 3) == 0;
-    /* x parity: column centres over (y, z), lanes 1 and 2; y parity: over (z, x), lanes 2 and 0. */
-    bool parx = rs && (pmask & 6) == 0, pary = rs && (pmask & 5) == 0;
-    bool none = (_mm256_movemask_pd(_mm256_cmp_pd(l, h, _CMP_GT_OQ)) & 7) != 0;
-    bool run = (_mm256_movemask_pd(_mm256_cmp_pd(l, h, _CMP_EQ_OQ)) & 3) == 3;
-    if (!none && run) {
-        double lo[4], hi[4];
-        _mm256_storeu_pd(lo, l);
-        _mm256_storeu_pd(hi, h);
-        mark_run(b->surface, b, (uint32_t)lo[0], (uint32_t)lo[1], (uint32_t)lo[2], (uint32_t)hi[2]);
+    const __m256d zero = _mm256_setzero_pd(), half = _mm256_set1_pd(0.5), sgn = _mm256_set1_pd(-0.0);
+    /* n[c] == 0: edge-on, no crossing (as in parity_triangle). */
+    unsigned live = lanes & ~(unsigned)_mm256_movemask_pd(_mm256_cmp_pd(n[c], zero, _CMP_EQ_OQ));
+    if (!live)
+        return lanes;
+    __m256d x = _mm256_add_pd(pl[a], half), y = _mm256_add_pd(pl[b], half);
+    __m256d neg = _mm256_cmp_pd(n[c], zero, _CMP_LT_OQ); /* clockwise: swap corners 1 and 2 */
+    __m256d pa[3], pb[3];
+    pa[0] = v[0][a], pb[0] = v[0][b];
+    pa[1] = _mm256_blendv_pd(v[1][a], v[2][a], neg), pb[1] = _mm256_blendv_pd(v[1][b], v[2][b], neg);
+    pa[2] = _mm256_blendv_pd(v[2][a], v[1][a], neg), pb[2] = _mm256_blendv_pd(v[2][b], v[1][b], neg);
+    __m256d inside = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
+    for (int e = 0; e < 3; e++) {
+        __m256d qa = pa[(e + 1) % 3], qb = pb[(e + 1) % 3];
+        __m256d tie = _mm256_and_pd(_mm256_cmp_pd(pa[e], qa, _CMP_EQ_OQ), _mm256_cmp_pd(pb[e], qb, _CMP_GT_OQ));
+        __m256d swap = _mm256_or_pd(_mm256_cmp_pd(pa[e], qa, _CMP_GT_OQ), tie);
+        __m256d sa = _mm256_blendv_pd(pa[e], qa, swap), sb = _mm256_blendv_pd(pb[e], qb, swap);
+        __m256d ta = _mm256_blendv_pd(qa, pa[e], swap), tb = _mm256_blendv_pd(qb, pb[e], swap);
+        __m256d f = _mm256_sub_pd(_mm256_mul_pd(_mm256_sub_pd(ta, sa), _mm256_sub_pd(y, sb)),
+                                  _mm256_mul_pd(_mm256_sub_pd(tb, sb), _mm256_sub_pd(x, sa)));
+        f = _mm256_xor_pd(f, _mm256_and_pd(swap, sgn)); /* times -1 when swapped */
+        __m256d flat = _mm256_and_pd(_mm256_cmp_pd(qb, pb[e], _CMP_EQ_OQ), _mm256_cmp_pd(qa, pa[e], _CMP_LT_OQ));
+        __m256d tl = _mm256_or_pd(_mm256_cmp_pd(qb, pb[e], _CMP_LT_OQ), flat);
+        __m256d on = _mm256_and_pd(_mm256_cmp_pd(f, zero, _CMP_EQ_OQ), tl);
+        __m256d own = _mm256_or_pd(_mm256_cmp_pd(f, zero, _CMP_GT_OQ), on);
+        inside = _mm256_and_pd(inside, own);
     }
-    if ((!none && !run) || parity || parx || pary) {
-        double w[3][4], vv[3][3];
-        for (int k = 0; k < 3; k++) {
-            _mm256_storeu_pd(w[k], v[k]);
-            for (int a = 0; a < 3; a++)
-                vv[k][a] = w[k][a];
+    live &= (unsigned)_mm256_movemask_pd(inside);
+    if (!live)
+        return lanes;
+    __m256d ga = _mm256_div_pd(_mm256_xor_pd(n[a], sgn), n[c]), gb = _mm256_div_pd(_mm256_xor_pd(n[b], sgn), n[c]);
+    __m256d zc = _mm256_add_pd(_mm256_add_pd(v[0][c], _mm256_mul_pd(ga, _mm256_sub_pd(x, v[0][a]))),
+                               _mm256_mul_pd(gb, _mm256_sub_pd(y, v[0][b])));
+    __m256d k0 = _mm256_max_pd(_mm256_add_pd(_mm256_floor_pd(_mm256_sub_pd(zc, half)), _mm256_set1_pd(1.0)), zero);
+    live &= (unsigned)_mm256_movemask_pd(_mm256_cmp_pd(k0, _mm256_set1_pd((double)bs->dims[c]), _CMP_LT_OQ));
+    double ka[4], kb[4], kc[4];
+    _mm256_storeu_pd(ka, pl[a]);
+    _mm256_storeu_pd(kb, pl[b]);
+    _mm256_storeu_pd(kc, k0);
+    size_t stride[3] = {(size_t)64 * bs->words, (size_t)64 * bs->words * bs->dims[0], 1};
+    for (; live; live &= live - 1) {
+        int t = __builtin_ctz(live);
+        size_t bit = (size_t)ka[t] * stride[a] + (size_t)kb[t] * stride[b] + (size_t)kc[t] * stride[c];
+        __atomic_fetch_xor(flip + bit / 64, 1ull << (bit % 64), __ATOMIC_RELAXED);
+    }
+    return lanes;
+}
+
+/* Four triangles at once, one per lane: the normal, the surface bounds of surface_triangle and
+ * the column-centre ranges of parity_triangle, all with the same double operations, so every
+ * decision is bit-identical to triangle_one. A triangle inside one voxel with no column centre
+ * in any projection (nearly all triangles of a large mesh on a coarse grid) ends here with one
+ * bit set; the others go on to surface_bounded / parity_triangle with the same arguments as in
+ * triangle_one. Returns the number of zero-area triangles. */
+static inline uint32_t triangles4(const tri_out *o, const soa_consts *k, __m256d v[3][3])
+{
+    const bitset *b = o->b;
+    const __m256d zero = _mm256_setzero_pd(), one = _mm256_set1_pd(1.0), half = _mm256_set1_pd(0.5);
+    __m256d e1[3], e2[3], n[3];
+    for (int a = 0; a < 3; a++) {
+        e1[a] = _mm256_sub_pd(v[1][a], v[0][a]);
+        e2[a] = _mm256_sub_pd(v[2][a], v[0][a]);
+    }
+    n[0] = _mm256_sub_pd(_mm256_mul_pd(e1[1], e2[2]), _mm256_mul_pd(e1[2], e2[1]));
+    n[1] = _mm256_sub_pd(_mm256_mul_pd(e1[2], e2[0]), _mm256_mul_pd(e1[0], e2[2]));
+    n[2] = _mm256_sub_pd(_mm256_mul_pd(e1[0], e2[1]), _mm256_mul_pd(e1[1], e2[0]));
+    unsigned deg = (unsigned)_mm256_movemask_pd(
+        _mm256_and_pd(_mm256_cmp_pd(n[0], zero, _CMP_EQ_OQ),
+                      _mm256_and_pd(_mm256_cmp_pd(n[1], zero, _CMP_EQ_OQ), _mm256_cmp_pd(n[2], zero, _CMP_EQ_OQ))));
+    unsigned empty = 0, pok[3] = {0, 0, 0}, pone[3] = {0, 0, 0};
+    __m256d ext = zero, pl[3] = {zero, zero, zero};
+    __m128i li[3], hi4[3];
+    const bool robust = o->px != NULL;
+    for (int a = 0; a < 3; a++) {
+        __m256d mn = _mm256_min_pd(v[0][a], _mm256_min_pd(v[1][a], v[2][a]));
+        __m256d mx = _mm256_max_pd(v[0][a], _mm256_max_pd(v[1][a], v[2][a]));
+        __m256d l = _mm256_max_pd(_mm256_sub_pd(_mm256_ceil_pd(mn), one), zero);
+        __m256d h = _mm256_min_pd(_mm256_floor_pd(mx), k->dimm1[a]);
+        empty |= (unsigned)_mm256_movemask_pd(_mm256_cmp_pd(l, h, _CMP_GT_OQ));
+        ext = _mm256_add_pd(ext, _mm256_sub_pd(h, l));
+        if (a < 2 || robust) { /* PARITY needs the column centres of the xy projection only */
+            pl[a] = _mm256_max_pd(_mm256_ceil_pd(_mm256_sub_pd(mn, half)), zero);
+            __m256d ph = _mm256_min_pd(_mm256_floor_pd(_mm256_sub_pd(mx, half)), k->dimm1[a]);
+            pok[a] = (unsigned)_mm256_movemask_pd(_mm256_cmp_pd(pl[a], ph, _CMP_LE_OQ));
+            pone[a] = (unsigned)_mm256_movemask_pd(_mm256_cmp_pd(pl[a], ph, _CMP_EQ_OQ));
         }
-        if (!none && !run)
-            surface_triangle(b, (const double(*)[3])vv);
-        if (parity)
-            parity_triangle(b->solid, b->dims[0], b->dims[1], b->dims[2], b->words, (const double(*)[3])vv, 0,
-                            1, 2);
-        if (parx || pary)
-            parity_xy(b, rs, (const double(*)[3])vv, parx, pary);
+        li[a] = _mm256_cvttpd_epi32(l);
+        hi4[a] = _mm256_cvttpd_epi32(h);
     }
-    return 0;
+    unsigned zpar = pok[0] & pok[1] & ~deg;
+    unsigned xpar = robust ? pok[1] & pok[2] & ~deg : 0, ypar = robust ? pok[2] & pok[0] & ~deg : 0;
+    unsigned surf = ~empty & ~deg & 0xF;
+    /* Bounds of one voxel, or two in a line (a 1 x 1 prism): its lowest and highest voxels are
+     * all the voxels it touches (surface_bounded's first fast paths). Marked without a branch per
+     * lane: the other lanes get an empty mask on word 0. */
+    unsigned line = surf & (unsigned)_mm256_movemask_pd(_mm256_cmp_pd(ext, one, _CMP_LE_OQ));
+    if (line) {
+        const __m128i nx = _mm_set1_epi32((int)b->dims[0]), nw = _mm_set1_epi32((int)b->words);
+        const __m128i m63 = _mm_set1_epi32(63), lane32 = _mm_set_epi32(8, 4, 2, 1);
+        const __m256i lane64 = _mm256_set_epi64x(8, 4, 2, 1), one64 = _mm256_set1_epi64x(1);
+        __m128i on32 = _mm_cmpeq_epi32(_mm_and_si128(_mm_set1_epi32((int)line), lane32), lane32);
+        __m256i on64 = _mm256_cmpeq_epi64(_mm256_and_si256(_mm256_set1_epi64x(line), lane64), lane64);
+        /* Word indices fit in 32 bits (at most 4096^2 columns of 64 words); other lanes read word 0. */
+        __m128i wl = _mm_add_epi32(_mm_mullo_epi32(_mm_add_epi32(_mm_mullo_epi32(li[1], nx), li[0]), nw),
+                                   _mm_srli_epi32(li[2], 6));
+        __m128i wh = _mm_add_epi32(_mm_mullo_epi32(_mm_add_epi32(_mm_mullo_epi32(hi4[1], nx), hi4[0]), nw),
+                                   _mm_srli_epi32(hi4[2], 6));
+        wl = _mm_and_si128(wl, on32);
+        wh = _mm_and_si128(wh, on32);
+        __m256i bl = _mm256_cvtepu32_epi64(_mm_and_si128(li[2], m63));
+        __m256i bh = _mm256_cvtepu32_epi64(_mm_and_si128(hi4[2], m63));
+        __m256i ml = _mm256_and_si256(_mm256_sllv_epi64(one64, bl), on64);
+        __m256i mh = _mm256_and_si256(_mm256_sllv_epi64(one64, bh), on64);
+        /* On a coarse grid the bits are nearly always set already: one look at the eight words
+         * (a plain gather; a stale word only sends us to the atomic path, which reads again). */
+        __m256i gl = _mm256_i32gather_epi64((const long long *)b->surface, wl, 8);
+        __m256i gh = _mm256_i32gather_epi64((const long long *)b->surface, wh, 8);
+        __m256i miss = _mm256_or_si256(_mm256_andnot_si256(gl, ml), _mm256_andnot_si256(gh, mh));
+        if (!_mm256_testz_si256(miss, miss)) {
+            uint32_t w[2][4];
+            uint64_t m[2][4];
+            _mm_storeu_si128((__m128i *)w[0], wl);
+            _mm_storeu_si128((__m128i *)w[1], wh);
+            _mm256_storeu_si256((__m256i *)m[0], ml);
+            _mm256_storeu_si256((__m256i *)m[1], mh);
+            for (int t = 0; t < 4; t++) {
+                atomic_or(b->surface + w[0][t], m[0][t]);
+                atomic_or(b->surface + w[1][t], m[1][t]);
+            }
+        }
+    }
+    /* Most crossings are the only column centre of their triangle: done here, four at a time. */
+    if (zpar & pone[0] & pone[1])
+        zpar &= ~parity4(b->solid, b, v, n, pl, zpar & pone[0] & pone[1], 0, 1, 2);
+    if (xpar & pone[1] & pone[2])
+        xpar &= ~parity4(o->px, b, v, n, pl, xpar & pone[1] & pone[2], 1, 2, 0);
+    if (ypar & pone[2] & pone[0])
+        ypar &= ~parity4(o->py, b, v, n, pl, ypar & pone[2] & pone[0], 2, 0, 1);
+    unsigned slow = (surf & ~line) | zpar | xpar | ypar;
+    if (slow) {
+        double vs[3][3][4], ns[3][4];
+        int32_t lo[3][4], hi[3][4];
+        for (int a = 0; a < 3; a++) {
+            _mm_storeu_si128((__m128i *)lo[a], li[a]);
+            _mm_storeu_si128((__m128i *)hi[a], hi4[a]);
+        }
+        for (int c = 0; c < 3; c++)
+            for (int a = 0; a < 3; a++)
+                _mm256_storeu_pd(vs[c][a], v[c][a]);
+        for (int a = 0; a < 3; a++)
+            _mm256_storeu_pd(ns[a], n[a]);
+        for (; slow; slow &= slow - 1) {
+            int t = __builtin_ctz(slow);
+            unsigned bit = 1u << t;
+            double vv[3][3], nn[3];
+            for (int c = 0; c < 3; c++)
+                for (int a = 0; a < 3; a++)
+                    vv[c][a] = vs[c][a][t];
+            for (int a = 0; a < 3; a++)
+                nn[a] = ns[a][t];
+            if (surf & ~line & bit) {
+                int l3[3] = {lo[0][t], lo[1][t], lo[2][t]}, h3[3] = {hi[0][t], hi[1][t], hi[2][t]};
+                surface_bounded(b, (const double(*)[3])vv, nn, l3, h3);
+            }
+            if (zpar & bit)
+                parity_triangle(b->solid, b, (const double(*)[3])vv, nn, 0, 1, 2);
+            if (xpar & bit)
+                parity_triangle(o->px, b, (const double(*)[3])vv, nn, 1, 2, 0);
+            if (ypar & bit)
+                parity_triangle(o->py, b, (const double(*)[3])vv, nn, 2, 0, 1);
+        }
+    }
+    return (uint32_t)__builtin_popcount(deg);
+}
+
+/* The 12 indices at ti: 0 if one is >= nv, 1 if all are valid and one is nv - 1, else 2. */
+static inline int indices_check4(const uint32_t *ti, uint32_t nv)
+{
+    __m256i a = _mm256_loadu_si256((const __m256i *)ti);
+    __m128i m = _mm_loadu_si128((const __m128i *)(ti + 8));
+    m = _mm_max_epu32(m, _mm_max_epu32(_mm256_castsi256_si128(a), _mm256_extracti128_si256(a, 1)));
+    m = _mm_max_epu32(m, _mm_shuffle_epi32(m, _MM_SHUFFLE(1, 0, 3, 2)));
+    m = _mm_max_epu32(m, _mm_shuffle_epi32(m, _MM_SHUFFLE(2, 3, 0, 1)));
+    uint32_t top = (uint32_t)_mm_cvtsi128_si32(m);
+    return top >= nv ? 0 : top == nv - 1 ? 1 : 2;
 }
 #endif
+
+/* Triangles t0..t1 of the mesh. */
+static void triangle_range(const tri_out *o, const tri_source *src, uint32_t nv, size_t nt, size_t t0,
+                           size_t t1, tri_counts *cnt)
+{
+    size_t t = t0;
+    (void)nt; /* only the look-ahead of the AVX2 path needs it */
+#ifdef __AVX2__
+    if (src->all_finite) {
+        soa_consts k;
+        for (int a = 0; a < 3; a++) {
+            k.origin[a] = _mm256_set1_pd(src->origin[a]);
+            k.dimm1[a] = _mm256_set1_pd((double)o->b->dims[a] - 1);
+        }
+        k.inv_h = _mm256_set1_pd(src->inv_h);
+        for (; t + 4 <= t1; t += 4) {
+            /* Vertex loads are random gathers and dominate on large meshes: fetch ahead. */
+            for (size_t f = t + 32; f < t + 36 && f < nt; f++)
+                for (int c = 0; c < 3; c++) { /* clamped: no out-of-range pointer is formed */
+                    uint32_t i = src->idx[3 * f + (size_t)c];
+                    __builtin_prefetch(src->pos + 3 * (size_t)(i < nv ? i : 0));
+                }
+            const uint32_t *ti = src->idx + 3 * t;
+            int ok = indices_check4(ti, nv);
+            if (!ok) {
+                for (size_t u = t; u < t + 4; u++)
+                    triangle_one(o, src, nv, u, cnt);
+                continue;
+            }
+            __m256d v[3][3];
+            load4(src->pos, ti, ok == 1, &k, v);
+            cnt->degenerate += triangles4(o, &k, v);
+        }
+    }
+#endif
+    for (; t < t1; t++)
+        triangle_one(o, src, nv, t, cnt);
+}
 
 static inline bool get_bit(const uint64_t *set, size_t col, uint32_t words, uint32_t k)
 {
     return (set[col * words + k / 64] >> (k % 64)) & 1u;
 }
 
-/* Majority of the x, y and z parities into b->solid (which holds the z parity on entry); rs holds
- * the x and y toggles from the triangle pass. */
-static void robust_solid(const robust_sets *rs, bitset *b, int threads)
+/* ROBUST: px and py hold the x and y toggles in the layout of the solid set, where a running XOR
+ * along x or y is word-wise (64 voxels of a column at a time) instead of bit by bit; the solid set
+ * (z parity, already prefix-XORed) then becomes the bitwise majority of the three parities. */
+static void robust_solid(uint64_t *px, uint64_t *py, bitset *b, int threads)
 {
-    const uint64_t *px = rs->px, *py = rs->py;
-    const uint32_t *d = b->dims;
-    prefix_xor(rs->px, (size_t)d[1] * d[2], d[0], rs->wx, threads);
-    prefix_xor(rs->py, (size_t)d[2] * d[0], d[1], rs->wy, threads);
+    const size_t w = b->words, row = (size_t)b->dims[0] * w, ny = b->dims[1];
+    uint64_t *solid = b->solid;
+#pragma omp parallel num_threads(threads) if (row * ny > 16384)
     {
-        uint32_t wx = rs->wx, wy = rs->wy;
-        size_t work = (size_t)d[0] * d[1] * d[2];
-        (void)work;
-#pragma omp parallel for schedule(static) num_threads(threads) if (work > 65536)
-        for (uint32_t y = 0; y < d[1]; y++) {
-            for (uint32_t x = 0; x < d[0]; x++) {
-                uint64_t *col = b->solid + ((size_t)y * d[0] + x) * b->words;
-                for (uint32_t z = 0; z < d[2]; z++) {
-                    int votes = (int)((col[z / 64] >> (z % 64)) & 1u);
-                    votes += get_bit(px, (size_t)z * d[1] + y, wx, x);
-                    votes += get_bit(py, (size_t)x * d[2] + z, wy, y);
-                    uint64_t m = 1ull << (z % 64);
-                    col[z / 64] = votes >= 2 ? col[z / 64] | m : col[z / 64] & ~m;
-                }
+        /* Along y, over the words of a row: each thread keeps a contiguous strip of columns. */
+#pragma omp for schedule(static)
+        for (size_t i = 0; i < row; i++) {
+            uint64_t acc = 0;
+            for (size_t y = 0; y < ny; y++) {
+                acc ^= py[y * row + i];
+                py[y * row + i] = acc;
             }
+        }
+#pragma omp for schedule(static)
+        for (size_t y = 0; y < ny; y++) {
+            uint64_t *rx = px + y * row, *ry = py + y * row, *rs = solid + y * row;
+            for (size_t i = w; i < row; i++)
+                rx[i] ^= rx[i - w];
+            for (size_t i = 0; i < row; i++)
+                rs[i] = (rs[i] & (rx[i] | ry[i])) | (rx[i] & ry[i]);
         }
     }
 }
 
-/* OR of bits 2i and 2i+1 of a 128-bit pair (lo, hi) into bit i of one word. */
+/* OR of bits 2i and 2i+1 of a word into bit i of the low half. */
 static inline uint64_t compress_pairs(uint64_t w)
 {
+#ifdef __BMI2__
+    return _pext_u64(w | (w >> 1), 0x5555555555555555ull); /* one instruction for the five steps */
+#else
     uint64_t x = (w | (w >> 1)) & 0x5555555555555555ull;
     x = (x | (x >> 1)) & 0x3333333333333333ull;
     x = (x | (x >> 2)) & 0x0f0f0f0f0f0f0f0full;
@@ -530,6 +913,7 @@ static inline uint64_t compress_pairs(uint64_t w)
     x = (x | (x >> 8)) & 0x0000ffff0000ffffull;
     x = (x | (x >> 16)) & 0x00000000ffffffffull;
     return x;
+#endif
 }
 
 static void downsample(const bitset *fine, const uint64_t *fs, const bitset *coarse, uint64_t *cs,
@@ -562,6 +946,55 @@ static uint64_t popcount_set(const uint64_t *s, size_t n)
     for (size_t i = 0; i < n; i++)
         c += (uint64_t)__builtin_popcountll(s[i]);
     return c;
+}
+
+/* Extend mn, mx by the finite vertices i0..i1 and count the others. */
+static void vertex_bounds(const float *pos, size_t i0, size_t i1, float mn[3], float mx[3], uint32_t *nonfinite)
+{
+    size_t i = i0;
+#ifdef __AVX2__
+    /* Eight vertices are three registers of floats whose lanes keep their axis (float j of the
+     * group is axis j % 3) from group to group; a group with a NaN or infinity (x - x != 0)
+     * goes to the scalar loop below. */
+    __m256 lo[3], hi[3];
+    for (int r = 0; r < 3; r++) {
+        lo[r] = _mm256_set1_ps(INFINITY);
+        hi[r] = _mm256_set1_ps(-INFINITY);
+    }
+    for (; i + 8 <= i1; i += 8) {
+        const float *p = pos + 3 * i;
+        __m256 r0 = _mm256_loadu_ps(p), r1 = _mm256_loadu_ps(p + 8), r2 = _mm256_loadu_ps(p + 16);
+        __m256 z = _mm256_setzero_ps();
+        __m256 fin = _mm256_and_ps(_mm256_cmp_ps(_mm256_sub_ps(r0, r0), z, _CMP_EQ_OQ),
+                                   _mm256_and_ps(_mm256_cmp_ps(_mm256_sub_ps(r1, r1), z, _CMP_EQ_OQ),
+                                                 _mm256_cmp_ps(_mm256_sub_ps(r2, r2), z, _CMP_EQ_OQ)));
+        if (_mm256_movemask_ps(fin) != 0xFF)
+            break;
+        lo[0] = _mm256_min_ps(lo[0], r0), hi[0] = _mm256_max_ps(hi[0], r0);
+        lo[1] = _mm256_min_ps(lo[1], r1), hi[1] = _mm256_max_ps(hi[1], r1);
+        lo[2] = _mm256_min_ps(lo[2], r2), hi[2] = _mm256_max_ps(hi[2], r2);
+    }
+    float l[24], h[24];
+    for (int r = 0; r < 3; r++) {
+        _mm256_storeu_ps(l + 8 * r, lo[r]);
+        _mm256_storeu_ps(h + 8 * r, hi[r]);
+    }
+    for (int j = 0; j < 24; j++) {
+        mn[j % 3] = fmn(mn[j % 3], l[j]);
+        mx[j % 3] = fmx(mx[j % 3], h[j]);
+    }
+#endif
+    for (; i < i1; i++) {
+        const float *p = pos + 3 * i;
+        if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2])) {
+            (*nonfinite)++;
+            continue;
+        }
+        for (int a = 0; a < 3; a++) {
+            mn[a] = fmn(mn[a], p[a]);
+            mx[a] = fmx(mx[a], p[a]);
+        }
+    }
 }
 
 /* Voxelize into *out: a fresh grid when *out is NULL (destroyed on failure), else the grid
@@ -597,21 +1030,16 @@ static nacre_result voxelize_impl(nacre_context *ctx, const nacre_mesh_data *mes
     float bmin[3] = {INFINITY, INFINITY, INFINITY}, bmax[3] = {-INFINITY, -INFINITY, -INFINITY};
     int threads = nc_threads(ctx);
     uint32_t nonfinite_vertices = 0;
-#pragma omp parallel num_threads(threads) if (nv > VOXEL_PARALLEL_MIN)
+    /* Serial below VOXEL_BOUNDS_PARALLEL: a fork and join would cost more than the pass. */
+#pragma omp parallel num_threads(threads) if (nv > VOXEL_BOUNDS_PARALLEL)
     {
         float lmin[3] = {INFINITY, INFINITY, INFINITY}, lmax[3] = {-INFINITY, -INFINITY, -INFINITY};
         uint32_t lnf = 0;
+        size_t nblk = ((size_t)nv + VOXEL_CHUNK - 1) / VOXEL_CHUNK;
 #pragma omp for schedule(static)
-        for (size_t i = 0; i < nv; i++) {
-            const float *p = pos + 3 * i;
-            if (!isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2])) {
-                lnf++;
-                continue;
-            }
-            for (int a = 0; a < 3; a++) {
-                lmin[a] = fmn(lmin[a], p[a]);
-                lmax[a] = fmx(lmax[a], p[a]);
-            }
+        for (size_t blk = 0; blk < nblk; blk++) {
+            size_t i0 = blk * VOXEL_CHUNK, i1 = i0 + VOXEL_CHUNK < nv ? i0 + VOXEL_CHUNK : nv;
+            vertex_bounds(pos, i0, i1, lmin, lmax, &lnf);
         }
 #pragma omp critical(nacre_voxel_bounds)
         {
@@ -677,73 +1105,33 @@ static nacre_result voxelize_impl(nacre_context *ctx, const nacre_mesh_data *mes
     }
 
     bitset *b = &g->level[0];
-    uint32_t degenerate = 0, nonfinite = 0, bad_index = 0;
-    robust_sets rsets, *rs = NULL;
+    tri_out dst = {b, NULL, NULL};
     if (rule == NACRE_VOXEL_SOLID_ROBUST) {
-        rsets.wx = (dims[0] + 63u) / 64u;
-        rsets.wy = (dims[1] + 63u) / 64u;
-        /* Sizes cannot overflow: each is at most the level-0 size times 64 words per 4096 voxels. */
-        r = words_prepare(ctx, &g->px, &g->cap_px, (size_t)dims[1] * dims[2] * rsets.wx);
+        /* Same size as a level-0 set, which bitset_alloc has checked for overflow. */
+        r = words_prepare(ctx, &g->px, &g->cap_px, bitset_words(b));
         if (r == NACRE_OK)
-            r = words_prepare(ctx, &g->py, &g->cap_py, (size_t)dims[2] * dims[0] * rsets.wy);
+            r = words_prepare(ctx, &g->py, &g->cap_py, bitset_words(b));
         if (r != NACRE_OK)
             goto fail;
-        rsets.px = g->px;
-        rsets.py = g->py;
-        rs = &rsets;
+        dst.px = g->px;
+        dst.py = g->py;
     }
-#ifdef __AVX2__
-    fast_consts fc;
-    fc.origin = _mm256_set_pd(0.0, src.origin[2], src.origin[1], src.origin[0]);
-    fc.inv_h = _mm256_set1_pd(src.inv_h);
-    fc.dimm1 = _mm256_set_pd(0.0, (double)dims[2] - 1, (double)dims[1] - 1, (double)dims[0] - 1);
-#endif
-    /* Surface and z parity in one pass over the triangles; indices are checked here rather than
+    /* Surface and parities in one pass over the triangles; indices are checked here rather than
      * in a pass of their own (one less sweep over the index array), and a bad one fails the
-     * whole call after the loop. */
-#define VOXEL_BLOCK 8
-    size_t nblocks = (nt + VOXEL_BLOCK - 1) / VOXEL_BLOCK;
-#pragma omp parallel for schedule(static) num_threads(threads) reduction(+ : degenerate, nonfinite, bad_index) if (nt > VOXEL_PARALLEL_MIN)
-    for (size_t blk = 0; blk < nblocks; blk++) {
-        size_t t0 = blk * VOXEL_BLOCK, t1 = t0 + VOXEL_BLOCK < nt ? t0 + VOXEL_BLOCK : nt;
-        /* Vertex loads are random gathers and dominate on large meshes: fetch ahead. */
-        for (size_t t = t0 + 32; t < t1 + 32 && t < nt; t++) {
-            const uint32_t *ahead = idx + 3 * t;
-            for (int k = 0; k < 3; k++) /* clamped: no out-of-range pointer is formed */
-                __builtin_prefetch(pos + 3 * (size_t)(ahead[k] < nv ? ahead[k] : 0));
-        }
-#ifdef __AVX2__
-        /* Whole blocks of valid indices: all loads first, then the branchy part, so the
-         * gathers of a block overlap. */
-        bool valid = src.all_finite && t1 - t0 == VOXEL_BLOCK;
-        for (size_t t = t0; valid && t < t1; t++)
-            valid = idx[3 * t] < nv && idx[3 * t + 1] < nv && idx[3 * t + 2] < nv;
-        if (valid) {
-            __m256d vb[VOXEL_BLOCK][3];
-            for (size_t i = 0; i < VOXEL_BLOCK; i++)
-                triangle_avx_load(pos, idx + 3 * (t0 + i), &fc, vb[i]);
-            for (size_t i = 0; i < VOXEL_BLOCK; i++)
-                degenerate += triangle_avx(b, vb[i], &fc, rs) == 2;
-            continue;
-        }
-#endif
-        for (size_t t = t0; t < t1; t++) {
-            const uint32_t *ti = idx + 3 * t;
-            if (ti[0] >= nv || ti[1] >= nv || ti[2] >= nv) {
-                bad_index++;
-                continue;
-            }
-            double v[3][3];
-            int st = load_triangle(&src, t, v);
-            degenerate += st == 2;
-            nonfinite += st == 1;
-            if (st != 0)
-                continue;
-            surface_triangle(b, (const double(*)[3])v);
-            parity_triangle(b->solid, dims[0], dims[1], dims[2], b->words, (const double(*)[3])v, 0, 1, 2);
-            if (rs)
-                parity_xy(b, rs, (const double(*)[3])v, true, true);
-        }
+     * whole call after the loop. Chunks are handed out on demand (dynamic), not in fixed
+     * halves: the cost per triangle varies along a mesh (large triangles in one region), and on
+     * a shared machine a thread that is descheduled for a while would otherwise hold up the
+     * whole pass with its half; one atomic increment per 1024 triangles is all it costs. */
+    uint32_t degenerate = 0, nonfinite = 0, bad_index = 0;
+    size_t nchunks = (nt + VOXEL_CHUNK - 1) / VOXEL_CHUNK;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads) reduction(+ : degenerate, nonfinite, bad_index) if (nt > VOXEL_PARALLEL_MIN)
+    for (size_t ch = 0; ch < nchunks; ch++) {
+        size_t t0 = ch * VOXEL_CHUNK, t1 = t0 + VOXEL_CHUNK < nt ? t0 + VOXEL_CHUNK : nt;
+        tri_counts cnt = {0, 0, 0};
+        triangle_range(&dst, &src, nv, nt, t0, t1, &cnt);
+        degenerate += cnt.degenerate;
+        nonfinite += cnt.nonfinite;
+        bad_index += cnt.bad_index;
     }
     if (bad_index) {
         r = nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
@@ -755,8 +1143,8 @@ static nacre_result voxelize_impl(nacre_context *ctx, const nacre_mesh_data *mes
         goto fail;
     }
     prefix_xor(b->solid, (size_t)dims[0] * dims[1], dims[2], b->words, threads);
-    if (rs)
-        robust_solid(rs, b, threads);
+    if (dst.px)
+        robust_solid(dst.px, dst.py, b, threads);
 
     /* Pyramid. */
     g->levels = 1;
@@ -1028,8 +1416,8 @@ nacre_result nacre_voxel_grid_rest_positions(const nacre_voxel_grid *grid,
         if (ti[0] >= deformed->vertex_count || ti[1] >= deformed->vertex_count ||
             ti[2] >= deformed->vertex_count)
             continue;
-        double v[3][3];
-        if (load_triangle(&src, t, v) != 0)
+        double v[3][3], nrm[3];
+        if (load_triangle(&src, t, v, nrm) != 0)
             continue;
         int lo[3], hi[3];
         bool empty = false;
