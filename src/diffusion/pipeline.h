@@ -169,9 +169,9 @@ nacre_result nc_diff_pack_exitance(nc_diff_object *o, int threads);
  * plus in FACE mode the lit faces' term read at p; solid cells only). False if no solid cell is
  * within one cell of the sample point. */
 bool nc_diff_exitance_at(const nc_diff_object *o, nc_vec3 p, nc_vec3 n, bool face_mode, float out[3]);
-/* The subsurface hook of the phong pass: radiance towards the viewer at a pixel of a translucent
- * object. user = the nc_diff_state. */
-void nc_diff_subsurface_radiance(const void *user, uint32_t object, nc_vec3 p, nc_vec3 n, nc_vec3 v,
-                                 float out[3]);
+/* The subsurface hook of the phong pass: radiance towards the viewer at a batch of pixels of a
+ * translucent object, into out[channel][pixel]. user = the nc_diff_state. */
+void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_shade_batch *batch,
+                                 float out[3][NC_SHADE_BATCH]);
 
 #endif /* NACRE_DIFFUSION_PIPELINE_H */

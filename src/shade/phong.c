@@ -16,6 +16,14 @@
  * The Blinn-Phong lobe is 0 below 2^-64 of its peak (SPEC_FLOOR): this skips powf, and the
  * slow denormal arithmetic, over most of a glossy object.
  *
+ * Layout: each row is cut into runs; empty pixels get the environment in bulk (streaming stores
+ * with AVX), and object pixels are shaded in batches (up to NC_SHADE_BATCH pixels of one object
+ * and material, SoA) whose per-light arithmetic is written as branch-free loops the compiler
+ * vectorizes. Only the shadow lookups (with the next lookups' texels prefetched) and the
+ * diffusion method's corner reads stay per pixel. The batches compute the same values as a
+ * per-pixel loop, except that an integer shininess is raised by exact binary powering in double
+ * rather than powf (pow_batch): the two differ in the last bit of a few pixels per image.
+ *
  * The diffusion method reuses this pass through the subsurface hook of nc_shade_params: its
  * translucent objects keep ambient and specular and get the diffusion radiance in place of the
  * Lambert direct term (Blanchard 2012 section 4.6.2: the deferred passes are summed).
@@ -24,8 +32,12 @@
 #include "core/optics.h"
 
 #include <math.h>
+#include <stdint.h>
+#ifdef __AVX__
+#include <immintrin.h>
+#endif
 
-/* Relative contribution below which a light's shadow lookup is skipped (see nc_shade_phong):
+/* Relative contribution below which a light's shadow lookup is skipped (see shade_light):
  * 2^-16, 32 times below the resolution of a half-float EXR. */
 #define NEGLIGIBLE (1.0f / 65536.0f)
 /* Blinn-Phong lobe values below this are 0 (see spec_cut): 2^-64 times the lobe's peak, far
@@ -53,129 +65,385 @@ static float spec_cut(float shininess)
     return shininess > 0.0f ? powf(SPEC_FLOOR, 1.0f / shininess) : -1.0f;
 }
 
-/* Smooth spot falloff between the inner and outer cone (Hermite in cos angle). */
-static float spot_falloff(const nacre_light_desc *l, nc_vec3 to_point)
+/* x^s for the lanes of a batch. An integer exponent (the usual shininess) is computed by
+ * binary powering in double: a few vectorized multiplies per lane instead of a powf call, with
+ * an error far below a float ulp, so the result is powf's (correctly rounded) value except in
+ * rare last-bit cases. Other exponents take powf. Lanes with x = 1 are the callers' don't-care
+ * lanes (kept at 1 so that no lane goes through slow denormal arithmetic). */
+static void pow_batch(uint32_t count, const float *x, float s, float *out)
 {
-    float c = nc_dot(nc_v3a(l->direction), to_point);
-    float co = cosf(l->outer_angle * NC_DEG2RAD), ci = cosf(l->inner_angle * NC_DEG2RAD);
-    if (c <= co)
-        return 0.0f;
-    if (c >= ci || ci <= co)
-        return 1.0f;
-    float t = (c - co) / (ci - co);
-    return t * t * (3.0f - 2.0f * t);
+    if (!(s >= 1.0f && s <= 65536.0f && s == (float)(int32_t)s)) {
+        for (uint32_t i = 0; i < count; i++)
+            out[i] = powf(x[i], s);
+        return;
+    }
+    double r[NC_SHADE_BATCH], b[NC_SHADE_BATCH];
+    for (uint32_t i = 0; i < count; i++) {
+        r[i] = 1.0;
+        b[i] = (double)x[i];
+    }
+    for (uint32_t e = (uint32_t)s;;) {
+        if (e & 1u)
+            for (uint32_t i = 0; i < count; i++)
+                r[i] *= b[i];
+        e >>= 1;
+        if (!e)
+            break;
+        for (uint32_t i = 0; i < count; i++)
+            b[i] *= b[i];
+    }
+    for (uint32_t i = 0; i < count; i++)
+        out[i] = (float)r[i];
+}
+
+/* Shadow lookups prefetched ahead of the one being done (see shade_light). */
+#define PREFETCH_AHEAD 4u
+
+/* Cache hint for the texels nc_shadow_lookup will read for point p: the rows of its PCF window
+ * in a single-face map (cube maps and kernels wider than 2 texels are left alone). Only a hint:
+ * it follows the lookup's projection without its depth-range tests, and reads nothing. */
+static inline void shadow_prefetch(const nc_shadow_map *sm, float pcf_radius, float px, float py, float pz)
+{
+#if defined(__GNUC__)
+    float rad = pcf_radius < 0.5f ? 0.5f : pcf_radius;
+    if (sm->kind == NC_SHADOW_CUBE || !sm->depth || rad > 2.0f)
+        return;
+    const nc_mat4 *m = &sm->world_to_clip[0];
+    float cx = m->m[0][0] * px + m->m[0][1] * py + m->m[0][2] * pz + m->m[0][3];
+    float cy = m->m[1][0] * px + m->m[1][1] * py + m->m[1][2] * pz + m->m[1][3];
+    float cw = m->m[3][0] * px + m->m[3][1] * py + m->m[3][2] * pz + m->m[3][3];
+    const int32_t size = sm->size;
+    float u = (cx / cw * 0.5f + 0.5f) * (float)size, v = (0.5f - cy / cw * 0.5f) * (float)size;
+    if (!(u > -rad && v > -rad && u < (float)size + rad && v < (float)size + rad))
+        return; /* also NaN */
+    int32_t i0 = (int32_t)floorf(u - rad), i1 = (int32_t)floorf(u + rad);
+    int32_t j0 = (int32_t)floorf(v - rad), j1 = (int32_t)floorf(v + rad);
+    i0 = i0 < 0 ? 0 : i0;
+    i1 = i1 >= size ? size - 1 : i1;
+    j0 = j0 < 0 ? 0 : j0;
+    j1 = j1 >= size ? size - 1 : j1;
+    for (int32_t j = j0; j <= j1; j++) {
+        const float *row = sm->depth + (size_t)j * (size_t)size;
+        __builtin_prefetch(row + i0);
+        __builtin_prefetch(row + i1);
+    }
+#else
+    (void)sm, (void)pcf_radius, (void)px, (void)py, (void)pz;
+#endif
+}
+
+/* Per-material constants of the pass. */
+typedef struct mat_k {
+    float kd[3], spec_norm, nh_cut;
+} mat_k;
+
+static void material_constants(const nacre_material_desc *m, mat_k *k)
+{
+    nc_material_albedo(m, k->kd);
+    k->spec_norm = (m->shininess + 8.0f) / (8.0f * NC_PI);
+    k->nh_cut = spec_cut(m->shininess);
+}
+
+/* Add light l to the batch's radiance acc. The arithmetic per lane is the scalar shading's,
+ * operation for operation (the image does not depend on the batching); the lanes are split into
+ * vectorizable loops (geometry, lobe, sum) around the shadow lookups, which stay per pixel.
+ * In those loops every value is computed for every lane and conditions only select
+ * (nc_shade_sel; masks are int32 and combined with &). */
+static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, const mat_k *mk, float lambert,
+                        const nc_shade_batch *b, const nc_gbuffer *gb, size_t first, const nc_shade_params *params,
+                        float acc[3][NC_SHADE_BATCH])
+{
+    const nacre_light_desc *l = sl->desc;
+    const uint32_t count = b->count;
+    float scale[NC_SHADE_BATCH], cos_i[NC_SHADE_BATCH], nh[NC_SHADE_BATCH], spec[NC_SHADE_BATCH];
+    float wx[NC_SHADE_BATCH], wy[NC_SHADE_BATCH], wz[NC_SHADE_BATCH];
+    int32_t ok[NC_SHADE_BATCH], above[NC_SHADE_BATCH];
+    const float lx = l->position[0], ly = l->position[1], lz = l->position[2];
+    const float dx0 = l->direction[0], dy0 = l->direction[1], dz0 = l->direction[2];
+    /* Direction to the light and its strength factor (distance, spot cone) */
+    if (l->type == NACRE_LIGHT_DIRECTIONAL) {
+        for (uint32_t i = 0; i < count; i++) {
+            wx[i] = -dx0;
+            wy[i] = -dy0;
+            wz[i] = -dz0;
+            scale[i] = 1.0f;
+            ok[i] = 1;
+        }
+    } else {
+        for (uint32_t i = 0; i < count; i++) {
+            float dx = lx - b->px[i], dy = ly - b->py[i], dz = lz - b->pz[i];
+            float d2 = dx * dx + dy * dy + dz * dz;
+            float inv = 1.0f / sqrtf(d2);
+            wx[i] = dx * inv;
+            wy[i] = dy * inv;
+            wz[i] = dz * inv;
+            scale[i] = 1.0f / d2;
+            ok[i] = !(d2 <= 0);
+        }
+        if (l->type == NACRE_LIGHT_SPOT) {
+            /* The cone's cosines once per batch, not per pixel */
+            const float co = cosf(l->outer_angle * NC_DEG2RAD), ci = cosf(l->inner_angle * NC_DEG2RAD);
+            const bool hard = ci <= co;
+            for (uint32_t i = 0; i < count; i++) {
+                float c = dx0 * -wx[i] + dy0 * -wy[i] + dz0 * -wz[i];
+                float t = (c - co) / (ci - co);
+                float smooth = t * t * (3.0f - 2.0f * t);
+                float f = nc_shade_sel(c <= co, 0.0f, nc_shade_sel((c >= ci) | hard, 1.0f, smooth));
+                scale[i] *= f;
+            }
+        }
+    }
+    const float nh_cut = mk->nh_cut;
+    const int32_t has_lambert = lambert != 0.0f;
+    for (uint32_t i = 0; i < count; i++) {
+        float ct = b->nx[i] * wx[i] + b->ny[i] * wy[i] + b->nz[i] * wz[i];
+        float hx = wx[i] + b->vx[i], hy = wy[i] + b->vy[i], hz = wz[i] + b->vz[i];
+        float len = sqrtf(hx * hx + hy * hy + hz * hz);
+        float inv_len = 1.0f / len;
+        int32_t pos = len > 0.0f;
+        hx = nc_shade_sel(pos, hx * inv_len, hx);
+        hy = nc_shade_sel(pos, hy * inv_len, hy);
+        hz = nc_shade_sel(pos, hz * inv_len, hz);
+        float d = b->nx[i] * hx + b->ny[i] * hy + b->nz[i] * hz;
+        d = nc_shade_sel(d > 0.0f, d, 0.0f);
+        int32_t up = d > nh_cut;
+        /* cos_i <= 0 or scale <= 0: unlit; no highlight and no Lambert term: nothing to add */
+        ok[i] = ok[i] & !(ct <= 0) & !(scale[i] <= 0) & (up | has_lambert);
+        cos_i[i] = ct;
+        above[i] = up;
+        nh[i] = nc_shade_sel(up, d, 1.0f);
+    }
+    const float spec_norm = mk->spec_norm;
+    if (m->shininess > 0) {
+        float pw[NC_SHADE_BATCH];
+        pow_batch(count, nh, m->shininess, pw);
+        for (uint32_t i = 0; i < count; i++) {
+            float v = spec_norm * pw[i];
+            spec[i] = nc_shade_sel(above[i], v, 0.0f);
+        }
+    } else {
+        for (uint32_t i = 0; i < count; i++)
+            spec[i] = nc_shade_sel(above[i], spec_norm, 0.0f);
+    }
+    const float s0 = l->strength[0], s1 = l->strength[1], s2 = l->strength[2];
+    const float kl0 = mk->kd[0] * lambert, kl1 = mk->kd[1] * lambert, kl2 = mk->kd[2] * lambert;
+    const float ks0 = m->specular[0], ks1 = m->specular[1], ks2 = m->specular[2];
+    if (sl->shadow) {
+        /* The shadow lookup (PCF) is the most expensive part of a pixel. When this light's
+         * unshadowed term is below NEGLIGIBLE of what the pixel already has (typically the
+         * specular highlight of a subsurface pixel away from the highlight), it cannot change
+         * the pixel beyond that bound: the light is skipped. */
+        for (uint32_t i = 0; i < count; i++) {
+            float u0 = fabsf(s0 * scale[i] * cos_i[i] * (kl0 + ks0 * spec[i]));
+            float u1 = fabsf(s1 * scale[i] * cos_i[i] * (kl1 + ks1 * spec[i]));
+            float u2 = fabsf(s2 * scale[i] * cos_i[i] * (kl2 + ks2 * spec[i]));
+            float un = nc_shade_sel(u0 > 0.0f, u0, 0.0f);
+            un = nc_shade_sel(u1 > un, u1, un);
+            un = nc_shade_sel(u2 > un, u2, un);
+            float have = nc_shade_sel(acc[0][i] > 0.0f, acc[0][i], 0.0f);
+            have = nc_shade_sel(acc[1][i] > have, acc[1][i], have);
+            have = nc_shade_sel(acc[2][i] > have, acc[2][i], have);
+            ok[i] = ok[i] & !(un <= NEGLIGIBLE * have);
+        }
+        /* The lookups' first reads miss the cache (the map is far larger than it, and its
+         * texels are visited in screen order): hint the window of the lookup PREFETCH_AHEAD
+         * pixels ahead while doing this one. */
+        uint32_t lanes[NC_SHADE_BATCH], nl = 0;
+        for (uint32_t i = 0; i < count; i++)
+            if (ok[i])
+                lanes[nl++] = i;
+        for (uint32_t t = 0; t < nl && t < PREFETCH_AHEAD; t++)
+            shadow_prefetch(sl->shadow, params->pcf_radius, b->px[lanes[t]], b->py[lanes[t]], b->pz[lanes[t]]);
+        for (uint32_t t = 0; t < nl; t++) {
+            uint32_t i = lanes[t];
+            if (t + PREFETCH_AHEAD < nl) {
+                uint32_t a = lanes[t + PREFETCH_AHEAD];
+                shadow_prefetch(sl->shadow, params->pcf_radius, b->px[a], b->py[a], b->pz[a]);
+            }
+            const float *ng = gb->geo_normal + 3 * (first + i);
+            scale[i] *= nc_shadow_lookup(sl->shadow, nc_v3(b->px[i], b->py[i], b->pz[i]), nc_v3(ng[0], ng[1], ng[2]),
+                                         params->pcf_radius, params->shadow_bias);
+            ok[i] = scale[i] > 0;
+        }
+    }
+    for (uint32_t i = 0; i < count; i++) {
+        float e = scale[i] * cos_i[i];
+        float t0 = s0 * e * (kl0 + ks0 * spec[i]);
+        float t1 = s1 * e * (kl1 + ks1 * spec[i]);
+        float t2 = s2 * e * (kl2 + ks2 * spec[i]);
+        float a0 = acc[0][i] + t0, a1 = acc[1][i] + t1, a2 = acc[2][i] + t2;
+        acc[0][i] = nc_shade_sel(ok[i], a0, acc[0][i]);
+        acc[1][i] = nc_shade_sel(ok[i], a1, acc[1][i]);
+        acc[2][i] = nc_shade_sel(ok[i], a2, acc[2][i]);
+    }
+}
+
+/* Environment radiance into n pixels: the background, most of a typical frame, in bulk. With
+ * AVX the aligned middle of a long run is written with streaming stores: the image is far larger
+ * than the caches, and plain stores would first read every line they fill (twice the memory
+ * traffic). The caller fences (stream_fence) before the pass ends. */
+static void fill_env(float *out, int32_t n, const float env[3])
+{
+    int32_t k = 0;
+#ifdef __AVX__
+    /* Pixels until the float after them is 32-byte aligned, then 8 pixels (3 vectors) a step */
+    if (n >= 32) {
+        while (k < n && ((uintptr_t)(out + 3 * (size_t)k) & 31u) != 0) {
+            out[3 * k] = env[0];
+            out[3 * k + 1] = env[1];
+            out[3 * k + 2] = env[2];
+            k++;
+        }
+        if (((uintptr_t)(out + 3 * (size_t)k) & 31u) == 0) {
+            /* 24 floats = 8 pixels, starting at a pixel boundary */
+            __m256 a = _mm256_setr_ps(env[0], env[1], env[2], env[0], env[1], env[2], env[0], env[1]);
+            __m256 b = _mm256_setr_ps(env[2], env[0], env[1], env[2], env[0], env[1], env[2], env[0]);
+            __m256 c = _mm256_setr_ps(env[1], env[2], env[0], env[1], env[2], env[0], env[1], env[2]);
+            for (; k + 8 <= n; k += 8) {
+                float *o = out + 3 * (size_t)k;
+                _mm256_stream_ps(o, a);
+                _mm256_stream_ps(o + 8, b);
+                _mm256_stream_ps(o + 16, c);
+            }
+        }
+    }
+#endif
+    for (; k < n; k++) {
+        out[3 * k] = env[0];
+        out[3 * k + 1] = env[1];
+        out[3 * k + 2] = env[2];
+    }
+}
+
+/* Orders fill_env's streaming stores before the pass returns (they are weakly ordered). */
+static void stream_fence(void)
+{
+#ifdef __AVX__
+    _mm_sfence();
+#endif
+}
+
+/* Shade pixels [first, first + count) of the G-buffer, all of one object and material, into out. */
+static void shade_run(const nacre_scene *scene, const nc_gbuffer *gb, const nc_shade_light *lights,
+                      uint32_t light_count, const nc_shade_params *params, const mat_k *mk, size_t first,
+                      uint32_t count, float *out)
+{
+    const float *env = scene->environment;
+    const uint32_t object = gb->object[first];
+    const nacre_material_desc *m = &scene->materials[gb->material[first]];
+    nc_shade_batch b;
+    float acc[3][NC_SHADE_BATCH];
+    b.count = count;
+    const float *P = gb->position + 3 * first, *N = gb->normal + 3 * first;
+    for (uint32_t i = 0; i < count; i++) {
+        b.px[i] = P[3 * i];
+        b.py[i] = P[3 * i + 1];
+        b.pz[i] = P[3 * i + 2];
+        b.nx[i] = N[3 * i];
+        b.ny[i] = N[3 * i + 1];
+        b.nz[i] = N[3 * i + 2];
+    }
+    if (params->orthographic) {
+        const float vx = -params->view_dir.x, vy = -params->view_dir.y, vz = -params->view_dir.z;
+        for (uint32_t i = 0; i < count; i++) {
+            b.vx[i] = vx;
+            b.vy[i] = vy;
+            b.vz[i] = vz;
+        }
+    } else {
+        const float ex = params->eye.x, ey = params->eye.y, ez = params->eye.z;
+        for (uint32_t i = 0; i < count; i++) {
+            float x = ex - b.px[i], y = ey - b.py[i], z = ez - b.pz[i];
+            float l = sqrtf(x * x + y * y + z * z);
+            float inv = 1.0f / l;
+            b.vx[i] = nc_shade_sel(l > 0.0f, x * inv, x);
+            b.vy[i] = nc_shade_sel(l > 0.0f, y * inv, y);
+            b.vz[i] = nc_shade_sel(l > 0.0f, z * inv, z);
+        }
+    }
+    for (int c = 0; c < 3; c++) {
+        const float a = mk->kd[c] * env[c];
+        for (uint32_t i = 0; i < count; i++)
+            acc[c][i] = a;
+    }
+    /* Diffusion method: the light that enters and leaves the medium replaces Lambert. */
+    float lambert = 1.0f / NC_PI;
+    if (params->subsurface_object && params->subsurface_object[object]) {
+        float sub[3][NC_SHADE_BATCH];
+        params->subsurface(params->subsurface_user, object, &b, sub);
+        for (int c = 0; c < 3; c++)
+            for (uint32_t i = 0; i < count; i++)
+                acc[c][i] += sub[c][i];
+        lambert = 0.0f;
+    }
+    for (uint32_t li = 0; li < light_count; li++)
+        shade_light(&lights[li], m, mk, lambert, &b, gb, first, params, acc);
+    for (uint32_t i = 0; i < count; i++) {
+        out[3 * i] = acc[0][i];
+        out[3 * i + 1] = acc[1][i];
+        out[3 * i + 2] = acc[2][i];
+    }
+}
+
+/* Row y: runs of empty pixels get the environment in bulk, and object pixels are shaded in
+ * batches of one object and material (shade_run). */
+static void shade_row(const nacre_scene *scene, const nc_gbuffer *gb, const nc_shade_light *lights,
+                      uint32_t light_count, const nc_shade_params *params, const mat_k *mks, uint32_t cached,
+                      int32_t y, float *row)
+{
+    const int32_t w = gb->width;
+    const size_t base = (size_t)y * (size_t)w;
+    const uint32_t *obj = gb->object + base, *mat = gb->material + base;
+    int32_t x = 0;
+    while (x < w) {
+        int32_t x0 = x;
+        /* Eight ids at a time: their AND is NC_NO_OBJECT only if all are (one vector test) */
+        for (; x + 8 <= w; x += 8) {
+            uint32_t all = NC_NO_OBJECT;
+            for (int k = 0; k < 8; k++)
+                all &= obj[x + k];
+            if (all != NC_NO_OBJECT)
+                break;
+        }
+        while (x < w && obj[x] == NC_NO_OBJECT)
+            x++;
+        if (x > x0) {
+            fill_env(row + 3 * (size_t)x0, x - x0, scene->environment);
+            continue;
+        }
+        uint32_t o = obj[x0], mi = mat[x0];
+        while (x < w && x - x0 < NC_SHADE_BATCH && obj[x] == o && mat[x] == mi)
+            x++;
+        mat_k local;
+        const mat_k *mk = mi < cached ? &mks[mi] : &local;
+        if (mi >= cached)
+            material_constants(&scene->materials[mi], &local);
+        shade_run(scene, gb, lights, light_count, params, mk, base + (size_t)x0, (uint32_t)(x - x0),
+                  row + 3 * (size_t)x0);
+    }
 }
 
 void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_shade_light *lights,
                     uint32_t light_count, const nc_shade_params *params, float *rgb, size_t stride,
                     int threads)
 {
-    const int32_t w = gb->width, h = gb->height;
-    const float *env = scene->environment;
-    /* Per-material constants, looked up per pixel by index. Materials are few; a fixed cap keeps
-     * this allocation-free, and larger scenes fall back to recomputing. */
+    const int32_t h = gb->height;
+    /* Per-material constants, looked up per run of pixels by index. Materials are few; a fixed
+     * cap keeps this allocation-free, and larger scenes recompute them per run. */
     enum { CACHE = 256 };
-    float albedo[CACHE][3], spec_norms[CACHE], nh_cuts[CACHE];
+    mat_k mks[CACHE];
     uint32_t cached = scene->material_count < CACHE ? scene->material_count : CACHE;
-    for (uint32_t i = 0; i < cached; i++) {
-        nc_material_albedo(&scene->materials[i], albedo[i]);
-        spec_norms[i] = (scene->materials[i].shininess + 8.0f) / (8.0f * NC_PI);
-        nh_cuts[i] = spec_cut(scene->materials[i].shininess);
-    }
+    for (uint32_t i = 0; i < cached; i++)
+        material_constants(&scene->materials[i], &mks[i]);
 
     /* Rows in small dynamic chunks: objects cover the image unevenly, and static halves left one
      * thread idle for a large part of the pass. Pixels are independent, so the image does not
      * depend on the schedule. */
-#pragma omp parallel for schedule(dynamic, 8) num_threads(threads)
-    for (int32_t y = 0; y < h; y++) {
-        float *row = rgb + (size_t)y * stride;
-        for (int32_t x = 0; x < w; x++) {
-            size_t i = (size_t)y * (size_t)w + (size_t)x;
-            float *out = row + 3 * (size_t)x;
-            if (gb->object[i] == NC_NO_OBJECT) {
-                out[0] = env[0];
-                out[1] = env[1];
-                out[2] = env[2];
-                continue;
-            }
-            uint32_t mi = gb->material[i];
-            const nacre_material_desc *m = &scene->materials[mi];
-            float kd[3];
-            if (mi < cached) {
-                kd[0] = albedo[mi][0]; kd[1] = albedo[mi][1]; kd[2] = albedo[mi][2];
-            } else {
-                nc_material_albedo(m, kd);
-            }
-            nc_vec3 p = nc_v3a(gb->position + 3 * i);
-            nc_vec3 n = nc_v3a(gb->normal + 3 * i);
-            nc_vec3 ng = nc_v3a(gb->geo_normal + 3 * i);
-            nc_vec3 v = params->orthographic ? nc_scale(params->view_dir, -1.0f)
-                                             : nc_normalize(nc_sub(params->eye, p));
-            float acc[3] = {kd[0] * env[0], kd[1] * env[1], kd[2] * env[2]};
-            /* Diffusion method: the light that enters and leaves the medium replaces Lambert. */
-            float lambert = 1.0f / NC_PI;
-            if (params->subsurface_object && params->subsurface_object[gb->object[i]]) {
-                float sub[3];
-                params->subsurface(params->subsurface_user, gb->object[i], p, n, v, sub);
-                acc[0] += sub[0];
-                acc[1] += sub[1];
-                acc[2] += sub[2];
-                lambert = 0.0f;
-            }
-            float spec_norm = mi < cached ? spec_norms[mi] : (m->shininess + 8.0f) / (8.0f * NC_PI);
-            for (uint32_t li = 0; li < light_count; li++) {
-                const nacre_light_desc *l = lights[li].desc;
-                nc_vec3 wi;
-                float scale = 1.0f;
-                if (l->type == NACRE_LIGHT_DIRECTIONAL) {
-                    wi = nc_scale(nc_v3a(l->direction), -1.0f);
-                } else {
-                    nc_vec3 d = nc_sub(nc_v3a(l->position), p);
-                    float d2 = nc_dot(d, d);
-                    if (d2 <= 0)
-                        continue;
-                    wi = nc_scale(d, 1.0f / sqrtf(d2));
-                    scale = 1.0f / d2;
-                    if (l->type == NACRE_LIGHT_SPOT)
-                        scale *= spot_falloff(l, nc_scale(wi, -1.0f));
-                }
-                float cos_i = nc_dot(n, wi);
-                if (cos_i <= 0 || scale <= 0)
-                    continue;
-                nc_vec3 hv = nc_normalize(nc_add(wi, v));
-                float nh = nc_dot(n, hv);
-                nh = nh > 0.0f ? nh : 0.0f;
-                float nh_cut = mi < cached ? nh_cuts[mi] : spec_cut(m->shininess);
-                float spec = 0.0f;
-                if (nh > nh_cut)
-                    spec = m->shininess > 0 ? spec_norm * powf(nh, m->shininess) : spec_norm;
-                else if (lambert == 0.0f)
-                    continue; /* no Lambert term and no highlight: nothing to add */
-                if (lights[li].shadow) {
-                    /* The shadow lookup (PCF) is the most expensive part of a pixel. When this
-                     * light's unshadowed term is below NEGLIGIBLE of what the pixel already has
-                     * (typically the specular highlight of a subsurface pixel away from the
-                     * highlight), it cannot change the pixel beyond that bound: skip the light. */
-                    float unshadowed = 0.0f, have = 0.0f;
-                    /* Plain comparisons: fmaxf is a library call here (NaN rules). */
-                    for (int c = 0; c < 3; c++) {
-                        float u = fabsf(l->strength[c] * scale * cos_i * (kd[c] * lambert + m->specular[c] * spec));
-                        unshadowed = u > unshadowed ? u : unshadowed;
-                        have = acc[c] > have ? acc[c] : have;
-                    }
-                    if (unshadowed <= NEGLIGIBLE * have)
-                        continue;
-                    scale *= nc_shadow_lookup(lights[li].shadow, p, ng, params->pcf_radius, params->shadow_bias);
-                    if (scale <= 0)
-                        continue;
-                }
-                float e = scale * cos_i;
-                for (int c = 0; c < 3; c++)
-                    acc[c] += l->strength[c] * e * (kd[c] * lambert + m->specular[c] * spec);
-            }
-            out[0] = acc[0];
-            out[1] = acc[1];
-            out[2] = acc[2];
-        }
+#pragma omp parallel num_threads(threads)
+    {
+#pragma omp for schedule(dynamic, 8)
+        for (int32_t y = 0; y < h; y++)
+            shade_row(scene, gb, lights, light_count, params, mks, cached, y, rgb + (size_t)y * stride);
+        stream_fence(); /* this thread's streaming stores, before the region ends */
     }
 }

@@ -8,11 +8,39 @@
 #include "raster/raster.h"
 #include "scene/scene.h"
 
+#include <string.h>
+
 /* Lights resolved for shading: one per scene light, with its shadow map (NULL = unshadowed). */
 typedef struct nc_shade_light {
     const nacre_light_desc *desc;
     const nc_shadow_map *shadow;
 } nc_shade_light;
+
+/* Pixels shaded together: a run of one row's pixels with the same object and material, at
+ * most NC_SHADE_BATCH long, held as SoA arrays so that the per-pixel arithmetic vectorizes. */
+#define NC_SHADE_BATCH 64
+
+/* m ? a : b for a mask m of 0 or 1, as bit operations, for the batch loops: they compute every
+ * value on every lane and pick with this. A ?: on floats lets GCC move the chosen operation into
+ * a branch, and it does not if-convert a floating-point operation that could trap
+ * (-ftrapping-math), so the loop would stay scalar. */
+static inline float nc_shade_sel(int32_t m, float a, float b)
+{
+    uint32_t ua, ub, mask = 0u - (uint32_t)m;
+    memcpy(&ua, &a, sizeof(ua));
+    memcpy(&ub, &b, sizeof(ub));
+    uint32_t r = (ua & mask) | (ub & ~mask);
+    float f;
+    memcpy(&f, &r, sizeof(f));
+    return f;
+}
+
+typedef struct nc_shade_batch {
+    uint32_t count;                     /* pixels in use, 1..NC_SHADE_BATCH */
+    float px[NC_SHADE_BATCH], py[NC_SHADE_BATCH], pz[NC_SHADE_BATCH]; /* world position */
+    float nx[NC_SHADE_BATCH], ny[NC_SHADE_BATCH], nz[NC_SHADE_BATCH]; /* unit shading normal */
+    float vx[NC_SHADE_BATCH], vy[NC_SHADE_BATCH], vz[NC_SHADE_BATCH]; /* unit direction to the eye */
+} nc_shade_batch;
 
 typedef struct nc_shade_params {
     nc_vec3 eye;             /* camera position (perspective) */
@@ -22,9 +50,11 @@ typedef struct nc_shade_params {
     /* Optional hook of the diffusion method: pixels of objects with subsurface_object[object]
      * nonzero get subsurface() (the radiance leaving the medium towards v) instead of the
      * Lambert direct term; ambient and specular stay as for any object. NULL: plain phong.
-     * Called from several threads at once (read only). */
+     * It shades one batch of pixels of `object` into out[channel][pixel]. Called from several
+     * threads at once (read only). */
     const uint8_t *subsurface_object;
-    void (*subsurface)(const void *user, uint32_t object, nc_vec3 p, nc_vec3 n, nc_vec3 v, float out[3]);
+    void (*subsurface)(const void *user, uint32_t object, const nc_shade_batch *batch,
+                       float out[3][NC_SHADE_BATCH]);
     const void *subsurface_user;
 } nc_shade_params;
 
