@@ -18,15 +18,20 @@
  *   - Triangles with a non-finite vertex or zero area are skipped and counted in the report.
  *
  * COST: one pass over the vertices (bounds) and one over the triangles (surface and z parity, both
- * with atomic bit operations), then a prefix XOR per column; ROBUST adds the x and y parities (in
- * the same triangle pass), a running XOR along x and y and a vote, all word-wise (64 voxels per
- * operation). SOLID_AUTO also runs nacre_mesh_analyze (welding, edge sort), which costs more than
- * the voxelization on large meshes: per-frame callers should decide the rule once (topology does
+ * with atomic bit operations when threads share the grid, plain ones on a thread's own copy),
+ * then a prefix XOR per column; ROBUST adds the x and y parities (in the same triangle pass), a
+ * running XOR along x and y and a vote, all word-wise (64 voxels per operation). SOLID_AUTO also
+ * runs nacre_mesh_analyze (welding, edge sort), which costs more than the voxelization on large
+ * meshes: per-frame callers should decide the rule once (topology does
  * not change under deformation), pass PARITY or ROBUST and use nacre_voxelize_update on a grid
  * kept across frames.
  *
  * THREADING: voxelization uses OpenMP with the context's thread count; the result does not
- * depend on it. A finished grid may be queried from several threads at once.
+ * depend on it. With several threads, a grid whose level-0 sets (surface and solid, plus the
+ * ROBUST parities) total at most 2 MiB and 4 words (256 voxels) per triangle also keeps a private
+ * copy of them per extra thread (scratch like the ROBUST parities: reused by
+ * nacre_voxelize_update, freed with the grid). A finished grid may be queried from several
+ * threads at once.
  */
 #ifndef NACRE_VOXEL_H
 #define NACRE_VOXEL_H

@@ -1,8 +1,10 @@
 /*
  * test_voxel.c: voxelization (src/voxel/voxel.c): solid counts against mesh volumes, exact
- * grid-aligned cubes, conservativeness against a brute-force separating-axis test, shared
- * edges (few vs many triangles), broken meshes, degenerate input, the level pyramid, thread
- * independence, rest-pose coordinates and the `nacre voxelize` CLI.
+ * grid-aligned cubes, conservativeness against a brute-force separating-axis test (random
+ * triangles, and random closed star-shaped meshes whose solid set is checked against an exact
+ * inside test), shared edges (few vs many triangles), broken meshes, degenerate input, the level
+ * pyramid, a 512^3 grid, thread independence (closed and open meshes, per-thread copies),
+ * rest-pose coordinates and the `nacre voxelize` CLI.
  *
  * Volume bound: a voxel whose box does not touch the surface is entirely inside or entirely
  * outside, so its centre decides it exactly; only voxels touching the surface (the conservative
@@ -199,6 +201,325 @@ static void test_conservative(nacre_context *ctx)
         free(ref);
         nacre_voxel_grid_destroy(g);
     }
+}
+
+/* A random closed star-shaped mesh: an icosahedron subdivided `levels` times (shared vertices,
+ * outward winding), each vertex pushed along its ray from the centre by a random factor in
+ * [0.7, 1.3], then rotated at random and moved off the grid's symmetry. Every ray from the
+ * centre crosses exactly one triangle (the one whose cone holds it), so the mesh is closed and
+ * does not cross itself. pos/idx are malloc'ed; *centre is the transformed centre. */
+static void star_mesh(int levels, nacre_mesh_data *m, double centre[3])
+{
+    static const double phi = 1.6180339887498949;
+    double v0[12][3] = {{-1, phi, 0}, {1, phi, 0},  {-1, -phi, 0}, {1, -phi, 0}, {0, -1, phi}, {0, 1, phi},
+                        {0, -1, -phi}, {0, 1, -phi}, {phi, 0, -1},  {phi, 0, 1},  {-phi, 0, -1}, {-phi, 0, 1}};
+    static const uint32_t f0[20][3] = {{0, 11, 5}, {0, 5, 1},  {0, 1, 7},   {0, 7, 10}, {0, 10, 11},
+                                       {1, 5, 9},  {5, 11, 4}, {11, 10, 2}, {10, 7, 6}, {7, 1, 8},
+                                       {3, 9, 4},  {3, 4, 2},  {3, 2, 6},   {3, 6, 8},  {3, 8, 9},
+                                       {4, 9, 5},  {2, 4, 11}, {6, 2, 10},  {8, 6, 7},  {9, 8, 1}};
+    uint32_t nv = 12, nt = 20, cap_v = 12, cap_t = 20;
+    for (int l = 0; l < levels; l++)
+        cap_v += cap_t * 3 / 2, cap_t *= 4;
+    double(*v)[3] = malloc(sizeof(double[3]) * cap_v);
+    uint32_t *t = malloc(sizeof(uint32_t) * 3 * cap_t), *t2 = malloc(sizeof(uint32_t) * 3 * cap_t);
+    uint32_t(*edge)[3] = malloc(sizeof(uint32_t[3]) * cap_t * 3 / 2); /* hi, midpoint, next of the same lo */
+    uint32_t *head = malloc(sizeof(uint32_t) * cap_v);                 /* first edge from each lo, or ~0 */
+    memcpy(v, v0, sizeof(v0));
+    memcpy(t, f0, sizeof(f0));
+    for (uint32_t i = 0; i < nv; i++) {
+        double r = sqrt(v[i][0] * v[i][0] + v[i][1] * v[i][1] + v[i][2] * v[i][2]);
+        for (int a = 0; a < 3; a++)
+            v[i][a] /= r;
+    }
+    for (int l = 0; l < levels; l++) {
+        uint32_t ne = 0;
+        memset(head, 0xFF, sizeof(uint32_t) * cap_v);
+        for (uint32_t f = 0; f < nt; f++) {
+            uint32_t mid[3];
+            for (int k = 0; k < 3; k++) {
+                uint32_t a = t[3 * f + k], b = t[3 * f + (k + 1) % 3], lo = a < b ? a : b, hi = a < b ? b : a, e;
+                for (e = head[lo]; e != ~0u && edge[e][0] != hi; e = edge[e][2])
+                    ;
+                if (e == ~0u) {
+                    double r = 0;
+                    for (int c = 0; c < 3; c++) {
+                        v[nv][c] = v[a][c] + v[b][c];
+                        r += v[nv][c] * v[nv][c];
+                    }
+                    for (int c = 0; c < 3; c++)
+                        v[nv][c] /= sqrt(r);
+                    edge[ne][0] = hi, edge[ne][1] = nv++, edge[ne][2] = head[lo];
+                    head[lo] = e = ne++;
+                }
+                mid[k] = edge[e][1];
+            }
+            const uint32_t *c = t + 3 * f;
+            uint32_t q[4][3] = {{c[0], mid[0], mid[2]}, {mid[0], c[1], mid[1]}, {mid[2], mid[1], c[2]}, {mid[0], mid[1], mid[2]}};
+            memcpy(t2 + 12 * f, q, sizeof(q));
+        }
+        uint32_t *sw = t;
+        t = t2, t2 = sw;
+        nt *= 4;
+    }
+    /* Random rotation (three angles), radius, displacement and offset. */
+    double ang[3] = {6.2831853 * rnd(), 6.2831853 * rnd(), 6.2831853 * rnd()};
+    double off[3] = {rnd() - 0.5, rnd() - 0.5, rnd() - 0.5}, scale = 0.5 + rnd();
+    m->vertex_count = nv;
+    m->triangle_count = nt;
+    m->positions = malloc(sizeof(float) * 3 * nv);
+    m->indices = t;
+    for (uint32_t i = 0; i < nv; i++) {
+        double f = scale * (0.7 + 0.6 * rnd()), p[3] = {v[i][0] * f, v[i][1] * f, v[i][2] * f};
+        for (int k = 0; k < 3; k++) {
+            int a = k, b = (k + 1) % 3;
+            double ca = cos(ang[k]), sa = sin(ang[k]), pa = p[a], pb = p[b];
+            p[a] = ca * pa - sa * pb;
+            p[b] = sa * pa + ca * pb;
+        }
+        for (int a = 0; a < 3; a++)
+            m->positions[3 * i + (uint32_t)a] = (float)(p[a] + off[a]);
+    }
+    for (int a = 0; a < 3; a++)
+        centre[a] = off[a]; /* rotation keeps the origin, the float rounding moves it by 1e-7 */
+    free(v);
+    free(t2);
+    free(edge);
+    free(head);
+}
+
+/* Whether p is inside a star-shaped mesh around `centre`: the triangle whose cone (from the
+ * centre) holds p writes p - centre = a v0 + b v1 + c v2 (vertices relative to the centre) with
+ * a, b, c >= 0, and p is inside when a + b + c < 1. inv holds the inverse 3x3 matrix per triangle
+ * (row-major). Independent of the voxelizer: no ray casting, no parity. The search starts at
+ * *hint, the previous answer (neighbouring voxels mostly share a cone). */
+static bool star_inside(const double *inv, uint32_t nt, const double centre[3], const double p[3], uint32_t *hint,
+                        double *sum)
+{
+    double d[3] = {p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]};
+    for (uint32_t i = 0; i < nt; i++) {
+        uint32_t t = (*hint + i) % nt;
+        const double *m = inv + 9 * t;
+        double w[3];
+        for (int k = 0; k < 3; k++)
+            w[k] = m[3 * k] * d[0] + m[3 * k + 1] * d[1] + m[3 * k + 2] * d[2];
+        if (w[0] >= -1e-12 && w[1] >= -1e-12 && w[2] >= -1e-12) {
+            *hint = t;
+            *sum = w[0] + w[1] + w[2];
+            return *sum < 1;
+        }
+    }
+    *sum = -1; /* no cone: cannot happen for a star-shaped mesh */
+    return false;
+}
+
+/* Issue 3's conservativeness on random closed meshes: the surface set equals the brute-force
+ * triangle/box set (no miss, no extra), at several resolutions, cubic and anisotropic, through
+ * the vectorised paths (one-voxel, flat 2 x 2, 2 x 2 x 2 and general bounds) and, with 5120
+ * triangles, the threaded pass with per-thread copies. The solid set is the same under PARITY
+ * and ROBUST (the mesh is closed), and every voxel off the surface is solid exactly when its
+ * centre is inside by star_inside. */
+static void test_conservative_closed(nacre_context *ctx)
+{
+    static const struct {
+        int levels;
+        uint32_t res;
+        bool aniso;
+    } trials[] = {{2, 13, false}, {2, 24, true}, {3, 31, false}, {2, 40, true}, {4, 29, false}, {3, 9, true}};
+    for (size_t k = 0; k < sizeof(trials) / sizeof(trials[0]); k++) {
+        nacre_mesh_data m = {0};
+        double centre[3];
+        star_mesh(trials[k].levels, &m, centre);
+        nacre_voxel_report rp, rr;
+        nacre_voxel_grid *gp = vox(ctx, &m, trials[k].res, trials[k].aniso, NACRE_VOXEL_SOLID_PARITY, &rp);
+        nacre_voxel_grid *gr = vox(ctx, &m, trials[k].res, trials[k].aniso, NACRE_VOXEL_SOLID_ROBUST, &rr);
+        nacre_voxel_report ra;
+        nacre_voxel_grid *ga = vox(ctx, &m, trials[k].res, trials[k].aniso, NACRE_VOXEL_SOLID_AUTO, &ra);
+        CHECK(ra.closed); /* the mesh really is closed */
+        nacre_voxel_grid_destroy(ga);
+        if (!gp || !gr) {
+            nacre_voxel_grid_destroy(gp);
+            nacre_voxel_grid_destroy(gr);
+            free(m.positions);
+            free(m.indices);
+            continue;
+        }
+        const uint32_t *d = rp.dims;
+        const size_t n = (size_t)d[0] * d[1] * d[2];
+        uint8_t *ref = calloc(n, 1);
+        double inv_h = 1.0 / (double)rp.voxel_size, *inv = malloc(sizeof(double) * 9 * m.triangle_count);
+        for (uint32_t t = 0; t < m.triangle_count; t++) {
+            double v[3][3], lo[3], hi[3], q[3][3];
+            for (int c = 0; c < 3; c++)
+                for (int a = 0; a < 3; a++) {
+                    double p = m.positions[3 * m.indices[3 * t + (uint32_t)c] + (uint32_t)a];
+                    v[c][a] = (p - (double)rp.origin[a]) * inv_h;
+                    q[a][c] = p - centre[a]; /* columns: corners relative to the centre */
+                }
+            /* Boxes [x, x + 1] that can touch [min, max]; the comparison below covers the whole
+             * grid, so a voxel set outside these bounds still counts as extra. */
+            for (int a = 0; a < 3; a++) {
+                lo[a] = fmax(0, ceil(fmin(v[0][a], fmin(v[1][a], v[2][a]))) - 1);
+                hi[a] = fmin(d[a] - 1.0, floor(fmax(v[0][a], fmax(v[1][a], v[2][a]))));
+            }
+            for (int z = (int)lo[2]; z <= (int)hi[2]; z++)
+                for (int y = (int)lo[1]; y <= (int)hi[1]; y++)
+                    for (int x = (int)lo[0]; x <= (int)hi[0]; x++)
+                        if (tri_box((const double(*)[3])v, x, y, z))
+                            ref[(size_t)x + d[0] * ((size_t)y + (size_t)d[1] * (size_t)z)] = 1;
+            /* Inverse of q by cofactors. */
+            double *o = inv + 9 * t;
+            double det = q[0][0] * (q[1][1] * q[2][2] - q[1][2] * q[2][1]) -
+                         q[0][1] * (q[1][0] * q[2][2] - q[1][2] * q[2][0]) +
+                         q[0][2] * (q[1][0] * q[2][1] - q[1][1] * q[2][0]);
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++) {
+                    int i1 = (i + 1) % 3, i2 = (i + 2) % 3, j1 = (j + 1) % 3, j2 = (j + 2) % 3;
+                    o[3 * i + j] = (q[j1][i1] * q[j2][i2] - q[j1][i2] * q[j2][i1]) / det;
+                }
+        }
+        uint64_t missed = 0, extra = 0, count = 0, solid_diff = 0, wrong_inside = 0, checked = 0, inside = 0;
+        uint32_t hint = 0;
+        for (uint32_t z = 0; z < d[2]; z++)
+            for (uint32_t y = 0; y < d[1]; y++)
+                for (uint32_t x = 0; x < d[0]; x++) {
+                    bool got = nacre_voxel_grid_get(gp, NACRE_VOXEL_SURFACE, 0, x, y, z);
+                    bool want = ref[x + d[0] * (y + (size_t)d[1] * z)];
+                    missed += want && !got;
+                    extra += got && !want;
+                    count += want;
+                    bool sp = nacre_voxel_grid_get(gp, NACRE_VOXEL_SOLID, 0, x, y, z);
+                    solid_diff += sp != nacre_voxel_grid_get(gr, NACRE_VOXEL_SOLID, 0, x, y, z);
+                    solid_diff += got != nacre_voxel_grid_get(gr, NACRE_VOXEL_SURFACE, 0, x, y, z);
+                    if (want)
+                        continue; /* the centre may lie on the surface: either answer is right */
+                    if (m.triangle_count > 400 && (x + y + z) % 4)
+                        continue; /* star_inside scans the triangles: a quarter of the voxels will do */
+                    double c[3] = {rp.origin[0] + (x + 0.5) * (double)rp.voxel_size,
+                                   rp.origin[1] + (y + 0.5) * (double)rp.voxel_size,
+                                   rp.origin[2] + (z + 0.5) * (double)rp.voxel_size},
+                           sum;
+                    bool in = star_inside(inv, m.triangle_count, centre, c, &hint, &sum);
+                    wrong_inside += in != sp || sum < 0;
+                    checked++;
+                    inside += in;
+                }
+        if (missed || extra || solid_diff || wrong_inside)
+            printf("closed trial %zu (%u tris, res %u%s): missed %llu extra %llu solid diff %llu wrong inside %llu\n", k,
+                   m.triangle_count, trials[k].res, trials[k].aniso ? " aniso" : "", (unsigned long long)missed,
+                   (unsigned long long)extra, (unsigned long long)solid_diff, (unsigned long long)wrong_inside);
+        CHECK(missed == 0);
+        CHECK(extra == 0);
+        CHECK(count == rp.surface_voxels && count == rr.surface_voxels);
+        CHECK(count > 50);
+        CHECK(solid_diff == 0);
+        CHECK(wrong_inside == 0);
+        CHECK(inside > 0 && checked > inside); /* both sides of the surface were tested */
+        free(ref);
+        free(inv);
+        nacre_voxel_grid_destroy(gp);
+        nacre_voxel_grid_destroy(gr);
+        free(m.positions);
+        free(m.indices);
+    }
+}
+
+/* Live bytes through the context's allocator (a size header in front of each block). */
+static int64_t alloc_live, alloc_peak;
+static void *count_alloc(size_t size, void *user)
+{
+    (void)user;
+    uint64_t *p = malloc(size + 16);
+    if (!p)
+        return NULL;
+    p[0] = size;
+    int64_t live = __atomic_add_fetch(&alloc_live, (int64_t)size, __ATOMIC_RELAXED);
+    if (live > alloc_peak)
+        alloc_peak = live; /* allocations here are serial */
+    return p + 2;
+}
+static void count_free(void *ptr, void *user)
+{
+    (void)user;
+    if (!ptr)
+        return;
+    uint64_t *p = (uint64_t *)ptr - 2;
+    __atomic_sub_fetch(&alloc_live, (int64_t)p[0], __ATOMIC_RELAXED);
+    free(p);
+}
+
+/* The issue asks for any dimensions up to at least 512^3: a sphere at 512 has 512 voxels per side,
+ * a solid count within the volume bound, levels 512, 256, ..., 4, coarse voxels set exactly
+ * when a child is (spot checks, around the surface and at random), and all memory back after
+ * destroy (about 37 MiB: two sets of 16 MiB at level 0 and the pyramid). */
+static void test_512(void)
+{
+    nacre_context_desc cd = {0};
+    cd.allocator.alloc_fn = count_alloc;
+    cd.allocator.free_fn = count_free;
+    nacre_context *ctx = NULL;
+    CHECK(nacre_context_create(&cd, &ctx) == NACRE_OK);
+    if (!ctx)
+        return;
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_SPHERE);
+    sd.segments = 48;
+    sd.rings = 24;
+    nacre_mesh_data m = {0};
+    CHECK(nacre_mesh_make_shape(ctx, &sd, &m) == NACRE_OK);
+    int64_t before = alloc_live;
+    alloc_peak = before;
+    nacre_voxel_report rep;
+    nacre_voxel_grid *g = vox(ctx, &m, 512, false, NACRE_VOXEL_SOLID_AUTO, &rep);
+    if (g) {
+        CHECK(rep.dims[0] == 512 && rep.dims[1] == 512 && rep.dims[2] == 512);
+        CHECK(rep.closed);
+        double h3 = (double)rep.voxel_size * rep.voxel_size * rep.voxel_size;
+        CHECK_NEAR((double)rep.solid_voxels * h3, mesh_volume(&m), (double)rep.surface_voxels * h3);
+        CHECK(rep.solid_voxels > 60000000); /* about pi / 6 of 512^3 */
+        CHECK(nacre_voxel_grid_count(g, NACRE_VOXEL_SURFACE, 0) == rep.surface_voxels);
+        CHECK(rep.levels == 8);
+        CHECK(nacre_voxel_grid_levels(g) == 8);
+        for (uint32_t l = 0; l < 8; l++) {
+            uint32_t dl[3];
+            CHECK(nacre_voxel_grid_dims(g, l, dl) && dl[0] == 512u >> l && dl[1] == 512u >> l && dl[2] == 512u >> l);
+        }
+        uint64_t bad = 0, active = 0, samples = 0;
+        for (uint32_t l = 1; l < 8; l++) {
+            uint32_t n = 512u >> l;
+            for (int i = 0; i < 6000; i++) {
+                uint32_t x, y, z;
+                if (i % 2) { /* near the sphere (radius n / 2 around the centre) */
+                    double u = 2 * rnd() - 1, phi = 6.2831853 * rnd(), r = 0.5 * n * (0.97 + 0.06 * rnd());
+                    double s = sqrt(1 - u * u);
+                    x = (uint32_t)fmin(n - 1, fmax(0, 0.5 * n + r * s * cos(phi)));
+                    y = (uint32_t)fmin(n - 1, fmax(0, 0.5 * n + r * s * sin(phi)));
+                    z = (uint32_t)fmin(n - 1, fmax(0, 0.5 * n + r * u));
+                } else {
+                    x = (uint32_t)(rnd() * n), y = (uint32_t)(rnd() * n), z = (uint32_t)(rnd() * n);
+                }
+                for (int set = 0; set < 2; set++) {
+                    bool any = false;
+                    for (uint32_t c = 0; c < 8; c++)
+                        any = any || nacre_voxel_grid_get(g, (nacre_voxel_set)set, l - 1, 2 * x + (c & 1),
+                                                          2 * y + ((c >> 1) & 1), 2 * z + (c >> 2));
+                    bool got = nacre_voxel_grid_get(g, (nacre_voxel_set)set, l, x, y, z);
+                    bad += any != got;
+                    active += got;
+                    samples++;
+                }
+            }
+        }
+        CHECK(bad == 0);
+        CHECK(active > samples / 4 && active < samples); /* the samples saw both answers */
+        /* The last corner voxel exists, one past it does not. */
+        CHECK(!nacre_voxel_grid_get(g, NACRE_VOXEL_SOLID, 0, 511, 511, 511));
+        CHECK(nacre_voxel_grid_get(g, NACRE_VOXEL_SOLID, 0, 256, 256, 256));
+        CHECK(!nacre_voxel_grid_get(g, NACRE_VOXEL_SOLID, 0, 512, 256, 256));
+        CHECK(alloc_peak - before < 96ll << 20);
+    }
+    nacre_voxel_grid_destroy(g);
+    CHECK(alloc_live == before);
+    nacre_mesh_data_free(ctx, &m);
+    nacre_context_destroy(ctx);
 }
 
 static void test_aligned_cube(nacre_context *ctx)
@@ -730,6 +1051,66 @@ static void test_update(nacre_context *ctx)
     nacre_mesh_data_free(ctx, &m);
 }
 
+/* Thread independence where the ROBUST x and y parities matter: an open star mesh (a cap of
+ * triangles removed, so the z parity is wrong through the hole and the vote leans on x and y)
+ * with more triangles than the serial threshold, on grids small enough for per-thread copies
+ * of the sets (whose merge must include px and py; merged by one thread, or by all when larger
+ * than VOXEL_MERGE_PARALLEL: 91 and 101) and on one too large for them (104: 4 x 104^2 x 2 words,
+ * over 4 per triangle): one thread and two give the same grid, every level and both sets, also
+ * when updating a reused grid. */
+static void test_threads_open(void)
+{
+    nacre_context *c1 = ctx_threads(1), *c2 = ctx_threads(2);
+    nacre_mesh_data m = {0};
+    double centre[3];
+    star_mesh(5, &m, centre);
+    uint32_t kept = 0;
+    const float *p0 = m.positions + 3 * m.indices[0]; /* the cap around corner 0 of triangle 0 */
+    for (uint32_t t = 0; t < m.triangle_count; t++) {
+        const float *p = m.positions + 3 * m.indices[3 * t];
+        double dd = 0;
+        for (int a = 0; a < 3; a++)
+            dd += ((double)p[a] - p0[a]) * ((double)p[a] - p0[a]);
+        if (dd > 0.2 * 0.2) /* drop the triangles within 0.2 (radius 0.35 to 1.95) */
+            memcpy(m.indices + 3 * kept++, m.indices + 3 * t, 3 * sizeof(uint32_t));
+    }
+    CHECK(kept < m.triangle_count - 10 && kept > 16384);
+    m.triangle_count = kept;
+    static const struct {
+        uint32_t res;
+        bool aniso;
+        nacre_voxel_solid_rule rule;
+    } cases[] = {{29, false, NACRE_VOXEL_SOLID_ROBUST}, {40, true, NACRE_VOXEL_SOLID_ROBUST},
+                 {23, false, NACRE_VOXEL_SOLID_PARITY}, {91, false, NACRE_VOXEL_SOLID_ROBUST},
+                 {101, false, NACRE_VOXEL_SOLID_PARITY}, {104, false, NACRE_VOXEL_SOLID_ROBUST}};
+    nacre_voxel_grid *reused = NULL;
+    for (size_t k = 0; k < sizeof(cases) / sizeof(cases[0]); k++) {
+        nacre_voxel_report r1, r2;
+        nacre_voxel_grid *g1 = vox(c1, &m, cases[k].res, cases[k].aniso, cases[k].rule, &r1);
+        nacre_voxel_grid *g2 = vox(c2, &m, cases[k].res, cases[k].aniso, cases[k].rule, &r2);
+        CHECK(g1 && g2 && same_grid(g1, g2));
+        CHECK(r1.solid_voxels > 100 && r1.solid_voxels == r2.solid_voxels);
+        if (!reused) {
+            reused = g2;
+            g2 = NULL;
+        } else {
+            nacre_voxel_settings s = nacre_voxel_settings_defaults();
+            s.resolution = cases[k].res;
+            s.anisotropic = cases[k].aniso;
+            s.solid_rule = cases[k].rule;
+            CHECK(nacre_voxelize_update(reused, &m, &s, NULL) == NACRE_OK);
+            CHECK(same_grid(g1, reused));
+        }
+        nacre_voxel_grid_destroy(g1);
+        nacre_voxel_grid_destroy(g2);
+    }
+    nacre_voxel_grid_destroy(reused);
+    free(m.positions);
+    free(m.indices);
+    nacre_context_destroy(c1);
+    nacre_context_destroy(c2);
+}
+
 int main(void)
 {
     nacre_context *ctx = ctx_threads(0);
@@ -745,6 +1126,8 @@ int main(void)
     test_aligned_cube(ctx);
     test_unpack(ctx);
     test_conservative(ctx);
+    test_conservative_closed(ctx);
+    test_512();
     test_shared_edges(ctx);
     test_broken(ctx);
     test_bad_input(ctx);
@@ -752,6 +1135,7 @@ int main(void)
     test_threads();
     test_block_path(ctx);
     test_update(ctx);
+    test_threads_open();
     test_rest(ctx);
     test_cli();
     nacre_context_destroy(ctx);
