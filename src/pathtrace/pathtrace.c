@@ -50,12 +50,15 @@
  * tail that dominated the demo's error (2.5x the variance per sample, growing with spp).
  * Paths run longer instead, and the per-vertex cost is kept down by:
  * - clearance grids (see clearance()): a free flight shorter than a conservative bound on the
- *   distance to any surface skips the Embree query (same result bit for bit);
- * - guided sun sampling (dielectric media) and NEE (index-matched media) run with a probability
- *   that falls with that bound (guide_probability), weighted by its inverse and MIS-combined with
- *   the expected density; the guide axis is seeded from the previous vertex's facet (make_guide)
- *   and evaluated lazily for the MIS weight of phase-sampled paths (needed only when one
- *   refracts out into the sun).
+ *   distance to any surface skips the Embree query (same result bit for bit); the bound is
+ *   extended by the clearance at the point it reaches, a few times, before asking;
+ * - NEE (index-matched media) runs with a probability that falls with that bound
+ *   (guide_probability), guided sun sampling (dielectric media) with one that falls with the
+ *   optical depth of the way out along the guide axis (sun_guide_probability), each weighted by
+ *   its inverse and MIS-combined with the expected density; the guide axis is found by a walk
+ *   over the mesh from the previous vertex's facet, without a query in most cases (walk_guide,
+ *   make_guide), and evaluated lazily for the MIS weight of phase-sampled paths (needed only when
+ *   one refracts out into the sun).
  *
  * Determinism: each pixel of each pass has its own PCG32 stream (seed, pass, pixel); per-pixel
  * mean and M2 (Welford) are updated in pass order, so images do not depend on threads.
@@ -88,6 +91,7 @@
 
 #include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 nc_pathtrace_options nc_pathtrace_options_defaults(void)
@@ -159,6 +163,10 @@ typedef struct pt_object {
     uint32_t res;
     float gmin[3], cell[3];
     uint32_t tri_count;
+    float *sun_dir;          /* dielectric objects with a guided sun: per triangle the sun refracted
+                                through it, pointing back out (x = NaN: none; see refract_sun) */
+    uint32_t *adj;           /* dielectric objects: per triangle and edge (v0v1, v1v2, v2v0) the
+                                triangle across it, UINT32_MAX if none (see build_adjacency) */
     uint8_t *dist;           /* media: clearance grid (see build_clearance) or NULL */
     uint32_t ddims[3];
     float dorigin[3], dcell, dinv, dmargin;
@@ -688,6 +696,9 @@ static void walk_medium(const pt_scene *ps, const collision_walk *w, float t, nc
  * it. The flight is sampled before the query either way, so the image is the same bit for bit. */
 #define CLEARANCE_RES 192    /* at most this many cells along the object's longest axis */
 #define CLEARANCE_MIN_RES 32 /* and at least this many */
+#ifndef CLEAR_STEPS
+#define CLEAR_STEPS 4        /* further bounds looked up along a flight before asking Embree */
+#endif
 
 /* Lower bound on the distance from p to any surface (<= 0: unknown, ask Embree). */
 static float clearance(const pt_object *o, nc_vec3 p)
@@ -1142,28 +1153,32 @@ static bool exit_facet(const pt_scene *ps, uint32_t obj, nc_vec3 p, nc_vec3 dir,
     return nc_dot(dir, *n) > 0;
 }
 
-/* Whether the ray p + t dir (t > 0) crosses triangle `prim` of `o` (Moller and Trumbore 1997).
- * Lets make_guide see that its refracted direction still leaves through the same facet without
- * asking Embree: the guide axis need not be exact, only a function of p. */
-static bool crosses_triangle(const pt_object *o, uint32_t prim, nc_vec3 p, nc_vec3 dir)
+/* Where the ray p + t dir meets the plane of triangle `prim` of `o` (Moller and Trumbore 1997):
+ * true if it crosses the triangle at *t > 0; otherwise *edge is the edge (0: v0v1, 1: v1v2,
+ * 2: v2v0) beyond which the plane point lies farthest, or -1 when the plane is not ahead. Lets
+ * make_guide find the facet its refracted direction leaves through without asking Embree: the
+ * guide axis need not be exact, only a function of p. */
+static bool crosses_triangle(const pt_object *o, uint32_t prim, nc_vec3 p, nc_vec3 dir, float *t, int *edge)
 {
     const uint32_t *tri = o->idx + 3 * (size_t)prim;
     nc_vec3 a = nc_v3a(o->pos + 3 * (size_t)tri[0]), b = nc_v3a(o->pos + 3 * (size_t)tri[1]),
             c = nc_v3a(o->pos + 3 * (size_t)tri[2]);
     nc_vec3 e1 = nc_sub(b, a), e2 = nc_sub(c, a), pv = nc_cross(dir, e2);
     float det = nc_dot(e1, pv);
+    *edge = -1;
     if (fabsf(det) < 1e-20f)
         return false;
     float inv = 1.0f / det;
-    nc_vec3 tv = nc_sub(p, a);
-    float u = nc_dot(tv, pv) * inv;
-    if (u < 0.0f || u > 1.0f)
+    nc_vec3 tv = nc_sub(p, a), qv = nc_cross(tv, e1);
+    float u = nc_dot(tv, pv) * inv, v = nc_dot(dir, qv) * inv, w = 1.0f - u - v;
+    *t = nc_dot(e2, qv) * inv;
+    if (!(*t > 0.0f))
         return false;
-    nc_vec3 qv = nc_cross(tv, e1);
-    float v = nc_dot(dir, qv) * inv;
-    if (v < 0.0f || u + v > 1.0f)
-        return false;
-    return nc_dot(e2, qv) * inv > 0.0f;
+    if (u >= 0.0f && v >= 0.0f && w >= 0.0f)
+        return true;
+    /* u, v, w: weights of v1, v2, v0; a negative one lies across the opposite edge. */
+    *edge = v <= u && v <= w ? 0 : w <= u ? 1 : 2;
+    return false;
 }
 
 /* Outward geometric normal of triangle `prim` (counter-clockwise winding, as surface_at). */
@@ -1175,32 +1190,95 @@ static nc_vec3 facet_normal(const pt_object *o, uint32_t prim)
     return nc_normalize(nc_cross(nc_sub(b, a), nc_sub(c, a)));
 }
 
-/* The guide at p. `seed` (UINT32_MAX: none) is a facet to try first, the last facet of the
- * previous guide on the path: vertices a mean free path apart usually refract the sun through
- * the same facet, and then no query is needed at all. The axis depends on (p, seed), both known
- * at the vertex, so the MIS weights stay consistent (the lazy re-evaluation in trace_path passes
- * the same seed). *last receives the facet the axis was refracted through. */
-static guide make_guide(const pt_scene *ps, uint32_t obj, const pt_light *l, nc_vec3 p, uint32_t seed, uint32_t *last)
+/* The sun direction refracted into object `ob` through facet `prim` (light travels along
+ * -to_light and enters there), pointing back out; false if the facet faces away or the light
+ * cannot enter (it always can from air). */
+static bool refract_sun_facet(const pt_object *ob, const pt_light *l, uint32_t prim, nc_vec3 *dir)
+{
+    nc_vec3 n = facet_normal(ob, prim);
+    float lv[3] = {-l->to_light.x, -l->to_light.y, -l->to_light.z}, nv[3] = {n.x, n.y, n.z}, tv[3];
+    if (!(nc_dot(l->to_light, n) > 0) || !nc_refract(lv, nv, ob->eta, tv))
+        return false;
+    *dir = nc_normalize(nc_scale(nc_v3a(tv), -1.0f));
+    return true;
+}
+
+/* The same from the table made at scene build (the walk below visits many facets per vertex). */
+static bool refract_sun(const pt_object *ob, const pt_light *l, uint32_t prim, nc_vec3 *dir)
+{
+    if (!ob->sun_dir)
+        return refract_sun_facet(ob, l, prim, dir);
+    const float *v = ob->sun_dir + 3 * (size_t)prim;
+    if (isnan(v[0]))
+        return false;
+    *dir = nc_v3a(v);
+    return true;
+}
+
+/* The query-free start of make_guide: from the seed facet, refract the sun and, while the ray
+ * from p along the refracted direction misses the facet, step to the neighbour across the edge
+ * it passes (a point location walk over the mesh). A function of (p, seed), so the probability
+ * of guiding may use the distance it finds (see sun_guide_probability). */
+#define GUIDE_WALK_STEPS 24
+typedef struct guide_walk {
+    uint32_t prim;    /* the facet reached, UINT32_MAX if the seed gave nothing */
+    nc_vec3 dir;      /* the sun refracted through it, pointing back out */
+    bool done;        /* the ray p + t dir leaves through prim (or the walk went back and forth
+                         between two facets: the axis is as good as it gets) ... */
+    float t;          /* ... at this t */
+} guide_walk;
+
+static guide_walk walk_guide(const pt_object *ob, const pt_light *l, nc_vec3 p, uint32_t seed)
+{
+    guide_walk gw = {UINT32_MAX, l->to_light, false, 0.0f};
+    if (seed == UINT32_MAX || !refract_sun(ob, l, seed, &gw.dir))
+        return gw;
+    gw.prim = seed;
+    uint32_t prev = UINT32_MAX;
+    for (int step = 0; step <= GUIDE_WALK_STEPS; step++) {
+        int edge;
+        if (crosses_triangle(ob, gw.prim, p, gw.dir, &gw.t, &edge)) {
+            gw.done = true;
+            return gw;
+        }
+        uint32_t next = edge >= 0 && ob->adj ? ob->adj[3 * (size_t)gw.prim + (size_t)edge] : UINT32_MAX;
+        if (next == prev && next != UINT32_MAX) {
+            /* Refracted through either facet the ray leaves through the other: the guide's wide
+             * cone covers the difference. */
+            gw.done = true;
+            return gw;
+        }
+        nc_vec3 nd;
+        if (step == GUIDE_WALK_STEPS || next == UINT32_MAX || !refract_sun(ob, l, next, &nd))
+            return gw; /* make_guide asks Embree from here */
+        prev = gw.prim;
+        gw.prim = next;
+        gw.dir = nd;
+    }
+    return gw;
+}
+
+/* The guide at p, from the walk from the seed (see walk_guide; the seed is the last facet of the
+ * previous guide on the path: vertices a mean free path apart refract the sun through the same
+ * facet or a near one, and then no query is needed at all); where the walk does not end, Embree
+ * finds the facets. The axis depends on (p, seed), both known at the vertex, so the MIS weights
+ * stay consistent (the lazy re-evaluation in trace_path passes the same seed). *last receives
+ * the facet the axis was refracted through. */
+static guide make_guide(const pt_scene *ps, uint32_t obj, const pt_light *l, nc_vec3 p, const guide_walk *gw, uint32_t *last)
 {
     guide g = {false, {0, 0, 0}, 1, 0, 1, 0};
     const pt_object *ob = &ps->pt->objects[obj];
-    nc_vec3 dir = l->to_light, x, n = {0, 0, 0};
+    nc_vec3 dir = gw->dir, x, n = {0, 0, 0};
     pt_hit h;
-    uint32_t prim = UINT32_MAX;
+    uint32_t prim = gw->prim;
     float lv[3] = {-l->to_light.x, -l->to_light.y, -l->to_light.z}, tv[3];
     *last = UINT32_MAX;
-    if (seed != UINT32_MAX) {
-        n = facet_normal(ob, seed);
-        float nv[3] = {n.x, n.y, n.z};
-        if (nc_dot(l->to_light, n) > 0 && nc_refract(lv, nv, ob->eta, tv)) {
-            dir = nc_normalize(nc_scale(nc_v3a(tv), -1.0f));
-            prim = seed;
-        }
-    }
-    for (int it = 0; it < GUIDE_ITERATIONS; it++) {
+    for (int it = 0; it < GUIDE_ITERATIONS && !gw->done; it++) {
         /* Converged once the refracted direction leaves through the facet it was refracted by
          * (checked without a query: nearly always so on flat or finely tessellated parts). */
-        if (prim != UINT32_MAX && crosses_triangle(ob, prim, p, dir))
+        float tc;
+        int edge;
+        if (it > 0 && crosses_triangle(ob, prim, p, dir, &tc, &edge))
             break;
         if (!exit_facet(ps, obj, p, dir, &h, &x, &n))
             return g;
@@ -1224,14 +1302,12 @@ static guide make_guide(const pt_scene *ps, uint32_t obj, const pt_light *l, nc_
     return g;
 }
 
-/* Probability q of running the guided technique at a vertex p of homogeneous medium `o` that is
+/* Probability q of running NEE at a vertex p of an index-matched homogeneous medium `o` that is
  * at least `clear` from any surface: whatever it finds is attenuated by at least
  * exp(-min_c sigma_t,c clear) on the way out, so deep vertices run it rarely (and weigh it by
  * 1 / q when they do; the MIS weights use the expected density q pdf). A function of p only,
  * as the MIS weight of the phase-sampled path needs it again. The floor GUIDE_Q_MIN keeps q pdf
- * far above any phase pdf: otherwise a phase-sampled path flying out of a deep vertex straight
- * into the sun (rare, but scoring the sun's full radiance, ~4e4) would get an MIS weight near 1
- * and a firefly with it. */
+ * far above any phase pdf (see sun_guide_probability). */
 #define GUIDE_Q_SCALE 1.0f
 #define GUIDE_Q_MIN 0.05f
 static float guide_probability(const pt_object *o, float clear)
@@ -1240,6 +1316,34 @@ static float guide_probability(const pt_object *o, float clear)
         return 1.0f;
     float st = fminf(o->sigma_a[0] + o->sigma_s[0], fminf(o->sigma_a[1] + o->sigma_s[1], o->sigma_a[2] + o->sigma_s[2]));
     return fmaxf(GUIDE_Q_MIN, fminf(1.0f, GUIDE_Q_SCALE * expf(-st * clear)));
+}
+
+/* Probability of running the guided sun technique at a vertex p of a dielectric homogeneous
+ * medium, as guide_probability but from the optical depth of the way out along the guide axis
+ * where the walk from the seed found it (walk_guide; NULL or unfinished: the clearance bound):
+ * the guided estimate is worth at most exp(-min_c sigma_t,c d) of the sun, and most of a
+ * vertex's cost (the guide's queries, the sample's exit query and shadow ray) is skipped when it
+ * does not run. SUN_Q_SCALE keeps it certain up to an optical depth of ln(SUN_Q_SCALE), where
+ * thinning would cost more variance than it saves time (demo, time x rel_mse: scale 1 worse
+ * than 3 or 4; 6 and 10 about the same rel_mse as 4 but slower). A function of (p, seed), both known at the vertex. The floor SUN_Q_MIN keeps q pdf
+ * far above any phase pdf: otherwise a phase-sampled path flying out of a deep vertex straight
+ * into the sun (rare, but scoring the sun's full radiance, ~4e4) would get an MIS weight near 1
+ * and a firefly with it. */
+#ifndef SUN_Q_SCALE
+#define SUN_Q_SCALE 4.0f
+#endif
+#ifndef SUN_Q_MIN
+#define SUN_Q_MIN 0.05f
+#endif
+static float sun_guide_probability(const pt_object *o, float clear, const guide_walk *gw)
+{
+    if (o->heterogeneous)
+        return 1.0f;
+    float d = gw && gw->done ? fmaxf(clear, gw->t) : clear;
+    if (!(d > 0.0f))
+        return 1.0f;
+    float s = fminf(o->sigma_a[0] + o->sigma_s[0], fminf(o->sigma_a[1] + o->sigma_s[1], o->sigma_a[2] + o->sigma_s[2]));
+    return fmaxf(SUN_Q_MIN, fminf(1.0f, SUN_Q_SCALE * expf(-s * d)));
 }
 
 /* Density of the guided direction: the mixture of the narrow and the wide cone. */
@@ -1322,6 +1426,14 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
             if (!mo->heterogeneous) {
                 if (!flight_sample_homogeneous(mo, beta, rng, &t_hom))
                     break;
+                /* Past the first bound, the clearance at the point reached extends it (sphere
+                 * tracing along the flight): still a bound, so still bit for bit. */
+                for (int k = 0; k < CLEAR_STEPS && clear > 0.0f && t_hom >= clear; k++) {
+                    float more = clearance(mo, ray_at(o, d, clear));
+                    if (!(more > 0.0f))
+                        break;
+                    clear += more;
+                }
                 if (t_hom < clear) {
                     ev = flight_resolve_homogeneous(mo, t_hom, INFINITY, &beta, &ts);
                     query = false;
@@ -1340,7 +1452,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
         float t_end = INFINITY;
         int light_hit = -1;
         if (query) {
-            h = intersect(ps, o, d, INFINITY);
+                        h = intersect(ps, o, d, INFINITY);
             t_end = h.hit ? h.t : INFINITY;
             for (uint32_t li = 0; li < pt->light_count; li++) {
                 const pt_light *l = &pt->lights[li];
@@ -1386,17 +1498,38 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
             } else if (sun >= 0 && !pt->opt.no_sun_guiding) {
                 guiding = true;
                 clear_p = fmaxf(0.0f, clearance(ob, p));
-                q = guide_probability(ob, clear_p);
                 seed = seed_obj == medium ? seed : UINT32_MAX;
                 guide_seed = seed;
+                /* The walk is needed for q only where the clearance alone does not already put
+                 * q at its floor (the walk can only lower it): deep vertices skip it unless the
+                 * guide is made. */
+                const pt_light *sl = &pt->lights[sun];
+                float q_clear = pt->opt.guide_always ? 1.0f : sun_guide_probability(ob, clear_p, NULL);
+                bool walked = q_clear > SUN_Q_MIN;
+                guide_walk gw = {UINT32_MAX, sl->to_light, false, 0.0f};
+                if (walked)
+                    gw = walk_guide(ob, sl, p, seed);
+                q = walked && !pt->opt.guide_always ? sun_guide_probability(ob, clear_p, &gw) : q_clear;
                 if (q >= 1.0f || nc_rng_float(rng) < q) {
-                    gd = make_guide(ps, (uint32_t)medium, &pt->lights[sun], p, seed, &seed);
-                    seed_obj = medium;
+                    if (!walked)
+                        gw = walk_guide(ob, sl, p, seed);
+                    uint32_t last;
+                    gd = make_guide(ps, (uint32_t)medium, sl, p, &gw, &last);
+                    /* The next vertex's seed (a failed guide leaves the old one, usually near). */
+                    if (last != UINT32_MAX) {
+                        seed = last;
+                        seed_obj = medium;
+                    }
                     if (gd.valid)
-                        L = nc_add(L, nc_mul(beta, guided_sun(ps, (uint32_t)medium, &pt->lights[sun], &gd, q, p, d, rng)));
+                        L = nc_add(L, nc_mul(beta, guided_sun(ps, (uint32_t)medium, sl, &gd, q, p, d, rng)));
                     guide_known = true;
                 } else {
                     guide_known = false;
+                    /* The walk's facet seeds the next vertex's walk, which then stays short. */
+                    if (gw.done) {
+                        seed = gw.prim;
+                        seed_obj = medium;
+                    }
                 }
             }
             float c = (float)nc_hg_sample_cos(g, nc_rng_float(rng));
@@ -1439,8 +1572,10 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
                 int gl = -1;
                 if (direct == 2 && nc_dot(d, pt->lights[sun].to_light) >= pt->lights[sun].cos_max) {
                     uint32_t unused;
-                    if (!guide_known)
-                        guide_cached = make_guide(ps, guide_obj, &pt->lights[sun], guide_vertex, guide_seed, &unused);
+                    if (!guide_known) {
+                        guide_walk gw = walk_guide(&pt->objects[guide_obj], &pt->lights[sun], guide_vertex, guide_seed);
+                        guide_cached = make_guide(ps, guide_obj, &pt->lights[sun], guide_vertex, &gw, &unused);
+                    }
                     float gp = guide_pdf(&guide_cached, guide_dir);
                     gw = !(gp > 0) ? 1.0f : pt->nee_only ? 0.0f : power_heuristic(prev_pdf, guide_q * gp);
                     gl = sun;
@@ -1476,6 +1611,11 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
                     beta = nc_scale(beta, 1.0f / (eta * eta));
                     eta_scale *= eta * eta;
                     medium = entering ? (int)h.obj : -1;
+                    /* The facet the path came in by seeds the first guide inside. */
+                    if (entering) {
+                        seed = h.prim;
+                        seed_obj = medium;
+                    }
                 }
                 o = offset_origin(ps, p, ng, d);
                 prev_delta = true;
@@ -1605,6 +1745,8 @@ static void release_scene(nc_pathtracer *pt)
         nc_free(ctx, pt->objects[i].grid);
         nc_free(ctx, pt->objects[i].rest);
         nc_free(ctx, pt->objects[i].dist);
+        nc_free(ctx, pt->objects[i].adj);
+        nc_free(ctx, pt->objects[i].sun_dir);
     }
     nc_free(ctx, pt->objects);
     nc_free(ctx, pt->lights);
@@ -1822,6 +1964,65 @@ static nacre_result build_clearance(nc_pathtracer *pt, const pt_scene *ps, pt_ob
     return NACRE_OK;
 }
 
+/* Triangle adjacency of a dielectric object for make_guide's walk. Edges are matched by vertex
+ * position, not index, so that seams (split normals or texture coordinates) do not stop the walk;
+ * an edge shared by more than two triangles links none of them. */
+typedef struct adj_edge {
+    float a[3], b[3]; /* endpoints, lexicographically ordered */
+    uint32_t slot;    /* 3 * triangle + edge */
+} adj_edge;
+
+static int cmp_point(const float *p, const float *q)
+{
+    for (int k = 0; k < 3; k++)
+        if (p[k] != q[k])
+            return p[k] < q[k] ? -1 : 1;
+    return 0;
+}
+
+static int cmp_edge(const void *x, const void *y)
+{
+    const adj_edge *e = x, *f = y;
+    int c = cmp_point(e->a, f->a);
+    return c ? c : cmp_point(e->b, f->b);
+}
+
+static nacre_result build_adjacency(nc_pathtracer *pt, pt_object *o)
+{
+    size_t n = 3 * (size_t)o->tri_count;
+    adj_edge *edges = nc_alloc(pt->ctx, n * sizeof(*edges));
+    o->adj = nc_alloc(pt->ctx, n * sizeof(uint32_t));
+    if (!edges || !o->adj) {
+        nc_free(pt->ctx, edges);
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    }
+    for (size_t i = 0; i < n; i++) {
+        const float *p = o->pos + 3 * (size_t)o->idx[i], *q = o->pos + 3 * (size_t)o->idx[i % 3 == 2 ? i - 2 : i + 1];
+        if (cmp_point(p, q) > 0) {
+            const float *t = p;
+            p = q;
+            q = t;
+        }
+        memcpy(edges[i].a, p, sizeof(edges[i].a));
+        memcpy(edges[i].b, q, sizeof(edges[i].b));
+        edges[i].slot = (uint32_t)i;
+        o->adj[i] = UINT32_MAX;
+    }
+    qsort(edges, n, sizeof(*edges), cmp_edge);
+    for (size_t i = 0; i < n;) {
+        size_t j = i + 1;
+        while (j < n && cmp_edge(&edges[i], &edges[j]) == 0)
+            j++;
+        if (j == i + 2) {
+            o->adj[edges[i].slot] = edges[i + 1].slot / 3;
+            o->adj[edges[i + 1].slot] = edges[i].slot / 3;
+        }
+        i = j;
+    }
+    nc_free(pt->ctx, edges);
+    return NACRE_OK;
+}
+
 static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scene *ps)
 {
     nacre_context *ctx = pt->ctx;
@@ -1867,6 +2068,11 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
                 o->sigma_s[c] = m->sigma_s[c];
             }
             nc_mat4_inverse(rec->object_to_world, &o->world_to_rest);
+            if (o->kind == PT_DIELECTRIC) {
+                nacre_result res = build_adjacency(pt, o);
+                if (res != NACRE_OK)
+                    return res;
+            }
             if (o->heterogeneous) {
                 nacre_result res = rec->desc.deformer_count > 0 ? build_rest_grid(pt, o, rec, md) : NACRE_OK;
                 if (res != NACRE_OK)
@@ -1945,6 +2151,25 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
         pt->fog_mixed_g |= f->g != pt->fogs[0].g;
     }
     pt->nee_only = pt->any_noncaster;
+    for (uint32_t li = 0; li < pt->light_count && !pt->opt.no_sun_guiding; li++) {
+        const pt_light *l = &pt->lights[li];
+        if (l->type != NACRE_LIGHT_DIRECTIONAL || l->delta)
+            continue;
+        /* The guided sun (the first one, as trace_path picks it). */
+        for (uint32_t i = 0; i < pt->object_count; i++) {
+            pt_object *o = &pt->objects[i];
+            if (o->kind != PT_DIELECTRIC)
+                continue;
+            if (!(o->sun_dir = nc_alloc(ctx, 3 * (size_t)o->tri_count * sizeof(float))))
+                return NACRE_ERROR_OUT_OF_MEMORY;
+            for (uint32_t t = 0; t < o->tri_count; t++) {
+                nc_vec3 dir = {NAN, 0, 0};
+                refract_sun_facet(o, l, t, &dir);
+                memcpy(o->sun_dir + 3 * (size_t)t, &dir, 3 * sizeof(float));
+            }
+        }
+        break;
+    }
     /* After every object and light is known: the grids record all of them. */
     for (uint32_t i = 0; i < pt->object_count; i++) {
         if (pt->objects[i].kind == PT_OPAQUE)

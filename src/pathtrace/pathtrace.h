@@ -23,6 +23,9 @@ typedef struct nc_pathtrace_options {
     nc_pt_medium_max_fn max_sigma_t; /* NULL: nc_medium_max_sigma_t */
     bool force_heterogeneous;      /* treat every translucent material as heterogeneous */
     bool no_sun_guiding;           /* disable sampling the sun through dielectric boundaries */
+    bool guide_always;             /* run the guided sun technique at every dielectric medium
+                                      vertex (no thinning by the optical depth of the way out):
+                                      same image within noise, slower */
     bool no_clearance;             /* disable the clearance grids (free flights skip the boundary
                                       query; deep vertices thin out NEE and guided sun samples):
                                       same image within noise, slower */
