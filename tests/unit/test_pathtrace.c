@@ -117,6 +117,40 @@ static void disk_mean(const nacre_image *img, const nacre_image *var, float frac
     }
 }
 
+/* Two renders of `s` (options a with seed 3, options b with seed_b, so the noise is independent)
+ * whose means over the sphere must agree within 4 standard errors (+1e-3). */
+static void same_within_noise(const char *what, const nacre_scene *s, int32_t size, uint32_t spp,
+                              const nc_pathtrace_options *a, const nc_pathtrace_options *b, uint64_t seed_b)
+{
+    nacre_render_settings rs = pt_settings(size, spp);
+    nacre_image va = {0}, vb = {0};
+    nacre_image ia = render_with(ctx, s, &rs, a, &va);
+    rs.seed = seed_b;
+    nacre_image ib = render_with(ctx, s, &rs, b, &vb);
+    double ma[3], sa[3], mb[3], sb[3];
+    disk_mean(&ia, &va, 0.8f, ma, sa);
+    disk_mean(&ib, &vb, 0.8f, mb, sb);
+    printf("  %s: %.4f %.4f %.4f  vs %.4f %.4f %.4f (stderr %.4f)\n", what, ma[0], ma[1], ma[2], mb[0], mb[1], mb[2],
+           sa[0]);
+    for (int c = 0; c < 3; c++)
+        CHECK_NEAR(ma[c], mb[c], 4 * sqrt(sa[c] * sa[c] + sb[c] * sb[c]) + 1e-3);
+    nacre_image_free(ctx, &ia);
+    nacre_image_free(ctx, &ib);
+    nacre_image_free(ctx, &va);
+    nacre_image_free(ctx, &vb);
+}
+
+/* A directional light of equal RGB strength, then commit. */
+static void add_sun(nacre_scene *s, float dx, float dy, float dz, float strength)
+{
+    nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
+    ld.direction[0] = dx, ld.direction[1] = dy, ld.direction[2] = dz;
+    ld.strength[0] = ld.strength[1] = ld.strength[2] = strength;
+    nacre_light l;
+    CHECK(nacre_scene_add_light(s, &ld, &l) == NACRE_OK);
+    CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
+}
+
 static void furnace(const char *name, const nacre_material_desc *md, const nc_pathtrace_options *opt, uint32_t spp)
 {
     nacre_scene *s = sphere_scene(ctx, md, 0.7f);
@@ -243,28 +277,8 @@ int main(void)
         b.majorant_res = 0;
         md = medium(0.0f, 1.0f, 0.0f, 1.0f);
         nacre_scene *s = sphere_scene(ctx, &md, 0.2f);
-        nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
-        ld.direction[0] = 0.0f, ld.direction[1] = -0.6f, ld.direction[2] = -0.8f;
-        ld.strength[0] = ld.strength[1] = ld.strength[2] = 2.0f;
-        nacre_light l;
-        CHECK(nacre_scene_add_light(s, &ld, &l) == NACRE_OK);
-        CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
-        nacre_render_settings rs = pt_settings(16, 24);
-        nacre_image va = {0}, vb = {0};
-        nacre_image ia = render_with(ctx, s, &rs, &a, &va);
-        rs.seed = 1234; /* independent noise, so the tolerance below is the right one */
-        nacre_image ib = render_with(ctx, s, &rs, &b, &vb);
-        double ma[3], sa[3], mb[3], sb[3];
-        disk_mean(&ia, &va, 0.8f, ma, sa);
-        disk_mean(&ib, &vb, 0.8f, mb, sb);
-        printf("  grid %.4f %.4f %.4f  global %.4f %.4f %.4f (stderr %.4f)\n", ma[0], ma[1], ma[2], mb[0], mb[1], mb[2],
-               sa[0]);
-        for (int c = 0; c < 3; c++)
-            CHECK_NEAR(ma[c], mb[c], 4 * sqrt(sa[c] * sa[c] + sb[c] * sb[c]) + 1e-3);
-        nacre_image_free(ctx, &ia);
-        nacre_image_free(ctx, &ib);
-        nacre_image_free(ctx, &va);
-        nacre_image_free(ctx, &vb);
+        add_sun(s, 0.0f, -0.6f, -0.8f, 2.0f);
+        same_within_noise("majorant grid vs global", s, 16, 24, &a, &b, 1234);
         nacre_scene_destroy(s);
     }
 
@@ -318,15 +332,10 @@ int main(void)
             md = medium(0.05f, 20.0f, 0.3f, etas[k]);
             md.sigma_s[2] = 8.0f;
             nacre_scene *s = sphere_scene(ctx, &md, 0.2f);
-            nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
-            ld.direction[0] = -0.3f, ld.direction[1] = -0.6f, ld.direction[2] = -0.74f;
-            ld.strength[0] = ld.strength[1] = ld.strength[2] = 2.0f;
-            nacre_light l;
-            CHECK(nacre_scene_add_light(s, &ld, &l) == NACRE_OK);
-            CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
-            nacre_render_settings rs = pt_settings(12, 4);
-            nacre_image a, b;
+            add_sun(s, -0.3f, -0.6f, -0.74f, 2.0f);
             if (k == 1) {
+                nacre_render_settings rs = pt_settings(12, 4);
+                nacre_image a, b;
                 nc_pathtrace_options on = def, off2 = off;
                 on.no_sun_guiding = off2.no_sun_guiding = true;
                 a = render_with(ctx, s, &rs, &on, NULL);
@@ -335,25 +344,8 @@ int main(void)
                 nacre_image_free(ctx, &a);
                 nacre_image_free(ctx, &b);
             }
-            {
-                /* Clearance on and off, independent seeds. */
-                rs = pt_settings(12, 24);
-                nacre_image va = {0}, vb = {0};
-                a = render_with(ctx, s, &rs, &def, &va);
-                rs.seed = 4321;
-                b = render_with(ctx, s, &rs, &off, &vb);
-                double ma[3], sa[3], mb[3], sb[3];
-                disk_mean(&a, &va, 0.8f, ma, sa);
-                disk_mean(&b, &vb, 0.8f, mb, sb);
-                printf("  clearance (eta %.1f) on %.4f %.4f %.4f  off %.4f %.4f %.4f (stderr %.4f)\n", etas[k], ma[0],
-                       ma[1], ma[2], mb[0], mb[1], mb[2], sa[0]);
-                for (int c = 0; c < 3; c++)
-                    CHECK_NEAR(ma[c], mb[c], 4 * sqrt(sa[c] * sa[c] + sb[c] * sb[c]) + 1e-3);
-                nacre_image_free(ctx, &a);
-                nacre_image_free(ctx, &b);
-                nacre_image_free(ctx, &va);
-                nacre_image_free(ctx, &vb);
-            }
+            same_within_noise(k ? "clearance on vs off (eta 1.3)" : "clearance on vs off (eta 1)", s, 12, 24, &def,
+                              &off, 4321);
             nacre_scene_destroy(s);
         }
         /* The guided sun technique thinned by the optical depth of the way out (found by the
@@ -365,30 +357,10 @@ int main(void)
             md = medium(0.05f, 20.0f, 0.3f, 1.3f);
             md.sigma_s[2] = 8.0f;
             nacre_scene *s = sphere_scene(ctx, &md, 0.2f);
-            nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
-            ld.direction[0] = -0.3f, ld.direction[1] = -0.6f, ld.direction[2] = -0.74f;
-            ld.strength[0] = ld.strength[1] = ld.strength[2] = 2.0f;
-            nacre_light l;
-            CHECK(nacre_scene_add_light(s, &ld, &l) == NACRE_OK);
-            CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
+            add_sun(s, -0.3f, -0.6f, -0.74f, 2.0f);
             nc_pathtrace_options always = def;
             always.guide_always = true;
-            nacre_render_settings rs = pt_settings(12, 64);
-            nacre_image va = {0}, vb = {0};
-            nacre_image a = render_with(ctx, s, &rs, &def, &va);
-            rs.seed = 2468;
-            nacre_image b = render_with(ctx, s, &rs, &always, &vb);
-            double ma[3], sa[3], mb[3], sb[3];
-            disk_mean(&a, &va, 0.8f, ma, sa);
-            disk_mean(&b, &vb, 0.8f, mb, sb);
-            printf("  guide thinned %.4f %.4f %.4f  always %.4f %.4f %.4f (stderr %.4f)\n", ma[0], ma[1], ma[2], mb[0],
-                   mb[1], mb[2], sa[0]);
-            for (int c = 0; c < 3; c++)
-                CHECK_NEAR(ma[c], mb[c], 4 * sqrt(sa[c] * sa[c] + sb[c] * sb[c]) + 1e-3);
-            nacre_image_free(ctx, &a);
-            nacre_image_free(ctx, &b);
-            nacre_image_free(ctx, &va);
-            nacre_image_free(ctx, &vb);
+            same_within_noise("guided sun thinned vs always", s, 12, 64, &def, &always, 2468);
             nacre_scene_destroy(s);
         }
         /* Heterogeneous media track up to the bound, then on from it: same within noise. */
@@ -400,22 +372,7 @@ int main(void)
         het_off.no_clearance = true;
         md = medium(0.0f, 1.0f, 0.0f, 1.0f);
         nacre_scene *s = sphere_scene(ctx, &md, 0.5f);
-        nacre_render_settings rs = pt_settings(12, 24);
-        nacre_image va = {0}, vb = {0};
-        nacre_image a = render_with(ctx, s, &rs, &het, &va);
-        rs.seed = 555;
-        nacre_image b = render_with(ctx, s, &rs, &het_off, &vb);
-        double ma[3], sa[3], mb[3], sb[3];
-        disk_mean(&a, &va, 0.8f, ma, sa);
-        disk_mean(&b, &vb, 0.8f, mb, sb);
-        printf("  heterogeneous clearance on %.4f %.4f %.4f  off %.4f %.4f %.4f (stderr %.4f)\n", ma[0], ma[1], ma[2],
-               mb[0], mb[1], mb[2], sa[0]);
-        for (int c = 0; c < 3; c++)
-            CHECK_NEAR(ma[c], mb[c], 4 * sqrt(sa[c] * sa[c] + sb[c] * sb[c]) + 1e-3);
-        nacre_image_free(ctx, &a);
-        nacre_image_free(ctx, &b);
-        nacre_image_free(ctx, &va);
-        nacre_image_free(ctx, &vb);
+        same_within_noise("heterogeneous clearance on vs off", s, 12, 24, &het, &het_off, 555);
         nacre_scene_destroy(s);
     }
 
