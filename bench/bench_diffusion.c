@@ -164,7 +164,7 @@ static void print_row(bool json, const char *file, uint32_t tris, uint32_t res_n
     fflush(stdout);
 }
 
-int nc_bench_diffusion_pipeline(bool json, int runs)
+int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filter)
 {
     nacre_context *ctx = nc_cli_context(0);
     if (!ctx)
@@ -188,6 +188,8 @@ int nc_bench_diffusion_pipeline(bool json, int runs)
                "shade", "total", "fps", "raster", "iter");
     for (size_t mi = 0; mi < sizeof(meshes) / sizeof(meshes[0]); mi++) {
         char path[4096];
+        if (!nc_bench_filter_mesh(filter, meshes[mi].file))
+            continue;
         if (!nc_cli_find_mesh(meshes[mi].file, path, sizeof(path))) {
             fprintf(stderr, "nacre bench diffusion: %s not found, skipped\n", meshes[mi].file);
             continue;
@@ -206,6 +208,8 @@ int nc_bench_diffusion_pipeline(bool json, int runs)
         for (size_t r = 0; r < sizeof(resolutions) / sizeof(resolutions[0]); r++) {
             double med[COL_COUNT];
             uint32_t iterations = 0, dims[3] = {0, 0, 0};
+            if (filter->res && filter->res != resolutions[r])
+                continue;
             if (run_case(ctx, renderer, scene, obj, &od, resolutions[r], 1280, 720, runs, samples, med, &iterations,
                          dims) != 0) {
                 nacre_scene_destroy(scene);
@@ -214,7 +218,7 @@ int nc_bench_diffusion_pipeline(bool json, int runs)
             print_row(json, meshes[mi].file, tris, resolutions[r], 1280, 720, med, iterations, dims,
                       r < 3 ? meshes[mi].seed[r] : NULL);
         }
-        if (mi == 0) {
+        if (mi == 0 && (!filter->res || filter->res == 64)) {
             /* The interactive target: Suzanne at 64^3 shaded at 640x480. */
             double med[COL_COUNT];
             uint32_t iterations = 0, dims[3] = {0, 0, 0};

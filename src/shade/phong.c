@@ -397,6 +397,18 @@ static void shade_row(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
     int32_t x = 0;
     while (x < w) {
         int32_t x0 = x;
+#ifdef __AVX2__
+        /* Sixteen ids at a time: one compare with NC_NO_OBJECT per eight */
+        {
+            const __m256i none = _mm256_set1_epi32((int)NC_NO_OBJECT);
+            for (; x + 16 <= w; x += 16) {
+                __m256i a = _mm256_cmpeq_epi32(_mm256_loadu_si256((const __m256i *)(obj + x)), none);
+                __m256i b = _mm256_cmpeq_epi32(_mm256_loadu_si256((const __m256i *)(obj + x + 8)), none);
+                if (_mm256_movemask_epi8(_mm256_and_si256(a, b)) != -1)
+                    break;
+            }
+        }
+#endif
         /* Eight ids at a time: their AND is NC_NO_OBJECT only if all are (one vector test) */
         for (; x + 8 <= w; x += 8) {
             uint32_t all = NC_NO_OBJECT;

@@ -39,13 +39,15 @@ static const char bench_help[] =
     "           ../shared/meshes), then the demo scene with phong at 1280x720, per stage\n"
     "  --json   one JSON object per line\n"
     "  --runs N timed runs after one warm-up (default 15); medians are reported\n"
-    "usage: nacre bench voxelize [--json] [--runs N]\n"
+    "usage: nacre bench voxelize [--json] [--runs N] [--only MESH] [--res N]\n"
     "  voxelize suzanne_subdiv2, armadillo_400k, dragon, lucy_1600k (missing ones skipped) at\n"
     "           4,12,28,64,128,256 voxels per side, beside the seed's tables 5.1-5.3\n"
-    "usage: nacre bench diffusion [--json] [--runs N]\n"
+    "usage: nacre bench diffusion [--json] [--runs N] [--only MESH] [--res N]\n"
     "  diffusion  the seed's tables 5.1-5.3 layout (per-stage us, fps) for its meshes' stand-ins\n"
     "           at 4..128 voxels (bench/bench_diffusion.c), then iterations to converge (seed\n"
     "           table 4.3) and converged propagation at 32^3..256^3 (bench/bench_diffusion_solver.c)\n"
+    "  --only MESH  only the meshes whose file name contains MESH; --res N  only that resolution\n"
+    "           (either filter skips the solver tables of `bench diffusion`)\n"
     "usage: nacre bench pathtrace [--json] [--runs N]\n"
     "  pathtrace  samples/s and extrapolated time to relative MSE 1e-3 at 512x512: translucent\n"
     "           sphere (index matched, dielectric) and the demo scene, N x 30 s each (default 1)\n";
@@ -84,7 +86,12 @@ bool nc_cli_find_mesh(const char *file, char *path, size_t size)
     return false;
 }
 
-static int bench_voxelize(bool json, int runs)
+bool nc_bench_filter_mesh(const nc_bench_filter *f, const char *file)
+{
+    return !f->only || strstr(file, f->only) != NULL;
+}
+
+static int bench_voxelize(bool json, int runs, const nc_bench_filter *filter)
 {
     nacre_context *ctx = nc_cli_context(0);
     if (!ctx)
@@ -99,6 +106,8 @@ static int bench_voxelize(bool json, int runs)
                nacre_context_threads(ctx), runs, "mesh", "tris", "res", "rule", "surface", "solid", "ms", "seed_ms");
     for (size_t m = 0; m < sizeof(vox_meshes) / sizeof(vox_meshes[0]); m++) {
         char path[4096];
+        if (!nc_bench_filter_mesh(filter, vox_meshes[m].file))
+            continue;
         if (!nc_cli_find_mesh(vox_meshes[m].file, path, sizeof(path))) {
             fprintf(stderr, "nacre bench voxelize: %s not found, skipped\n", vox_meshes[m].file);
             continue;
@@ -112,6 +121,8 @@ static int bench_voxelize(bool json, int runs)
         }
         double ratio = mesh.triangle_count / vox_meshes[m].seed_tris;
         for (size_t r = 0; r < sizeof(vox_res) / sizeof(vox_res[0]); r++) {
+            if (filter->res && filter->res != vox_res[r])
+                continue;
             nacre_voxel_settings vs = nacre_voxel_settings_defaults();
             vs.resolution = vox_res[r];
             vs.solid_rule = info.closed ? NACRE_VOXEL_SOLID_PARITY : NACRE_VOXEL_SOLID_ROBUST;
@@ -230,7 +241,8 @@ int nc_cli_bench(int argc, char **argv)
     if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace)
         return nc_cli_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace)", argv[0]);
     bool json = false;
-    long runs = pathtrace ? 1 : 15;
+    long runs = pathtrace ? 1 : 15, res_only = 0;
+    nc_bench_filter filter = {NULL, 0};
     for (int i = 1; i < argc; i++) {
         if (nc_cli_common_flag("bench", argv[i], bench_help, &code))
             return code;
@@ -238,16 +250,21 @@ int nc_cli_bench(int argc, char **argv)
             json = true;
         else if (strcmp(argv[i], "--runs") == 0 && i + 1 < argc && nc_cli_parse_int(argv[i + 1], 1, 10000, &runs))
             i++;
+        else if ((voxelize || diffusion) && strcmp(argv[i], "--only") == 0 && i + 1 < argc)
+            filter.only = argv[++i];
+        else if ((voxelize || diffusion) && strcmp(argv[i], "--res") == 0 && i + 1 < argc &&
+                 nc_cli_parse_int(argv[i + 1], 1, 4096, &res_only))
+            filter.res = (uint32_t)res_only, i++;
         else if (!voxelize && strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
             i++; /* read by nc_bench_raster */
         else
             return nc_cli_usage("bench", "unknown or incomplete option '%s'", argv[i]);
     }
     if (voxelize)
-        return bench_voxelize(json, (int)runs);
+        return bench_voxelize(json, (int)runs, &filter);
     if (diffusion) {
-        int rc = nc_bench_diffusion_pipeline(json, (int)runs);
-        if (rc != 0)
+        int rc = nc_bench_diffusion_pipeline(json, (int)runs, &filter);
+        if (rc != 0 || filter.only || filter.res)
             return rc;
         if (!json)
             printf("\n");

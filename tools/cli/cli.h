@@ -42,8 +42,15 @@ int nc_cli_slab(int argc, char **argv);
 int nc_cli_bench(int argc, char **argv);
 /* `nacre bench diffusion`, solver part (bench/bench_diffusion_solver.c). */
 int nc_bench_diffusion_solver(bool json, int runs);
+/* Optional row filter of `nacre bench voxelize|diffusion`: mesh file names containing `only`
+ * (NULL: all) and one resolution (0: all). */
+typedef struct nc_bench_filter {
+    const char *only;
+    uint32_t res;
+} nc_bench_filter;
+bool nc_bench_filter_mesh(const nc_bench_filter *f, const char *file);
 /* `nacre bench diffusion`, pipeline part (bench/bench_diffusion.c). */
-int nc_bench_diffusion_pipeline(bool json, int runs);
+int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filter);
 /* `nacre bench raster` part for lucy_1600k (bench/bench_raster.c). */
 int nc_bench_raster(int argc, char **argv);
 
