@@ -286,20 +286,9 @@ static nacre_result object_solve(nc_diff_object *o, const nacre_render_settings 
     opts.warm_start = warm;
     o->iterations = 0;
     o->residual = 0.0;
-    for (int c = 0; c < 3; c++) {
-        float *phi = o->phi[c];
-        const uint8_t *solid = o->solid;
-        const size_t cells = o->cells;
-        if (warm) {
-            /* The domain may have changed (deformation): the contract wants 0 outside. */
-#pragma omp parallel for schedule(static) num_threads(threads) if (cells > 65536)
-            for (size_t i = 0; i < cells; i++)
-                if (!solid[i])
-                    phi[i] = 0.0f;
-        } else {
-            memset(phi, 0, cells * sizeof(float));
-        }
-    }
+    /* No clearing of phi: the solver reads it at the current domain's cells only, and only for a
+     * warm start, where the previous solve left 0 outside the previous domain (a cell that has
+     * just entered comes with 0 and is filled by warm_fill); it then writes every cell. */
     /* The three channels in one solve: one pass over the grid serves all three. */
     nc_diff_solve_report rep[3];
     memset(rep, 0, sizeof(rep));
@@ -310,14 +299,15 @@ static nacre_result object_solve(nc_diff_object *o, const nacre_render_settings 
         o->phi_valid = false;
         return res;
     }
+    const float *D[3];
     for (int c = 0; c < 3; c++) {
         o->iterations = rep[c].iterations > o->iterations ? rep[c].iterations : o->iterations;
         o->residual = rep[c].residual > o->residual ? rep[c].residual : o->residual;
-        nc_diff_compute_exitance(o, c, nc_diff_coefficient_d(o->solver, c), settings->source, threads);
+        D[c] = nc_diff_coefficient_d(o->solver, c);
     }
     o->phi_valid = true;
     memcpy(o->phi_dims, o->dims, sizeof(o->dims));
-    if ((res = nc_diff_pack_exitance(o, threads)) != NACRE_OK)
+    if ((res = nc_diff_compute_exitance(o, D, settings->source, threads)) != NACRE_OK)
         return res;
     o->face_mode = settings->source == NACRE_SOURCE_FACE;
     o->lit = true;

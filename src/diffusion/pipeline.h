@@ -158,13 +158,11 @@ void nc_tsm_band_free(nacre_context *ctx, nc_tsm_band *band);
 /* Depth below the surface, in cells, at which the shading pass reads the solution. */
 #define NC_DIFF_SAMPLE_DEPTH 0.5f
 
-/* After the solve of channel c: per cell, the exitance a surface NC_DIFF_SAMPLE_DEPTH cells away
- * would have (FACE mode adds the lit faces' own term, see the file). */
-void nc_diff_compute_exitance(nc_diff_object *o, int c, const float *D, nacre_diffusion_source mode,
-                              int threads);
-/* After the three channels' exitance: fill o->packed (padded, see nc_diff_object) from
- * o->exitance and o->solid, growing it if needed. */
-nacre_result nc_diff_pack_exitance(nc_diff_object *o, int threads);
+/* After the solve: per cell and channel, the exitance a surface NC_DIFF_SAMPLE_DEPTH cells away
+ * would have (FACE mode adds the lit faces' own term, see the file), into o->exitance and
+ * o->packed (padded, see nc_diff_object; grown if needed). D[c]: diffusion coefficient per cell. */
+nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3], nacre_diffusion_source mode,
+                                      int threads);
 /* Exitance (3 channels) at surface point p with normal n (the solution read one cell below p,
  * plus in FACE mode the lit faces' term read at p; solid cells only). False if no solid cell is
  * within one cell of the sample point. */

@@ -52,97 +52,13 @@
 #include <math.h>
 #include <string.h>
 
-void nc_diff_compute_exitance(nc_diff_object *o, int c, const float *D, nacre_diffusion_source mode, int threads)
-{
-    const size_t cells = o->cells;
-    const uint8_t *solid = o->solid;
-    const float *phi = o->phi[c];
-    float *q = mode == NACRE_SOURCE_FACE ? o->q[c] : NULL;
-    float *E = o->exitance[c];
-    const float h = o->h, delta = NC_DIFF_SAMPLE_DEPTH * h, A = o->robin_a, inv_1mfdr = 1.0f / (1.0f - o->fdr);
-#pragma omp parallel for schedule(static) num_threads(threads) if (cells > 65536)
-    for (size_t i = 0; i < cells; i++) {
-        if (!solid[i]) {
-            E[i] = 0.0f;
-            continue;
-        }
-        /* k phi with k = D / (delta + 2 A D): nc_diff_exitance with the distance 2 delta. */
-        float e = nc_diff_exitance(phi[i], D[i], A, 2.0f * delta);
-        E[i] = e > 0.0f ? e : 0.0f;
-        /* FACE: the lit faces' own term replaces q in place (once per solve), read at the
-         * surface (see the file). Its k uses the face distance h / 2: q is a face quantity. */
-        if (q && q[i] != 0.0f) {
-            float kf = 2.0f * D[i] / (h + 4.0f * A * D[i]);
-            q[i] *= 1.0f - 4.0f * kf * inv_1mfdr;
-        }
-    }
-}
-
-/* Trilinear interpolation of a per-cell field (3 channels) over solid cells. */
-static bool sample_field(const nc_diff_object *o, float *const field[3], nc_vec3 p, float out[3])
-{
-    out[0] = out[1] = out[2] = 0.0f;
-    if (!o->solid || o->solid_count == 0)
-        return false;
-    const int nx = (int)o->dims[0], ny = (int)o->dims[1], nz = (int)o->dims[2];
-    const float inv_h = 1.0f / o->h;
-    /* Grid coordinates relative to cell centres. */
-    float gx = (p.x - o->origin[0]) * inv_h - 0.5f, gy = (p.y - o->origin[1]) * inv_h - 0.5f,
-          gz = (p.z - o->origin[2]) * inv_h - 0.5f;
-    if (!isfinite(gx) || !isfinite(gy) || !isfinite(gz))
-        return false;
-    int x0 = (int)floorf(gx), y0 = (int)floorf(gy), z0 = (int)floorf(gz);
-    float fx = gx - (float)x0, fy = gy - (float)y0, fz = gz - (float)z0;
-    float acc[3] = {0, 0, 0}, wsum = 0.0f;
-    for (int k = 0; k < 8; k++) {
-        int x = x0 + (k & 1), y = y0 + ((k >> 1) & 1), z = z0 + ((k >> 2) & 1);
-        if (x < 0 || y < 0 || z < 0 || x >= nx || y >= ny || z >= nz)
-            continue;
-        size_t i = (size_t)x + (size_t)nx * ((size_t)y + (size_t)ny * (size_t)z);
-        if (!o->solid[i])
-            continue;
-        float w = ((k & 1) ? fx : 1.0f - fx) * ((k & 2) ? fy : 1.0f - fy) * ((k & 4) ? fz : 1.0f - fz);
-        wsum += w;
-        for (int c = 0; c < 3; c++)
-            acc[c] += w * field[c][i];
-    }
-    if (wsum > 1e-6f) {
-        for (int c = 0; c < 3; c++)
-            out[c] = acc[c] / wsum;
-        return true;
-    }
-    /* No solid corner with weight: the nearest solid cell centre among the 27 around p's cell. */
-    int cx = (int)floorf(gx + 0.5f), cy = (int)floorf(gy + 0.5f), cz = (int)floorf(gz + 0.5f);
-    float best = INFINITY;
-    size_t best_i = 0;
-    for (int dz = -1; dz <= 1; dz++)
-        for (int dy = -1; dy <= 1; dy++)
-            for (int dx = -1; dx <= 1; dx++) {
-                int x = cx + dx, y = cy + dy, z = cz + dz;
-                if (x < 0 || y < 0 || z < 0 || x >= nx || y >= ny || z >= nz)
-                    continue;
-                size_t i = (size_t)x + (size_t)nx * ((size_t)y + (size_t)ny * (size_t)z);
-                if (!o->solid[i])
-                    continue;
-                float ex = (float)x - gx, ey = (float)y - gy, ez = (float)z - gz;
-                float d2 = ex * ex + ey * ey + ez * ez;
-                if (d2 < best) {
-                    best = d2;
-                    best_i = i;
-                }
-            }
-    if (!isfinite(best))
-        return false;
-    for (int c = 0; c < 3; c++)
-        out[c] = field[c][best_i];
-    return true;
-}
-
-/* sample_field for many nearby points (a batch of pixels): the solid corners of the last
- * interpolation cell and the solid cells of the last 27-cell neighbourhood are kept, so that
- * points in the same cells skip the bounds and solid tests. The sums and the search visit the
- * same cells in the same order as sample_field, so the results are the same. At coarse grids
- * many pixels take the nearest-cell fallback, and neighbouring pixels share their cells. */
+/* Trilinear interpolation of a per-cell field (3 channels) at p over the solid cells around it
+ * (weights renormalized); with no solid corner with weight, the nearest solid cell centre among
+ * the 27 around p's cell. For many nearby points (a batch of pixels) the cache keeps the solid
+ * corners of the last interpolation cell and the solid cells of the last 27-cell neighbourhood,
+ * so that points in the same cells skip the bounds and solid tests; the sums and the search
+ * visit the same cells in the same order either way. At coarse grids many pixels take the
+ * nearest-cell fallback, and neighbouring pixels share their cells. */
 typedef struct field_cache {
     int corner_key[3], near_key[3];
     bool corner_valid, near_valid;
@@ -236,7 +152,17 @@ static bool sample_field_cached(const nc_diff_object *o, float *const field[3], 
     return true;
 }
 
-nacre_result nc_diff_pack_exitance(nc_diff_object *o, int threads)
+/* sample_field_cached for a single point. */
+static bool sample_field(const nc_diff_object *o, float *const field[3], nc_vec3 p, float out[3])
+{
+    field_cache fc = {.corner_valid = false, .near_valid = false};
+    return sample_field_cached(o, field, p, &fc, out);
+}
+
+/* One pass over the padded grid writes both layouts: o->exitance (the fallback's and
+ * nc_diff_exitance_at's) and o->packed (the shading pass's corner reads). */
+nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3], nacre_diffusion_source mode,
+                                      int threads)
 {
     const size_t nx = o->dims[0], ny = o->dims[1], nz = o->dims[2];
     const size_t px = nx + 2, py = ny + 2, pz = nz + 2;
@@ -253,7 +179,8 @@ nacre_result nc_diff_pack_exitance(nc_diff_object *o, int threads)
         o->packed_capacity = padded;
     }
     const uint8_t *solid = o->solid;
-    const float *E0 = o->exitance[0], *E1 = o->exitance[1], *E2 = o->exitance[2];
+    const float h = o->h, delta = NC_DIFF_SAMPLE_DEPTH * h, A = o->robin_a, inv_1mfdr = 1.0f / (1.0f - o->fdr);
+    const bool face = mode == NACRE_SOURCE_FACE;
     float *pk = o->packed;
 #pragma omp parallel for schedule(static) num_threads(threads) if (padded > 65536)
     for (size_t z = 0; z < pz; z++)
@@ -263,15 +190,32 @@ nacre_result nc_diff_pack_exitance(nc_diff_object *o, int threads)
                 memset(row, 0, 4 * px * sizeof(float));
                 continue;
             }
-            size_t u = nx * ((y - 1) + ny * (z - 1));
+            const size_t u = nx * ((y - 1) + ny * (z - 1));
             memset(row, 0, 4 * sizeof(float));
             memset(row + 4 * (px - 1), 0, 4 * sizeof(float));
             for (size_t x = 0; x < nx; x++) {
+                const size_t i = u + x;
                 float *v = row + 4 * (x + 1);
-                v[0] = E0[u + x];
-                v[1] = E1[u + x];
-                v[2] = E2[u + x];
-                v[3] = solid[u + x] ? 1.0f : 0.0f;
+                v[3] = solid[i] ? 1.0f : 0.0f;
+                for (int c = 0; c < 3; c++) {
+                    float e = 0.0f;
+                    if (solid[i]) {
+                        /* k phi with k = D / (delta + 2 A D): nc_diff_exitance with the distance
+                         * 2 delta */
+                        e = nc_diff_exitance(o->phi[c][i], D[c][i], A, 2.0f * delta);
+                        e = e > 0.0f ? e : 0.0f;
+                        /* FACE: the lit faces' own term replaces q in place (once per solve), read
+                         * at the surface (see the file). Its k uses the face distance h / 2: q is
+                         * a face quantity. */
+                        float *q = o->q[c];
+                        if (face && q && q[i] != 0.0f) {
+                            float kf = 2.0f * D[c][i] / (h + 4.0f * A * D[c][i]);
+                            q[i] *= 1.0f - 4.0f * kf * inv_1mfdr;
+                        }
+                    }
+                    o->exitance[c][i] = e;
+                    v[c] = e;
+                }
             }
         }
     return NACRE_OK;

@@ -214,53 +214,90 @@ static inline float linear_depth(const nc_raster_view *v, float ndc)
     return p->m[2][3] / (ndc + p->m[2][2]);
 }
 
-/* The PCF taps of nc_shadow_lookup for a window wholly inside the map (the common case): the
- * same operations per tap, in the same order, with the parts that depend only on the column or
- * only on the row (overlap, texel ray, distance) computed once per column and once per row. */
-static float pcf_interior(const float *map, int size, bool ortho, float u, float vv, float rad, int i0, int i1,
-                          int j0, int j1, float d, nc_vec3 pv, nc_vec3 nv, float inv_nz, float plane_d,
-                          float inv_size, float inv_m00, float inv_m11, float m03, float m13, float m22,
-                          float m23, float inv_m22, float max_dev, float bias_world)
+/* What the PCF taps of one lookup share: the window (centre u, vv and half-width rad, in
+ * texels), the receiver (depth d along the view axis, view-space point pv and normal nv, the
+ * plane's offset plane_d) and the map's projection terms, with the divisions done once. */
+typedef struct pcf_frame {
+    const float *map;
+    int size;
+    bool ortho, clamp;
+    float u, vv, rad, d, plane_d, inv_nz, inv_size, inv_m00, inv_m11, m03, m13, m22, m23, inv_m22, max_dev, bias_world;
+    nc_vec3 pv, nv;
+} pcf_frame;
+
+/* The per-column parts of the taps (columns i0 .. i0 + nw - 1): overlap with the window, the
+ * receiver plane's x term, and the squared x distance from the window's centre. */
+static inline void pcf_columns(const pcf_frame *f, int i0, int nw, float *col_o, float *col_r, float *col_d2)
+{
+    for (int k = 0; k < nw; k++) {
+        int i = i0 + k;
+        col_o[k] = fmin_fast((float)i + 1.0f, f->u + f->rad) - fmax_fast((float)i, f->u - f->rad);
+        float tx = ((float)i + 0.5f) * f->inv_size - 1.0f;
+        col_r[k] = f->ortho ? f->nv.x * ((tx - f->m03) * f->inv_m00 - f->pv.x) : f->nv.x * (tx * f->inv_m00);
+        float du = (float)i + 0.5f - f->u;
+        col_d2[k] = du * du;
+    }
+}
+
+/* The per-row parts of row j: its overlap with the window (returned), the plane's y term and the
+ * squared y distance. */
+static inline float pcf_row(const pcf_frame *f, int j, float *row_r, float *dv2)
+{
+    float ty = 1.0f - ((float)j + 0.5f) * f->inv_size;
+    *row_r = f->ortho ? f->nv.y * ((ty - f->m13) * f->inv_m11 - f->pv.y) : f->nv.y * (ty * f->inv_m11);
+    float dv = (float)j + 0.5f - f->vv;
+    *dv2 = dv * dv;
+    return fmin_fast((float)j + 1.0f, f->vv + f->rad) - fmax_fast((float)j, f->vv - f->rad);
+}
+
+/* One tap: is the stored depth (NDC) at or behind the receiver plane's depth at this texel?
+ * The plane's depth is kept within lim = max_dev x (distance in texels) of d (NaN, behind the
+ * light and parallel planes included). */
+static inline bool pcf_tap_lit(const pcf_frame *f, float stored, float col_r, float row_r, float col_d2, float dv2)
+{
+    if (!(stored < 1.0f))
+        return true;
+    float recv = f->ortho ? f->d + (col_r + row_r) * f->inv_nz : f->plane_d / (col_r + row_r + f->nv.z * -1.0f);
+    float lim = f->max_dev * sqrtf(col_d2 + dv2);
+    if (!(recv >= f->d - lim))
+        recv = recv > f->d ? f->d + lim : f->d - lim;
+    else if (recv > f->d + lim)
+        recv = f->d + lim;
+    float occluder = f->ortho ? (f->m23 - stored) * f->inv_m22 : f->m23 / (stored + f->m22);
+    return occluder >= recv - f->bias_world;
+}
+
+/* The taps of the window [i0, i1] x [j0, j1], each weighted by its overlap with the box filter.
+ * Texels beyond the map are lit (one map) or clamped to its edge (cube faces, whose margin
+ * covers the kernel). The parts that depend only on the column or only on the row are computed
+ * once per column and once per row. */
+static float pcf_window(const pcf_frame *f, int i0, int i1, int j0, int j1)
 {
     enum { MAXW = 18 }; /* columns of a window of half-width <= 8 */
     float col_o[MAXW], col_r[MAXW], col_d2[MAXW];
-    int nw = i1 - i0 + 1;
-    for (int k = 0; k < nw; k++) {
-        int i = i0 + k;
-        col_o[k] = fmin_fast((float)i + 1.0f, u + rad) - fmax_fast((float)i, u - rad);
-        float tx = ((float)i + 0.5f) * inv_size - 1.0f;
-        col_r[k] = ortho ? nv.x * ((tx - m03) * inv_m00 - pv.x) : nv.x * (tx * inv_m00);
-        float du = (float)i + 0.5f - u;
-        col_d2[k] = du * du;
-    }
+    const int nw = i1 - i0 + 1, size = f->size;
+    pcf_columns(f, i0, nw, col_o, col_r, col_d2);
     float lit = 0.0f, total = 0.0f;
     for (int j = j0; j <= j1; j++) {
-        float oy = fmin_fast((float)j + 1.0f, vv + rad) - fmax_fast((float)j, vv - rad);
+        float row_r, dv2;
+        float oy = pcf_row(f, j, &row_r, &dv2);
         if (oy <= 0.0f)
             continue;
-        float ty = 1.0f - ((float)j + 0.5f) * inv_size;
-        float row_r = ortho ? nv.y * ((ty - m13) * inv_m11 - pv.y) : nv.y * (ty * inv_m11);
-        float dv = (float)j + 0.5f - vv, dv2 = dv * dv;
-        const float *row = map + (size_t)j * (size_t)size + (size_t)i0;
         for (int k = 0; k < nw; k++) {
             float ox = col_o[k];
             if (ox <= 0.0f)
                 continue;
             float wgt = ox * oy;
             total += wgt;
-            float stored = row[k];
-            if (!(stored < 1.0f)) {
-                lit += wgt;
+            int ti = i0 + k, tj = j;
+            if (f->clamp) {
+                ti = ti < 0 ? 0 : (ti >= size ? size - 1 : ti);
+                tj = tj < 0 ? 0 : (tj >= size ? size - 1 : tj);
+            } else if (ti < 0 || tj < 0 || ti >= size || tj >= size) {
+                lit += wgt; /* beyond the map: nothing recorded, lit */
                 continue;
             }
-            float recv = ortho ? d + (col_r[k] + row_r) * inv_nz : plane_d / (col_r[k] + row_r + nv.z * -1.0f);
-            float lim = max_dev * sqrtf(col_d2[k] + dv2);
-            if (!(recv >= d - lim))
-                recv = recv > d ? d + lim : d - lim;
-            else if (recv > d + lim)
-                recv = d + lim;
-            float occluder = ortho ? (m23 - stored) * inv_m22 : m23 / (stored + m22);
-            if (occluder >= recv - bias_world)
+            if (pcf_tap_lit(f, f->map[(size_t)tj * (size_t)size + (size_t)ti], col_r[k], row_r, col_d2[k], dv2))
                 lit += wgt;
         }
     }
@@ -273,51 +310,41 @@ typedef int32_t v4m __attribute__((vector_size(16)));
 
 static inline v4s sel4(v4m m, v4s a, v4s b) { return (v4s)(((v4m)a & m) | ((v4m)b & ~m)); }
 
-/* pcf_interior for the usual window of 4 columns (pcf_radius 1.5): a row's four taps as one
- * vector, with the per-tap operations of the scalar loop (so the same values per tap) and its
- * branches as selects. The clamp of the receiver depth is the scalar one: a depth below d - lim
- * (or NaN) becomes d - lim (lim >= 0), one above d + lim becomes d + lim. The sums still take
- * the taps one at a time in the scalar order, adding 0 where the scalar loop skips a tap, which
- * leaves them unchanged: the result is the scalar function's to the last bit. The gain is in the
- * comparisons, which no longer branch on the data (shadow edges mispredicted them). */
-static float pcf_interior4(const float *map, int size, bool ortho, float u, float vv, float rad, int i0, int j0,
-                           int j1, float d, nc_vec3 pv, nc_vec3 nv, float inv_nz, float plane_d, float inv_size,
-                           float inv_m00, float inv_m11, float m03, float m13, float m22, float m23, float inv_m22,
-                           float max_dev, float bias_world)
+/* pcf_window for the usual window of 4 columns (pcf_radius 1.5) wholly inside the map: a row's
+ * four taps as one vector, with pcf_tap_lit's operations per lane (so the same values) and its
+ * branches as selects. The clamp of the receiver depth is pcf_tap_lit's: a depth below d - lim
+ * (or NaN) becomes d - lim (lim >= 0), one above d + lim becomes d + lim. The sums still take the
+ * taps one at a time in pcf_window's order, adding 0 where it skips a tap, which leaves them
+ * unchanged: the result is pcf_window's to the last bit. The gain is in the comparisons, which
+ * no longer branch on the data (shadow edges mispredicted them). */
+static float pcf_window4(const pcf_frame *f, int i0, int j0, int j1)
 {
     float co[4], cr[4], cd[4];
-    for (int k = 0; k < 4; k++) {
-        int i = i0 + k;
-        co[k] = fmin_fast((float)i + 1.0f, u + rad) - fmax_fast((float)i, u - rad);
-        float tx = ((float)i + 0.5f) * inv_size - 1.0f;
-        cr[k] = ortho ? nv.x * ((tx - m03) * inv_m00 - pv.x) : nv.x * (tx * inv_m00);
-        float du = (float)i + 0.5f - u;
-        cd[k] = du * du;
-    }
+    pcf_columns(f, i0, 4, co, cr, cd);
     v4s col_o, col_r, col_d2;
     memcpy(&col_o, co, sizeof(col_o));
     memcpy(&col_r, cr, sizeof(col_r));
     memcpy(&col_d2, cd, sizeof(col_d2));
     const v4m col_in = col_o > 0.0f;
+    const v4s zero = {0.0f, 0.0f, 0.0f, 0.0f};
+    const float d = f->d;
     float lit = 0.0f, total = 0.0f;
     for (int j = j0; j <= j1; j++) {
-        float oy = fmin_fast((float)j + 1.0f, vv + rad) - fmax_fast((float)j, vv - rad);
+        float row_r, dv2;
+        float oy = pcf_row(f, j, &row_r, &dv2);
         if (oy <= 0.0f)
             continue;
-        float ty = 1.0f - ((float)j + 0.5f) * inv_size;
-        float row_r = ortho ? nv.y * ((ty - m13) * inv_m11 - pv.y) : nv.y * (ty * inv_m11);
-        float dv = (float)j + 0.5f - vv, dv2 = dv * dv;
         v4s stored;
-        memcpy(&stored, map + (size_t)j * (size_t)size + (size_t)i0, sizeof(stored));
+        memcpy(&stored, f->map + (size_t)j * (size_t)f->size + (size_t)i0, sizeof(stored));
         v4s wgt = col_o * oy;
-        v4s recv = ortho ? d + (col_r + row_r) * inv_nz : plane_d / (col_r + row_r + nv.z * -1.0f);
-        v4s lim = max_dev * (v4s)_mm_sqrt_ps((__m128)(col_d2 + dv2));
+        v4s recv = f->ortho ? d + (col_r + row_r) * f->inv_nz : f->plane_d / (col_r + row_r + f->nv.z * -1.0f);
+        v4s lim = f->max_dev * (v4s)_mm_sqrt_ps((__m128)(col_d2 + dv2));
         v4s lo = d - lim, hi = d + lim;
         recv = sel4(recv >= lo, sel4(recv > hi, hi, recv), lo);
-        v4s occluder = ortho ? (m23 - stored) * inv_m22 : m23 / (stored + m22);
-        v4m is_lit = ~(stored < 1.0f) | (occluder >= recv - bias_world);
-        v4s add_total = sel4(col_in, wgt, (v4s){0.0f, 0.0f, 0.0f, 0.0f});
-        v4s add_lit = sel4(col_in & is_lit, wgt, (v4s){0.0f, 0.0f, 0.0f, 0.0f});
+        v4s occluder = f->ortho ? (f->m23 - stored) * f->inv_m22 : f->m23 / (stored + f->m22);
+        v4m is_lit = ~(stored < 1.0f) | (occluder >= recv - f->bias_world);
+        v4s add_total = sel4(col_in, wgt, zero);
+        v4s add_lit = sel4(col_in & is_lit, wgt, zero);
         for (int k = 0; k < 4; k++) {
             total += add_total[k];
             lit += add_lit[k];
@@ -371,20 +398,36 @@ float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_
     float sin_t = sqrtf(fmax_fast(0.0f, 1.0f - cos_t * cos_t));
     float slope = sin_t < MAX_SLOPE * cos_t ? sin_t / cos_t : MAX_SLOPE;
     float bias_world = fmax_fast(bias, 0.0f) * texel * 0.5f * (1.0f + slope);
-    float max_dev = MAX_SLOPE * texel;
-    float plane_d = nc_dot(nv, pv);
-    float inv_size = 2.0f / (float)size;
-    /* Per-tap constants (divisions hoisted out of the tap loop). */
-    float inv_m00 = 1.0f / m00, inv_m11 = 1.0f / m11, inv_nz = 1.0f / nv.z;
-    float inv_m22 = 1.0f / pm->m[2][2], m22 = pm->m[2][2], m23 = pm->m[2][3];
-
-    float rad = fmin_fast(fmax_fast(pcf_radius, 0.5f), 8.0f);
+    pcf_frame f = {
+        .size = size,
+        .ortho = ortho,
+        .clamp = sm->kind == NC_SHADOW_CUBE,
+        .u = u,
+        .vv = vv,
+        .rad = fmin_fast(fmax_fast(pcf_radius, 0.5f), 8.0f),
+        .d = d,
+        .plane_d = nc_dot(nv, pv),
+        .inv_nz = 1.0f / nv.z,
+        .inv_size = 2.0f / (float)size,
+        .inv_m00 = 1.0f / m00,
+        .inv_m11 = 1.0f / m11,
+        .m03 = m03,
+        .m13 = m13,
+        .m22 = pm->m[2][2],
+        .m23 = pm->m[2][3],
+        .inv_m22 = 1.0f / pm->m[2][2],
+        .max_dev = MAX_SLOPE * texel,
+        .bias_world = bias_world,
+        .pv = pv,
+        .nv = nv,
+    };
+    const float rad = f.rad;
     int i0 = (int)floorf(u - rad), i1 = (int)floorf(u + rad);
     int j0 = (int)floorf(vv - rad), j1 = (int)floorf(vv + rad);
     if (i1 < 0 || j1 < 0 || i0 >= size || j0 >= size)
         return 1.0f;
     const float *map = sm->depth + (size_t)face * (size_t)size * (size_t)size;
-    bool clamp = sm->kind == NC_SHADOW_CUBE;
+    f.map = map;
     /* Most receivers are wholly lit or wholly shadowed: decide from the window's depth range
      * against the widest receiver deviation before doing per-tap plane intersections. */
     if (i0 >= 0 && j0 >= 0 && i1 < size && j1 < size) {
@@ -411,63 +454,15 @@ float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_
                 }
             }
         }
-        float reach = max_dev * (rad + 1.0f) * 1.4142136f;
+        float reach = f.max_dev * (rad + 1.0f) * 1.4142136f;
         if (!(smin < 1.0f) || linear_depth(v, smin) >= d + reach - bias_world)
             return 1.0f;
         if (smax < 1.0f && linear_depth(v, smax) < d - reach - bias_world)
             return 0.0f;
 #ifdef __SSE2__
         if (i1 - i0 == 3)
-            return pcf_interior4(map, size, ortho, u, vv, rad, i0, j0, j1, d, pv, nv, inv_nz, plane_d, inv_size,
-                                 inv_m00, inv_m11, m03, m13, m22, m23, inv_m22, max_dev, bias_world);
+            return pcf_window4(&f, i0, j0, j1);
 #endif
-        return pcf_interior(map, size, ortho, u, vv, rad, i0, i1, j0, j1, d, pv, nv, inv_nz, plane_d, inv_size,
-                            inv_m00, inv_m11, m03, m13, m22, m23, inv_m22, max_dev, bias_world);
     }
-    float lit = 0.0f, total = 0.0f;
-    for (int j = j0; j <= j1; j++) {
-        float oy = fmin_fast((float)j + 1.0f, vv + rad) - fmax_fast((float)j, vv - rad);
-        if (oy <= 0.0f)
-            continue;
-        for (int i = i0; i <= i1; i++) {
-            float ox = fmin_fast((float)i + 1.0f, u + rad) - fmax_fast((float)i, u - rad);
-            if (ox <= 0.0f)
-                continue;
-            float wgt = ox * oy;
-            total += wgt;
-            int ti = i, tj = j;
-            if (clamp) {
-                ti = ti < 0 ? 0 : (ti >= size ? size - 1 : ti);
-                tj = tj < 0 ? 0 : (tj >= size ? size - 1 : tj);
-            } else if (ti < 0 || tj < 0 || ti >= size || tj >= size) {
-                lit += wgt; /* beyond the map: nothing recorded, lit */
-                continue;
-            }
-            float stored = map[(size_t)tj * (size_t)size + (size_t)ti];
-            if (!(stored < 1.0f)) {
-                lit += wgt;
-                continue;
-            }
-            float tx = ((float)i + 0.5f) * inv_size - 1.0f,
-                  ty = 1.0f - ((float)j + 0.5f) * inv_size;
-            float recv;
-            if (ortho) {
-                float xv = (tx - m03) * inv_m00, yv = (ty - m13) * inv_m11;
-                recv = d + (nv.x * (xv - pv.x) + nv.y * (yv - pv.y)) * inv_nz;
-            } else {
-                nc_vec3 rd = nc_v3(tx * inv_m00, ty * inv_m11, -1.0f);
-                recv = plane_d / nc_dot(nv, rd);
-            }
-            float du = (float)i + 0.5f - u, dv = (float)j + 0.5f - vv;
-            float lim = max_dev * sqrtf(du * du + dv * dv);
-            if (!(recv >= d - lim))
-                recv = recv > d ? d + lim : d - lim; /* also NaN, behind the light, parallel */
-            else if (recv > d + lim)
-                recv = d + lim;
-            float occluder = ortho ? (m23 - stored) * inv_m22 : m23 / (stored + m22);
-            if (occluder >= recv - bias_world)
-                lit += wgt;
-        }
-    }
-    return total > 0.0f ? lit / total : 1.0f;
+    return pcf_window(&f, i0, i1, j0, j1);
 }
