@@ -182,6 +182,8 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
     const float h = o->h, delta = NC_DIFF_SAMPLE_DEPTH * h, A = o->robin_a, inv_1mfdr = 1.0f / (1.0f - o->fdr);
     const bool face = mode == NACRE_SOURCE_FACE;
     float *pk = o->packed;
+    const float *phi[3] = {o->phi[0], o->phi[1], o->phi[2]};
+    float *E[3] = {o->exitance[0], o->exitance[1], o->exitance[2]};
 #pragma omp parallel for schedule(static) num_threads(threads) if (padded > 65536)
     for (size_t z = 0; z < pz; z++)
         for (size_t y = 0; y < py; y++) {
@@ -191,31 +193,35 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
                 continue;
             }
             const size_t u = nx * ((y - 1) + ny * (z - 1));
+            /* k phi with k = D / (delta + 2 A D): nc_diff_exitance with the distance 2 delta.
+             * Outside the domain phi and D are 0 (the solver's contract), so e is 0 there
+             * without a test and the loop vectorizes. */
+            for (int c = 0; c < 3; c++) {
+                const float *restrict pc = phi[c] + u, *restrict dc = D[c] + u;
+                float *restrict ec = E[c] + u;
+                for (size_t x = 0; x < nx; x++) {
+                    float e = nc_diff_exitance(pc[x], dc[x], A, 2.0f * delta);
+                    ec[x] = e > 0.0f ? e : 0.0f;
+                }
+                /* FACE: the lit faces' own term replaces q in place (once per solve), read at
+                 * the surface (see the file). Its k uses the face distance h / 2: q is a face
+                 * quantity. */
+                float *q = face ? o->q[c] : NULL;
+                if (q)
+                    for (size_t x = 0; x < nx; x++)
+                        if (solid[u + x] && q[u + x] != 0.0f) {
+                            float kf = 2.0f * dc[x] / (h + 4.0f * A * dc[x]);
+                            q[u + x] *= 1.0f - 4.0f * kf * inv_1mfdr;
+                        }
+            }
             memset(row, 0, 4 * sizeof(float));
             memset(row + 4 * (px - 1), 0, 4 * sizeof(float));
             for (size_t x = 0; x < nx; x++) {
-                const size_t i = u + x;
                 float *v = row + 4 * (x + 1);
-                v[3] = solid[i] ? 1.0f : 0.0f;
-                for (int c = 0; c < 3; c++) {
-                    float e = 0.0f;
-                    if (solid[i]) {
-                        /* k phi with k = D / (delta + 2 A D): nc_diff_exitance with the distance
-                         * 2 delta */
-                        e = nc_diff_exitance(o->phi[c][i], D[c][i], A, 2.0f * delta);
-                        e = e > 0.0f ? e : 0.0f;
-                        /* FACE: the lit faces' own term replaces q in place (once per solve), read
-                         * at the surface (see the file). Its k uses the face distance h / 2: q is
-                         * a face quantity. */
-                        float *q = o->q[c];
-                        if (face && q && q[i] != 0.0f) {
-                            float kf = 2.0f * D[c][i] / (h + 4.0f * A * D[c][i]);
-                            q[i] *= 1.0f - 4.0f * kf * inv_1mfdr;
-                        }
-                    }
-                    o->exitance[c][i] = e;
-                    v[c] = e;
-                }
+                v[0] = E[0][u + x];
+                v[1] = E[1][u + x];
+                v[2] = E[2][u + x];
+                v[3] = solid[u + x] ? 1.0f : 0.0f;
             }
         }
     return NACRE_OK;
