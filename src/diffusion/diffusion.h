@@ -52,6 +52,8 @@ typedef struct nc_diff_solve_opts {
     uint32_t seed_iterations;    /* SEED: Jacobi sweeps at the finest level (0: seed table 5.6) */
     bool seed_single_grid;       /* SEED: no cascade, sweeps on the finest grid only (table 4.3) */
     bool warm_start;             /* phi holds the previous solution on entry */
+    bool no_local_relax;         /* warm start: skip the relaxation of the residual's hot spots
+                                    (solver.c, hot_relax), for comparisons */
 } nc_diff_solve_opts;
 
 typedef struct nc_diff_solve_report {
