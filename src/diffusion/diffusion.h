@@ -54,6 +54,8 @@ typedef struct nc_diff_solve_opts {
     bool warm_start;             /* phi holds the previous solution on entry */
     bool no_local_relax;         /* warm start: skip the relaxation of the residual's hot spots
                                     (solver.c, hot_relax), for comparisons */
+    bool no_energy;              /* skip the energy sums of the report (they stay 0): a pass over
+                                    the domain that a renderer has no use for */
 } nc_diff_solve_opts;
 
 typedef struct nc_diff_solve_report {

@@ -42,8 +42,12 @@ static void free_arrays(nc_diff_object *o)
     nc_free(ctx, o->eval_s);
     nc_free(ctx, o->packed);
     nc_free(ctx, o->acc);
+    nc_free(ctx, o->row_live);
     o->packed = NULL;
     o->packed_capacity = 0;
+    o->row_live = NULL;
+    o->row_live_capacity = 0;
+    o->exit_valid = false;
     o->acc = NULL;
     o->solid = NULL;
     o->rest = o->eval_a = o->eval_s = NULL;
@@ -284,6 +288,7 @@ static nacre_result object_solve(nc_diff_object *o, const nacre_render_settings 
     opts.tolerance = settings->tolerance;
     opts.seed_iterations = settings->seed_iterations;
     opts.warm_start = warm;
+    opts.no_energy = true;
     o->iterations = 0;
     o->residual = 0.0;
     /* No clearing of phi: the solver reads it at the current domain's cells only, and only for a

@@ -65,6 +65,13 @@ typedef struct nc_diff_object {
                                       * (nx + 2) (ny + 2) (nz + 2) cells, so that every point within
                                       * half a cell of the grid interpolates without bounds tests */
     size_t packed_capacity;          /* padded cells allocated in packed */
+    /* Rows (y, z) of the grid that held a solid cell at the last exitance pass (row_live, ny nz
+     * bytes) for the grid exit_dims, when exit_valid: rows empty then and now hold zeros in
+     * exitance and packed already and are skipped. */
+    uint8_t *row_live;
+    size_t row_live_capacity;
+    uint32_t exit_dims[3];
+    bool exit_valid;
     bool phi_valid;
     uint32_t phi_dims[3];
     bool lit;                        /* exitance holds this frame's result */

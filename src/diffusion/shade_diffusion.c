@@ -173,11 +173,26 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
     if (padded > o->packed_capacity) {
         nc_free(o->ctx, o->packed);
         o->packed_capacity = 0;
+        o->exit_valid = false;
         o->packed = nc_alloc(o->ctx, bytes);
         if (!o->packed)
             return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the exitance grid");
         o->packed_capacity = padded;
     }
+    if (ny * nz > o->row_live_capacity) {
+        nc_free(o->ctx, o->row_live);
+        o->row_live_capacity = 0;
+        o->exit_valid = false;
+        o->row_live = nc_alloc(o->ctx, ny * nz);
+        if (!o->row_live)
+            return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the exitance grid");
+        o->row_live_capacity = ny * nz;
+    }
+    if (memcmp(o->exit_dims, o->dims, sizeof(o->dims)) != 0)
+        o->exit_valid = false;
+    /* Without a valid record every row is written (and the padding with it) */
+    const bool known = o->exit_valid;
+    uint8_t *live = o->row_live;
     const uint8_t *solid = o->solid;
     const float h = o->h, delta = NC_DIFF_SAMPLE_DEPTH * h, A = o->robin_a, inv_1mfdr = 1.0f / (1.0f - o->fdr);
     const bool face = mode == NACRE_SOURCE_FACE;
@@ -189,10 +204,16 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
         for (size_t y = 0; y < py; y++) {
             float *row = pk + 4 * px * (y + py * z);
             if (z == 0 || y == 0 || z == pz - 1 || y == py - 1) {
-                memset(row, 0, 4 * px * sizeof(float));
+                if (!known)
+                    memset(row, 0, 4 * px * sizeof(float));
                 continue;
             }
             const size_t u = nx * ((y - 1) + ny * (z - 1));
+            const bool any = memchr(solid + u, 1, nx) != NULL;
+            uint8_t *was = &live[(y - 1) + ny * (z - 1)];
+            if (known && !any && !*was)
+                continue;
+            *was = any;
             /* k phi with k = D / (delta + 2 A D): nc_diff_exitance with the distance 2 delta.
              * Outside the domain phi and D are 0 (the solver's contract), so e is 0 there
              * without a test and the loop vectorizes. */
@@ -224,6 +245,8 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
                 v[3] = solid[u + x] ? 1.0f : 0.0f;
             }
         }
+    memcpy(o->exit_dims, o->dims, sizeof(o->dims));
+    o->exit_valid = true;
     return NACRE_OK;
 }
 

@@ -1688,31 +1688,33 @@ nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], 
             warm_fill(l, x, b, threads);
         solve_pcg(s, b, x, opts, rep);
     }
-    /* Energy from the final phi: injected = absorbed + escaped at convergence. Per-slab sums
-     * added in slab order (independent of the thread count). */
-    v4d *part = s->part, *pabs = s->part + (cz + 2), *pesc = s->part + 2 * ((size_t)cz + 2);
+    if (!opts->no_energy) {
+        /* Energy from the final phi: injected = absorbed + escaped at convergence. Per-slab sums
+         * added in slab order (independent of the thread count). */
+        v4d *part = s->part, *pabs = s->part + (cz + 2), *pesc = s->part + 2 * ((size_t)cz + 2);
 #pragma omp parallel for num_threads(threads) schedule(static, 1) if (l->cells > 32768)
-    FOR_SLABS(l, z) {
-        v4d si = {0, 0, 0, 0}, sa = {0, 0, 0, 0}, se = {0, 0, 0, 0};
-        for (uint32_t y = 1; y <= cy; y++) {
-            size_t a, e;
-            row_span(l, y, z, &a, &e);
-            for (size_t i = a; i < e; i++) {
-                v4d xi = widen(x[i]);
-                si += widen(b[i]);
-                sa += widen(s->absorb[i]) * xi;
-                se += widen(s->bnd[i]) * xi;
+        FOR_SLABS(l, z) {
+            v4d si = {0, 0, 0, 0}, sa = {0, 0, 0, 0}, se = {0, 0, 0, 0};
+            for (uint32_t y = 1; y <= cy; y++) {
+                size_t a, e;
+                row_span(l, y, z, &a, &e);
+                for (size_t i = a; i < e; i++) {
+                    v4d xi = widen(x[i]);
+                    si += widen(b[i]);
+                    sa += widen(s->absorb[i]) * xi;
+                    se += widen(s->bnd[i]) * xi;
+                }
             }
+            part[z] = si;
+            pabs[z] = sa;
+            pesc[z] = se;
         }
-        part[z] = si;
-        pabs[z] = sa;
-        pesc[z] = se;
-    }
-    v4d inj = sum_slabs(part, cz), abs_ = sum_slabs(pabs, cz), esc = sum_slabs(pesc, cz);
-    for (int c = 0; c < 3; c++) {
-        rep[c].injected = inj[c];
-        rep[c].absorbed = abs_[c];
-        rep[c].escaped = esc[c];
+        v4d inj = sum_slabs(part, cz), abs_ = sum_slabs(pabs, cz), esc = sum_slabs(pesc, cz);
+        for (int c = 0; c < 3; c++) {
+            rep[c].injected = inj[c];
+            rep[c].absorbed = abs_[c];
+            rep[c].escaped = esc[c];
+        }
     }
     /* Out to the caller's grid, 0 outside the domain (the bounding box included): each cell
      * written once, in parallel (a serial clear of the whole grid first cost as much as a
