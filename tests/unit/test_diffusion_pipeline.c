@@ -643,6 +643,46 @@ static void test_occluder(void)
     CHECK(mean[1] < 0.02 * mean[0]);
 }
 
+/* A renderer that keeps its state across frames (warm start, reused exitance grids) must show
+ * a deformed object as a fresh renderer does: squashing the sphere empties grid rows that
+ * held the medium, and nothing of the old frame may stay in them. */
+static void test_deformed_matches_fresh(void)
+{
+    if (!nacre_method_available(NACRE_METHOD_DIFFUSION))
+        return;
+    fixture f;
+    nacre_light light;
+    sphere_scene(&f, NACRE_LIGHT_DIRECTIONAL, &light);
+    nacre_renderer *kept = NULL, *fresh = NULL;
+    CHECK(nacre_renderer_create(f.ctx, &kept) == NACRE_OK);
+    CHECK(nacre_renderer_create(f.ctx, &fresh) == NACRE_OK);
+    nacre_render_settings rs = diffusion_settings(24, 48);
+    nacre_image a = {0}, b = {0};
+    CHECK(nacre_renderer_render(kept, f.scene, &rs, &a, NULL) == NACRE_OK);
+    nacre_object obj = {1};
+    nacre_object_desc od = f.scene->objects[0].desc;
+    od.transform.scale[1] = 0.6f;
+    CHECK(nacre_scene_set_object(f.scene, obj, &od) == NACRE_OK);
+    CHECK(nacre_scene_commit(f.scene, 0.0) == NACRE_OK);
+    CHECK(nacre_renderer_render(kept, f.scene, &rs, &a, NULL) == NACRE_OK);
+    CHECK(nacre_renderer_render(fresh, f.scene, &rs, &b, NULL) == NACRE_OK);
+    double peak = 0.0, diff = 0.0;
+    for (int32_t y = 0; y < b.height; y++)
+        for (int32_t x = 0; x < b.width * b.channels; x++) {
+            double va = a.pixels[(size_t)y * a.stride + (size_t)x], vb = b.pixels[(size_t)y * b.stride + (size_t)x];
+            peak = fmax(peak, fabs(vb));
+            diff = fmax(diff, fabs(va - vb));
+        }
+    printf("squashed sphere, kept renderer vs fresh: max difference %.2e of peak %.3g\n", diff, peak);
+    CHECK(peak > 0.0);
+    CHECK(diff <= 1e-3 * peak);
+    nacre_image_free(f.ctx, &a);
+    nacre_image_free(f.ctx, &b);
+    nacre_renderer_destroy(kept);
+    nacre_renderer_destroy(fresh);
+    fx_free(&f);
+}
+
 static void test_warm_start_and_cache(void)
 {
     if (!nacre_method_available(NACRE_METHOD_DIFFUSION))
@@ -776,6 +816,7 @@ int main(void)
     test_demo_convergence();
     test_occluder();
     test_warm_start_and_cache();
+    test_deformed_matches_fresh();
     test_thread_independence();
     test_bad_settings();
     return TEST_MAIN_END();
