@@ -109,7 +109,7 @@ struct nc_diff_solver {
     size_t capacity[MAX_LEVELS]; /* padded cells allocated per level */
     /* level 0 extras */
     v4 *bnd;     /* boundary conductance sum per cell (escape) */
-    v4 *absorb;  /* sigma_a h^3 per cell */
+    v4 *absorb;  /* sigma_a h^3 per cell (not written on the homogeneous fast path: aconst) */
     v4 *pr, *pz, *pp, *pq, *px; /* conjugate-gradient vectors */
     v4 *pp2;     /* the other buffer of the direction p (apply_dot_dir) */
     /* Row spans per level (level.ext points into span), the previous setup's spans, and
@@ -130,6 +130,7 @@ struct nc_diff_solver {
     bool d_valid;
     uint32_t d_dims[3], d_off[3], d_n[3];
     bool homogeneous; /* level 0 uses the fast path */
+    v4 aconst;        /* the fast path's absorption sigma_a h^3 (absorb is not written then) */
     float coarse_scale; /* the conductance scale the coarse levels were built with */
     /* The coarsest level (at most 2 cells per axis) solved exactly: the inverse of its operator
      * per channel over its solid cells (padded indices cidx), or coarse_direct false (a pivot
@@ -425,19 +426,39 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
     for (int c = 0; c < 3; c++)
         homogeneous &= !m->sigma_a[c] && !m->sigma_sp[c];
     memset(l->solid, 0, l->cells);
-    /* d is read at solid cells only (pass 1 writes those); absorb and bnd are read at interior
-     * cells only, which passes 1 and 3 write (no clearing pass over them) */
+    /* d is read at solid cells only (pass 1 writes those, except on the fast path, which reads
+     * neither d nor absorb); absorb and bnd are read at interior cells only, which passes 1 and
+     * 3 write (no clearing pass over them) */
     v4 dconst = V4_ZERO, aconst = V4_ZERO;
     for (int c = 0; c < 3; c++) {
         float sa = m->sigma_a_const[c], sp = m->sigma_sp_const[c];
         dconst[c] = sa + sp > 0 ? 1.0f / (3.0f * (sa + sp)) : 0.0f;
         aconst[c] = sa * h * h * h;
     }
-    /* Pass 1: domain, D and absorption per cell. */
+    /* The homogeneous fast path (below) needs neither the conductances nor the diagonal of
+     * this level, nor D and the absorption per cell: every coefficient follows from k and bw and
+     * the constants, and build_coarse forms level 1 from those too. A channel with D = 0
+     * (sigma_t' = 0: no medium) would make it divide by 0; the general path gives such cells a
+     * unit diagonal (finish_level). */
+    const bool fast = homogeneous && dconst[0] > 0 && dconst[1] > 0 && dconst[2] > 0;
+    s->aconst = aconst;
+    /* Pass 1: domain, D and absorption per cell (the fast path: domain and the caller's D). */
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
     for (uint32_t z = 0; z < nz; z++)
         for (uint32_t y = 0; y < cy; y++) {
             size_t u0 = (size_t)off[0] + (size_t)nx * ((y + off[1]) + (size_t)ny * (z + off[2])), i0 = pidx(l, 0, y, z);
+            if (fast) {
+                const uint8_t *ms = m->solid + u0;
+                uint8_t *ls = l->solid + i0;
+                for (uint32_t x = 0; x < cx; x++)
+                    ls[x] = ms[x] != 0;
+                for (int c = 0; c < 3; c++) {
+                    float *du = s->d_user[c] + u0, dc = dconst[c];
+                    for (uint32_t x = 0; x < cx; x++)
+                        du[x] = ms[x] ? dc : 0.0f;
+                }
+                continue;
+            }
             for (uint32_t x = 0; x < cx; x++) {
                 size_t u = u0 + x, i = i0 + x;
                 bool in = m->solid[u] != 0;
@@ -467,11 +488,6 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
      * cell to itself: no flux and no boundary there. */
     int open_axes[3] = {!m->periodic[0], !m->periodic[1], !m->periodic[2]};
     const size_t st[3] = {1, sy, sz};
-    /* The homogeneous fast path (below) needs neither the conductances nor the diagonal of
-     * this level: every coefficient follows from k and bw, and build_coarse forms level 1 from
-     * those too. A channel with D = 0 (sigma_t' = 0: no medium) would make it divide by 0; the
-     * general path gives such cells a unit diagonal (finish_level). */
-    const bool fast = homogeneous && dconst[0] > 0 && dconst[1] > 0 && dconst[2] > 0;
     /* The rest visits the active spans only (a tenth to a half of the bounding box), except the
      * general path's conductances, which are read across span ends. Outside the spans bw and k
      * stay 0 (k is read at active cells only; bw is summed by nc_diff_boundary_area). */
@@ -560,7 +576,7 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
                     continue;
                 }
                 float w = l->bw[i];
-                v4 dv = d[i], bv = V4_ZERO;
+                v4 dv = fast ? dconst : d[i], bv = V4_ZERO;
                 if (w > 0)
                     for (int c = 0; c < 3; c++)
                         bv[c] = w * h * h * 2.0f * dv[c] / (h + 4.0f * A * dv[c]);
@@ -626,19 +642,31 @@ static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
 {
     level *f = &s->lv[li - 1], *l = &s->lv[li];
     /* A homogeneous fine level stores neither conductances nor diagonal (build_fine): its
-     * conductance is G between solid cells, its boundary + absorption in bnd and absorb. */
+     * conductance is G between solid cells, its boundary in bnd, its absorption aconst. */
     const bool hom = f->homogeneous_level;
     const v4 G = f->kg[0];
-    memset(l->solid, 0, l->cells);
-    memset(l->diag, 0, l->cells * sizeof(v4));
-    for (int a = 0; a < 3; a++)
-        memset(l->g[a], 0, l->cells * sizeof(v4));
+    /* Cleared plane by plane: the padding planes here, each interior plane by the iteration that
+     * fills it (its cells are written by that iteration only). */
+    const size_t plane = l->sz, last = (size_t)(l->n[2] + 1) * plane;
+    memset(l->solid, 0, plane);
+    memset(l->solid + last, 0, plane);
+    memset(l->diag, 0, plane * sizeof(v4));
+    memset(l->diag + last, 0, plane * sizeof(v4));
+    for (int a = 0; a < 3; a++) {
+        memset(l->g[a], 0, plane * sizeof(v4));
+        memset(l->g[a] + last, 0, plane * sizeof(v4));
+    }
     const size_t fst[3] = {1, f->sy, f->sz};
     float g_scale[3];
     for (int a = 0; a < 3; a++)
         g_scale[a] = l->r[a] == 2 ? scale : 1.0f;
 #pragma omp parallel for num_threads(threads) schedule(static) if (f->cells > 32768)
-    for (uint32_t Z = 0; Z < l->n[2]; Z++)
+    for (uint32_t Z = 0; Z < l->n[2]; Z++) {
+        const size_t p0 = (size_t)(Z + 1) * plane;
+        memset(l->solid + p0, 0, plane);
+        memset(l->diag + p0, 0, plane * sizeof(v4));
+        for (int a = 0; a < 3; a++)
+            memset(l->g[a] + p0, 0, plane * sizeof(v4));
         for (uint32_t z = Z * l->r[2]; z < (Z + 1) * l->r[2] && z < f->n[2]; z++)
             for (uint32_t y = 0; y < f->n[1]; y++) {
                 /* the fine level's spans hold all its solid cells (padded x = interior x + 1) */
@@ -654,7 +682,7 @@ static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
                     /* diag minus the six conductances = boundary + absorption of the fine cell */
                     v4 nonc;
                     if (hom) {
-                        nonc = s->bnd[i] + s->absorb[i];
+                        nonc = s->bnd[i] + s->aconst;
                     } else {
                         nonc = f->diag[i];
                         for (int a = 0; a < 3; a++)
@@ -668,6 +696,7 @@ static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
                             l->g[a][I] += (hom ? (f->solid[i + fst[a]] ? G : V4_ZERO) : f->g[a][i]) * g_scale[a];
                 }
             }
+    }
     finish_level(l, threads);
 }
 
@@ -1701,7 +1730,7 @@ nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], 
                 for (size_t i = a; i < e; i++) {
                     v4d xi = widen(x[i]);
                     si += widen(b[i]);
-                    sa += widen(s->absorb[i]) * xi;
+                    sa += widen(s->homogeneous ? s->aconst : s->absorb[i]) * xi;
                     se += widen(s->bnd[i]) * xi;
                 }
             }
