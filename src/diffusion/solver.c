@@ -1526,7 +1526,9 @@ static void solve_pcg(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solve
      * from the exact residual whenever the recursively updated one (float) claims a convergence
      * that the exact one does not confirm. */
     for (int restart = 0; restart < 8 && it < max_it; restart++) {
-        if (!exact)
+        /* the first pass starts from the residual above, the float one when far from the
+         * tolerance */
+        if (!exact && restart > 0)
             rr = residual_exact(l, x, b, r, NULL, true, part, threads);
         exact = true;
         bool active[3], any = false;
