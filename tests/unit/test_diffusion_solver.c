@@ -487,43 +487,79 @@ static void ball(uint32_t n, const double c[3], double r, uint8_t *solid, float 
             }
 }
 
+/* The warm-start tests' case: a 32^3 grid holding a ball lit from above (ball), the solver set
+ * up for it and its solution to 1e-4 in `first`; `warm` and `cold` are zeroed work arrays. */
+typedef struct warm_case {
+    uint32_t n;
+    size_t cells;
+    uint8_t *solid;
+    float *src, *first, *warm, *cold;
+    nc_diff_medium m;
+    nc_diff_solver *s;
+    nc_diff_solve_opts o;
+} warm_case;
+
+static void warm_case_init(nacre_context *ctx, warm_case *w)
+{
+    const uint32_t n = 32;
+    w->n = n;
+    w->cells = (size_t)n * n * n;
+    w->solid = malloc(w->cells);
+    w->src = malloc(w->cells * sizeof(float));
+    w->first = calloc(w->cells, sizeof(float));
+    w->warm = calloc(w->cells, sizeof(float));
+    w->cold = calloc(w->cells, sizeof(float));
+    w->m = (nc_diff_medium){.dims = {n, n, n}, .h = 0.5f, .solid = w->solid, .eta = 1.3f,
+                            .sigma_a_const = {0.002f, 0.004f, 0.008f}, .sigma_sp_const = {2.0f, 2.5f, 3.0f}};
+    w->s = NULL;
+    CHECK(nc_diff_solver_create(ctx, &w->s) == NACRE_OK);
+    w->o = (nc_diff_solve_opts){.solver = NACRE_SOLVER_MULTIGRID, .tolerance = 1e-4f};
+    nc_diff_solve_report rep;
+    double c0[3] = {15.6, 16.0, 16.2};
+    ball(n, c0, 13.3, w->solid, w->src);
+    CHECK(nc_diff_setup(w->s, &w->m) == NACRE_OK);
+    CHECK(nc_diff_solve(w->s, 0, w->src, w->first, &w->o, &rep) == NACRE_OK);
+}
+
+static void warm_case_free(warm_case *w)
+{
+    nc_diff_solver_destroy(w->s);
+    free(w->solid);
+    free(w->src);
+    free(w->first);
+    free(w->warm);
+    free(w->cold);
+}
+
 /* Warm start on a domain that moved, as a rotating object's is from frame to frame: the cells
  * that entered come with 0 and those that left keep their old values. The solve converges to
  * the cold solve's answer, in fewer iterations than cold (issue 4). */
 static void test_moving_domain_warm(nacre_context *ctx)
 {
-    const uint32_t n = 32;
-    size_t cells = (size_t)n * n * n;
-    uint8_t *solid = malloc(cells);
-    float *src = malloc(cells * sizeof(float)), *warm = calloc(cells, sizeof(float)),
-          *cold = calloc(cells, sizeof(float));
-    nc_diff_medium m = {.dims = {n, n, n}, .h = 0.5f, .solid = solid, .eta = 1.3f,
-                        .sigma_a_const = {0.002f, 0.004f, 0.008f}, .sigma_sp_const = {2.0f, 2.5f, 3.0f}};
-    nc_diff_solver *s = NULL;
-    CHECK(nc_diff_solver_create(ctx, &s) == NACRE_OK);
-    nc_diff_solve_opts o = {.solver = NACRE_SOLVER_MULTIGRID, .tolerance = 1e-4f};
+    warm_case w;
+    warm_case_init(ctx, &w);
+    const size_t cells = w.cells;
+    float *warm = w.first, *cold = w.cold;
+    nc_diff_solve_opts o = w.o;
     nc_diff_solve_report rep;
-    double c0[3] = {15.6, 16.0, 16.2}, c1[3] = {16.1, 15.8, 16.4};
-    ball(n, c0, 13.3, solid, src);
-    CHECK(nc_diff_setup(s, &m) == NACRE_OK);
-    CHECK(nc_diff_solve(s, 0, src, warm, &o, &rep) == NACRE_OK);
-    ball(n, c1, 13.3, solid, src);
+    double c1[3] = {16.1, 15.8, 16.4};
+    ball(w.n, c1, 13.3, w.solid, w.src);
     size_t entered = 0;
     /* The cells that left keep their old values, as in the renderer: the solver reads phi at the
      * new domain's cells only, and must write 0 outside it (checked below). */
     for (size_t i = 0; i < cells; i++)
-        entered += solid[i] && warm[i] == 0.0f;
-    CHECK(nc_diff_setup(s, &m) == NACRE_OK);
-    CHECK(nc_diff_solve(s, 0, src, cold, &o, &rep) == NACRE_OK);
+        entered += w.solid[i] && warm[i] == 0.0f;
+    CHECK(nc_diff_setup(w.s, &w.m) == NACRE_OK);
+    CHECK(nc_diff_solve(w.s, 0, w.src, cold, &o, &rep) == NACRE_OK);
     uint32_t it_cold = rep.iterations;
     o.warm_start = true;
-    CHECK(nc_diff_solve(s, 0, src, warm, &o, &rep) == NACRE_OK);
+    CHECK(nc_diff_solve(w.s, 0, w.src, warm, &o, &rep) == NACRE_OK);
     CHECK(rep.residual <= 1e-4);
     double maxv = 0.0, maxd = 0.0;
     for (size_t i = 0; i < cells; i++) {
         maxv = fmax(maxv, fabs(cold[i]));
         maxd = fmax(maxd, fabs(cold[i] - warm[i]));
-        if (!solid[i] && warm[i] != 0.0f) {
+        if (!w.solid[i] && warm[i] != 0.0f) {
             CHECK(!"phi outside the domain");
             break;
         }
@@ -535,11 +571,7 @@ static void test_moving_domain_warm(nacre_context *ctx)
     /* the entered cells are filled from their neighbours before the solve: without it, 6 of 7 */
     CHECK(rep.iterations + 2 <= it_cold);
     CHECK(maxd <= 2e-3 * maxv);
-    nc_diff_solver_destroy(s);
-    free(solid);
-    free(src);
-    free(warm);
-    free(cold);
+    warm_case_free(&w);
 }
 
 /* Warm start after the source changed in a few boundary cells (what a new voxelization of a
@@ -548,21 +580,15 @@ static void test_moving_domain_warm(nacre_context *ctx)
  * number of iterations than the plain warm start, and both must reach the cold answer. */
 static void test_local_change_warm(nacre_context *ctx)
 {
-    const uint32_t n = 32;
-    size_t cells = (size_t)n * n * n;
-    uint8_t *solid = malloc(cells);
-    float *src = malloc(cells * sizeof(float)), *prev = calloc(cells, sizeof(float)),
-          *warm = malloc(cells * sizeof(float)), *cold = calloc(cells, sizeof(float));
-    nc_diff_medium m = {.dims = {n, n, n}, .h = 0.5f, .solid = solid, .eta = 1.3f,
-                        .sigma_a_const = {0.002f, 0.004f, 0.008f}, .sigma_sp_const = {2.0f, 2.5f, 3.0f}};
-    nc_diff_solver *s = NULL;
-    CHECK(nc_diff_solver_create(ctx, &s) == NACRE_OK);
-    nc_diff_solve_opts o = {.solver = NACRE_SOLVER_MULTIGRID, .tolerance = 1e-4f};
+    warm_case w;
+    warm_case_init(ctx, &w);
+    const uint32_t n = w.n;
+    const size_t cells = w.cells;
+    const uint8_t *solid = w.solid;
+    float *src = w.src, *prev = w.first, *warm = w.warm, *cold = w.cold;
+    nc_diff_solver *s = w.s;
+    nc_diff_solve_opts o = w.o;
     nc_diff_solve_report rep;
-    double c0[3] = {15.6, 16.0, 16.2};
-    ball(n, c0, 13.3, solid, src);
-    CHECK(nc_diff_setup(s, &m) == NACRE_OK);
-    CHECK(nc_diff_solve(s, 0, src, prev, &o, &rep) == NACRE_OK);
     /* every 100th lit cell with an empty neighbour above it gets 1.5 times its source */
     size_t changed = 0, lit = 0;
     for (size_t i = 0; i < cells; i++)
@@ -603,12 +629,7 @@ static void test_local_change_warm(nacre_context *ctx)
     CHECK(changed > 0);
     CHECK(res_after[1][0] < 0.7 * res_after[0][0] && res_after[1][1] < 0.7 * res_after[0][1]);
     CHECK(its[1] <= its[0]);
-    nc_diff_solver_destroy(s);
-    free(solid);
-    free(src);
-    free(prev);
-    free(warm);
-    free(cold);
+    warm_case_free(&w);
 }
 
 /* The same fluence, bit for bit, for any thread count: on a lopsided domain (most cells in the
