@@ -267,22 +267,76 @@ static inline bool pcf_tap_lit(const pcf_frame *f, float stored, float col_r, fl
     return occluder >= recv - f->bias_world;
 }
 
+#ifdef __SSE2__
+typedef float v4s __attribute__((vector_size(16)));
+typedef int32_t v4m __attribute__((vector_size(16)));
+
+static inline v4s sel4(v4m m, v4s a, v4s b) { return (v4s)(((v4m)a & m) | ((v4m)b & ~m)); }
+
+/* A row's four taps (columns i0 .. i0 + 3, inside the map) as one vector: pcf_tap_lit's
+ * operations per lane (so the same values) with its branches as selects. The clamp of the
+ * receiver depth is pcf_tap_lit's: a depth below d - lim (or NaN) becomes d - lim (lim >= 0),
+ * one above d + lim becomes d + lim. The sums still take the taps one at a time in the scalar
+ * order, adding 0 where the scalar loop skips a tap, which leaves them unchanged: the result is
+ * the scalar one to the last bit. The gain is in the comparisons, which no longer branch on the
+ * data (shadow edges mispredicted them). */
+static inline void pcf_row4(const pcf_frame *f, const float *row, v4s col_o, v4s col_r, v4s col_d2, float oy,
+                            float row_r, float dv2, float *lit, float *total)
+{
+    const v4s zero = {0.0f, 0.0f, 0.0f, 0.0f};
+    const float d = f->d;
+    v4s stored;
+    memcpy(&stored, row, sizeof(stored));
+    v4s wgt = col_o * oy;
+    v4s recv = f->ortho ? d + (col_r + row_r) * f->inv_nz : f->plane_d / (col_r + row_r + f->nv.z * -1.0f);
+    v4s lim = f->max_dev * (v4s)_mm_sqrt_ps((__m128)(col_d2 + dv2));
+    v4s lo = d - lim, hi = d + lim;
+    recv = sel4(recv >= lo, sel4(recv > hi, hi, recv), lo);
+    v4s occluder = f->ortho ? (f->m23 - stored) * f->inv_m22 : f->m23 / (stored + f->m22);
+    v4m is_lit = ~(stored < 1.0f) | (occluder >= recv - f->bias_world);
+    v4m col_in = col_o > 0.0f;
+    v4s add_total = sel4(col_in, wgt, zero);
+    v4s add_lit = sel4(col_in & is_lit, wgt, zero);
+    for (int k = 0; k < 4; k++) {
+        *total += add_total[k];
+        *lit += add_lit[k];
+    }
+}
+#endif
+
 /* The taps of the window [i0, i1] x [j0, j1], each weighted by its overlap with the box filter.
  * Texels beyond the map are lit (one map) or clamped to its edge (cube faces, whose margin
  * covers the kernel). The parts that depend only on the column or only on the row are computed
- * once per column and once per row. */
-static float pcf_window(const pcf_frame *f, int i0, int i1, int j0, int j1)
+ * once per column and once per row. `four`: the window is 4 columns wide and lies wholly
+ * inside the map (the usual pcf_radius 1.5), then done a row at a time; inlined at each call so
+ * that each variant is compiled on its own. */
+static inline __attribute__((always_inline)) float pcf_window(const pcf_frame *f, int i0, int i1, int j0, int j1,
+                                                              bool four)
 {
     enum { MAXW = 18 }; /* columns of a window of half-width <= 8 */
     float col_o[MAXW], col_r[MAXW], col_d2[MAXW];
     const int nw = i1 - i0 + 1, size = f->size;
     pcf_columns(f, i0, nw, col_o, col_r, col_d2);
+#ifndef __SSE2__
+    (void)four;
+#else
+    v4s vo, vr, vd;
+    memcpy(&vo, col_o, sizeof(vo));
+    memcpy(&vr, col_r, sizeof(vr));
+    memcpy(&vd, col_d2, sizeof(vd));
+#endif
     float lit = 0.0f, total = 0.0f;
     for (int j = j0; j <= j1; j++) {
         float row_r, dv2;
         float oy = pcf_row(f, j, &row_r, &dv2);
         if (oy <= 0.0f)
             continue;
+#ifdef __SSE2__
+        if (four) {
+            pcf_row4(f, f->map + (size_t)j * (size_t)size + (size_t)i0, vo, vr, vd, oy, row_r, dv2, &lit, &total);
+            continue;
+        }
+#endif
         for (int k = 0; k < nw; k++) {
             float ox = col_o[k];
             if (ox <= 0.0f)
@@ -303,56 +357,6 @@ static float pcf_window(const pcf_frame *f, int i0, int i1, int j0, int j1)
     }
     return total > 0.0f ? lit / total : 1.0f;
 }
-
-#ifdef __SSE2__
-typedef float v4s __attribute__((vector_size(16)));
-typedef int32_t v4m __attribute__((vector_size(16)));
-
-static inline v4s sel4(v4m m, v4s a, v4s b) { return (v4s)(((v4m)a & m) | ((v4m)b & ~m)); }
-
-/* pcf_window for the usual window of 4 columns (pcf_radius 1.5) wholly inside the map: a row's
- * four taps as one vector, with pcf_tap_lit's operations per lane (so the same values) and its
- * branches as selects. The clamp of the receiver depth is pcf_tap_lit's: a depth below d - lim
- * (or NaN) becomes d - lim (lim >= 0), one above d + lim becomes d + lim. The sums still take the
- * taps one at a time in pcf_window's order, adding 0 where it skips a tap, which leaves them
- * unchanged: the result is pcf_window's to the last bit. The gain is in the comparisons, which
- * no longer branch on the data (shadow edges mispredicted them). */
-static float pcf_window4(const pcf_frame *f, int i0, int j0, int j1)
-{
-    float co[4], cr[4], cd[4];
-    pcf_columns(f, i0, 4, co, cr, cd);
-    v4s col_o, col_r, col_d2;
-    memcpy(&col_o, co, sizeof(col_o));
-    memcpy(&col_r, cr, sizeof(col_r));
-    memcpy(&col_d2, cd, sizeof(col_d2));
-    const v4m col_in = col_o > 0.0f;
-    const v4s zero = {0.0f, 0.0f, 0.0f, 0.0f};
-    const float d = f->d;
-    float lit = 0.0f, total = 0.0f;
-    for (int j = j0; j <= j1; j++) {
-        float row_r, dv2;
-        float oy = pcf_row(f, j, &row_r, &dv2);
-        if (oy <= 0.0f)
-            continue;
-        v4s stored;
-        memcpy(&stored, f->map + (size_t)j * (size_t)f->size + (size_t)i0, sizeof(stored));
-        v4s wgt = col_o * oy;
-        v4s recv = f->ortho ? d + (col_r + row_r) * f->inv_nz : f->plane_d / (col_r + row_r + f->nv.z * -1.0f);
-        v4s lim = f->max_dev * (v4s)_mm_sqrt_ps((__m128)(col_d2 + dv2));
-        v4s lo = d - lim, hi = d + lim;
-        recv = sel4(recv >= lo, sel4(recv > hi, hi, recv), lo);
-        v4s occluder = f->ortho ? (f->m23 - stored) * f->inv_m22 : f->m23 / (stored + f->m22);
-        v4m is_lit = ~(stored < 1.0f) | (occluder >= recv - f->bias_world);
-        v4s add_total = sel4(col_in, wgt, zero);
-        v4s add_lit = sel4(col_in & is_lit, wgt, zero);
-        for (int k = 0; k < 4; k++) {
-            total += add_total[k];
-            lit += add_lit[k];
-        }
-    }
-    return total > 0.0f ? lit / total : 1.0f;
-}
-#endif
 
 float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_radius, float bias)
 {
@@ -459,10 +463,8 @@ float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_
             return 1.0f;
         if (smax < 1.0f && linear_depth(v, smax) < d - reach - bias_world)
             return 0.0f;
-#ifdef __SSE2__
         if (i1 - i0 == 3)
-            return pcf_window4(&f, i0, j0, j1);
-#endif
+            return pcf_window(&f, i0, i1, j0, j1, true);
     }
-    return pcf_window(&f, i0, i1, j0, j1);
+    return pcf_window(&f, i0, i1, j0, j1, false);
 }
