@@ -9,6 +9,7 @@
 #include "core/core.h"
 
 #include <math.h>
+#include <string.h>
 
 #define NC_IMAGE_MAX_SIDE 65536
 /* Files claiming more pixels than this are rejected before anything is allocated: 2^28 pixels
@@ -35,6 +36,31 @@ static inline float nc_srgb_to_linear(float v)
 static inline float nc_linear_to_srgb(float v)
 {
     return v <= 0.0031308f ? v * 12.92f : 1.055f * powf(v, 1.0f / 2.4f) - 0.055f;
+}
+
+/* 8-bit sRGB encoding of a linear value: nc_linear_to_srgb in (0, 1), clamped to [0, 1] and
+ * rounded to nearest (NaN gives 0). nc_srgb8_reference computes it with powf; the table gives
+ * the same byte for every float without one: t[k] is the smallest float that encodes to k or
+ * more (the encoding is monotonic), and start[b] the code of the smallest positive float whose
+ * top 16 bits are b, from which at most a few comparisons with t reach the code. */
+typedef struct nc_srgb8_table {
+    float t[256];
+    uint8_t start[0x3F80]; /* top 16 bits of the floats in (0, 1) */
+} nc_srgb8_table;
+
+uint8_t nc_srgb8_reference(float v);
+void nc_srgb8_table_build(nc_srgb8_table *tb);
+
+static inline uint8_t nc_srgb8_encode(const nc_srgb8_table *tb, float v)
+{
+    if (!(v > 0.0f && v < 1.0f))
+        return nc_srgb8_reference(v);
+    uint32_t bits;
+    memcpy(&bits, &v, sizeof(bits));
+    unsigned q = tb->start[bits >> 16];
+    while (q < 255 && tb->t[q + 1] <= v)
+        q++;
+    return (uint8_t)q;
 }
 
 /* A file being written under a temporary name next to its final path. */

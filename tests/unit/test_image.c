@@ -453,6 +453,45 @@ static void test_exr_foreign(nacre_context *ctx)
     expect_read_error(ctx, path, NACRE_ERROR_UNSUPPORTED);
 }
 
+/* The PNG writer's table-driven sRGB encoding gives the byte of the powf formula for every
+ * float: checked on a stride through all floats in (0, 1), around every code's threshold, and
+ * on the special values. */
+static void test_srgb8_table(void)
+{
+    nc_srgb8_table *tb = malloc(sizeof(*tb));
+    CHECK(tb != NULL);
+    if (!tb)
+        return;
+    nc_srgb8_table_build(tb);
+    uint64_t checked = 0, wrong = 0;
+    for (uint32_t bits = 1; bits < 0x3F800000u; bits += 997) {
+        float v;
+        memcpy(&v, &bits, sizeof(v));
+        wrong += nc_srgb8_encode(tb, v) != nc_srgb8_reference(v);
+        checked++;
+    }
+    for (int k = 1; k < 256; k++) {
+        uint32_t b0;
+        memcpy(&b0, &tb->t[k], sizeof(b0));
+        for (uint32_t bits = b0 > 2048 ? b0 - 2048 : 1; bits < b0 + 2048 && bits < 0x3F800000u; bits++) {
+            float v;
+            memcpy(&v, &bits, sizeof(v));
+            wrong += nc_srgb8_encode(tb, v) != nc_srgb8_reference(v);
+            checked++;
+        }
+    }
+    const float special[] = {0.0f, -0.0f, -1.0f, 1.0f, 2.0f, 1e-40f, 0.0031308f, 0.5f, 0.99999994f, INFINITY, -INFINITY, NAN};
+    for (size_t i = 0; i < sizeof(special) / sizeof(special[0]); i++) {
+        wrong += nc_srgb8_encode(tb, special[i]) != nc_srgb8_reference(special[i]);
+        checked++;
+    }
+    printf("sRGB 8-bit table: %llu floats checked, %llu differ from powf\n", (unsigned long long)checked,
+           (unsigned long long)wrong);
+    CHECK(wrong == 0);
+    CHECK(nc_srgb8_encode(tb, 0.5f) == 188 && nc_srgb8_encode(tb, 0.0031308f) == 10);
+    free(tb);
+}
+
 static void test_png_roundtrip(nacre_context *ctx)
 {
     char path[512];
@@ -993,6 +1032,7 @@ int main(void)
     test_exr_small_sizes(ctx);
     test_exr_channels(ctx);
     test_exr_foreign(ctx);
+    test_srgb8_table();
     test_png_roundtrip(ctx);
     test_png_exposure(ctx);
     test_png_alpha_and_grey(ctx);
