@@ -85,6 +85,7 @@ typedef struct level {
      * Results do not depend on the split (per-slab reductions, red-black sweeps). */
     int parts;
     uint32_t zb[MAX_PARTS + 1];
+    size_t active; /* cells in the active spans (level_spans) */
     v4 *g[3];      /* conductance to the +x, +y, +z neighbour (0 when either cell is outside) */
     v4 *diag;      /* diagonal (1 outside the domain) */
     v4 *x, *b, *res; /* multigrid cycle work */
@@ -641,6 +642,16 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
 
 /* Coarse level li from li - 1: Galerkin sums with conductances scaled by `scale` per coarsened
  * axis (COARSE_G_SCALE for multigrid, SEED_G_SCALE for the seed's cascade). Parallel over coarse z slabs, each gathering its own fine children. */
+/* Zero padded plane z of a coarse level's domain and operator (solid, diag, g). */
+static void clear_plane(const level *l, size_t z)
+{
+    const size_t plane = l->sz, p0 = z * plane;
+    memset(l->solid + p0, 0, plane);
+    memset(l->diag + p0, 0, plane * sizeof(v4));
+    for (int a = 0; a < 3; a++)
+        memset(l->g[a] + p0, 0, plane * sizeof(v4));
+}
+
 static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
 {
     level *f = &s->lv[li - 1], *l = &s->lv[li];
@@ -650,26 +661,15 @@ static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
     const v4 G = f->kg[0];
     /* Cleared plane by plane: the padding planes here, each interior plane by the iteration that
      * fills it (its cells are written by that iteration only). */
-    const size_t plane = l->sz, last = (size_t)(l->n[2] + 1) * plane;
-    memset(l->solid, 0, plane);
-    memset(l->solid + last, 0, plane);
-    memset(l->diag, 0, plane * sizeof(v4));
-    memset(l->diag + last, 0, plane * sizeof(v4));
-    for (int a = 0; a < 3; a++) {
-        memset(l->g[a], 0, plane * sizeof(v4));
-        memset(l->g[a] + last, 0, plane * sizeof(v4));
-    }
+    clear_plane(l, 0);
+    clear_plane(l, l->n[2] + 1);
     const size_t fst[3] = {1, f->sy, f->sz};
     float g_scale[3];
     for (int a = 0; a < 3; a++)
         g_scale[a] = l->r[a] == 2 ? scale : 1.0f;
 #pragma omp parallel for num_threads(threads) schedule(static) if (f->cells > 32768)
     for (uint32_t Z = 0; Z < l->n[2]; Z++) {
-        const size_t p0 = (size_t)(Z + 1) * plane;
-        memset(l->solid + p0, 0, plane);
-        memset(l->diag + p0, 0, plane * sizeof(v4));
-        for (int a = 0; a < 3; a++)
-            memset(l->g[a] + p0, 0, plane * sizeof(v4));
+        clear_plane(l, Z + 1);
         for (uint32_t z = Z * l->r[2]; z < (Z + 1) * l->r[2] && z < f->n[2]; z++)
             for (uint32_t y = 0; y < f->n[1]; y++) {
                 /* the fine level's spans hold all its solid cells (padded x = interior x + 1) */
@@ -748,10 +748,14 @@ static nacre_result level_spans(nc_diff_solver *s, uint32_t li, int threads)
     int parts = threads < MAX_PARTS ? threads : MAX_PARTS;
     parts = parts < (int)nz ? parts : (int)nz;
     parts = parts > 0 ? parts : 1;
-    uint64_t total = 0;
+    uint64_t total = 0, cells = 0;
     for (uint32_t z = 1; z <= nz; z++)
-        for (uint32_t y = 1; y <= ny; y++)
-            total += 1 + e[2 * (y + ry * z) + 1] - e[2 * (y + ry * z)];
+        for (uint32_t y = 1; y <= ny; y++) {
+            uint64_t len = e[2 * (y + ry * z) + 1] - e[2 * (y + ry * z)];
+            cells += len;
+            total += 1 + len;
+        }
+    l->active = (size_t)cells;
     l->parts = parts;
     l->zb[0] = 1;
     uint64_t acc = 0;
@@ -1453,13 +1457,7 @@ static bool hot_relax(nc_diff_solver *s, const v4 *b, v4 *x, const v4 *r, v4d rr
 {
     level *l = &s->lv[0];
     const uint32_t ny = l->n[1], nz = l->n[2];
-    size_t active = 0;
-    for (uint32_t z = 1; z <= nz; z++)
-        for (uint32_t y = 1; y <= ny; y++) {
-            size_t a, e;
-            row_span(l, y, z, &a, &e);
-            active += e - a;
-        }
+    const size_t active = l->active;
     if (active == 0)
         return false;
     size_t cap = active / HOT_MAX_SHARE;
