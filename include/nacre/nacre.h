@@ -205,6 +205,9 @@ NACRE_API nacre_result nacre_image_write_exr(nacre_context *ctx, const nacre_ima
 /* Read .png (sRGB decoded to linear, 8 or 16 bit) or .exr (R, G, B and A if present). The
  * result has 3 or 4 channels. */
 NACRE_API nacre_result nacre_image_read(nacre_context *ctx, const char *path, nacre_image *out);
+/* As nacre_image_read, but PNG samples are read as data (value / 255 or / 65535, no sRGB
+ * decoding): for depth maps and other non-colour images. */
+NACRE_API nacre_result nacre_image_read_data(nacre_context *ctx, const char *path, nacre_image *out);
 /* Compare `test` against `reference` (same size and channel count). */
 NACRE_API nacre_result nacre_image_compare(nacre_context *ctx, const nacre_image *test,
                                            const nacre_image *reference, nacre_image_metrics *out);
@@ -322,6 +325,36 @@ typedef struct nacre_medium_pattern {
     nacre_volume volume;            /* VOLUME */
 } nacre_medium_pattern;
 
+/* Layered materials (Francois, Pattanaik, Bouatouh, Breton 2006, "Subsurface texture mapping"):
+ * up to NACRE_MAX_LAYERS media stacked under the surface, each with its own coefficients and
+ * phase, above the material's own medium (the core, which keeps its pattern). The depth of a
+ * point is its distance to the nearest point of the object's rest-pose mesh, and the depth map
+ * is read at that nearest point's uv: for a surface that is flat over the depths involved this is
+ * the seed's tangent-space lookup; on curved surfaces it is its exact 3D form. Layer j lies
+ * between bottom(j - 1) (bottom(-1) = 0) and bottom(j), where bottom(j) is the largest of
+ * depth(k) * map_k(u, v) for k <= j (a layer cannot end above the one before it: the running
+ * maximum gives it zero thickness). Without a depth map map_k = 1 (layers of constant
+ * thickness). Points deeper than the last bottom are in the core. The path tracer renders layered
+ * media exactly; the diffusion method reports them as not implemented; the phong method shades the
+ * core only. Scene files: "layers" and "depth_map" (docs/scene-format.md). */
+#define NACRE_MAX_LAYERS 4
+typedef struct { uint32_t id; } nacre_texture;
+
+typedef struct nacre_layer {
+    float sigma_a[3], sigma_s[3]; /* per scene unit; sigma_a + sigma_s > 0 in every channel */
+    float g;                      /* Henyey-Greenstein anisotropy, in (-1, 1) */
+    float depth;                  /* bottom below the surface, rest-pose scene units, >= 0; with a
+                                     depth map, the scale of its channel (map value 1 = depth) */
+} nacre_layer;
+
+typedef struct nacre_layering {
+    uint32_t count;                       /* 0 (not layered) .. NACRE_MAX_LAYERS */
+    nacre_layer layers[NACRE_MAX_LAYERS]; /* from the surface inwards */
+    nacre_texture depth_map;              /* optional (id 0: none): channel j scales layer j's depth,
+                                             read bilinearly at the surface uv, repeating; needs
+                                             at least `count` channels and a mesh with uvs */
+} nacre_layering;
+
 typedef struct nacre_material_desc {
     nacre_material_type type;
     float diffuse[3];  /* opaque: Lambert albedo in [0,1] */
@@ -331,7 +364,8 @@ typedef struct nacre_material_desc {
     float sigma_s[3];  /* translucent: scattering per scene unit, >= 0 */
     float g;           /* Henyey-Greenstein anisotropy, in (-1, 1) */
     float eta;         /* relative index of refraction, > 0 */
-    nacre_medium_pattern pattern; /* translucent: heterogeneity (default NONE) */
+    nacre_medium_pattern pattern; /* translucent: heterogeneity (default NONE); of the core when layered */
+    nacre_layering layering;      /* translucent: layers above the core (default count 0) */
 } nacre_material_desc;
 
 /* Defaults: opaque grey 0.8, specular 0.04, shininess 64; translucent: the "jade" preset
@@ -369,6 +403,14 @@ NACRE_API nacre_result nacre_volume_load_nrrd(nacre_context *ctx, const char *pa
                                               nacre_volume_data *out);
 /* Free data allocated by the library and zero the struct. */
 NACRE_API void nacre_volume_data_free(nacre_context *ctx, nacre_volume_data *volume);
+
+/* Add a texture (pixels copied, 1 to 4 channels, every value finite and >= 0; kept until the
+ * scene is destroyed). Row 0 is the top of the image and v = 0 its bottom row (v grows upwards,
+ * the OBJ/glTF-flipped convention of most mesh exporters: texel (x, y) is centred at
+ * u = (x + 0.5) / width, v = 1 - (y + 0.5) / height). Layer depth maps are data: read PNG depth
+ * maps with nacre_image_read_data, not the sRGB-decoding nacre_image_read. */
+NACRE_API nacre_result nacre_scene_add_texture(nacre_scene *scene, const nacre_image *image,
+                                               nacre_texture *out);
 
 typedef struct nacre_transform {
     float translate[3];

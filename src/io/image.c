@@ -237,7 +237,7 @@ nacre_result nacre_image_write(nacre_context *ctx, const nacre_image *image, con
                    "%s: unknown image extension (use .png or .exr)", path);
 }
 
-nacre_result nacre_image_read(nacre_context *ctx, const char *path, nacre_image *out)
+static nacre_result image_read(nacre_context *ctx, const char *path, bool srgb, nacre_image *out)
 {
     if (!ctx)
         return NACRE_ERROR_INVALID_ARGUMENT;
@@ -248,7 +248,7 @@ nacre_result nacre_image_read(nacre_context *ctx, const char *path, nacre_image 
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "image read: path is NULL");
     switch (format_of(path)) {
     case FORMAT_PNG:
-        return nc_image_read_png(ctx, path, out);
+        return nc_image_read_png(ctx, path, srgb, out);
     case FORMAT_EXR:
         return nc_image_read_exr(ctx, path, out);
     case FORMAT_UNKNOWN:
@@ -256,6 +256,16 @@ nacre_result nacre_image_read(nacre_context *ctx, const char *path, nacre_image 
     }
     return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
                    "%s: unknown image extension (use .png or .exr)", path);
+}
+
+nacre_result nacre_image_read(nacre_context *ctx, const char *path, nacre_image *out)
+{
+    return image_read(ctx, path, true, out);
+}
+
+nacre_result nacre_image_read_data(nacre_context *ctx, const char *path, nacre_image *out)
+{
+    return image_read(ctx, path, false, out);
 }
 
 /* ------------------------------------------------------------------------------------------ */

@@ -192,7 +192,7 @@ static nacre_result png_read_error(nacre_context *ctx, const char *path, FILE *f
     return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: invalid PNG: %s", path, spng_strerror(e));
 }
 
-nacre_result nc_image_read_png(nacre_context *ctx, const char *path, nacre_image *out)
+nacre_result nc_image_read_png(nacre_context *ctx, const char *path, bool srgb, nacre_image *out)
 {
     FILE *fp = fopen(path, "rb");
     if (!fp)
@@ -258,7 +258,7 @@ nacre_result nc_image_read_png(nacre_context *ctx, const char *path, nacre_image
             goto out_free_dec;
         }
         for (int i = 0; i < 65536; i++)
-            table16[i] = nc_srgb_to_linear((float)i / 65535.0f);
+            table16[i] = srgb ? nc_srgb_to_linear((float)i / 65535.0f) : (float)i / 65535.0f;
         const uint16_t *src = (const uint16_t *)data;
         for (size_t i = 0; i < pixels; i++, src += 4, dst += channels) {
             dst[0] = table16[src[0]];
@@ -270,7 +270,7 @@ nacre_result nc_image_read_png(nacre_context *ctx, const char *path, nacre_image
     } else {
         float table8[256];
         for (int i = 0; i < 256; i++)
-            table8[i] = nc_srgb_to_linear((float)i / 255.0f);
+            table8[i] = srgb ? nc_srgb_to_linear((float)i / 255.0f) : (float)i / 255.0f;
         const uint8_t *src = data;
         for (size_t i = 0; i < pixels; i++, src += 4, dst += channels) {
             dst[0] = table8[src[0]];

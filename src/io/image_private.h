@@ -80,7 +80,8 @@ nacre_result nc_tmpfile_commit(nacre_context *ctx, nc_tmpfile *tmp);
 void nc_tmpfile_abort(nacre_context *ctx, nc_tmpfile *tmp);
 
 /* Format readers and writers; paths and images are already validated by the callers. */
-nacre_result nc_image_read_png(nacre_context *ctx, const char *path, nacre_image *out);
+/* srgb: decode 8/16-bit samples as sRGB to linear; else value / max (data images). */
+nacre_result nc_image_read_png(nacre_context *ctx, const char *path, bool srgb, nacre_image *out);
 nacre_result nc_image_read_exr(nacre_context *ctx, const char *path, nacre_image *out);
 
 #endif /* NACRE_IMAGE_PRIVATE_H */

@@ -847,11 +847,83 @@ static void parse_pattern(loader *ld, const cJSON *obj, nacre_medium_pattern *p)
     pop(ld, mark);
 }
 
+/* One entry of "layers": coefficients from "preset" and/or "sigma_a" + "sigma_s" (explicit
+ * values override the preset's), "g", and the required "depth" (scene units). */
+static void parse_layer(loader *ld, const cJSON *obj, nacre_layer *y)
+{
+    static const char *const keys[] = {"preset", "sigma_a", "sigma_s", "g", "depth"};
+    if (!expect_object(ld, obj) || !require(ld, obj, "depth"))
+        return;
+    check_keys(ld, obj, keys, COUNT_OF(keys));
+    const char *preset = get_string(ld, obj, "preset");
+    if (!preset && !ld->err && (!member(obj, "sigma_a") || !member(obj, "sigma_s")))
+        fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "a layer needs \"preset\" or both \"sigma_a\" and \"sigma_s\"");
+    if (ld->err)
+        return;
+    nacre_material_desc d = nacre_material_desc_defaults(NACRE_MATERIAL_TRANSLUCENT);
+    d.g = 0.0f;
+    if (preset && !preset_per_unit(ld, "preset", preset, &d))
+        return;
+    static const range g_range = {-1.0, 1.0, true, true};
+    get_floats(ld, obj, "sigma_a", 3, R_NONNEG, true, d.sigma_a);
+    get_floats(ld, obj, "sigma_s", 3, R_NONNEG, true, d.sigma_s);
+    get_number(ld, obj, "g", g_range, &d.g);
+    get_number(ld, obj, "depth", R_NONNEG, &y->depth);
+    memcpy(y->sigma_a, d.sigma_a, sizeof(y->sigma_a));
+    memcpy(y->sigma_s, d.sigma_s, sizeof(y->sigma_s));
+    y->g = d.g;
+}
+
+/* "layers" (array, surface first) and "depth_map" (an image file relative to the scene file,
+ * read as data: channel j scales layer j's depth) of a translucent material. */
+static void parse_layering(loader *ld, const cJSON *obj, nacre_layering *l)
+{
+    const cJSON *arr = member(obj, "layers");
+    if (arr) {
+        size_t mark = push_key(ld, "layers");
+        if (!cJSON_IsArray(arr)) {
+            fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "expected an array, got %s", type_name(arr));
+        } else if (cJSON_GetArraySize(arr) > NACRE_MAX_LAYERS) {
+            fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "at most %d layers (got %d)", NACRE_MAX_LAYERS,
+                 cJSON_GetArraySize(arr));
+        } else {
+            int i = 0;
+            for (const cJSON *c = arr->child; c && !ld->err; c = c->next, i++) {
+                size_t m2 = push_index(ld, i);
+                parse_layer(ld, c, &l->layers[i]);
+                pop(ld, m2);
+            }
+            l->count = (uint32_t)i;
+        }
+        pop(ld, mark);
+    }
+    const char *rel = get_string(ld, obj, "depth_map");
+    if (ld->err || !rel)
+        return;
+    size_t mark = push_key(ld, "depth_map");
+    if (l->count == 0) {
+        fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "a depth map needs \"layers\"");
+        pop(ld, mark);
+        return;
+    }
+    char *path = resolve_path(ld, rel);
+    nacre_image img = {0};
+    nacre_result r = path ? nacre_image_read_data(ld->ctx, path, &img) : NACRE_ERROR_OUT_OF_MEMORY;
+    if (r == NACRE_OK)
+        r = nacre_scene_add_texture(ld->scene, &img, &l->depth_map);
+    if (r != NACRE_OK)
+        fail_inner(ld, r);
+    nacre_image_free(ld->ctx, &img);
+    nc_free(ld->ctx, path);
+    pop(ld, mark);
+}
+
 static void parse_material(loader *ld, const cJSON *obj, nacre_material *out)
 {
     static const char *const opaque_keys[] = {"type", "diffuse", "specular", "shininess"};
     static const char *const translucent_keys[] = {"type", "preset", "sigma_a", "sigma_s", "g",
-                                                   "eta", "specular", "shininess", "pattern"};
+                                                   "eta", "specular", "shininess", "pattern",
+                                                   "layers", "depth_map"};
     static const char *const types[] = {"opaque", "translucent"};
     if (!expect_object(ld, obj))
         return;
@@ -892,6 +964,8 @@ static void parse_material(loader *ld, const cJSON *obj, nacre_material *out)
     const cJSON *pattern = member(obj, "pattern");
     if (pattern && type == 1 && !ld->err)
         parse_pattern(ld, pattern, &d.pattern);
+    if (type == 1 && !ld->err)
+        parse_layering(ld, obj, &d.layering);
     if (ld->err)
         return;
     nacre_result r = nacre_scene_add_material(ld->scene, &d, out);

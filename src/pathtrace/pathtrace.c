@@ -8,7 +8,12 @@
  * is a smooth dielectric of the material's eta (Fresnel reflection or refraction, chosen by the
  * Fresnel probability), or, with eta == 1, index matched: not a scattering vertex at all, the
  * path just changes medium. Its interior is a participating medium with sigma_a, sigma_s from
- * nc_medium_eval at the rest-pose point and Henyey-Greenstein phase with the material's g.
+ * nc_medium_eval at the rest-pose point and Henyey-Greenstein phase with the material's g. A
+ * layered material (layered/layers.h) puts its layers above that core: a point's layer comes from
+ * its distance to the rest-pose mesh and the depth map at the nearest point's uv (an Embree point
+ * query), each layer with its own coefficients and g. A layer grid over the object stores per
+ * cell the layers its depths can reach (depth is 1-Lipschitz), so points in cells that only one
+ * layer (or the core) reaches skip the query, and the majorant grid takes its bounds from it.
  *
  * Media: homogeneous free flights by spectral MIS over the RGB channels (free_flight_homogeneous);
  * heterogeneous ones by spectral tracking (Kutz, Habel, Li, Novak 2017, "Spectral and
@@ -86,6 +91,7 @@
 
 #include "core/optics.h"
 #include "pathtrace/rng.h"
+#include "layered/layers.h"
 #include "scene/medium.h"
 #include "scene/scene.h"
 
@@ -159,6 +165,14 @@ typedef struct pt_object {
                                 deformed object-space mesh (nacre_voxel_grid_rest_positions) */
     uint32_t rdims[3];
     float rorigin[3], rvoxel;
+    bool layered;            /* material has layers above its core (see layered/layers.h) */
+    nc_layer_stack layers;
+    nc_surface_locator *loc; /* layered: nearest points of the rest-pose mesh */
+    float layer_sa[NACRE_MAX_LAYERS][3], layer_ss[NACRE_MAX_LAYERS][3], layer_g[NACRE_MAX_LAYERS];
+    uint8_t *lbits;          /* layered, not deformed: per cell of an lres^3 grid over the world
+                                bounds, the layers (bit count: core) its points may be in */
+    uint32_t lres;
+    float lmin[3], linv[3];
     float *grid;             /* majorant grid (heterogeneous, res^3) or NULL */
     uint32_t res;
     float gmin[3], cell[3];
@@ -329,15 +343,56 @@ static void rest_point(const pt_object *o, nc_vec3 p, float out[3])
     out[0] = r[0], out[1] = r[1], out[2] = r[2];
 }
 
-static void medium_at(const pt_scene *ps, const pt_object *o, nc_vec3 p, float sa[3], float ss[3])
+/* Coefficients and phase anisotropy at world point p inside object o. In a layered material the
+ * rest point's depth below the rest-pose surface picks the layer (a non-finite rest point, outside
+ * a deformed object's voxels, is in the core). */
+static void medium_at(const pt_scene *ps, const pt_object *o, nc_vec3 p, float sa[3], float ss[3], float *g)
 {
+    *g = o->g;
     if (!o->heterogeneous) {
         memcpy(sa, o->sigma_a, sizeof(o->sigma_a));
         memcpy(ss, o->sigma_s, sizeof(o->sigma_s));
         return;
     }
+    if (o->lbits) {
+        /* A cell that only one layer can reach settles the point without a nearest-point query
+         * (deep inside, usually the core). */
+        float pv[3] = {p.x, p.y, p.z};
+        size_t idx[3];
+        bool inside = true;
+        for (int a = 0; a < 3; a++) {
+            float f = (pv[a] - o->lmin[a]) * o->linv[a];
+            inside &= f >= 0.0f && f < (float)o->lres;
+            idx[a] = inside ? (size_t)f : 0;
+        }
+        uint32_t bits = inside ? o->lbits[idx[0] + o->lres * (idx[1] + o->lres * idx[2])] : 0u;
+        if (bits && !(bits & (bits - 1))) {
+            uint32_t j = (uint32_t)__builtin_ctz(bits);
+            if (j < o->layers.count) {
+                memcpy(sa, o->layer_sa[j], sizeof(o->layer_sa[j]));
+                memcpy(ss, o->layer_ss[j], sizeof(o->layer_ss[j]));
+                *g = o->layer_g[j];
+                return;
+            }
+            float xyz[3];
+            rest_point(o, p, xyz);
+            ps->eval(ps->scene, o->mat, xyz, 1, sa, ss);
+            return;
+        }
+    }
     float xyz[3];
     rest_point(o, p, xyz);
+    if (o->layered && isfinite(xyz[0]) && isfinite(xyz[1]) && isfinite(xyz[2])) {
+        float uv[2];
+        float depth = nc_locator_nearest(o->loc, xyz, uv);
+        uint32_t j = nc_layers_find(&o->layers, depth, uv[0], uv[1]);
+        if (j < o->layers.count) {
+            memcpy(sa, o->layer_sa[j], sizeof(o->layer_sa[j]));
+            memcpy(ss, o->layer_ss[j], sizeof(o->layer_ss[j]));
+            *g = o->layer_g[j];
+            return;
+        }
+    }
     ps->eval(ps->scene, o->mat, xyz, 1, sa, ss);
 }
 
@@ -675,11 +730,12 @@ static bool walk_next(collision_walk *w, nc_rng *rng, float *t, float *m)
     }
 }
 
-/* The coefficients at the walk's collision t, point p. */
-static void walk_medium(const pt_scene *ps, const collision_walk *w, float t, nc_vec3 p, float sa[3], float ss[3])
+/* The coefficients at the walk's collision t, point p (and, in an object, the phase's g). */
+static void walk_medium(const pt_scene *ps, const collision_walk *w, float t, nc_vec3 p, float sa[3], float ss[3],
+                        float *g)
 {
     if (w->o)
-        medium_at(ps, w->o, p, sa, ss);
+        medium_at(ps, w->o, p, sa, ss, g);
     else
         fog_at(&w->fog, t, p, sa, ss);
 }
@@ -779,9 +835,9 @@ static ff_event free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org,
     walk_init(&w, ps, o, org, dir, tmax);
     float t, m;
     while (walk_next(&w, rng, &t, &m)) {
-        float sa[3], ss[3];
+        float sa[3], ss[3], g = 0.0f;
         nc_vec3 p = ray_at(org, dir, t);
-        walk_medium(ps, &w, t, p, sa, ss);
+        walk_medium(ps, &w, t, p, sa, ss, &g);
         float b[3] = {beta->x, beta->y, beta->z};
         float pa = 0, pss = 0, pn = 0;
         for (int c = 0; c < 3; c++) {
@@ -799,7 +855,7 @@ static ff_event free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org,
             float k = sum / (m * pss);
             *beta = nc_v3(b[0] * ss[0] * k, b[1] * ss[1] * k, b[2] * ss[2] * k);
             *t_out = t;
-            *g_out = o ? o->g : fog_pick_phase(&w.fog, t, p, beta, rng);
+            *g_out = o ? g : fog_pick_phase(&w.fog, t, p, beta, rng);
             return FF_SCATTER;
         }
         float k = sum / (m * pn);
@@ -820,8 +876,8 @@ static nc_vec3 transmittance(const pt_scene *ps, const pt_object *o, nc_vec3 org
     walk_init(&w, ps, o, org, dir, tmax);
     float t, m;
     while (walk_next(&w, rng, &t, &m)) {
-        float sa[3], ss[3];
-        walk_medium(ps, &w, t, ray_at(org, dir, t), sa, ss);
+        float sa[3], ss[3], g;
+        walk_medium(ps, &w, t, ray_at(org, dir, t), sa, ss, &g);
         tr = nc_v3(tr.x * (1.0f - (sa[0] + ss[0]) / m), tr.y * (1.0f - (sa[1] + ss[1]) / m),
                    tr.z * (1.0f - (sa[2] + ss[2]) / m));
         /* Russian roulette on small estimates keeps long ratio-tracking walks cheap. */
@@ -1358,7 +1414,7 @@ static float guide_pdf(const guide *g, nc_vec3 w)
 /* The guided estimate at medium vertex p (incoming direction d, HG g) for sun light l, run with
  * probability q. */
 static nc_vec3 guided_sun(const pt_scene *ps, uint32_t obj, const pt_light *l, const guide *gd, float q, nc_vec3 p,
-                          nc_vec3 d, nc_rng *rng)
+                          nc_vec3 d, float g, nc_rng *rng)
 {
     const pt_object *ob = &ps->pt->objects[obj];
     float cos_c = nc_rng_float(rng) < GUIDE_WIDE_FRACTION ? gd->cos_w : gd->cos_a;
@@ -1374,7 +1430,7 @@ static nc_vec3 guided_sun(const pt_scene *ps, uint32_t obj, const pt_light *l, c
     nc_vec3 out = nc_normalize(nc_v3a(tv));
     if (nc_dot(out, l->to_light) < l->cos_max)
         return nc_v3(0, 0, 0);
-    float phase = (float)nc_hg_phase(nc_dot(d, w), ob->g);
+    float phase = (float)nc_hg_phase(nc_dot(d, w), g);
     nc_vec3 tr = transmittance(ps, ob, p, w, h.t, rng);
     if (max3(tr) <= 0 && fminf(tr.x, fminf(tr.y, tr.z)) >= 0)
         return nc_v3(0, 0, 0);
@@ -1494,7 +1550,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
                 clear_p = fmaxf(0.0f, clearance(ob, p));
                 q = guide_probability(ob, clear_p);
                 if (q >= 1.0f || nc_rng_float(rng) < q)
-                    L = nc_add(L, nc_mul(beta, direct_light(ps, p, wo, false, NULL, wo, wo, ob->g, medium, q, rng)));
+                    L = nc_add(L, nc_mul(beta, direct_light(ps, p, wo, false, NULL, wo, wo, g, medium, q, rng)));
             } else if (sun >= 0 && !pt->opt.no_sun_guiding) {
                 guiding = true;
                 clear_p = fmaxf(0.0f, clearance(ob, p));
@@ -1521,7 +1577,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
                         seed_obj = medium;
                     }
                     if (gd.valid)
-                        L = nc_add(L, nc_mul(beta, guided_sun(ps, (uint32_t)medium, sl, &gd, q, p, d, rng)));
+                        L = nc_add(L, nc_mul(beta, guided_sun(ps, (uint32_t)medium, sl, &gd, q, p, d, g, rng)));
                     guide_known = true;
                 } else {
                     guide_known = false;
@@ -1743,6 +1799,8 @@ static void release_scene(nc_pathtracer *pt)
     pt->rtc = NULL;
     for (uint32_t i = 0; i < pt->object_count; i++) {
         nc_free(ctx, pt->objects[i].grid);
+        nc_locator_destroy(ctx, pt->objects[i].loc);
+        nc_free(ctx, pt->objects[i].lbits);
         nc_free(ctx, pt->objects[i].rest);
         nc_free(ctx, pt->objects[i].dist);
         nc_free(ctx, pt->objects[i].adj);
@@ -1801,6 +1859,121 @@ static nacre_result build_rest_grid(nc_pathtracer *pt, pt_object *o, const nc_ob
     nacre_voxel_grid_destroy(grid);
     nc_free(ctx, def);
     return res;
+}
+
+/* Layers of object o's material: coefficients, the stack's depth ranges and a nearest-point
+ * structure over the rest-pose mesh; the global majorant grows to cover every layer. */
+static nacre_result setup_layers(nc_pathtracer *pt, const pt_scene *ps, pt_object *o, const nc_object_rec *rec, const nacre_mesh_data *md)
+{
+    const nacre_layering *l = &o->mat->layering;
+    if (l->depth_map.id && !md->uvs)
+        return nc_fail(pt->ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                       "pathtrace: object '%s': its layered material has a depth_map but its mesh has no uvs",
+                       rec->name ? rec->name : "(unnamed)");
+    nc_layers_init(ps->scene, l, &o->layers);
+    for (uint32_t j = 0; j < o->layers.count; j++) {
+        for (int c = 0; c < 3; c++) {
+            o->layer_sa[j][c] = l->layers[j].sigma_a[c];
+            o->layer_ss[j][c] = l->layers[j].sigma_s[c];
+            o->maj_global = fmaxf(o->maj_global, o->layer_sa[j][c] + o->layer_ss[j][c]);
+        }
+        o->layer_g[j] = l->layers[j].g;
+    }
+    return nc_locator_create(pt->ctx, pt->device, md, &o->loc);
+}
+
+/* Layer grid and majorant grid of a layered object. Depth below the rest-pose surface is
+ * 1-Lipschitz, so over a cell whose centre maps to rest point q every depth lies within
+ * d(q) +- r, r the cell's half diagonal times the largest stretch of the world-to-rest map
+ * (bounded by the Frobenius norm of its linear part). The layers such depths can reach at any uv
+ * (nc_layers_touching) are the cell's layer bits: a cell with one bit needs no nearest-point
+ * query at all (medium_at). The layer grid has LAYER_RES cells a side (rounded to a multiple of
+ * the majorant grid's), and a majorant cell bounds sigma_t by the layers of its layer cells, the
+ * core counting with its global bound. Deformed objects map to rest space through a voxel lookup
+ * without such a bound: no layer grid, and majorant cells keep the global majorant. */
+#define LAYER_RES 64
+static nacre_result build_grid_layered(nc_pathtracer *pt, const pt_scene *ps, pt_object *o, const nc_object_rec *rec)
+{
+    uint32_t res = pt->opt.majorant_res;
+    if (o->rest) {
+        if (res == 0)
+            return NACRE_OK;
+        size_t n = (size_t)res * res * res;
+        if (!(o->grid = nc_alloc(pt->ctx, n * sizeof(float))))
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        o->res = res;
+        for (size_t i = 0; i < n; i++)
+            o->grid[i] = o->maj_global;
+        for (int a = 0; a < 3; a++) {
+            float lo = rec->bounds_min[a], hi = rec->bounds_max[a], pad = 1e-3f * (hi - lo) + ps->eps;
+            o->gmin[a] = lo - pad;
+            o->cell[a] = (hi - lo + 2 * pad) / (float)res;
+        }
+        return NACRE_OK;
+    }
+    uint32_t k = res ? (LAYER_RES / res > 1 ? LAYER_RES / res : 1) : 1;
+    uint32_t lres = res ? res * k : LAYER_RES;
+    size_t nl = (size_t)lres * lres * lres;
+    if (!(o->lbits = nc_alloc(pt->ctx, nl)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    o->lres = lres;
+    float half2 = 0, lcell[3];
+    for (int a = 0; a < 3; a++) {
+        float lo = rec->bounds_min[a], hi = rec->bounds_max[a], pad = 1e-3f * (hi - lo) + ps->eps;
+        o->lmin[a] = lo - pad;
+        lcell[a] = (hi - lo + 2 * pad) / (float)lres;
+        o->linv[a] = 1.0f / lcell[a];
+        half2 += 0.25f * lcell[a] * lcell[a];
+        if (res) {
+            o->gmin[a] = o->lmin[a];
+            o->cell[a] = lcell[a] * (float)k;
+        }
+    }
+    float stretch2 = 0;
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            stretch2 += o->world_to_rest.m[i][j] * o->world_to_rest.m[i][j];
+    /* A little slack for the rounding of the distance query and of the map. */
+    float r = sqrtf(half2 * stretch2) * 1.001f + 1e-6f;
+#pragma omp parallel for schedule(dynamic, 64) num_threads(nc_threads(pt->ctx))
+    for (int64_t ci = 0; ci < (int64_t)nl; ci++) {
+        uint32_t cx = (uint32_t)ci % lres, cy = ((uint32_t)ci / lres) % lres, cz = (uint32_t)(ci / ((int64_t)lres * lres));
+        nc_vec3 c = nc_v3(o->lmin[0] + lcell[0] * ((float)cx + 0.5f), o->lmin[1] + lcell[1] * ((float)cy + 0.5f),
+                          o->lmin[2] + lcell[2] * ((float)cz + 0.5f));
+        nc_vec3 q = nc_mat4_point(&o->world_to_rest, c);
+        float qv[3] = {q.x, q.y, q.z}, uv[2];
+        float d = nc_locator_nearest(o->loc, qv, uv);
+        o->lbits[ci] = (uint8_t)nc_layers_touching(&o->layers, d - r, d + r);
+    }
+    if (res == 0)
+        return NACRE_OK;
+    size_t n = (size_t)res * res * res;
+    if (!(o->grid = nc_alloc(pt->ctx, n * sizeof(float))))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    o->res = res;
+    float bound[NACRE_MAX_LAYERS + 1];
+    uint32_t count = o->layers.count;
+    for (uint32_t j = 0; j < count; j++)
+        bound[j] = fmaxf(o->layer_sa[j][0] + o->layer_ss[j][0],
+                         fmaxf(o->layer_sa[j][1] + o->layer_ss[j][1], o->layer_sa[j][2] + o->layer_ss[j][2]));
+    float core[3];
+    nc_pt_medium_max_fn max_fn = pt->opt.max_sigma_t ? pt->opt.max_sigma_t : nc_medium_max_sigma_t;
+    max_fn(ps->scene, o->mat, core);
+    bound[count] = fmaxf(core[0], fmaxf(core[1], core[2]));
+    for (size_t ci = 0; ci < n; ci++) {
+        uint32_t cx = (uint32_t)ci % res, cy = ((uint32_t)ci / res) % res, cz = (uint32_t)(ci / ((size_t)res * res));
+        uint32_t bits = 0;
+        for (uint32_t z = cz * k; z < (cz + 1) * k; z++)
+            for (uint32_t y = cy * k; y < (cy + 1) * k; y++)
+                for (uint32_t x = cx * k; x < (cx + 1) * k; x++)
+                    bits |= o->lbits[x + (size_t)lres * (y + (size_t)lres * z)];
+        float m = 0;
+        for (uint32_t j = 0; j <= count; j++)
+            if (bits & (1u << j))
+                m = fmaxf(m, bound[j]);
+        o->grid[ci] = fminf(m, o->maj_global);
+    }
+    return NACRE_OK;
 }
 
 /* Majorant grid of a heterogeneous object: world bounds cut into res^3 cells, each bounding
@@ -2059,10 +2232,16 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
             o->kind = m->eta == 1.0f ? PT_MATCHED : PT_DIELECTRIC;
             o->casts = true;
             pt->any_matched |= o->kind == PT_MATCHED;
-            o->heterogeneous = nc_medium_heterogeneous(m) || pt->opt.force_heterogeneous;
+            o->layered = m->layering.count > 0;
+            o->heterogeneous = nc_medium_heterogeneous(m) || o->layered || pt->opt.force_heterogeneous;
             float mx[3];
             max_fn(s, m, mx);
             o->maj_global = fmaxf(mx[0], fmaxf(mx[1], mx[2]));
+            if (o->layered) {
+                nacre_result res = setup_layers(pt, ps, o, rec, md);
+                if (res != NACRE_OK)
+                    return res;
+            }
             for (int c = 0; c < 3; c++) {
                 o->sigma_a[c] = m->sigma_a[c];
                 o->sigma_s[c] = m->sigma_s[c];
@@ -2077,7 +2256,7 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
                 nacre_result res = rec->desc.deformer_count > 0 ? build_rest_grid(pt, o, rec, md) : NACRE_OK;
                 if (res != NACRE_OK)
                     return res;
-                res = build_grid(pt, ps, o, rec);
+                res = o->layered ? build_grid_layered(pt, ps, o, rec) : build_grid(pt, ps, o, rec);
                 if (res != NACRE_OK)
                     return res;
             }

@@ -322,6 +322,16 @@ nacre_result nacre_renderer_render(nacre_renderer *r, const nacre_scene *s, cons
 
     /* Diffusion: voxelize, translucent shadow maps, inject, propagate (timed inside). */
     if (settings->method == NACRE_METHOD_DIFFUSION) {
+        for (uint32_t i = 0; i < s->object_count; i++) {
+            const nacre_material_desc *m = nc_scene_material(s, s->objects[i].desc.material);
+            if (m && m->type == NACRE_MATERIAL_TRANSLUCENT && m->layering.count > 0) {
+                res = nc_fail(ctx, NACRE_ERROR_UNSUPPORTED,
+                              "render: object '%s' has a layered material: layers are not implemented in the "
+                              "diffusion method (use --method pathtrace)",
+                              s->objects[i].name ? s->objects[i].name : "(unnamed)");
+                goto fail;
+            }
+        }
         if (!r->diffusion && (res = nc_diff_state_create(ctx, &r->diffusion)) != NACRE_OK)
             goto fail;
         if ((res = nc_diffusion_frame(r->diffusion, s, settings, r->shade_lights, s->light_count, &st)) != NACRE_OK)

@@ -16,7 +16,9 @@
  * which case a VOLUME material reads as homogeneous medium 1 and the call runs serially. */
 void nc_medium_eval(const nacre_scene *scene, const nacre_material_desc *m, const float *rest_xyz,
                     size_t count, float *sigma_a, float *sigma_s);
-/* Per-channel upper bounds of sigma_t = sigma_a + sigma_s over all points (majorants). */
+/* Per-channel upper bounds of sigma_t = sigma_a + sigma_s over all points (majorants). Both
+ * functions describe the material's core: layers (m->layering) need the object's surface and are
+ * located by the path tracer (layered/layers.h). */
 void nc_medium_max_sigma_t(const nacre_scene *scene, const nacre_material_desc *m, float out[3]);
 /* Whether the material's coefficients vary in space. */
 bool nc_medium_heterogeneous(const nacre_material_desc *m);

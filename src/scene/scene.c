@@ -280,6 +280,42 @@ static nacre_result check_pattern(const nacre_scene *s, const nacre_medium_patte
     return NACRE_OK;
 }
 
+/* Layers above a translucent core (nacre_layering). */
+static nacre_result check_layering(const nacre_scene *s, const nacre_layering *l)
+{
+    nacre_context *ctx = s->ctx;
+    if (l->count > NACRE_MAX_LAYERS)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: layers: at most %d (got %u)",
+                       NACRE_MAX_LAYERS, l->count);
+    if (l->count == 0)
+        return NACRE_OK;
+    for (uint32_t j = 0; j < l->count; j++) {
+        const nacre_layer *y = &l->layers[j];
+        if (!nonneg3(y->sigma_a))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: layers[%u].sigma_a: must be finite and >= 0", j);
+        if (!nonneg3(y->sigma_s))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: layers[%u].sigma_s: must be finite and >= 0", j);
+        for (int c = 0; c < 3; c++)
+            if (y->sigma_a[c] + y->sigma_s[c] <= 0)
+                return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                               "material: layers[%u].sigma_a + sigma_s: must be positive in every channel", j);
+        if (!(isfinite(y->g) && y->g > -1 && y->g < 1))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: layers[%u].g: must be in (-1, 1)", j);
+        if (!(isfinite(y->depth) && y->depth >= 0))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: layers[%u].depth: must be finite and >= 0", j);
+    }
+    if (l->depth_map.id != 0) {
+        const nc_texture_rec *t = nc_scene_texture(s, l->depth_map);
+        if (!t)
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: depth_map: invalid handle %u", l->depth_map.id);
+        if ((uint32_t)t->channels < l->count)
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                           "material: depth_map: %d channel(s) for %u layers (one channel per layer)",
+                           t->channels, l->count);
+    }
+    return NACRE_OK;
+}
+
 static nacre_result check_material(const nacre_scene *s, const nacre_material_desc *d)
 {
     nacre_context *ctx = s->ctx;
@@ -305,6 +341,8 @@ static nacre_result check_material(const nacre_scene *s, const nacre_material_de
         if (!(isfinite(d->eta) && d->eta > 0))
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: eta: must be positive");
         nacre_result r = check_pattern(s, &d->pattern, "material", false);
+        if (r == NACRE_OK)
+            r = check_layering(s, &d->layering);
         if (r != NACRE_OK)
             return r;
     }
@@ -444,6 +482,9 @@ void nacre_scene_destroy(nacre_scene *s)
     for (uint32_t i = 0; i < s->volume_count; i++)
         nc_free(ctx, s->volumes[i].data);
     nc_free(ctx, s->volumes);
+    for (uint32_t i = 0; i < s->texture_count; i++)
+        nc_free(ctx, s->textures[i].data);
+    nc_free(ctx, s->textures);
     nc_free(ctx, s);
 }
 
@@ -464,6 +505,11 @@ const nacre_material_desc *nc_scene_material(const nacre_scene *s, nacre_materia
 const nc_volume_rec *nc_scene_volume(const nacre_scene *s, nacre_volume v)
 {
     return (v.id >= 1 && v.id <= s->volume_count) ? &s->volumes[v.id - 1] : NULL;
+}
+
+const nc_texture_rec *nc_scene_texture(const nacre_scene *s, nacre_texture t)
+{
+    return (t.id >= 1 && t.id <= s->texture_count) ? &s->textures[t.id - 1] : NULL;
 }
 
 const nacre_mesh_data *nacre_scene_mesh_data(const nacre_scene *s, nacre_mesh m)
@@ -604,6 +650,51 @@ nacre_result nacre_scene_add_volume(nacre_scene *s, const nacre_volume_data *dat
     rec->min_value = lo;
     rec->max_value = hi;
     out->id = ++s->volume_count;
+    s->versions.materials++;
+    return NACRE_OK;
+}
+
+/* Textures are validated once so that lookups never meet a NaN and per-channel bounds are exact
+ * (bilinear weights are convex). */
+nacre_result nacre_scene_add_texture(nacre_scene *s, const nacre_image *image, nacre_texture *out)
+{
+    if (!s || !image || !out)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    nacre_context *ctx = s->ctx;
+    out->id = 0;
+    int32_t w = image->width, h = image->height, c = image->channels;
+    if (w < 1 || h < 1 || c < 1 || c > 4 || !image->pixels || image->stride < (size_t)w * (size_t)c)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                       "texture: need width, height >= 1, 1..4 channels, pixels and stride >= width * channels");
+    size_t row = (size_t)w * (size_t)c, n;
+    if (!nc_mul_size_ok(row, (size_t)h, &n) || n > ((size_t)1 << 31))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "texture: at most 2^31 values");
+    float lo[4] = {INFINITY, INFINITY, INFINITY, INFINITY}, hi[4] = {-INFINITY, -INFINITY, -INFINITY, -INFINITY};
+    for (int32_t y = 0; y < h; y++)
+        for (size_t i = 0; i < row; i++) {
+            float v = image->pixels[(size_t)y * image->stride + i];
+            if (!(isfinite(v) && v >= 0))
+                return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                               "texture: pixel (%zu, %d) channel %zu: must be finite and >= 0 (got %g)",
+                               i / (size_t)c, (int)y, i % (size_t)c, (double)v);
+            lo[i % (size_t)c] = fminf(lo[i % (size_t)c], v);
+            hi[i % (size_t)c] = fmaxf(hi[i % (size_t)c], v);
+        }
+    float *copy = nc_alloc(ctx, n * sizeof(float));
+    if (!copy)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    for (int32_t y = 0; y < h; y++)
+        memcpy(copy + (size_t)y * row, image->pixels + (size_t)y * image->stride, row * sizeof(float));
+    nc_texture_rec *rec = grow(ctx, (void **)&s->textures, &s->texture_count, &s->texture_capacity, sizeof(*rec));
+    if (!rec) {
+        nc_free(ctx, copy);
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    }
+    rec->width = w, rec->height = h, rec->channels = c;
+    rec->data = copy;
+    memcpy(rec->min_value, lo, sizeof(lo));
+    memcpy(rec->max_value, hi, sizeof(hi));
+    out->id = ++s->texture_count;
     s->versions.materials++;
     return NACRE_OK;
 }

@@ -36,6 +36,13 @@ typedef struct nc_volume_rec {
     float min_value, max_value; /* over all samples: trilinear + clamp stays inside */
 } nc_volume_rec;
 
+/* A texture (nacre_scene_add_texture): tightly packed rows, top row first. */
+typedef struct nc_texture_rec {
+    int32_t width, height, channels;
+    float *data;                        /* owned; width * height * channels floats */
+    float min_value[4], max_value[4];   /* per channel: bilinear lookups stay inside */
+} nc_texture_rec;
+
 /* A fog (nacre_fog_desc) with what the renderers derive from it once. */
 typedef struct nc_fog_rec {
     nacre_fog_desc desc;
@@ -69,6 +76,8 @@ struct nacre_scene {
     uint32_t light_count, light_capacity;
     nc_volume_rec *volumes;
     uint32_t volume_count, volume_capacity;
+    nc_texture_rec *textures;
+    uint32_t texture_count, texture_capacity;
     nc_fog_rec fogs[NACRE_MAX_FOGS];
     uint32_t fog_count;
     nacre_camera_desc camera;
@@ -86,6 +95,7 @@ struct nacre_scene {
 const nc_mesh_rec *nc_scene_mesh(const nacre_scene *scene, nacre_mesh mesh);
 const nacre_material_desc *nc_scene_material(const nacre_scene *scene, nacre_material material);
 const nc_volume_rec *nc_scene_volume(const nacre_scene *scene, nacre_volume volume);
+const nc_texture_rec *nc_scene_texture(const nacre_scene *scene, nacre_texture texture);
 
 /* Evaluate the deformer chain at a rest-pose point (exposed for tests and the voxelizer). */
 nc_vec3 nc_deform_point(const nacre_deformer *deformers, uint32_t count, double time, nc_vec3 p);

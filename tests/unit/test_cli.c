@@ -117,6 +117,11 @@ static void test_render_errors(void)
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
     CHECK(strstr(err, "not implemented") != NULL);
     CHECK(!exists(outpng));
+    /* A layered material under a method that has no layers yet: the same. */
+    snprintf(args, sizeof(args), "render %s/examples/layered.json --method diffusion -o %s", NACRE_SOURCE_DIR, outpng);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) != 0);
+    CHECK(strstr(err, "object 'layered sphere' has a layered material") != NULL);
+    CHECK(!exists(outpng));
     /* Path tracing with its variance image; --variance needs the path tracer. */
     char varexr[600];
     snprintf(varexr, sizeof(varexr), "%s/var.exr", TMP);

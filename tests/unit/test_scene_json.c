@@ -493,6 +493,32 @@ static const bad_case bad_cases[] = {
      INVALID, "materials.m.pattern.density_scale: must be non-negative", NULL},
     {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"volume\", \"volume\": \"hetero_cube.json\"}}"),
      NACRE_ERROR_PARSE, "materials.m.pattern.volume: ", "hetero_cube.json: line 1: magic: not a NRRD file"},
+    /* Layers. */
+    {MAT("{\"preset\": \"marble\", \"layers\": 3}"), INVALID, "t.json: materials.m.layers: expected an array, got a number", NULL},
+    {MAT("{\"preset\": \"marble\", \"layers\": [{\"depth\": 1, \"preset\": \"skin1\"}, {\"depth\": 1, \"preset\": \"skin1\"},"
+         " {\"depth\": 1, \"preset\": \"skin1\"}, {\"depth\": 1, \"preset\": \"skin1\"}, {\"depth\": 1, \"preset\": \"skin1\"}]}"),
+     INVALID, "materials.m.layers: at most 4 layers (got 5)", NULL},
+    {MAT("{\"preset\": \"marble\", \"layers\": [{\"preset\": \"skin1\"}]}"), INVALID,
+     "materials.m.layers[0]: missing required key \"depth\"", NULL},
+    {MAT("{\"preset\": \"marble\", \"layers\": [{\"depth\": 1, \"preset\": \"skin1\"}, {\"depth\": 2, \"sigma_a\": 1}]}"),
+     INVALID, "materials.m.layers[1]: a layer needs \"preset\" or both \"sigma_a\" and \"sigma_s\"", NULL},
+    {MAT("{\"preset\": \"marble\", \"layers\": [{\"depth\": -1, \"preset\": \"skin1\"}]}"), INVALID,
+     "materials.m.layers[0].depth: must be non-negative", NULL},
+    {MAT("{\"preset\": \"marble\", \"layers\": [{\"depth\": 1, \"preset\": \"skin1\", \"g\": 1}]}"), INVALID,
+     "materials.m.layers[0].g: must be in (-1, 1)", NULL},
+    {MAT("{\"preset\": \"marble\", \"layers\": [{\"depth\": 1, \"preset\": \"skin9\"}]}"), INVALID,
+     "materials.m.layers[0].preset: unknown preset \"skin9\"", NULL},
+    {MAT("{\"preset\": \"marble\", \"layers\": [{\"depth\": 1, \"preset\": \"skin1\", \"thickness\": 1}]}"), INVALID,
+     "materials.m.layers[0]: unknown key \"thickness\" (valid keys: preset, sigma_a, sigma_s, g, depth)", NULL},
+    {MAT("{\"preset\": \"marble\", \"layers\": [{\"depth\": 1, \"sigma_a\": 0, \"sigma_s\": 0}]}"), INVALID,
+     "t.json: materials.m: ", "layers[0].sigma_a + sigma_s: must be positive"},
+    {MAT("{\"preset\": \"marble\", \"depth_map\": \"layered_depth.png\"}"), INVALID,
+     "materials.m.depth_map: a depth map needs \"layers\"", NULL},
+    {MAT("{\"preset\": \"marble\", \"depth_map\": \"none.png\", \"layers\": [{\"depth\": 1, \"preset\": \"skin1\"}]}"),
+     NACRE_ERROR_IO, "t.json: materials.m.depth_map: ", "examples/none.png: cannot open"},
+    {MAT("{\"preset\": \"marble\", \"depth_map\": \"hetero_density.nrrd\", \"layers\": [{\"depth\": 1, \"preset\": \"skin1\"}]}"),
+     INVALID, "materials.m.depth_map: ", "unknown image extension"},
+    {MAT("{\"type\": \"opaque\", \"layers\": []}"), INVALID, "materials.m: unknown key \"layers\"", NULL},
 };
 
 static bool one_line(const char *s)
@@ -791,6 +817,65 @@ static void test_patterns(void)
     CHECK(c.live == 0);
 }
 
+/* Layers and a depth map read as data: a 2 x 1 PNG of 0/255 samples gives 0 and 1 exactly
+ * (an sRGB decode would too; the 188 of the third channel tells them apart: 188 / 255 as data,
+ * about 0.5 decoded), per-layer presets per scene unit, and a greyscale map's 3 channels are too
+ * few for 4 layers. */
+static void test_layers(void)
+{
+    counter c;
+    nacre_context *ctx = make_context(&c);
+    mkdir(TMP, 0755);
+    float px[2 * 4] = {0.0f, 1.0f, 0.5f, 1.0f, 1.0f, 0.0f, 0.5f, 1.0f};
+    nacre_image img = {2, 1, 4, 8, px};
+    CHECK(nacre_image_write_png(ctx, &img, TMP "/depth.png", 0.0f) == NACRE_OK);
+    static const char scene[] =
+        "{\"units\": \"cm\", \"materials\": {\"m\": {\"preset\": \"skin2\", \"depth_map\": \"depth.png\", \"layers\": ["
+        "{\"sigma_a\": [1, 2, 3], \"sigma_s\": 4, \"g\": 0.5, \"depth\": 0.02},"
+        "{\"preset\": \"skin1\", \"sigma_a\": 0.25, \"depth\": 0.3}]}}}";
+    nacre_scene *s = NULL;
+    nacre_result r = nacre_scene_load_json(ctx, scene, strlen(scene), "l.json", TMP, &s, NULL);
+    CHECK(r == NACRE_OK);
+    if (r != NACRE_OK) {
+        printf("  layers: %s\n", nacre_context_last_error(ctx));
+        nacre_context_destroy(ctx);
+        return;
+    }
+    nacre_material_desc skin1;
+    CHECK(nacre_material_preset("skin1", &skin1));
+    const nacre_layering *l = &s->materials[0].layering;
+    CHECK(l->count == 2);
+    CHECK_NEAR(l->layers[0].sigma_a[2], 3, 0);
+    CHECK_NEAR(l->layers[0].sigma_s[1], 4, 0);
+    CHECK_NEAR(l->layers[0].g, 0.5, 0);
+    CHECK_NEAR(l->layers[0].depth, 0.02, 1e-9);
+    CHECK_NEAR(l->layers[1].sigma_a[0], 0.25, 0);                  /* override as written */
+    CHECK_NEAR(l->layers[1].sigma_s[1], skin1.sigma_s[1] * 10, 1e-5); /* preset: per cm */
+    CHECK_NEAR(l->layers[1].g, 0, 0);
+    const nc_texture_rec *t = nc_scene_texture(s, l->depth_map);
+    CHECK(t != NULL);
+    if (t) {
+        CHECK(t->width == 2 && t->height == 1 && t->channels == 4);
+        CHECK(t->data[0] == 0.0f && t->data[1] == 1.0f && t->data[4] == 1.0f && t->data[5] == 0.0f);
+        CHECK_NEAR(t->data[2], 188.0 / 255.0, 1e-6); /* data, not sRGB-decoded */
+    }
+    nacre_scene_destroy(s);
+
+    /* Three channels (greyscale PNG) for four layers. */
+    nacre_image grey = {2, 1, 3, 6, px};
+    CHECK(nacre_image_write_png(ctx, &grey, TMP "/grey.png", 0.0f) == NACRE_OK);
+    static const char four[] =
+        "{\"materials\": {\"m\": {\"preset\": \"skin2\", \"depth_map\": \"grey.png\", \"layers\": ["
+        "{\"preset\": \"skin1\", \"depth\": 1}, {\"preset\": \"skin1\", \"depth\": 1},"
+        "{\"preset\": \"skin1\", \"depth\": 1}, {\"preset\": \"skin1\", \"depth\": 1}]}}}";
+    r = nacre_scene_load_json(ctx, four, strlen(four), "f.json", TMP, &s, NULL);
+    CHECK(r == NACRE_ERROR_INVALID_ARGUMENT && s == NULL);
+    CHECK(strstr(nacre_context_last_error(ctx), "f.json: materials.m: ") != NULL);
+    CHECK(strstr(nacre_context_last_error(ctx), "depth_map: 3 channel(s) for 4 layers") != NULL);
+    nacre_context_destroy(ctx);
+    CHECK(c.live == 0);
+}
+
 /* Every example scene loads and commits; they are meant to be fast golden scenes. */
 static void test_examples(void)
 {
@@ -876,6 +961,7 @@ int main(void)
     test_bad_inputs();
     test_files();
     test_patterns();
+    test_layers();
     test_examples();
     test_out_of_memory();
     return TEST_MAIN_END();
