@@ -1882,6 +1882,17 @@ static nacre_result setup_layers(nc_pathtracer *pt, const pt_scene *ps, pt_objec
     return nc_locator_create(pt->ctx, pt->device, md, &o->loc);
 }
 
+/* The world bounds of an object, padded a little, cut into res^3 cells: origin and cell size. */
+static void grid_box(const nc_object_rec *rec, float eps, uint32_t res, float origin[3], float cell[3])
+{
+    for (int a = 0; a < 3; a++) {
+        float lo = rec->bounds_min[a], hi = rec->bounds_max[a];
+        float pad = 1e-3f * (hi - lo) + eps;
+        origin[a] = lo - pad;
+        cell[a] = (hi - lo + 2 * pad) / (float)res;
+    }
+}
+
 /* Layer grid and majorant grid of a layered object. Depth below the rest-pose surface is
  * 1-Lipschitz, so over a cell whose centre maps to rest point q every depth lies within
  * d(q) +- r, r the cell's half diagonal times the largest stretch of the world-to-rest map
@@ -1895,20 +1906,17 @@ static nacre_result setup_layers(nc_pathtracer *pt, const pt_scene *ps, pt_objec
 static nacre_result build_grid_layered(nc_pathtracer *pt, const pt_scene *ps, pt_object *o, const nc_object_rec *rec)
 {
     uint32_t res = pt->opt.majorant_res;
-    if (o->rest) {
-        if (res == 0)
-            return NACRE_OK;
-        size_t n = (size_t)res * res * res;
+    size_t n = (size_t)res * res * res;
+    if (res) {
         if (!(o->grid = nc_alloc(pt->ctx, n * sizeof(float))))
             return NACRE_ERROR_OUT_OF_MEMORY;
         o->res = res;
+    }
+    if (o->rest) {
         for (size_t i = 0; i < n; i++)
             o->grid[i] = o->maj_global;
-        for (int a = 0; a < 3; a++) {
-            float lo = rec->bounds_min[a], hi = rec->bounds_max[a], pad = 1e-3f * (hi - lo) + ps->eps;
-            o->gmin[a] = lo - pad;
-            o->cell[a] = (hi - lo + 2 * pad) / (float)res;
-        }
+        if (res)
+            grid_box(rec, ps->eps, res, o->gmin, o->cell);
         return NACRE_OK;
     }
     uint32_t k = res ? (LAYER_RES / res > 1 ? LAYER_RES / res : 1) : 1;
@@ -1918,10 +1926,8 @@ static nacre_result build_grid_layered(nc_pathtracer *pt, const pt_scene *ps, pt
         return NACRE_ERROR_OUT_OF_MEMORY;
     o->lres = lres;
     float half2 = 0, lcell[3];
+    grid_box(rec, ps->eps, lres, o->lmin, lcell);
     for (int a = 0; a < 3; a++) {
-        float lo = rec->bounds_min[a], hi = rec->bounds_max[a], pad = 1e-3f * (hi - lo) + ps->eps;
-        o->lmin[a] = lo - pad;
-        lcell[a] = (hi - lo + 2 * pad) / (float)lres;
         o->linv[a] = 1.0f / lcell[a];
         half2 += 0.25f * lcell[a] * lcell[a];
         if (res) {
@@ -1947,10 +1953,6 @@ static nacre_result build_grid_layered(nc_pathtracer *pt, const pt_scene *ps, pt
     }
     if (res == 0)
         return NACRE_OK;
-    size_t n = (size_t)res * res * res;
-    if (!(o->grid = nc_alloc(pt->ctx, n * sizeof(float))))
-        return NACRE_ERROR_OUT_OF_MEMORY;
-    o->res = res;
     float bound[NACRE_MAX_LAYERS + 1];
     uint32_t count = o->layers.count;
     for (uint32_t j = 0; j < count; j++)
@@ -1989,12 +1991,7 @@ static nacre_result build_grid(nc_pathtracer *pt, const pt_scene *ps, pt_object 
     if (!o->grid)
         return NACRE_ERROR_OUT_OF_MEMORY;
     o->res = res;
-    for (int a = 0; a < 3; a++) {
-        float lo = rec->bounds_min[a], hi = rec->bounds_max[a];
-        float pad = 1e-3f * (hi - lo) + ps->eps;
-        o->gmin[a] = lo - pad;
-        o->cell[a] = (hi - lo + 2 * pad) / (float)res;
-    }
+    grid_box(rec, ps->eps, res, o->gmin, o->cell);
     enum { S = 5 };
 #pragma omp parallel for schedule(static) num_threads(nc_threads(pt->ctx))
     for (int64_t ci = 0; ci < (int64_t)n; ci++) {
