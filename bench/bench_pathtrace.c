@@ -2,7 +2,9 @@
  * bench_pathtrace.c: `nacre bench pathtrace`: speed of the reference path tracer on three
  * scenes at 512x512 — a translucent sphere index matched (eta 1: NEE reaches the lights from
  * inside), the same sphere as a smooth dielectric (eta 1.3: no NEE inside; the sun is sampled
- * through the boundary, see guided_sun in src/pathtrace/pathtrace.c), and the built-in demo.
+ * through the boundary, see guided_sun in src/pathtrace/pathtrace.c), the built-in demo, and the
+ * sphere with a layered skin material (two layers over a skin core, index matched: the cost of
+ * locating collisions in layers).
  *
  * Each scene renders for a fixed time budget (30 s x --runs, whole 1-spp passes); we report
  * camera paths per second and the relative MSE of the result, estimated without a reference from the per-pixel
@@ -37,6 +39,22 @@ static const char sphere_json[] =
     " \"objects\": [\n"
     "   {\"name\": \"floor\", \"shape\": {\"type\": \"plane\", \"size\": [200, 200]}, \"material\": \"floor\"},\n"
     "   {\"name\": \"sphere\", \"shape\": {\"type\": \"sphere\", \"radius\": 10}, \"material\": \"milk\","
+    " \"transform\": {\"translate\": [0, 10, 0]}}]}\n";
+
+/* The same scene with a layered material: a thin forward-scattering top layer and a skin1
+ * layer over a skin2 core (constant depths, mm). */
+static const char layered_json[] =
+    "{\"camera\": {\"type\": \"perspective\", \"position\": [0, 12, 45], \"target\": [0, 8, 0], \"fov\": 35},\n"
+    " \"environment\": [0.35, 0.4, 0.5],\n"
+    " \"materials\": {\n"
+    "   \"skin\": {\"preset\": \"skin2\", \"eta\": 1.0, \"layers\": ["
+    "{\"sigma_a\": [0.05, 0.12, 0.3], \"sigma_s\": [4, 4, 4], \"g\": 0.8, \"depth\": 0.15},"
+    " {\"preset\": \"skin1\", \"depth\": 2}]},\n"
+    "   \"floor\": {\"type\": \"opaque\", \"diffuse\": [0.5, 0.5, 0.5], \"specular\": [0.02, 0.02, 0.02], \"shininess\": 16}},\n"
+    " \"lights\": [{\"type\": \"directional\", \"direction\": [-0.4, -1.0, -0.3], \"irradiance\": [3, 3, 3]}],\n"
+    " \"objects\": [\n"
+    "   {\"name\": \"floor\", \"shape\": {\"type\": \"plane\", \"size\": [200, 200]}, \"material\": \"floor\"},\n"
+    "   {\"name\": \"sphere\", \"shape\": {\"type\": \"sphere\", \"radius\": 10}, \"material\": \"skin\","
     " \"transform\": {\"translate\": [0, 10, 0]}}]}\n";
 
 typedef struct bench_result {
@@ -98,14 +116,14 @@ int nc_bench_pathtrace(bool json, double seconds)
     snprintf(dielectric, sizeof(dielectric), sphere_json, "1.3");
     const struct {
         const char *name, *json;
-    } scenes[3] = {{"sphere_matched", matched}, {"sphere_dielectric", dielectric},
-                   {"demo", (const char *)nacre_demo_scene_json}};
+    } scenes[4] = {{"sphere_matched", matched}, {"sphere_dielectric", dielectric},
+                   {"demo", (const char *)nacre_demo_scene_json}, {"sphere_layered", layered_json}};
     if (!json)
         printf("path tracer, %dx%d, %d threads, %.0f s per scene; time_to_1e-3 extrapolated from the variance image\n"
                "%-18s %6s %12s %12s %16s\n",
                SIZE, SIZE, nacre_context_threads(ctx), seconds, "scene", "spp", "samples/s", "rel_mse", "time_to_1e-3_s");
     int rc = 0;
-    for (int i = 0; i < 3 && rc == 0; i++) {
+    for (int i = 0; i < 4 && rc == 0; i++) {
         bench_result b;
         memset(&b, 0, sizeof(b));
         rc = run_scene(ctx, scenes[i].json, scenes[i].name, seconds, &b);

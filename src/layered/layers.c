@@ -221,9 +221,19 @@ static bool nearest_cb(struct RTCPointQueryFunctionArguments *args)
     nearest_query *q = args->userPtr;
     const nacre_mesh_data *m = q->mesh;
     const uint32_t *t = m->indices + 3 * (size_t)args->primID;
+    const float *a = m->positions + 3 * (size_t)t[0], *b = m->positions + 3 * (size_t)t[1];
+    const float *c = m->positions + 3 * (size_t)t[2];
+    /* The distance to the triangle's plane bounds the distance to the triangle from below: most
+     * candidates are rejected on it (on a smooth surface every neighbour of the nearest triangle
+     * has a plane farther away than the nearest point) before the full region walk. */
+    float ab[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, ac[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    float n[3] = {ab[1] * ac[2] - ab[2] * ac[1], ab[2] * ac[0] - ab[0] * ac[2], ab[0] * ac[1] - ab[1] * ac[0]};
+    float h = n[0] * (q->p[0] - a[0]) + n[1] * (q->p[1] - a[1]) + n[2] * (q->p[2] - a[2]);
+    float nn = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+    if (h * h >= q->best2 * nn && nn > 0)
+        return false;
     float wb, wc;
-    float d2 = closest_on_triangle(q->p, m->positions + 3 * (size_t)t[0], m->positions + 3 * (size_t)t[1],
-                                   m->positions + 3 * (size_t)t[2], &wb, &wc);
+    float d2 = closest_on_triangle(q->p, a, b, c, &wb, &wc);
     if (d2 < q->best2) {
         q->best2 = d2;
         q->prim = args->primID;
@@ -235,22 +245,41 @@ static bool nearest_cb(struct RTCPointQueryFunctionArguments *args)
     return false;
 }
 
-float nc_locator_nearest(const nc_surface_locator *loc, const float p[3], float uv[2])
+float nc_locator_nearest(const nc_surface_locator *loc, const float p[3], float max_dist, uint32_t *hint,
+                         float uv[2])
 {
-    nearest_query q = {loc->mesh, {p[0], p[1], p[2]}, INFINITY, UINT32_MAX, 0, 0};
+    /* Candidates must beat max_dist^2: the search only visits the mesh within that sphere, which
+     * the hint's own distance (an upper bound on the nearest) may shrink before it starts. */
+    const nacre_mesh_data *m = loc->mesh;
+    float r2 = max_dist * max_dist;
+    nearest_query q = {m, {p[0], p[1], p[2]}, isfinite(r2) ? r2 : INFINITY, UINT32_MAX, 0, 0};
+    if (hint && *hint < m->triangle_count) {
+        const uint32_t *t = m->indices + 3 * (size_t)*hint;
+        float wb, wc;
+        float d2 = closest_on_triangle(q.p, m->positions + 3 * (size_t)t[0], m->positions + 3 * (size_t)t[1],
+                                       m->positions + 3 * (size_t)t[2], &wb, &wc);
+        if (d2 < q.best2) {
+            q.best2 = d2;
+            q.prim = *hint;
+            q.wb = wb;
+            q.wc = wc;
+        }
+    }
     struct RTCPointQuery pq;
     pq.x = p[0], pq.y = p[1], pq.z = p[2];
-    pq.radius = INFINITY;
+    pq.radius = q.best2 < INFINITY ? sqrtf(q.best2) : (max_dist >= 0 ? max_dist : 0.0f);
     pq.time = 0;
     struct RTCPointQueryContext qc;
     rtcInitPointQueryContext(&qc);
     rtcPointQuery(loc->scene, &pq, &qc, nearest_cb, &q);
     uv[0] = uv[1] = 0;
+    if (hint)
+        *hint = q.prim;
     if (q.prim == UINT32_MAX)
         return INFINITY;
-    const float *tuv = loc->mesh->uvs;
+    const float *tuv = m->uvs;
     if (tuv) {
-        const uint32_t *t = loc->mesh->indices + 3 * (size_t)q.prim;
+        const uint32_t *t = m->indices + 3 * (size_t)q.prim;
         float wa = 1 - q.wb - q.wc;
         for (int k = 0; k < 2; k++)
             uv[k] = wa * tuv[2 * (size_t)t[0] + k] + q.wb * tuv[2 * (size_t)t[1] + k] + q.wc * tuv[2 * (size_t)t[2] + k];

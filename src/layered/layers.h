@@ -40,9 +40,14 @@ typedef struct nc_surface_locator nc_surface_locator;
 nacre_result nc_locator_create(nacre_context *ctx, RTCDevice device, const nacre_mesh_data *mesh,
                                nc_surface_locator **out);
 void nc_locator_destroy(nacre_context *ctx, nc_surface_locator *loc);
-/* Distance from p to the mesh and the interpolated uv there ((0, 0) for a mesh without uvs).
- * Thread-safe. */
-float nc_locator_nearest(const nc_surface_locator *loc, const float p[3], float uv[2]);
+/* Distance from p to the mesh and the interpolated uv there ((0, 0) for a mesh without uvs);
+ * INFINITY (uv (0, 0)) when no point of the mesh is within max_dist. The search only visits the
+ * mesh within the smaller of max_dist and the distance to the triangle *hint (if hint is not NULL
+ * and *hint a valid triangle), so callers pass the depth beyond which the answer no longer
+ * matters and a triangle that is probably near. *hint receives the nearest triangle
+ * (UINT32_MAX when none is within max_dist). Thread-safe. */
+float nc_locator_nearest(const nc_surface_locator *loc, const float p[3], float max_dist, uint32_t *hint,
+                         float uv[2]);
 #endif
 
 #endif /* NACRE_LAYERS_H */

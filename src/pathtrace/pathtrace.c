@@ -171,6 +171,8 @@ typedef struct pt_object {
     float layer_sa[NACRE_MAX_LAYERS][3], layer_ss[NACRE_MAX_LAYERS][3], layer_g[NACRE_MAX_LAYERS];
     uint8_t *lbits;          /* layered, not deformed: per cell of an lres^3 grid over the world
                                 bounds, the layers (bit count: core) its points may be in */
+    uint32_t *lhint;         /* per cell, the triangle nearest its centre (UINT32_MAX: none near):
+                                it bounds the nearest-point search of points in the cell */
     uint32_t lres;
     float lmin[3], linv[3];
     float *grid;             /* majorant grid (heterogeneous, res^3) or NULL */
@@ -354,9 +356,11 @@ static void medium_at(const pt_scene *ps, const pt_object *o, nc_vec3 p, float s
         memcpy(ss, o->sigma_s, sizeof(o->sigma_s));
         return;
     }
+    uint32_t j = o->layers.count, hint = UINT32_MAX; /* layer (count: the core) */
+    bool located = !o->layered;
     if (o->lbits) {
         /* A cell that only one layer can reach settles the point without a nearest-point query
-         * (deep inside, usually the core). */
+         * (deep inside, usually the core); in the others the cell's triangle bounds the query. */
         float pv[3] = {p.x, p.y, p.z};
         size_t idx[3];
         bool inside = true;
@@ -365,33 +369,27 @@ static void medium_at(const pt_scene *ps, const pt_object *o, nc_vec3 p, float s
             inside &= f >= 0.0f && f < (float)o->lres;
             idx[a] = inside ? (size_t)f : 0;
         }
-        uint32_t bits = inside ? o->lbits[idx[0] + o->lres * (idx[1] + o->lres * idx[2])] : 0u;
+        size_t cell = idx[0] + o->lres * (idx[1] + o->lres * idx[2]);
+        uint32_t bits = inside ? o->lbits[cell] : 0u;
+        hint = inside ? o->lhint[cell] : UINT32_MAX;
         if (bits && !(bits & (bits - 1))) {
-            uint32_t j = (uint32_t)__builtin_ctz(bits);
-            if (j < o->layers.count) {
-                memcpy(sa, o->layer_sa[j], sizeof(o->layer_sa[j]));
-                memcpy(ss, o->layer_ss[j], sizeof(o->layer_ss[j]));
-                *g = o->layer_g[j];
-                return;
-            }
-            float xyz[3];
-            rest_point(o, p, xyz);
-            ps->eval(ps->scene, o->mat, xyz, 1, sa, ss);
-            return;
+            j = (uint32_t)__builtin_ctz(bits);
+            located = true;
         }
     }
     float xyz[3];
     rest_point(o, p, xyz);
-    if (o->layered && isfinite(xyz[0]) && isfinite(xyz[1]) && isfinite(xyz[2])) {
+    if (!located && isfinite(xyz[0]) && isfinite(xyz[1]) && isfinite(xyz[2])) {
         float uv[2];
-        float depth = nc_locator_nearest(o->loc, xyz, uv);
-        uint32_t j = nc_layers_find(&o->layers, depth, uv[0], uv[1]);
-        if (j < o->layers.count) {
-            memcpy(sa, o->layer_sa[j], sizeof(o->layer_sa[j]));
-            memcpy(ss, o->layer_ss[j], sizeof(o->layer_ss[j]));
-            *g = o->layer_g[j];
-            return;
-        }
+        /* Beyond the deepest bottom any uv allows, every point is in the core. */
+        float depth = nc_locator_nearest(o->loc, xyz, o->layers.hi[o->layers.count - 1], &hint, uv);
+        j = nc_layers_find(&o->layers, depth, uv[0], uv[1]);
+    }
+    if (j < o->layers.count) {
+        memcpy(sa, o->layer_sa[j], sizeof(o->layer_sa[j]));
+        memcpy(ss, o->layer_ss[j], sizeof(o->layer_ss[j]));
+        *g = o->layer_g[j];
+        return;
     }
     ps->eval(ps->scene, o->mat, xyz, 1, sa, ss);
 }
@@ -1801,6 +1799,7 @@ static void release_scene(nc_pathtracer *pt)
         nc_free(ctx, pt->objects[i].grid);
         nc_locator_destroy(ctx, pt->objects[i].loc);
         nc_free(ctx, pt->objects[i].lbits);
+        nc_free(ctx, pt->objects[i].lhint);
         nc_free(ctx, pt->objects[i].rest);
         nc_free(ctx, pt->objects[i].dist);
         nc_free(ctx, pt->objects[i].adj);
@@ -1922,7 +1921,9 @@ static nacre_result build_grid_layered(nc_pathtracer *pt, const pt_scene *ps, pt
     uint32_t k = res ? (LAYER_RES / res > 1 ? LAYER_RES / res : 1) : 1;
     uint32_t lres = res ? res * k : LAYER_RES;
     size_t nl = (size_t)lres * lres * lres;
-    if (!(o->lbits = nc_alloc(pt->ctx, nl)))
+    o->lbits = nc_alloc(pt->ctx, nl);
+    o->lhint = nc_alloc(pt->ctx, nl * sizeof(uint32_t));
+    if (!o->lbits || !o->lhint)
         return NACRE_ERROR_OUT_OF_MEMORY;
     o->lres = lres;
     float half2 = 0, lcell[3];
@@ -1948,8 +1949,11 @@ static nacre_result build_grid_layered(nc_pathtracer *pt, const pt_scene *ps, pt
                           o->lmin[2] + lcell[2] * ((float)cz + 0.5f));
         nc_vec3 q = nc_mat4_point(&o->world_to_rest, c);
         float qv[3] = {q.x, q.y, q.z}, uv[2];
-        float d = nc_locator_nearest(o->loc, qv, uv);
+        /* Past the deepest bottom by more than r the cell is core only (d = INFINITY says so). */
+        uint32_t near = UINT32_MAX;
+        float d = nc_locator_nearest(o->loc, qv, o->layers.hi[o->layers.count - 1] + r, &near, uv);
         o->lbits[ci] = (uint8_t)nc_layers_touching(&o->layers, d - r, d + r);
+        o->lhint[ci] = near;
     }
     if (res == 0)
         return NACRE_OK;

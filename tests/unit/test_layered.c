@@ -3,7 +3,7 @@
  * map lookups against hand-computed texel blends; the layer found at a depth against the
  * running-maximum definition, and the conservative depth-range test (nc_layers_touching) against
  * the layers actually found; nearest surface points (Embree point queries) against closed forms
- * on a box (distance to the nearest face), a plane (distance and affine uv) and a sphere (R - |p|
+ * on a box (distance to the nearest face; a search radius short of it finds nothing), a plane (distance and affine uv) and a sphere (R - |p|
  * within the tessellation's sagitta); scene validation of layers and textures with one-line
  * errors naming the field.
  */
@@ -163,7 +163,10 @@ static void test_locator(void)
             p[a] = (float)(urand() * 1.98 - 0.99);
             want = fmin(want, 1.0 - fabs(p[a]));
         }
-        worst = fmax(worst, fabs(nc_locator_nearest(loc, p, uv) - want));
+        worst = fmax(worst, fabs(nc_locator_nearest(loc, p, INFINITY, NULL, uv) - want));
+        /* A search radius short of the depth finds nothing; one past it finds the same. */
+        CHECK(nc_locator_nearest(loc, p, (float)want * 0.99f, NULL, uv) == INFINITY);
+        CHECK_NEAR(nc_locator_nearest(loc, p, (float)want * 1.01f + 1e-6f, NULL, uv), want, 1e-5);
     }
     printf("  box: worst depth error %.2e\n", worst);
     CHECK(worst < 1e-5);
@@ -192,7 +195,7 @@ static void test_locator(void)
     for (int k = 0; k < 300; k++) {
         float p[3] = {(float)(urand() * 1.9 - 0.95), (float)(urand() * 0.8 + 0.05), (float)(urand() * 1.9 - 0.95)};
         float uv[2];
-        worst = fmax(worst, fabs(nc_locator_nearest(loc, p, uv) - p[1]));
+        worst = fmax(worst, fabs(nc_locator_nearest(loc, p, INFINITY, NULL, uv) - p[1]));
         double dx = p[0] - P[0][0], dz = p[2] - P[0][2];
         double b1 = (dx * e2z - e2x * dz) / det, b2 = (e1x * dz - dx * e1z) / det;
         for (int c = 0; c < 2; c++) {
@@ -219,7 +222,7 @@ static void test_locator(void)
                 p[a] = (float)(urand() * 2 - 1);
             r2 = (double)p[0] * p[0] + (double)p[1] * p[1] + (double)p[2] * p[2];
         } while (r2 > 0.95 * 0.95);
-        worst = fmax(worst, fabs(nc_locator_nearest(loc, p, uv) - (1.0 - sqrt(r2))));
+        worst = fmax(worst, fabs(nc_locator_nearest(loc, p, INFINITY, NULL, uv) - (1.0 - sqrt(r2))));
     }
     printf("  sphere: worst |depth - (R - |p|)| %.2e\n", worst);
     CHECK(worst < 1.3e-3);
