@@ -397,6 +397,45 @@ static void test_layered(const nc_pathtrace_options *def)
     nacre_scene_destroy(s1);
     nacre_scene_destroy(s2);
     nacre_scene_destroy(s3);
+
+    /* A depth map on a mesh without uvs: a one-line error naming the object, no image. */
+    {
+        nacre_scene *s = NULL;
+        CHECK(nacre_scene_create(ctx, &s) == NACRE_OK);
+        nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_SPHERE);
+        sd.segments = 16;
+        sd.rings = 8;
+        nacre_mesh_data data = {0};
+        CHECK(nacre_mesh_make_shape(ctx, &sd, &data) == NACRE_OK);
+        nacre_mesh_data bare = data;
+        bare.uvs = NULL;
+        bare.tangents = NULL;
+        nacre_mesh mesh;
+        CHECK(nacre_scene_add_mesh(s, &bare, &mesh) == NACRE_OK);
+        nacre_mesh_data_free(ctx, &data);
+        float px[4] = {1, 1, 1, 1};
+        nacre_image one = {1, 1, 4, 4, px};
+        nacre_material_desc mm = shell_layered();
+        CHECK(nacre_scene_add_texture(s, &one, &mm.layering.depth_map) == NACRE_OK);
+        nacre_material mat;
+        CHECK(nacre_scene_add_material(s, &mm, &mat) == NACRE_OK);
+        nacre_object_desc od = nacre_object_desc_defaults();
+        od.mesh = mesh;
+        od.material = mat;
+        od.name = "bare";
+        nacre_object obj;
+        CHECK(nacre_scene_add_object(s, &od, &obj) == NACRE_OK);
+        nacre_camera_desc cam = nacre_camera_desc_defaults();
+        CHECK(nacre_scene_set_camera(s, &cam) == NACRE_OK);
+        CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
+        nacre_render_settings rs = pt_settings(8, 1);
+        nacre_image img = {0};
+        CHECK(nacre_render(s, &rs, &img, NULL) == NACRE_ERROR_INVALID_ARGUMENT);
+        CHECK(img.pixels == NULL);
+        CHECK(strstr(nacre_context_last_error(ctx), "object 'bare': its layered material has a depth_map but its "
+                                                    "mesh has no uvs") != NULL);
+        nacre_scene_destroy(s);
+    }
 }
 
 int main(void)
