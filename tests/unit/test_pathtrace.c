@@ -18,10 +18,10 @@
 
 static nacre_context *ctx;
 
-/* A sphere of radius 1 at the origin (segments x rings) with a translucent material, camera
- * looking at it. */
-static nacre_scene *sphere_scene_res(nacre_context *c, const nacre_material_desc *md, float env, uint32_t segments,
-                                     uint32_t rings)
+/* A sphere of radius 1 at the origin (segments x rings, with or without uvs) with a translucent
+ * material, camera looking at it. */
+static nacre_scene *sphere_scene_mesh(nacre_context *c, const nacre_material_desc *md, float env, uint32_t segments,
+                                      uint32_t rings, bool uvs)
 {
     nacre_scene *s = NULL;
     CHECK(nacre_scene_create(c, &s) == NACRE_OK);
@@ -31,7 +31,10 @@ static nacre_scene *sphere_scene_res(nacre_context *c, const nacre_material_desc
     nacre_mesh_data data = {0};
     CHECK(nacre_mesh_make_shape(c, &sd, &data) == NACRE_OK);
     nacre_mesh mesh;
-    CHECK(nacre_scene_add_mesh(s, &data, &mesh) == NACRE_OK);
+    nacre_mesh_data added = data;
+    if (!uvs)
+        added.uvs = added.tangents = NULL;
+    CHECK(nacre_scene_add_mesh(s, &added, &mesh) == NACRE_OK);
     nacre_mesh_data_free(c, &data);
     nacre_material mat;
     CHECK(nacre_scene_add_material(s, md, &mat) == NACRE_OK);
@@ -50,6 +53,12 @@ static nacre_scene *sphere_scene_res(nacre_context *c, const nacre_material_desc
     CHECK(nacre_scene_set_environment(s, e) == NACRE_OK);
     CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
     return s;
+}
+
+static nacre_scene *sphere_scene_res(nacre_context *c, const nacre_material_desc *md, float env, uint32_t segments,
+                                     uint32_t rings)
+{
+    return sphere_scene_mesh(c, md, env, segments, rings, true);
 }
 
 static nacre_scene *sphere_scene(nacre_context *c, const nacre_material_desc *md, float env)
@@ -400,33 +409,18 @@ static void test_layered(const nc_pathtrace_options *def)
 
     /* A depth map on a mesh without uvs: a one-line error naming the object, no image. */
     {
-        nacre_scene *s = NULL;
-        CHECK(nacre_scene_create(ctx, &s) == NACRE_OK);
-        nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_SPHERE);
-        sd.segments = 16;
-        sd.rings = 8;
-        nacre_mesh_data data = {0};
-        CHECK(nacre_mesh_make_shape(ctx, &sd, &data) == NACRE_OK);
-        nacre_mesh_data bare = data;
-        bare.uvs = NULL;
-        bare.tangents = NULL;
-        nacre_mesh mesh;
-        CHECK(nacre_scene_add_mesh(s, &bare, &mesh) == NACRE_OK);
-        nacre_mesh_data_free(ctx, &data);
+        nacre_material_desc mm = shell_layered();
+        nacre_scene *s = sphere_scene_mesh(ctx, &mm, 0.0f, 16, 8, false);
         float px[4] = {1, 1, 1, 1};
         nacre_image one = {1, 1, 4, 4, px};
-        nacre_material_desc mm = shell_layered();
         CHECK(nacre_scene_add_texture(s, &one, &mm.layering.depth_map) == NACRE_OK);
-        nacre_material mat;
-        CHECK(nacre_scene_add_material(s, &mm, &mat) == NACRE_OK);
+        nacre_material first = {1};
+        CHECK(nacre_scene_set_material(s, first, &mm) == NACRE_OK);
         nacre_object_desc od = nacre_object_desc_defaults();
-        od.mesh = mesh;
-        od.material = mat;
+        od.mesh.id = od.material.id = 1;
         od.name = "bare";
-        nacre_object obj;
-        CHECK(nacre_scene_add_object(s, &od, &obj) == NACRE_OK);
-        nacre_camera_desc cam = nacre_camera_desc_defaults();
-        CHECK(nacre_scene_set_camera(s, &cam) == NACRE_OK);
+        nacre_object obj = {1};
+        CHECK(nacre_scene_set_object(s, obj, &od) == NACRE_OK);
         CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
         nacre_render_settings rs = pt_settings(8, 1);
         nacre_image img = {0};
