@@ -640,8 +640,6 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
  * must approximate the fine one: it keeps the re-discretization's 1/2. */
 #define SEED_G_SCALE 0.5f
 
-/* Coarse level li from li - 1: Galerkin sums with conductances scaled by `scale` per coarsened
- * axis (COARSE_G_SCALE for multigrid, SEED_G_SCALE for the seed's cascade). Parallel over coarse z slabs, each gathering its own fine children. */
 /* Zero padded plane z of a coarse level's domain and operator (solid, diag, g). */
 static void clear_plane(const level *l, size_t z)
 {
@@ -651,6 +649,10 @@ static void clear_plane(const level *l, size_t z)
     for (int a = 0; a < 3; a++)
         memset(l->g[a] + p0, 0, plane * sizeof(v4));
 }
+
+/* Coarse level li from li - 1: Galerkin sums with conductances scaled by `scale` per coarsened
+ * axis (COARSE_G_SCALE for multigrid, SEED_G_SCALE for the seed's cascade). Parallel over coarse
+ * z slabs, each gathering its own fine children. */
 
 static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
 {

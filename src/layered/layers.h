@@ -19,8 +19,6 @@ typedef struct nc_layer_stack {
 
 /* `layering` must have passed the scene's validation (its depth map exists). */
 void nc_layers_init(const nacre_scene *scene, const nacre_layering *layering, nc_layer_stack *out);
-/* Bottoms of the layers (running maximum of depth * map) at texture coordinates (u, v). */
-void nc_layers_bottoms(const nc_layer_stack *stack, float u, float v, float bottom[NACRE_MAX_LAYERS]);
 /* The layer holding depth d below the surface point of texture coordinates (u, v): 0..count-1,
  * or count for the core. A point exactly on a boundary belongs to the deeper layer. */
 uint32_t nc_layers_find(const nc_layer_stack *stack, float d, float u, float v);

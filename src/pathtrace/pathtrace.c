@@ -165,8 +165,7 @@ typedef struct pt_object {
                                 deformed object-space mesh (nacre_voxel_grid_rest_positions) */
     uint32_t rdims[3];
     float rorigin[3], rvoxel;
-    bool layered;            /* material has layers above its core (see layered/layers.h) */
-    nc_layer_stack layers;
+    nc_layer_stack layers;   /* count > 0: layers above the core (see layered/layers.h) */
     nc_surface_locator *loc; /* layered: nearest points of the rest-pose mesh */
     float layer_sa[NACRE_MAX_LAYERS][3], layer_ss[NACRE_MAX_LAYERS][3], layer_g[NACRE_MAX_LAYERS];
     uint8_t *lbits;          /* layered, not deformed: per cell of an lres^3 grid over the world
@@ -345,6 +344,14 @@ static void rest_point(const pt_object *o, nc_vec3 p, float out[3])
     out[0] = r[0], out[1] = r[1], out[2] = r[2];
 }
 
+/* Coefficients and phase anisotropy of layer j of object o. */
+static inline void layer_medium(const pt_object *o, uint32_t j, float sa[3], float ss[3], float *g)
+{
+    memcpy(sa, o->layer_sa[j], sizeof(o->layer_sa[j]));
+    memcpy(ss, o->layer_ss[j], sizeof(o->layer_ss[j]));
+    *g = o->layer_g[j];
+}
+
 /* Coefficients and phase anisotropy at world point p inside object o. In a layered material the
  * rest point's depth below the rest-pose surface picks the layer (a non-finite rest point, outside
  * a deformed object's voxels, is in the core). */
@@ -357,7 +364,7 @@ static void medium_at(const pt_scene *ps, const pt_object *o, nc_vec3 p, float s
         return;
     }
     uint32_t j = o->layers.count, hint = UINT32_MAX; /* layer (count: the core) */
-    bool located = !o->layered;
+    bool located = o->layers.count == 0;
     if (o->lbits) {
         /* A cell that only one layer can reach settles the point without a nearest-point query
          * (deep inside, usually the core); in the others the cell's triangle bounds the query. */
@@ -377,6 +384,10 @@ static void medium_at(const pt_scene *ps, const pt_object *o, nc_vec3 p, float s
             located = true;
         }
     }
+    if (located && j < o->layers.count) {
+        layer_medium(o, j, sa, ss, g); /* no rest point needed */
+        return;
+    }
     float xyz[3];
     rest_point(o, p, xyz);
     if (!located && isfinite(xyz[0]) && isfinite(xyz[1]) && isfinite(xyz[2])) {
@@ -384,12 +395,10 @@ static void medium_at(const pt_scene *ps, const pt_object *o, nc_vec3 p, float s
         /* Beyond the deepest bottom any uv allows, every point is in the core. */
         float depth = nc_locator_nearest(o->loc, xyz, o->layers.hi[o->layers.count - 1], &hint, uv);
         j = nc_layers_find(&o->layers, depth, uv[0], uv[1]);
-    }
-    if (j < o->layers.count) {
-        memcpy(sa, o->layer_sa[j], sizeof(o->layer_sa[j]));
-        memcpy(ss, o->layer_ss[j], sizeof(o->layer_ss[j]));
-        *g = o->layer_g[j];
-        return;
+        if (j < o->layers.count) {
+            layer_medium(o, j, sa, ss, g);
+            return;
+        }
     }
     ps->eval(ps->scene, o->mat, xyz, 1, sa, ss);
 }
@@ -2233,12 +2242,12 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
             o->kind = m->eta == 1.0f ? PT_MATCHED : PT_DIELECTRIC;
             o->casts = true;
             pt->any_matched |= o->kind == PT_MATCHED;
-            o->layered = m->layering.count > 0;
-            o->heterogeneous = nc_medium_heterogeneous(m) || o->layered || pt->opt.force_heterogeneous;
+            const bool layered = m->layering.count > 0;
+            o->heterogeneous = nc_medium_heterogeneous(m) || layered || pt->opt.force_heterogeneous;
             float mx[3];
             max_fn(s, m, mx);
             o->maj_global = fmaxf(mx[0], fmaxf(mx[1], mx[2]));
-            if (o->layered) {
+            if (layered) {
                 nacre_result res = setup_layers(pt, ps, o, rec, md);
                 if (res != NACRE_OK)
                     return res;
@@ -2257,7 +2266,7 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
                 nacre_result res = rec->desc.deformer_count > 0 ? build_rest_grid(pt, o, rec, md) : NACRE_OK;
                 if (res != NACRE_OK)
                     return res;
-                res = o->layered ? build_grid_layered(pt, ps, o, rec) : build_grid(pt, ps, o, rec);
+                res = layered ? build_grid_layered(pt, ps, o, rec) : build_grid(pt, ps, o, rec);
                 if (res != NACRE_OK)
                     return res;
             }

@@ -50,7 +50,8 @@ static const char bench_help[] =
     "           (either filter skips the solver tables of `bench diffusion`)\n"
     "usage: nacre bench pathtrace [--json] [--runs N]\n"
     "  pathtrace  samples/s and extrapolated time to relative MSE 1e-3 at 512x512: translucent\n"
-    "           sphere (index matched, dielectric) and the demo scene, N x 30 s each (default 1)\n";
+    "           sphere (index matched, dielectric, layered skin) and the demo scene, N x 30 s each\n"
+    "           (default 1)\n";
 
 /* bench/bench_pathtrace.c */
 int nc_bench_pathtrace(bool json, double seconds);
