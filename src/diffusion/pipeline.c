@@ -43,6 +43,10 @@ static void free_arrays(nc_diff_object *o)
     nc_free(ctx, o->packed);
     nc_free(ctx, o->acc);
     nc_free(ctx, o->row_live);
+    nc_free(ctx, o->packed_ghost);
+    o->packed_ghost = NULL;
+    o->ghost_capacity = 0;
+    o->ghosts = false;
     o->packed = NULL;
     o->packed_capacity = 0;
     o->row_live = NULL;

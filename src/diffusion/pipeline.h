@@ -70,6 +70,10 @@ typedef struct nc_diff_object {
      * exitance and packed already and are skipped. */
     uint8_t *row_live;
     size_t row_live_capacity;
+    float *packed_ghost;             /* when ghosts: the fallback's record of every padded cell
+                                      * (shade_diffusion.c), 4 floats each, packed's layout */
+    size_t ghost_capacity;           /* padded cells allocated in packed_ghost */
+    bool ghosts;
     uint32_t exit_dims[3];
     bool exit_valid;
     bool phi_valid;
@@ -164,16 +168,14 @@ void nc_tsm_band_free(nacre_context *ctx, nc_tsm_band *band);
 
 /* Depth below the surface, in cells, at which the shading pass reads the solution. */
 #define NC_DIFF_SAMPLE_DEPTH 0.5f
+/* Padded grids up to this many cells keep every cell's fallback record (o->packed_ghost). */
+#define NC_DIFF_GHOST_GRID_CELLS 32768u
 
 /* After the solve: per cell and channel, the exitance a surface NC_DIFF_SAMPLE_DEPTH cells away
  * would have (FACE mode adds the lit faces' own term, see the file), into o->exitance and
  * o->packed (padded, see nc_diff_object; grown if needed). D[c]: diffusion coefficient per cell. */
 nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3], nacre_diffusion_source mode,
                                       int threads);
-/* Exitance (3 channels) at surface point p with normal n (the solution read one cell below p,
- * plus in FACE mode the lit faces' term read at p; solid cells only). False if no solid cell is
- * within one cell of the sample point. */
-bool nc_diff_exitance_at(const nc_diff_object *o, nc_vec3 p, nc_vec3 n, bool face_mode, float out[3]);
 /* The subsurface hook of the phong pass: radiance towards the viewer at a batch of pixels of a
  * translucent object, into out[channel][pixel]. user = the nc_diff_state. */
 void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_shade_batch *batch,

@@ -31,7 +31,14 @@
  * so heterogeneous media need no separate D interpolation.
  *
  * Interpolation: trilinear between cell centres over solid cells only (weights renormalized), so
- * empty space never leaks in; with no solid corner, the nearest solid cell within one cell.
+ * empty space never leaks in. Where no solid corner has weight (thin parts at coarse grids: a
+ * fifth of Suzanne's pixels at 4^3, half of the statue's, 1% at 128^3), the corners take ghost
+ * values: an empty cell next to the domain (26-neighbourhood) holds the weighted mean of its
+ * solid neighbours, and the point interpolates the corners that have one (ghost_value). A point
+ * with none has no solid cell within one cell and gets no subsurface light. This replaced the
+ * nearest solid cell, which drew the solid cells' Voronoi edges on thin parts and searched 27
+ * cells per pixel (a third of the shading pass at 4^3); against the 64^3 image, Suzanne's and the
+ * statue's 1280x720 pictures at 4^3 came closer (rmse 0.0332 -> 0.0315, 0.0486 -> 0.0412).
  *
  * Radiance towards the viewer:
  *   L = E (1 - F(cos_o, eta)) / (pi (1 - F_diffuse(eta))),
@@ -43,30 +50,86 @@
  *
  * The shading pass calls nc_diff_subsurface_radiance once per batch of pixels (shade.h): the
  * per-pixel arithmetic runs as vectorized loops over the batch, and only the corner reads of
- * the padded exitance grid and the nearest-cell fallback (with the batch's cells cached) run per
- * pixel; the values are those of nc_diff_exitance_at, bit for bit.
+ * the padded exitance grid and the ghost fallback (with the batch's cells cached) run per pixel.
  */
 #include "diffusion/pipeline.h"
 #include "core/optics.h"
 
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 /* Trilinear interpolation of a per-cell field (3 channels) at p over the solid cells around it
- * (weights renormalized); with no solid corner with weight, the nearest solid cell centre among
- * the 27 around p's cell. For many nearby points (a batch of pixels) the cache keeps the solid
- * corners of the last interpolation cell and the solid cells of the last 27-cell neighbourhood,
- * so that points in the same cells skip the bounds and solid tests; the sums and the search
- * visit the same cells in the same order either way. At coarse grids many pixels take the
- * nearest-cell fallback, and neighbouring pixels share their cells. */
+ * (weights renormalized); where no solid corner has weight, over the corners' ghost values
+ * (ghost_value). For many nearby points (a batch of pixels) the cache keeps the solid corners of
+ * the last interpolation cell and the corner values of the last ghost interpolation, so that
+ * points in the same cells skip the bounds and solid tests and the ghosts' sums; the result is
+ * the same either way. At coarse grids many pixels take the ghost path, and neighbouring pixels
+ * share their cells. */
+typedef float v4f __attribute__((vector_size(16)));
+
 typedef struct field_cache {
-    int corner_key[3], near_key[3];
-    bool corner_valid, near_valid;
-    int corner_n, near_n;
+    int corner_key[3], ghost_key[3];
+    bool corner_valid, ghost_valid;
+    int corner_n;
     int corner_k[8];
-    size_t corner_i[8], near_i[27];
-    float near_x[27], near_y[27], near_z[27];
+    size_t corner_i[8];
+    v4f ghost[8];
 } field_cache;
+
+/* Trilinear interpolation of 8 corner records (corner k at +x if k & 1, +y if k & 2, +z if k & 4)
+ * as three lerps: the weights of the per-corner products (1 - fx or fx) (1 - fy or fy) ... */
+static inline v4f lerp8(const v4f c[8], float fx, float fy, float fz)
+{
+    const float gx0 = 1.0f - fx, gy0 = 1.0f - fy, gz0 = 1.0f - fz;
+    v4f c00 = c[0] * gx0 + c[1] * fx, c10 = c[2] * gx0 + c[3] * fx;
+    v4f c01 = c[4] * gx0 + c[5] * fx, c11 = c[6] * gx0 + c[7] * fx;
+    return (c00 * gy0 + c10 * fy) * gz0 + (c01 * gy0 + c11 * fy) * fz;
+}
+
+/* The fallback's record of grid cell (x, y, z), possibly outside the grid: (value, 1) with its own
+ * value if solid, else with the weighted mean of the solid cells among its 26 neighbours (weight
+ * 2^-(|dx|+|dy|+|dz|): face 1/2, edge 1/4, corner 1/8); zero if it has none. */
+static v4f ghost_record(const nc_diff_object *o, float *const field[3], int x, int y, int z)
+{
+    const int nx = (int)o->dims[0], ny = (int)o->dims[1], nz = (int)o->dims[2];
+    static const float weight[4] = {1.0f, 0.5f, 0.25f, 0.125f};
+    if (x >= 0 && y >= 0 && z >= 0 && x < nx && y < ny && z < nz) {
+        size_t i = (size_t)x + (size_t)nx * ((size_t)y + (size_t)ny * (size_t)z);
+        if (o->solid[i])
+            return (v4f){field[0][i], field[1][i], field[2][i], 1.0f};
+    }
+    float a[3] = {0.0f, 0.0f, 0.0f}, ws = 0.0f;
+    for (int dz = -1; dz <= 1; dz++)
+        for (int dy = -1; dy <= 1; dy++)
+            for (int dx = -1; dx <= 1; dx++) {
+                int cx = x + dx, cy = y + dy, cz = z + dz;
+                if (cx < 0 || cy < 0 || cz < 0 || cx >= nx || cy >= ny || cz >= nz)
+                    continue;
+                size_t i = (size_t)cx + (size_t)nx * ((size_t)cy + (size_t)ny * (size_t)cz);
+                if (!o->solid[i])
+                    continue;
+                float w = weight[abs(dx) + abs(dy) + abs(dz)];
+                for (int c = 0; c < 3; c++)
+                    a[c] += w * field[c][i];
+                ws += w;
+            }
+    if (!(ws > 0.0f))
+        return (v4f){0.0f, 0.0f, 0.0f, 0.0f};
+    return (v4f){a[0] / ws, a[1] / ws, a[2] / ws, 1.0f};
+}
+
+/* The value of a ghost interpolation (the trilinear sums of ghost records); false if no corner
+ * with weight has a record. */
+static bool ghost_result(v4f acc, float out[3])
+{
+    out[0] = out[1] = out[2] = 0.0f;
+    if (!(acc[3] > 0.0f))
+        return false;
+    for (int c = 0; c < 3; c++)
+        out[c] = acc[c] / acc[3];
+    return true;
+}
 
 static bool sample_field_cached(const nc_diff_object *o, float *const field[3], nc_vec3 p, field_cache *fc,
                                 float out[3])
@@ -78,8 +141,8 @@ static bool sample_field_cached(const nc_diff_object *o, float *const field[3], 
     const float inv_h = 1.0f / o->h;
     float gx = (p.x - o->origin[0]) * inv_h - 0.5f, gy = (p.y - o->origin[1]) * inv_h - 0.5f,
           gz = (p.z - o->origin[2]) * inv_h - 0.5f;
-    if (!isfinite(gx) || !isfinite(gy) || !isfinite(gz))
-        return false;
+    if (!(fabsf(gx) < 1e6f && fabsf(gy) < 1e6f && fabsf(gz) < 1e6f))
+        return false; /* also NaN; keeps the cell indices in range of int */
     int x0 = (int)floorf(gx), y0 = (int)floorf(gy), z0 = (int)floorf(gz);
     float fx = gx - (float)x0, fy = gy - (float)y0, fz = gz - (float)z0;
     if (!fc->corner_valid || fc->corner_key[0] != x0 || fc->corner_key[1] != y0 || fc->corner_key[2] != z0) {
@@ -113,54 +176,19 @@ static bool sample_field_cached(const nc_diff_object *o, float *const field[3], 
             out[c] = acc[c] / wsum;
         return true;
     }
-    int cx = (int)floorf(gx + 0.5f), cy = (int)floorf(gy + 0.5f), cz = (int)floorf(gz + 0.5f);
-    if (!fc->near_valid || fc->near_key[0] != cx || fc->near_key[1] != cy || fc->near_key[2] != cz) {
-        fc->near_n = 0;
-        for (int dz = -1; dz <= 1; dz++)
-            for (int dy = -1; dy <= 1; dy++)
-                for (int dx = -1; dx <= 1; dx++) {
-                    int x = cx + dx, y = cy + dy, z = cz + dz;
-                    if (x < 0 || y < 0 || z < 0 || x >= nx || y >= ny || z >= nz)
-                        continue;
-                    size_t i = (size_t)x + (size_t)nx * ((size_t)y + (size_t)ny * (size_t)z);
-                    if (!o->solid[i])
-                        continue;
-                    fc->near_i[fc->near_n] = i;
-                    fc->near_x[fc->near_n] = (float)x;
-                    fc->near_y[fc->near_n] = (float)y;
-                    fc->near_z[fc->near_n++] = (float)z;
-                }
-        fc->near_key[0] = cx;
-        fc->near_key[1] = cy;
-        fc->near_key[2] = cz;
-        fc->near_valid = true;
+    if (!fc->ghost_valid || fc->ghost_key[0] != x0 || fc->ghost_key[1] != y0 || fc->ghost_key[2] != z0) {
+        for (int k = 0; k < 8; k++)
+            fc->ghost[k] = ghost_record(o, field, x0 + (k & 1), y0 + ((k >> 1) & 1), z0 + ((k >> 2) & 1));
+        fc->ghost_key[0] = x0;
+        fc->ghost_key[1] = y0;
+        fc->ghost_key[2] = z0;
+        fc->ghost_valid = true;
     }
-    float best = INFINITY;
-    size_t best_i = 0;
-    for (int j = 0; j < fc->near_n; j++) {
-        float ex = fc->near_x[j] - gx, ey = fc->near_y[j] - gy, ez = fc->near_z[j] - gz;
-        float d2 = ex * ex + ey * ey + ez * ez;
-        if (d2 < best) {
-            best = d2;
-            best_i = fc->near_i[j];
-        }
-    }
-    if (!isfinite(best))
-        return false;
-    for (int c = 0; c < 3; c++)
-        out[c] = field[c][best_i];
-    return true;
+    return ghost_result(lerp8(fc->ghost, fx, fy, fz), out);
 }
 
-/* sample_field_cached for a single point. */
-static bool sample_field(const nc_diff_object *o, float *const field[3], nc_vec3 p, float out[3])
-{
-    field_cache fc = {.corner_valid = false, .near_valid = false};
-    return sample_field_cached(o, field, p, &fc, out);
-}
-
-/* One pass over the padded grid writes both layouts: o->exitance (the fallback's and
- * nc_diff_exitance_at's) and o->packed (the shading pass's corner reads). */
+/* One pass over the padded grid writes both layouts: o->exitance (the fallback's) and o->packed
+ * (the shading pass's corner reads). */
 nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3], nacre_diffusion_source mode,
                                       int threads)
 {
@@ -247,16 +275,34 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
         }
     memcpy(o->exit_dims, o->dims, sizeof(o->dims));
     o->exit_valid = true;
+    /* Small grids: every padded cell's ghost record, so that the shading pass's many fallbacks
+     * (a fifth to half of the pixels at 4^3) are one more corner read. Larger grids have few and
+     * compute them per pixel, with the same records and arithmetic. */
+    o->ghosts = false;
+    if (padded <= NC_DIFF_GHOST_GRID_CELLS) {
+        if (padded > o->ghost_capacity) {
+            nc_free(o->ctx, o->packed_ghost);
+            o->ghost_capacity = 0;
+            o->packed_ghost = nc_alloc(o->ctx, bytes);
+            if (!o->packed_ghost)
+                return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the exitance grid");
+            o->ghost_capacity = padded;
+        }
+        v4f *g = (v4f *)(void *)o->packed_ghost;
+        for (size_t z = 0; z < pz; z++)
+            for (size_t y = 0; y < py; y++)
+                for (size_t x = 0; x < px; x++)
+                    g[x + px * (y + py * z)] = ghost_record(o, o->exitance, (int)x - 1, (int)y - 1, (int)z - 1);
+        o->ghosts = true;
+    }
     return NACRE_OK;
 }
 
-/* sample_field over o->packed for the exitance: the same weights and corners, with the solid
- * test folded into the data (exitance is 0 and the 4th value is 0 outside the domain and in
- * the padding, so adding w x 0 leaves the sums unchanged) and no per-corner branch: one
- * 4-wide multiply-add per corner. Points farther than half a cell outside the grid, or with no
- * solid corner with weight, take sample_field (the nearest-cell fallback). */
-typedef float v4f __attribute__((vector_size(16)));
-
+/* sample_field_cached's solid-corner sums over o->packed for the exitance: the same weights and
+ * corners, with the solid test folded into the data (exitance is 0 and the 4th value is 0
+ * outside the domain and in the padding, so adding w x 0 leaves the sums unchanged) and no
+ * per-corner branch: one 4-wide multiply-add per corner. Points farther than half a cell outside
+ * the grid, or with no solid corner with weight, take sample_field_cached (the ghost fallback). */
 /* Grid coordinates of p for padded_sum: relative to the padded grid's cell centres (hence
  * + 1 - 0.5). */
 static inline void padded_coords(const nc_diff_object *o, float inv_h, float px, float py, float pz, float *gx,
@@ -267,56 +313,19 @@ static inline void padded_coords(const nc_diff_object *o, float inv_h, float px,
     *gz = (pz - o->origin[2]) * inv_h + 0.5f;
 }
 
-/* The trilinear sums (exitance RGB, solid weight) at padded coordinates inside the padded grid. */
-static inline v4f padded_sum(const nc_diff_object *o, float gx, float gy, float gz)
+/* The trilinear sums over a padded record grid (o->packed: exitance RGB, solid weight; or
+ * o->packed_ghost) at padded coordinates inside the padded grid. */
+static inline v4f padded_sum(const nc_diff_object *o, const float *grid, float gx, float gy, float gz)
 {
     int x0 = (int)gx, y0 = (int)gy, z0 = (int)gz; /* non-negative: truncation is floor */
     float fx = gx - (float)x0, fy = gy - (float)y0, fz = gz - (float)z0;
     const size_t sy = 4 * ((size_t)o->dims[0] + 2), sz = sy * ((size_t)o->dims[1] + 2);
-    const float *base = o->packed + 4 * (size_t)x0 + sy * (size_t)y0 + sz * (size_t)z0;
+    const float *base = grid + 4 * (size_t)x0 + sy * (size_t)y0 + sz * (size_t)z0;
     v4f c[8];
     for (int k = 0; k < 8; k++)
         memcpy(&c[k], base + 4 * (size_t)(k & 1) + sy * (size_t)((k >> 1) & 1) + sz * (size_t)((k >> 2) & 1),
                sizeof(v4f));
-    /* Trilinear as three lerps: the same weights as the per-corner products of sample_field. */
-    const float gx0 = 1.0f - fx, gy0 = 1.0f - fy, gz0 = 1.0f - fz;
-    v4f c00 = c[0] * gx0 + c[1] * fx, c10 = c[2] * gx0 + c[3] * fx;
-    v4f c01 = c[4] * gx0 + c[5] * fx, c11 = c[6] * gx0 + c[7] * fx;
-    return (c00 * gy0 + c10 * fy) * gz0 + (c01 * gy0 + c11 * fy) * fz;
-}
-
-static inline bool padded_inside(const nc_diff_object *o, float gx, float gy, float gz)
-{
-    return gx >= 0.0f && gy >= 0.0f && gz >= 0.0f && gx < (float)(o->dims[0] + 1) &&
-           gy < (float)(o->dims[1] + 1) && gz < (float)(o->dims[2] + 1);
-}
-
-static bool sample_exitance(const nc_diff_object *o, nc_vec3 p, float out[3])
-{
-    if (!o->solid || o->solid_count == 0 || !o->packed)
-        return sample_field(o, o->exitance, p, out);
-    float gx, gy, gz;
-    padded_coords(o, 1.0f / o->h, p.x, p.y, p.z, &gx, &gy, &gz);
-    if (!padded_inside(o, gx, gy, gz))
-        return sample_field(o, o->exitance, p, out);
-    v4f acc = padded_sum(o, gx, gy, gz);
-    if (!(acc[3] > 1e-6f))
-        return sample_field(o, o->exitance, p, out);
-    float inv = 1.0f / acc[3];
-    for (int k = 0; k < 3; k++)
-        out[k] = acc[k] * inv;
-    return true;
-}
-
-bool nc_diff_exitance_at(const nc_diff_object *o, nc_vec3 p, nc_vec3 n, bool face_mode, float out[3])
-{
-    if (!sample_exitance(o, nc_sub(p, nc_scale(n, NC_DIFF_SAMPLE_DEPTH * o->h)), out))
-        return false;
-    float qt[3];
-    if (face_mode && o->q[0] && sample_field(o, o->q, p, qt))
-        for (int c = 0; c < 3; c++)
-            out[c] = fmaxf(out[c] + qt[c], 0.0f);
-    return true;
+    return lerp8(c, fx, fy, fz);
 }
 
 void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_shade_batch *b,
@@ -325,9 +334,9 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
     const nc_diff_state *st = user;
     const nc_diff_object *o = &st->objects[object];
     const uint32_t count = b->count;
-    /* nc_diff_exitance_at and the view factor for the whole batch, split into loops: the
-     * arithmetic per lane vectorizes, and only the corner reads (padded_sum) and the rare
-     * fallbacks (sample_field) run per pixel. The values are the scalar functions' exactly. */
+    /* Exitance and view factor for the whole batch, split into loops: the arithmetic per lane
+     * vectorizes, and only the corner reads (padded_sum) and the fallbacks (sample_field_cached)
+     * run per pixel. */
     float k[NC_SHADE_BATCH], gx[NC_SHADE_BATCH], gy[NC_SHADE_BATCH], gz[NC_SHADE_BATCH];
     float E[4][NC_SHADE_BATCH];
     int32_t inside[NC_SHADE_BATCH], valid[NC_SHADE_BATCH];
@@ -358,32 +367,47 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
     for (uint32_t i = 0; i < count; i++) {
         v4f acc = {0.0f, 0.0f, 0.0f, 0.0f};
         if (inside[i])
-            acc = padded_sum(o, gx[i], gy[i], gz[i]);
+            acc = padded_sum(o, o->packed, gx[i], gy[i], gz[i]);
         for (int c = 0; c < 4; c++)
             E[c][i] = acc[c];
     }
+    int32_t slow[NC_SHADE_BATCH];
+    bool any_slow = o->face_mode && o->q[0];
     for (uint32_t i = 0; i < count; i++) {
         valid[i] = E[3][i] > 1e-6f;
         float inv = 1.0f / E[3][i];
         for (int c = 0; c < 3; c++)
             E[c][i] = nc_shade_sel(valid[i], E[c][i] * inv, E[c][i]);
+        /* No solid corner with weight: the ghost fallback, read from o->packed_ghost when it
+         * holds this frame's records (small grids), else computed (sample_field_cached) */
+        slow[i] = !valid[i] & !(inside[i] & o->ghosts);
+        any_slow |= slow[i];
     }
-    /* One cache per field: the exitance is read below the surface and q at it, in other cells */
-    field_cache fc_e = {.corner_valid = false, .near_valid = false}, fc_q = fc_e;
-    for (uint32_t i = 0; i < count; i++) {
-        nc_vec3 p = nc_v3(b->px[i], b->py[i], b->pz[i]);
-        if (!valid[i]) {
-            /* Outside the padded grid or no solid corner: sample_exitance's fallback */
-            float e[3];
-            nc_vec3 n = nc_v3(b->nx[i], b->ny[i], b->nz[i]);
-            valid[i] = sample_field_cached(o, o->exitance, nc_sub(p, nc_scale(n, depth)), &fc_e, e);
-            for (int c = 0; c < 3; c++)
-                E[c][i] = e[c];
+    if (o->ghosts)
+        for (uint32_t i = 0; i < count; i++)
+            if (inside[i] && !valid[i]) {
+                float e[3];
+                valid[i] = ghost_result(padded_sum(o, o->packed_ghost, gx[i], gy[i], gz[i]), e);
+                for (int c = 0; c < 3; c++)
+                    E[c][i] = e[c];
+            }
+    if (any_slow) {
+        /* One cache per field: the exitance is read below the surface and q at it, in other cells */
+        field_cache fc_e = {.corner_valid = false, .ghost_valid = false}, fc_q = fc_e;
+        for (uint32_t i = 0; i < count; i++) {
+            nc_vec3 p = nc_v3(b->px[i], b->py[i], b->pz[i]);
+            if (slow[i]) {
+                float e[3];
+                nc_vec3 n = nc_v3(b->nx[i], b->ny[i], b->nz[i]);
+                valid[i] = sample_field_cached(o, o->exitance, nc_sub(p, nc_scale(n, depth)), &fc_e, e);
+                for (int c = 0; c < 3; c++)
+                    E[c][i] = e[c];
+            }
+            float qt[3];
+            if (valid[i] && o->face_mode && o->q[0] && sample_field_cached(o, o->q, p, &fc_q, qt))
+                for (int c = 0; c < 3; c++)
+                    E[c][i] = fmaxf(E[c][i] + qt[c], 0.0f);
         }
-        float qt[3];
-        if (valid[i] && o->face_mode && o->q[0] && sample_field_cached(o, o->q, p, &fc_q, qt))
-            for (int c = 0; c < 3; c++)
-                E[c][i] = fmaxf(E[c][i] + qt[c], 0.0f);
     }
     for (int c = 0; c < 3; c++)
         for (uint32_t i = 0; i < count; i++)

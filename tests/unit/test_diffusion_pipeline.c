@@ -5,6 +5,7 @@
  * renderer: light types, convergence with voxel resolution, warm start, settings errors.
  */
 #include "diffusion/pipeline.h"
+#include "core/core.h"
 #include "core/optics.h"
 #include "scene/medium.h"
 #include "scene/scene.h"
@@ -804,6 +805,118 @@ static void test_bad_settings(void)
     fx_free(&f);
 }
 
+/* The shading pass's interpolation (shade_diffusion.c): solid cells only where a solid corner
+ * has weight; where none has, the corners' ghost records (the weighted means of their solid
+ * neighbours), read from the object's ghost grid or computed per point, with the same result;
+ * nothing farther than one cell from the domain. A hand-built 6^3 object with eta 1 (no Fresnel
+ * loss at normal view) and radiance_k 1, so that the hook returns the interpolated exitance. */
+typedef struct ghost_fixture {
+    nc_diff_object o;
+    float store[9][216];
+    uint8_t solid[216];
+} ghost_fixture;
+
+static void ghost_object(nacre_context *ctx, ghost_fixture *g, const int (*cells)[3], const float (*e)[3], int n)
+{
+    nc_diff_object *o = &g->o;
+    o->ctx = ctx;
+    for (int a = 0; a < 3; a++) {
+        o->dims[a] = 6;
+        o->origin[a] = 0.0f;
+    }
+    o->h = 1.0f;
+    o->cells = 216;
+    o->eta = o->inv_eta2 = o->radiance_k = 1.0f;
+    o->robin_a = 1.0f;
+    o->fdr = 0.0f;
+    memset(g->store, 0, sizeof(g->store));
+    memset(g->solid, 0, sizeof(g->solid));
+    o->solid = g->solid;
+    o->solid_count = (uint64_t)n;
+    for (int c = 0; c < 3; c++) {
+        o->phi[c] = g->store[c];
+        o->exitance[c] = g->store[3 + c];
+    }
+    for (int k = 0; k < n; k++) {
+        size_t i = (size_t)cells[k][0] + 6 * ((size_t)cells[k][1] + 6 * (size_t)cells[k][2]);
+        g->solid[i] = 1;
+        for (int c = 0; c < 3; c++) {
+            g->store[6 + c][i] = 0.25f; /* D: the exitance is phi x 2D / (1 + 4D) = phi / 4 */
+            g->store[c][i] = 4.0f * e[k][c];
+        }
+    }
+    const float *D[3] = {g->store[6], g->store[7], g->store[8]};
+    CHECK(nc_diff_compute_exitance(o, D, NACRE_SOURCE_VOLUME, 2) == NACRE_OK);
+}
+
+/* Radiance at the surface points whose sample points (NC_DIFF_SAMPLE_DEPTH cells below, along -z)
+ * are s[k]. */
+static void ghost_shade(nc_diff_object *o, const float (*s)[3], int n, float out[3][NC_SHADE_BATCH])
+{
+    nc_diff_state st = {.objects = o};
+    nc_shade_batch b;
+    memset(&b, 0, sizeof(b));
+    b.count = (uint32_t)n;
+    for (int k = 0; k < n; k++) {
+        b.px[k] = s[k][0];
+        b.py[k] = s[k][1];
+        b.pz[k] = s[k][2] + NC_DIFF_SAMPLE_DEPTH * o->h;
+        b.nz[k] = b.vz[k] = 1.0f;
+    }
+    nc_diff_subsurface_radiance(&st, 0, &b, out);
+}
+
+static void test_exitance_ghosts(void)
+{
+    nacre_context *ctx = NULL;
+    CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
+    const int cells[2][3] = {{2, 2, 2}, {3, 3, 3}};
+    const float e[2][3] = {{1.0f, 2.0f, 3.0f}, {4.0f, 5.0f, 6.0f}};
+    const float *ea = e[0], *eb = e[1];
+    static ghost_fixture g;
+    ghost_object(ctx, &g, cells, e, 2);
+    CHECK(g.o.ghosts); /* 8^3 padded cells: the ghost grid */
+    /* Cell centres are at c + 0.5. Points: a's centre; the centre of the empty cell (3,2,2),
+     * next to a (face, weight 1/2) and b (edge, 1/4); halfway between the two; halfway between
+     * (3,2,2) and (4,2,2), whose only solid neighbour is b (corner); the centre of (5,5,0), no
+     * solid cell within one cell; a point with a solid corner of weight 1e-3 (the rest empty). */
+    const float s[6][3] = {{2.5f, 2.5f, 2.5f}, {3.5f, 2.5f, 2.5f}, {3.0f, 2.5f, 2.5f},
+                           {4.0f, 2.5f, 2.5f}, {5.5f, 5.5f, 0.5f}, {1.6f, 1.6f, 1.6f}};
+    float out[3][NC_SHADE_BATCH], lazy[3][NC_SHADE_BATCH];
+    ghost_shade(&g.o, s, 6, out);
+    for (int c = 0; c < 3; c++) {
+        float ghost = (0.5f * ea[c] + 0.25f * eb[c]) / 0.75f;
+        CHECK_NEAR(out[c][0], ea[c], 1e-6 * ea[c]);
+        CHECK_NEAR(out[c][1], ghost, 1e-6 * ghost);
+        CHECK_NEAR(out[c][2], ea[c], 1e-6 * ea[c]); /* a solid corner with weight: solid only */
+        CHECK_NEAR(out[c][3], 0.5f * ghost + 0.5f * eb[c], 1e-6 * eb[c]);
+        CHECK(out[c][4] == 0.0f);
+        CHECK_NEAR(out[c][5], ea[c], 1e-6 * ea[c]);
+    }
+    /* The per-point computation gives the ghost grid's values */
+    g.o.ghosts = false;
+    ghost_shade(&g.o, s, 6, lazy);
+    for (int c = 0; c < 3; c++)
+        for (int k = 0; k < 6; k++)
+            CHECK_NEAR(lazy[c][k], out[c][k], 1e-6 * fabs(out[c][k]));
+    /* Next frame: the domain moves to (4,4,4) alone; the kept grids hold nothing stale */
+    const int moved[1][3] = {{4, 4, 4}};
+    const float em[1][3] = {{7.0f, 8.0f, 9.0f}};
+    ghost_object(ctx, &g, moved, em, 1);
+    CHECK(g.o.ghosts);
+    const float s2[3][3] = {{3.5f, 2.5f, 2.5f}, {4.5f, 4.5f, 4.5f}, {3.5f, 3.5f, 3.5f}};
+    ghost_shade(&g.o, s2, 3, out);
+    for (int c = 0; c < 3; c++) {
+        CHECK(out[c][0] == 0.0f);
+        CHECK_NEAR(out[c][1], em[0][c], 1e-6 * em[0][c]);
+        CHECK_NEAR(out[c][2], em[0][c], 1e-6 * em[0][c]); /* a corner ghost of the single cell */
+    }
+    nc_free(ctx, g.o.packed);
+    nc_free(ctx, g.o.packed_ghost);
+    nc_free(ctx, g.o.row_live);
+    nacre_context_destroy(ctx);
+}
+
 int main(void)
 {
     test_cube_power();
@@ -819,5 +932,6 @@ int main(void)
     test_deformed_matches_fresh();
     test_thread_independence();
     test_bad_settings();
+    test_exitance_ghosts();
     return TEST_MAIN_END();
 }
