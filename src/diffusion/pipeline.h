@@ -71,7 +71,8 @@ typedef struct nc_diff_object {
     uint8_t *row_live;
     size_t row_live_capacity;
     float *packed_ghost;             /* when ghosts: the fallback's record of every padded cell
-                                      * (shade_diffusion.c), 4 floats each, packed's layout */
+                                      * (shade_diffusion.c), 4 floats each, packed's layout; then
+                                      * as much scratch */
     size_t ghost_capacity;           /* padded cells allocated in packed_ghost */
     bool ghosts;
     uint32_t exit_dims[3];

@@ -187,6 +187,48 @@ static bool sample_field_cached(const nc_diff_object *o, float *const field[3], 
     return ghost_result(lerp8(fc->ghost, fx, fy, fz), out);
 }
 
+/* One axis of the ghost weights: out[i] = in[i - d] / 2 + in[i] + in[i + d] / 2 along an axis of
+ * n cells with stride d (cells beyond the padded grid are empty), for every line of a grid of
+ * `cells` cells; the lines start at multiples of n d plus 0 .. d - 1. */
+static void blur_axis(const v4f *restrict in, v4f *restrict out, size_t cells, size_t n, size_t d)
+{
+    for (size_t base = 0; base < cells; base += n * d)
+        for (size_t a = 0; a < n; a++) {
+            const v4f *c = in + base + a * d;
+            const v4f *lo = a > 0 ? c - d : NULL, *hi = a + 1 < n ? c + d : NULL;
+            v4f *o = out + base + a * d;
+            for (size_t k = 0; k < d; k++) {
+                v4f v = c[k];
+                if (lo)
+                    v += 0.5f * lo[k];
+                if (hi)
+                    v += 0.5f * hi[k];
+                o[k] = v;
+            }
+        }
+}
+
+/* Every padded cell's ghost record (ghost_record) from the packed records (E, 1 if solid, 0
+ * else): the neighbours' weighted sums 2^-(|dx|+|dy|+|dz|) are a separable 3x3x3 filter of
+ * them, three passes over the grid. ghost and scratch hold px py pz records each. */
+static void ghost_grid(const float *packed, v4f *ghost, v4f *scratch, size_t px, size_t py, size_t pz)
+{
+    const v4f *rec = (const v4f *)(const void *)packed;
+    const size_t cells = px * py * pz;
+    blur_axis(rec, ghost, cells, px, 1);
+    blur_axis(ghost, scratch, cells, py, px);
+    blur_axis(scratch, ghost, cells, pz, px * py);
+    for (size_t i = 0; i < cells; i++) {
+        v4f g = ghost[i];
+        if (rec[i][3] > 0.0f)
+            ghost[i] = rec[i];
+        else if (g[3] > 0.0f)
+            ghost[i] = (v4f){g[0] / g[3], g[1] / g[3], g[2] / g[3], 1.0f};
+        else
+            ghost[i] = (v4f){0.0f, 0.0f, 0.0f, 0.0f};
+    }
+}
+
 /* One pass over the padded grid writes both layouts: o->exitance (the fallback's) and o->packed
  * (the shading pass's corner reads). */
 nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3], nacre_diffusion_source mode,
@@ -277,22 +319,18 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
     o->exit_valid = true;
     /* Small grids: every padded cell's ghost record, so that the shading pass's many fallbacks
      * (a fifth to half of the pixels at 4^3) are one more corner read. Larger grids have few and
-     * compute them per pixel, with the same records and arithmetic. */
+     * compute them per pixel (ghost_record), with the same records up to float rounding. */
     o->ghosts = false;
     if (padded <= NC_DIFF_GHOST_GRID_CELLS) {
         if (padded > o->ghost_capacity) {
             nc_free(o->ctx, o->packed_ghost);
             o->ghost_capacity = 0;
-            o->packed_ghost = nc_alloc(o->ctx, bytes);
+            o->packed_ghost = nc_alloc(o->ctx, 2 * bytes);
             if (!o->packed_ghost)
                 return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the exitance grid");
             o->ghost_capacity = padded;
         }
-        v4f *g = (v4f *)(void *)o->packed_ghost;
-        for (size_t z = 0; z < pz; z++)
-            for (size_t y = 0; y < py; y++)
-                for (size_t x = 0; x < px; x++)
-                    g[x + px * (y + py * z)] = ghost_record(o, o->exitance, (int)x - 1, (int)y - 1, (int)z - 1);
+        ghost_grid(o->packed, (v4f *)(void *)o->packed_ghost, (v4f *)(void *)o->packed_ghost + padded, px, py, pz);
         o->ghosts = true;
     }
     return NACRE_OK;

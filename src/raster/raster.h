@@ -100,9 +100,10 @@ typedef struct nc_gbuffer {
     uint32_t *object;  /* object index or NC_NO_OBJECT */
     uint32_t *material;/* material index */
     uint32_t *triangle;/* triangle index in the object */
-    /* Private to gbuffer.c: per row, the pixel range [first, end) the last resolve may have left
-     * non-empty. Pixels outside it are known to hold the empty values and are not rewritten, so
-     * the arrays above must not be written by anyone but nc_gbuffer_resolve. */
+    /* Per row, the pixel range [first, end) the last resolve may have left non-empty (written
+     * by gbuffer.c only). Pixels outside it are known to hold the empty values: the resolve does
+     * not rewrite them (so the arrays above must not be written by anyone but
+     * nc_gbuffer_resolve) and the shading pass does not read their ids. */
     int32_t *row_span;
 } nc_gbuffer;
 

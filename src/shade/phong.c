@@ -394,14 +394,25 @@ static void shade_row(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
     const int32_t w = gb->width;
     const size_t base = (size_t)y * (size_t)w;
     const uint32_t *obj = gb->object + base, *mat = gb->material + base;
-    int32_t x = 0;
-    while (x < w) {
+    /* Outside the row's object span (nc_gbuffer) every pixel is empty: no ids to read there */
+    int32_t x = 0, end = w;
+    if (gb->row_span) {
+        x = gb->row_span[2 * y];
+        end = gb->row_span[2 * y + 1];
+        x = x < 0 ? 0 : x > w ? w : x;
+        end = end < x ? x : end > w ? w : end;
+        if (x > 0)
+            fill_env(row, x, scene->environment);
+        if (end < w)
+            fill_env(row + 3 * (size_t)end, w - end, scene->environment);
+    }
+    while (x < end) {
         int32_t x0 = x;
 #ifdef __AVX2__
         /* Sixteen ids at a time: one compare with NC_NO_OBJECT per eight */
         {
             const __m256i none = _mm256_set1_epi32((int)NC_NO_OBJECT);
-            for (; x + 16 <= w; x += 16) {
+            for (; x + 16 <= end; x += 16) {
                 __m256i a = _mm256_cmpeq_epi32(_mm256_loadu_si256((const __m256i *)(obj + x)), none);
                 __m256i b = _mm256_cmpeq_epi32(_mm256_loadu_si256((const __m256i *)(obj + x + 8)), none);
                 if (_mm256_movemask_epi8(_mm256_and_si256(a, b)) != -1)
@@ -410,21 +421,21 @@ static void shade_row(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
         }
 #endif
         /* Eight ids at a time: their AND is NC_NO_OBJECT only if all are (one vector test) */
-        for (; x + 8 <= w; x += 8) {
+        for (; x + 8 <= end; x += 8) {
             uint32_t all = NC_NO_OBJECT;
             for (int k = 0; k < 8; k++)
                 all &= obj[x + k];
             if (all != NC_NO_OBJECT)
                 break;
         }
-        while (x < w && obj[x] == NC_NO_OBJECT)
+        while (x < end && obj[x] == NC_NO_OBJECT)
             x++;
         if (x > x0) {
             fill_env(row + 3 * (size_t)x0, x - x0, scene->environment);
             continue;
         }
         uint32_t o = obj[x0], mi = mat[x0];
-        while (x < w && x - x0 < NC_SHADE_BATCH && obj[x] == o && mat[x] == mi)
+        while (x < end && x - x0 < NC_SHADE_BATCH && obj[x] == o && mat[x] == mi)
             x++;
         mat_k local;
         const mat_k *mk = mi < cached ? &mks[mi] : &local;
