@@ -34,11 +34,12 @@
  * empty space never leaks in. Where no solid corner has weight (thin parts at coarse grids: a
  * fifth of Suzanne's pixels at 4^3, half of the statue's, 1% at 128^3), the corners take ghost
  * values: an empty cell next to the domain (26-neighbourhood) holds the weighted mean of its
- * solid neighbours, and the point interpolates the corners that have one (ghost_value). A point
- * with none has no solid cell within one cell and gets no subsurface light. This replaced the
+ * solid neighbours, and the point interpolates the corners that have one (ghost_record; small
+ * grids keep every cell's record, ghost_grid). A point with none has no solid cell within one
+ * cell and gets no subsurface light. This replaced the
  * nearest solid cell, which drew the solid cells' Voronoi edges on thin parts and searched 27
  * cells per pixel (a third of the shading pass at 4^3); against the 64^3 image, Suzanne's and the
- * statue's 1280x720 pictures at 4^3 came closer (rmse 0.0332 -> 0.0315, 0.0486 -> 0.0412).
+ * statue's 640x360 pictures at 4^3 came closer (rmse 0.0332 -> 0.0315, 0.0486 -> 0.0412).
  *
  * Radiance towards the viewer:
  *   L = E (1 - F(cos_o, eta)) / (pi (1 - F_diffuse(eta))),
@@ -61,7 +62,7 @@
 
 /* Trilinear interpolation of a per-cell field (3 channels) at p over the solid cells around it
  * (weights renormalized); where no solid corner has weight, over the corners' ghost values
- * (ghost_value). For many nearby points (a batch of pixels) the cache keeps the solid corners of
+ * (ghost_record). For many nearby points (a batch of pixels) the cache keeps the solid corners of
  * the last interpolation cell and the corner values of the last ghost interpolation, so that
  * points in the same cells skip the bounds and solid tests and the ghosts' sums; the result is
  * the same either way. At coarse grids many pixels take the ghost path, and neighbouring pixels
