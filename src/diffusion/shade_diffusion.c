@@ -36,10 +36,10 @@
  * values: an empty cell next to the domain (26-neighbourhood) holds the weighted mean of its
  * solid neighbours, and the point interpolates the corners that have one (ghost_record; small
  * grids keep every cell's record, ghost_grid). A point with none has no solid cell within one
- * cell and gets no subsurface light. This replaced the
- * nearest solid cell, which drew the solid cells' Voronoi edges on thin parts and searched 27
- * cells per pixel (a third of the shading pass at 4^3); against the 64^3 image, Suzanne's and the
- * statue's 640x360 pictures at 4^3 came closer (rmse 0.0332 -> 0.0315, 0.0486 -> 0.0412).
+ * cell and gets no subsurface light. This replaced the nearest solid cell, which drew the solid
+ * cells' Voronoi edges on thin parts and searched 27 cells per pixel (a third of the shading pass
+ * at 4^3); against the 64^3 image, Suzanne's and the statue's 640x360 pictures at 4^3 came
+ * closer (rmse 0.0332 -> 0.0315, 0.0486 -> 0.0412).
  *
  * Radiance towards the viewer:
  *   L = E (1 - F(cos_o, eta)) / (pi (1 - F_diffuse(eta))),
