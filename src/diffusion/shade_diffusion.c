@@ -132,6 +132,22 @@ static bool ghost_result(v4f acc, float out[3])
     return true;
 }
 
+/* The trilinear sums of the ghost records of the corners of grid cell (x0, y0, z0) at fractions
+ * (fx, fy, fz), the records computed (ghost_record) and kept in fc for the next point. */
+static v4f ghost_sum(const nc_diff_object *o, float *const field[3], int x0, int y0, int z0, float fx, float fy,
+                     float fz, field_cache *fc)
+{
+    if (!fc->ghost_valid || fc->ghost_key[0] != x0 || fc->ghost_key[1] != y0 || fc->ghost_key[2] != z0) {
+        for (int k = 0; k < 8; k++)
+            fc->ghost[k] = ghost_record(o, field, x0 + (k & 1), y0 + ((k >> 1) & 1), z0 + ((k >> 2) & 1));
+        fc->ghost_key[0] = x0;
+        fc->ghost_key[1] = y0;
+        fc->ghost_key[2] = z0;
+        fc->ghost_valid = true;
+    }
+    return lerp8(fc->ghost, fx, fy, fz);
+}
+
 static bool sample_field_cached(const nc_diff_object *o, float *const field[3], nc_vec3 p, field_cache *fc,
                                 float out[3])
 {
@@ -177,15 +193,7 @@ static bool sample_field_cached(const nc_diff_object *o, float *const field[3], 
             out[c] = acc[c] / wsum;
         return true;
     }
-    if (!fc->ghost_valid || fc->ghost_key[0] != x0 || fc->ghost_key[1] != y0 || fc->ghost_key[2] != z0) {
-        for (int k = 0; k < 8; k++)
-            fc->ghost[k] = ghost_record(o, field, x0 + (k & 1), y0 + ((k >> 1) & 1), z0 + ((k >> 2) & 1));
-        fc->ghost_key[0] = x0;
-        fc->ghost_key[1] = y0;
-        fc->ghost_key[2] = z0;
-        fc->ghost_valid = true;
-    }
-    return ghost_result(lerp8(fc->ghost, fx, fy, fz), out);
+    return ghost_result(ghost_sum(o, field, x0, y0, z0, fx, fy, fz, fc), out);
 }
 
 /* One axis of the ghost weights: out[i] = in[i - d] / 2 + in[i] + in[i + d] / 2 along an axis of
@@ -374,8 +382,7 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
     const nc_diff_object *o = &st->objects[object];
     const uint32_t count = b->count;
     /* Exitance and view factor for the whole batch, split into loops: the arithmetic per lane
-     * vectorizes, and only the corner reads (padded_sum) and the fallbacks (sample_field_cached)
-     * run per pixel. */
+     * vectorizes, and only the corner reads (padded_sum) and the fallbacks run per pixel. */
     float k[NC_SHADE_BATCH], gx[NC_SHADE_BATCH], gy[NC_SHADE_BATCH], gz[NC_SHADE_BATCH];
     float E[4][NC_SHADE_BATCH];
     int32_t inside[NC_SHADE_BATCH], valid[NC_SHADE_BATCH];
@@ -410,32 +417,38 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
         for (int c = 0; c < 4; c++)
             E[c][i] = acc[c];
     }
-    int32_t slow[NC_SHADE_BATCH];
     bool any_slow = o->face_mode && o->q[0];
     for (uint32_t i = 0; i < count; i++) {
         valid[i] = E[3][i] > 1e-6f;
         float inv = 1.0f / E[3][i];
         for (int c = 0; c < 3; c++)
             E[c][i] = nc_shade_sel(valid[i], E[c][i] * inv, E[c][i]);
-        /* No solid corner with weight: the ghost fallback, read from o->packed_ghost when it
-         * holds this frame's records (small grids), else computed (sample_field_cached) */
-        slow[i] = !valid[i] & !(inside[i] & o->ghosts);
-        any_slow |= slow[i];
+        any_slow |= !inside[i];
     }
-    if (o->ghosts)
-        for (uint32_t i = 0; i < count; i++)
-            if (inside[i] && !valid[i]) {
-                float e[3];
-                valid[i] = ghost_result(padded_sum(o, o->packed_ghost, gx[i], gy[i], gz[i]), e);
-                for (int c = 0; c < 3; c++)
-                    E[c][i] = e[c];
+    /* One cache per field: the exitance is read below the surface and q at it, in other cells */
+    field_cache fc_e = {.corner_valid = false, .ghost_valid = false}, fc_q = fc_e;
+    /* No solid corner with weight: the ghost fallback, its records read from o->packed_ghost
+     * when it holds this frame's (small grids), else computed */
+    for (uint32_t i = 0; i < count; i++)
+        if (inside[i] && !valid[i]) {
+            v4f acc;
+            if (o->ghosts) {
+                acc = padded_sum(o, o->packed_ghost, gx[i], gy[i], gz[i]);
+            } else {
+                int x0 = (int)gx[i], y0 = (int)gy[i], z0 = (int)gz[i]; /* padded: cell x0 - 1 */
+                acc = ghost_sum(o, o->exitance, x0 - 1, y0 - 1, z0 - 1, gx[i] - (float)x0, gy[i] - (float)y0,
+                                gz[i] - (float)z0, &fc_e);
             }
-    if (any_slow) {
-        /* One cache per field: the exitance is read below the surface and q at it, in other cells */
-        field_cache fc_e = {.corner_valid = false, .ghost_valid = false}, fc_q = fc_e;
+            float e[3];
+            valid[i] = ghost_result(acc, e);
+            for (int c = 0; c < 3; c++)
+                E[c][i] = e[c];
+        }
+    /* The rare per-point paths: more than half a cell outside the grid, and FACE mode's q */
+    if (any_slow)
         for (uint32_t i = 0; i < count; i++) {
             nc_vec3 p = nc_v3(b->px[i], b->py[i], b->pz[i]);
-            if (slow[i]) {
+            if (!inside[i]) {
                 float e[3];
                 nc_vec3 n = nc_v3(b->nx[i], b->ny[i], b->nz[i]);
                 valid[i] = sample_field_cached(o, o->exitance, nc_sub(p, nc_scale(n, depth)), &fc_e, e);
@@ -447,7 +460,6 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
                 for (int c = 0; c < 3; c++)
                     E[c][i] = fmaxf(E[c][i] + qt[c], 0.0f);
         }
-    }
     for (int c = 0; c < 3; c++)
         for (uint32_t i = 0; i < count; i++)
             out[c][i] = nc_shade_sel(valid[i], E[c][i] * k[i], 0.0f);
