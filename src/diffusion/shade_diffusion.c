@@ -50,8 +50,11 @@
  * hemisphere, which accounts for that compression.
  *
  * The shading pass calls nc_diff_subsurface_radiance once per batch of pixels (shade.h): the
- * per-pixel arithmetic runs as vectorized loops over the batch, and only the corner reads of
- * the padded exitance grid and the ghost fallback (with the batch's cells cached) run per pixel.
+ * per-pixel arithmetic runs as vectorized loops over the batch, the corner reads 8 lanes at a
+ * time with each cell's records broadcast once (group_sums), and only the per-point ghost
+ * records of larger grids and the points outside the grid run per pixel. Against one 4-wide
+ * trilinear read per pixel this took the subsurface part of Suzanne's 4^3 pass from 15 to 7.5
+ * million instructions per frame (callgrind), with bit-identical images.
  */
 #include "diffusion/pipeline.h"
 #include "core/optics.h"
@@ -59,6 +62,9 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#ifdef __AVX__
+#include <immintrin.h>
+#endif
 
 /* Trilinear interpolation of a per-cell field (3 channels) at p over the solid cells around it
  * (weights renormalized); where no solid corner has weight, over the corners' ghost values
@@ -345,13 +351,10 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
     return NACRE_OK;
 }
 
-/* sample_field_cached's solid-corner sums over o->packed for the exitance: the same weights and
- * corners, with the solid test folded into the data (exitance is 0 and the 4th value is 0
- * outside the domain and in the padding, so adding w x 0 leaves the sums unchanged) and no
- * per-corner branch: one 4-wide multiply-add per corner. Points farther than half a cell outside
- * the grid, or with no solid corner with weight, take sample_field_cached (the ghost fallback). */
-/* Grid coordinates of p for padded_sum: relative to the padded grid's cell centres (hence
- * + 1 - 0.5). */
+/* Padded grid coordinates of p: relative to the padded grid's cell centres (hence + 1 - 0.5).
+ * The shading pass reads o->packed (exitance RGB and solid weight, 0 outside the domain and in
+ * the padding, so the solid test is folded into the data: a corner outside adds w x 0) and
+ * o->packed_ghost at these coordinates, with sample_field_cached's weights and corners. */
 static inline void padded_coords(const nc_diff_object *o, float inv_h, float px, float py, float pz, float *gx,
                                  float *gy, float *gz)
 {
@@ -360,19 +363,98 @@ static inline void padded_coords(const nc_diff_object *o, float inv_h, float px,
     *gz = (pz - o->origin[2]) * inv_h + 0.5f;
 }
 
-/* The trilinear sums over a padded record grid (o->packed: exitance RGB, solid weight; or
- * o->packed_ghost) at padded coordinates inside the padded grid. */
-static inline v4f padded_sum(const nc_diff_object *o, const float *grid, float gx, float gy, float gz)
+/* The shading pass evaluates a padded record grid for 8 lanes of a batch at a time: lanes are
+ * neighbouring pixels of one row and mostly share their cell (a cell spans about 20 pixels at
+ * 28^3, 100 at 4^3), so a cell's 8 records are broadcast once (group_cache) and the trilinear
+ * sums run 8 lanes wide with lerp8's operations per channel (the same values). */
+typedef float v8f __attribute__((vector_size(32)));
+typedef int32_t v8i __attribute__((vector_size(32)));
+
+typedef struct group_cache {
+    int32_t cell;    /* offset of the cached cell's first record in the grid; -1: none */
+    v8f c[4][8];     /* corner k's value of channel c on every lane */
+} group_cache;
+
+static void group_cache_load(group_cache *gc, const float *grid, int32_t cell, size_t sy, size_t sz)
 {
-    int x0 = (int)gx, y0 = (int)gy, z0 = (int)gz; /* non-negative: truncation is floor */
-    float fx = gx - (float)x0, fy = gy - (float)y0, fz = gz - (float)z0;
-    const size_t sy = 4 * ((size_t)o->dims[0] + 2), sz = sy * ((size_t)o->dims[1] + 2);
-    const float *base = grid + 4 * (size_t)x0 + sy * (size_t)y0 + sz * (size_t)z0;
-    v4f c[8];
-    for (int k = 0; k < 8; k++)
-        memcpy(&c[k], base + 4 * (size_t)(k & 1) + sy * (size_t)((k >> 1) & 1) + sz * (size_t)((k >> 2) & 1),
-               sizeof(v4f));
-    return lerp8(c, fx, fy, fz);
+    const float *base = grid + cell;
+    for (int k = 0; k < 8; k++) {
+        const float *r = base + 4 * (size_t)(k & 1) + sy * (size_t)((k >> 1) & 1) + sz * (size_t)((k >> 2) & 1);
+        for (int ch = 0; ch < 4; ch++)
+            gc->c[ch][k] = (v8f){0} + r[ch];
+    }
+    gc->cell = cell;
+}
+
+/* lerp8 of one channel's corners c on 8 lanes */
+static inline v8f lerp8_v8(const v8f c[8], v8f fx, v8f fy, v8f fz, v8f gx0, v8f gy0, v8f gz0)
+{
+    v8f c00 = c[0] * gx0 + c[1] * fx, c10 = c[2] * gx0 + c[3] * fx;
+    v8f c01 = c[4] * gx0 + c[5] * fx, c11 = c[6] * gx0 + c[7] * fx;
+    return (c00 * gy0 + c10 * fy) * gz0 + (c01 * gy0 + c11 * fy) * fz;
+}
+
+/* Bit l set where lane l of cg equals c */
+static inline uint32_t lanes_equal(v8i cg, int32_t c)
+{
+    v8i m = cg == c;
+#ifdef __AVX__
+    return (uint32_t)_mm256_movemask_ps((__m256)m);
+#else
+    uint32_t bits = 0;
+    for (int l = 0; l < 8; l++)
+        bits |= m[l] ? 1u << l : 0u;
+    return bits;
+#endif
+}
+
+/* The trilinear sums over grid (o->packed or o->packed_ghost) of lanes [g, g + 8): lane i at
+ * fractions (fx, fy, fz)[i] of the padded cell whose first record is at grid + cell[i], or 0
+ * where cell[i] < 0; into out[channel][lane]. */
+static void group_sums(const float *grid, size_t sy, size_t sz, const int32_t *cell, const float *fx,
+                       const float *fy, const float *fz, uint32_t g, group_cache *gc, float out[4][NC_SHADE_BATCH])
+{
+    v8f x, y, z;
+    v8i cg;
+    memcpy(&x, fx + g, sizeof(x));
+    memcpy(&y, fy + g, sizeof(y));
+    memcpy(&z, fz + g, sizeof(z));
+    memcpy(&cg, cell + g, sizeof(cg));
+    const v8f one = (v8f){0} + 1.0f;
+    const v8f gx0 = one - x, gy0 = one - y, gz0 = one - z;
+    const int32_t c0 = cell[g];
+    uint32_t done = lanes_equal(cg, c0);
+    if (done == 0xffu) { /* the usual case: one cell */
+        if (c0 >= 0 && gc->cell != c0)
+            group_cache_load(gc, grid, c0, sy, sz);
+        for (int ch = 0; ch < 4; ch++) {
+            v8f v = c0 >= 0 ? lerp8_v8(gc->c[ch], x, y, z, gx0, gy0, gz0) : (v8f){0};
+            memcpy(out[ch] + g, &v, sizeof(v));
+        }
+        return;
+    }
+    /* Each distinct cell once; lanes take their cell's sums */
+    v8f r[4] = {{0}, {0}, {0}, {0}};
+    for (int l = 0; l < 8; l++) {
+        const int32_t c = cell[g + (uint32_t)l];
+        const uint32_t bits = l == 0 ? done : lanes_equal(cg, c);
+        if (l > 0) {
+            if (done & (1u << l))
+                continue;
+            done |= bits;
+        }
+        if (c < 0)
+            continue; /* r is 0 there already */
+        if (gc->cell != c)
+            group_cache_load(gc, grid, c, sy, sz);
+        const v8i m = cg == c;
+        for (int ch = 0; ch < 4; ch++) {
+            v8f v = lerp8_v8(gc->c[ch], x, y, z, gx0, gy0, gz0);
+            r[ch] = (v8f)(((v8i)v & m) | ((v8i)r[ch] & ~m));
+        }
+    }
+    for (int ch = 0; ch < 4; ch++)
+        memcpy(out[ch] + g, &r[ch], sizeof(r[ch]));
 }
 
 void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_shade_batch *b,
@@ -381,8 +463,7 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
     const nc_diff_state *st = user;
     const nc_diff_object *o = &st->objects[object];
     const uint32_t count = b->count;
-    /* Exitance and view factor for the whole batch, split into loops: the arithmetic per lane
-     * vectorizes, and only the corner reads (padded_sum) and the fallbacks run per pixel. */
+    /* Exitance and view factor for the whole batch, split into loops that vectorize */
     float k[NC_SHADE_BATCH], gx[NC_SHADE_BATCH], gy[NC_SHADE_BATCH], gz[NC_SHADE_BATCH];
     float E[4][NC_SHADE_BATCH];
     int32_t inside[NC_SHADE_BATCH], valid[NC_SHADE_BATCH];
@@ -400,50 +481,84 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
         float f = nc_shade_sel(sin2_t >= 1.0f, 1.0f, 0.5f * (rs * rs + rp * rp));
         k[i] = (1.0f - f) * radiance_k;
     }
-    /* The sample point NC_DIFF_SAMPLE_DEPTH cells below the surface, in padded grid coordinates */
+    /* The sample point NC_DIFF_SAMPLE_DEPTH cells below the surface, in padded grid coordinates:
+     * the cell (its first record's offset in o->packed, -1 outside) and the fractions */
     const bool packed = o->solid && o->solid_count != 0 && o->packed;
     const float depth = NC_DIFF_SAMPLE_DEPTH * o->h, inv_h = 1.0f / o->h;
     const float lim_x = (float)(o->dims[0] + 1), lim_y = (float)(o->dims[1] + 1), lim_z = (float)(o->dims[2] + 1);
+    const int32_t sy = 4 * ((int32_t)o->dims[0] + 2), sz = sy * ((int32_t)o->dims[1] + 2);
+    int32_t cell[NC_SHADE_BATCH];
+    float fx[NC_SHADE_BATCH], fy[NC_SHADE_BATCH], fz[NC_SHADE_BATCH];
     for (uint32_t i = 0; i < count; i++) {
         padded_coords(o, inv_h, b->px[i] - b->nx[i] * depth, b->py[i] - b->ny[i] * depth,
                       b->pz[i] - b->nz[i] * depth, &gx[i], &gy[i], &gz[i]);
         inside[i] = packed & (gx[i] >= 0.0f) & (gy[i] >= 0.0f) & (gz[i] >= 0.0f) & (gx[i] < lim_x) &
                     (gy[i] < lim_y) & (gz[i] < lim_z);
+        /* Outside lanes compute garbage here and are masked (their gx may be NaN or huge) */
+        float x = nc_shade_sel(inside[i], gx[i], 0.0f), y = nc_shade_sel(inside[i], gy[i], 0.0f),
+              z = nc_shade_sel(inside[i], gz[i], 0.0f);
+        int32_t x0 = (int32_t)x, y0 = (int32_t)y, z0 = (int32_t)z; /* non-negative: truncation is floor */
+        fx[i] = x - (float)x0;
+        fy[i] = y - (float)y0;
+        fz[i] = z - (float)z0;
+        int32_t c = 4 * x0 + sy * y0 + sz * z0;
+        cell[i] = inside[i] ? c : -1;
     }
-    for (uint32_t i = 0; i < count; i++) {
-        v4f acc = {0.0f, 0.0f, 0.0f, 0.0f};
-        if (inside[i])
-            acc = padded_sum(o, o->packed, gx[i], gy[i], gz[i]);
-        for (int c = 0; c < 4; c++)
-            E[c][i] = acc[c];
+    /* Lanes up to the next multiple of 8 take part in the groups as outside lanes */
+    for (uint32_t i = count; i < NC_SHADE_BATCH && (i & 7u); i++) {
+        cell[i] = -1;
+        fx[i] = fy[i] = fz[i] = 0.0f;
     }
-    bool any_slow = o->face_mode && o->q[0];
+    group_cache gc_e, gc_g; /* not zeroed: 1 KB each, filled on first use */
+    gc_e.cell = gc_g.cell = -1;
+    for (uint32_t g = 0; g < count; g += 8)
+        group_sums(o->packed, (size_t)sy, (size_t)sz, cell, fx, fy, fz, g, &gc_e, E);
+    int32_t need_ghost = 0, outside = 0;
     for (uint32_t i = 0; i < count; i++) {
         valid[i] = E[3][i] > 1e-6f;
-        float inv = 1.0f / E[3][i];
-        for (int c = 0; c < 3; c++)
-            E[c][i] = nc_shade_sel(valid[i], E[c][i] * inv, E[c][i]);
-        any_slow |= !inside[i];
+        need_ghost |= inside[i] & !valid[i];
+        outside |= !inside[i];
     }
+    for (int c = 0; c < 3; c++)
+        for (uint32_t i = 0; i < count; i++) {
+            float inv = 1.0f / E[3][i];
+            E[c][i] = nc_shade_sel(valid[i], E[c][i] * inv, E[c][i]);
+        }
+    bool any_slow = (o->face_mode && o->q[0]) || outside;
     /* One cache per field: the exitance is read below the surface and q at it, in other cells */
     field_cache fc_e = {.corner_valid = false, .ghost_valid = false}, fc_q = fc_e;
     /* No solid corner with weight: the ghost fallback, its records read from o->packed_ghost
      * when it holds this frame's (small grids), else computed */
-    for (uint32_t i = 0; i < count; i++)
-        if (inside[i] && !valid[i]) {
-            v4f acc;
-            if (o->ghosts) {
-                acc = padded_sum(o, o->packed_ghost, gx[i], gy[i], gz[i]);
-            } else {
-                int x0 = (int)gx[i], y0 = (int)gy[i], z0 = (int)gz[i]; /* padded: cell x0 - 1 */
-                acc = ghost_sum(o, o->exitance, x0 - 1, y0 - 1, z0 - 1, gx[i] - (float)x0, gy[i] - (float)y0,
-                                gz[i] - (float)z0, &fc_e);
-            }
-            float e[3];
-            valid[i] = ghost_result(acc, e);
-            for (int c = 0; c < 3; c++)
-                E[c][i] = e[c];
+    if (need_ghost && o->ghosts) {
+        float G[4][NC_SHADE_BATCH];
+        for (uint32_t g = 0; g < count; g += 8) {
+            int32_t need = 0;
+            for (uint32_t i = g; i < g + 8 && i < count; i++)
+                need |= inside[i] & !valid[i];
+            if (!need)
+                continue;
+            group_sums(o->packed_ghost, (size_t)sy, (size_t)sz, cell, fx, fy, fz, g, &gc_g, G);
+            for (uint32_t i = g; i < g + 8 && i < count; i++)
+                if (inside[i] && !valid[i]) {
+                    v4f acc = {G[0][i], G[1][i], G[2][i], G[3][i]};
+                    float e[3];
+                    valid[i] = ghost_result(acc, e);
+                    for (int c = 0; c < 3; c++)
+                        E[c][i] = e[c];
+                }
         }
+    } else if (need_ghost) {
+        for (uint32_t i = 0; i < count; i++)
+            if (inside[i] && !valid[i]) {
+                int x0 = (int)gx[i], y0 = (int)gy[i], z0 = (int)gz[i]; /* padded: cell x0 - 1 */
+                v4f acc = ghost_sum(o, o->exitance, x0 - 1, y0 - 1, z0 - 1, gx[i] - (float)x0, gy[i] - (float)y0,
+                                    gz[i] - (float)z0, &fc_e);
+                float e[3];
+                valid[i] = ghost_result(acc, e);
+                for (int c = 0; c < 3; c++)
+                    E[c][i] = e[c];
+            }
+    }
     /* The rare per-point paths: more than half a cell outside the grid, and FACE mode's q */
     if (any_slow)
         for (uint32_t i = 0; i < count; i++) {
