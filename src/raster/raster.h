@@ -149,5 +149,11 @@ void nc_shadow_free(nacre_context *ctx, nc_shadow_map *sm);
  * Perspective maps keep far/near <= 1000: casters closer to a point or spot light than
  * far/1000 do not shadow. Thread-safe (reads only). */
 float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_radius, float bias);
+/* nc_shadow_lookup for n points (positions p, normals n as SoA arrays) into out[0 .. n), with the
+ * next lookups' texels prefetched. An orthographic map (directional light) does the per-point
+ * set-up of many points at once in vectorized loops; the values are nc_shadow_lookup's up to
+ * float rounding of that set-up. */
+void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, const float *py, const float *pz,
+                        const float *nx, const float *ny, const float *nz, float pcf_radius, float bias, float *out);
 
 #endif /* NACRE_RASTER_H */

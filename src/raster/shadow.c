@@ -273,70 +273,65 @@ typedef int32_t v4m __attribute__((vector_size(16)));
 
 static inline v4s sel4(v4m m, v4s a, v4s b) { return (v4s)(((v4m)a & m) | ((v4m)b & ~m)); }
 
-/* A row's four taps (columns i0 .. i0 + 3, inside the map) as one vector: pcf_tap_lit's
- * operations per lane (so the same values) with its branches as selects. The clamp of the
- * receiver depth is pcf_tap_lit's: a depth below d - lim (or NaN) becomes d - lim (lim >= 0),
- * one above d + lim becomes d + lim. The sums still take the taps one at a time in the scalar
- * order, adding 0 where the scalar loop skips a tap, which leaves them unchanged: the result is
- * the scalar one to the last bit. The gain is in the comparisons, which no longer branch on the
- * data (shadow edges mispredicted them). */
-static inline void pcf_row4(const pcf_frame *f, const float *row, v4s col_o, v4s col_r, v4s col_d2, float oy,
-                            float row_r, float dv2, float *lit, float *total)
+static inline v4s min4(v4s a, v4s b) { return sel4(a < b, a, b); }
+static inline v4s max4(v4s a, v4s b) { return sel4(a > b, a, b); }
+
+/* The usual window (pcf_radius 1.5): 4 columns i0 .. i0 + 3 and rows j0 .. j1, wholly inside the
+ * map. pcf_window's weights and pcf_tap_lit's comparisons, a row of four taps per vector, with
+ * the branches as selects. The sums differ from pcf_window's only in their rounding: the total
+ * weight is the product of the column and row overlaps' sums, and the lit weight is summed per
+ * column over the rows, then across the columns. */
+static float pcf_window4(const pcf_frame *f, int i0, int j0, int j1)
 {
     const v4s zero = {0.0f, 0.0f, 0.0f, 0.0f};
+    const v4s ci = (float)i0 + (v4s){0.0f, 1.0f, 2.0f, 3.0f};
+    v4s col_o = min4(ci + 1.0f, (v4s){0} + (f->u + f->rad)) - max4(ci, (v4s){0} + (f->u - f->rad));
+    const v4s tx = (ci + 0.5f) * f->inv_size - 1.0f;
+    const v4s col_r = f->ortho ? f->nv.x * ((tx - f->m03) * f->inv_m00 - f->pv.x) : f->nv.x * (tx * f->inv_m00);
+    const v4s du = ci + 0.5f - f->u;
+    const v4s col_d2 = du * du;
+    col_o = sel4(col_o > 0.0f, col_o, zero);
     const float d = f->d;
-    v4s stored;
-    memcpy(&stored, row, sizeof(stored));
-    v4s wgt = col_o * oy;
-    v4s recv = f->ortho ? d + (col_r + row_r) * f->inv_nz : f->plane_d / (col_r + row_r + f->nv.z * -1.0f);
-    v4s lim = f->max_dev * (v4s)_mm_sqrt_ps((__m128)(col_d2 + dv2));
-    v4s lo = d - lim, hi = d + lim;
-    recv = sel4(recv >= lo, sel4(recv > hi, hi, recv), lo);
-    v4s occluder = f->ortho ? (f->m23 - stored) * f->inv_m22 : f->m23 / (stored + f->m22);
-    v4m is_lit = ~(stored < 1.0f) | (occluder >= recv - f->bias_world);
-    v4m col_in = col_o > 0.0f;
-    v4s add_total = sel4(col_in, wgt, zero);
-    v4s add_lit = sel4(col_in & is_lit, wgt, zero);
-    for (int k = 0; k < 4; k++) {
-        *total += add_total[k];
-        *lit += add_lit[k];
+    v4s lit = zero;
+    float rows = 0.0f;
+    for (int j = j0; j <= j1; j++) {
+        float row_r, dv2;
+        float oy = pcf_row(f, j, &row_r, &dv2);
+        if (oy <= 0.0f)
+            continue;
+        rows += oy;
+        v4s stored;
+        memcpy(&stored, f->map + (size_t)j * (size_t)f->size + (size_t)i0, sizeof(stored));
+        v4s recv = f->ortho ? d + (col_r + row_r) * f->inv_nz : f->plane_d / (col_r + row_r + f->nv.z * -1.0f);
+        v4s lim = f->max_dev * (v4s)_mm_sqrt_ps((__m128)(col_d2 + dv2));
+        v4s lo = d - lim, hi = d + lim;
+        recv = sel4(recv >= lo, sel4(recv > hi, hi, recv), lo);
+        v4s occluder = f->ortho ? (f->m23 - stored) * f->inv_m22 : f->m23 / (stored + f->m22);
+        v4m is_lit = ~(stored < 1.0f) | (occluder >= recv - f->bias_world);
+        lit += sel4(is_lit, col_o, zero) * oy;
     }
+    float total = (col_o[0] + col_o[1] + col_o[2] + col_o[3]) * rows;
+    float sum = (lit[0] + lit[1]) + (lit[2] + lit[3]);
+    return total > 0.0f ? sum / total : 1.0f;
 }
 #endif
 
 /* The taps of the window [i0, i1] x [j0, j1], each weighted by its overlap with the box filter.
  * Texels beyond the map are lit (one map) or clamped to its edge (cube faces, whose margin
  * covers the kernel). The parts that depend only on the column or only on the row are computed
- * once per column and once per row. `four`: the window is 4 columns wide and lies wholly
- * inside the map (the usual pcf_radius 1.5), then done a row at a time; inlined at each call so
- * that each variant is compiled on its own. */
-static inline __attribute__((always_inline)) float pcf_window(const pcf_frame *f, int i0, int i1, int j0, int j1,
-                                                              bool four)
+ * once per column and once per row. */
+static float pcf_window(const pcf_frame *f, int i0, int i1, int j0, int j1)
 {
     enum { MAXW = 18 }; /* columns of a window of half-width <= 8 */
     float col_o[MAXW], col_r[MAXW], col_d2[MAXW];
     const int nw = i1 - i0 + 1, size = f->size;
     pcf_columns(f, i0, nw, col_o, col_r, col_d2);
-#ifndef __SSE2__
-    (void)four;
-#else
-    v4s vo, vr, vd;
-    memcpy(&vo, col_o, sizeof(vo));
-    memcpy(&vr, col_r, sizeof(vr));
-    memcpy(&vd, col_d2, sizeof(vd));
-#endif
     float lit = 0.0f, total = 0.0f;
     for (int j = j0; j <= j1; j++) {
         float row_r, dv2;
         float oy = pcf_row(f, j, &row_r, &dv2);
         if (oy <= 0.0f)
             continue;
-#ifdef __SSE2__
-        if (four) {
-            pcf_row4(f, f->map + (size_t)j * (size_t)size + (size_t)i0, vo, vr, vd, oy, row_r, dv2, &lit, &total);
-            continue;
-        }
-#endif
         for (int k = 0; k < nw; k++) {
             float ox = col_o[k];
             if (ox <= 0.0f)
@@ -356,6 +351,56 @@ static inline __attribute__((always_inline)) float pcf_window(const pcf_frame *f
         }
     }
     return total > 0.0f ? lit / total : 1.0f;
+}
+
+/* The window part of a lookup (f: the receiver and the map, f->map the face's texels): the lit
+ * fraction, from the window's depth range when that decides it, else from the PCF taps. */
+static inline float lookup_window(const nc_raster_view *v, const pcf_frame *f)
+{
+    const int size = f->size;
+    const float rad = f->rad, u = f->u, vv = f->vv, d = f->d, bias_world = f->bias_world;
+    int i0 = (int)floorf(u - rad), i1 = (int)floorf(u + rad);
+    int j0 = (int)floorf(vv - rad), j1 = (int)floorf(vv + rad);
+    if (i1 < 0 || j1 < 0 || i0 >= size || j0 >= size)
+        return 1.0f;
+    const float *map = f->map;
+    /* Most receivers are wholly lit or wholly shadowed: decide from the window's depth range
+     * against the widest receiver deviation before doing per-tap plane intersections. */
+    if (i0 >= 0 && j0 >= 0 && i1 < size && j1 < size) {
+        float smin = INFINITY, smax = -INFINITY;
+        if (i1 - i0 == 3) {
+            /* The usual 4-texel-wide window (pcf_radius 1.5): one running min and max per
+             * column, so the rows' reads and comparisons overlap instead of forming one chain */
+            float a[4] = {INFINITY, INFINITY, INFINITY, INFINITY}, b[4] = {-INFINITY, -INFINITY, -INFINITY, -INFINITY};
+            for (int j = j0; j <= j1; j++) {
+                const float *row = map + (size_t)j * (size_t)size + (size_t)i0;
+                for (int k = 0; k < 4; k++) {
+                    a[k] = fmin_fast(a[k], row[k]);
+                    b[k] = fmax_fast(b[k], row[k]);
+                }
+            }
+            smin = fmin_fast(fmin_fast(a[0], a[1]), fmin_fast(a[2], a[3]));
+            smax = fmax_fast(fmax_fast(b[0], b[1]), fmax_fast(b[2], b[3]));
+        } else {
+            for (int j = j0; j <= j1; j++) {
+                const float *row = map + (size_t)j * (size_t)size;
+                for (int i = i0; i <= i1; i++) {
+                    smin = fmin_fast(smin, row[i]);
+                    smax = fmax_fast(smax, row[i]);
+                }
+            }
+        }
+        float reach = f->max_dev * (rad + 1.0f) * 1.4142136f;
+        if (!(smin < 1.0f) || linear_depth(v, smin) >= d + reach - bias_world)
+            return 1.0f;
+        if (smax < 1.0f && linear_depth(v, smax) < d - reach - bias_world)
+            return 0.0f;
+#ifdef __SSE2__
+        if (i1 - i0 == 3)
+            return pcf_window4(f, i0, j0, j1);
+#endif
+    }
+    return pcf_window(f, i0, i1, j0, j1);
 }
 
 float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_radius, float bias)
@@ -403,6 +448,7 @@ float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_
     float slope = sin_t < MAX_SLOPE * cos_t ? sin_t / cos_t : MAX_SLOPE;
     float bias_world = fmax_fast(bias, 0.0f) * texel * 0.5f * (1.0f + slope);
     pcf_frame f = {
+        .map = sm->depth + (size_t)face * (size_t)size * (size_t)size,
         .size = size,
         .ortho = ortho,
         .clamp = sm->kind == NC_SHADOW_CUBE,
@@ -425,46 +471,168 @@ float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_
         .pv = pv,
         .nv = nv,
     };
-    const float rad = f.rad;
+    return lookup_window(v, &f);
+}
+
+/* Cache hint for the rows of the PCF window around (u, vv) in a face of `size` texels (kernels
+ * wider than 2 texels are left alone). Only a hint: it reads nothing. */
+static inline void prefetch_window(const float *map, int size, float rad, float u, float vv)
+{
+#if defined(__GNUC__)
+    if (rad > 2.0f || !(u > -rad && vv > -rad && u < (float)size + rad && vv < (float)size + rad))
+        return; /* also NaN */
     int i0 = (int)floorf(u - rad), i1 = (int)floorf(u + rad);
     int j0 = (int)floorf(vv - rad), j1 = (int)floorf(vv + rad);
-    if (i1 < 0 || j1 < 0 || i0 >= size || j0 >= size)
-        return 1.0f;
-    const float *map = sm->depth + (size_t)face * (size_t)size * (size_t)size;
-    f.map = map;
-    /* Most receivers are wholly lit or wholly shadowed: decide from the window's depth range
-     * against the widest receiver deviation before doing per-tap plane intersections. */
-    if (i0 >= 0 && j0 >= 0 && i1 < size && j1 < size) {
-        float smin = INFINITY, smax = -INFINITY;
-        if (i1 - i0 == 3) {
-            /* The usual 4-texel-wide window (pcf_radius 1.5): one running min and max per
-             * column, so the rows' reads and comparisons overlap instead of forming one chain */
-            float a[4] = {INFINITY, INFINITY, INFINITY, INFINITY}, b[4] = {-INFINITY, -INFINITY, -INFINITY, -INFINITY};
-            for (int j = j0; j <= j1; j++) {
-                const float *row = map + (size_t)j * (size_t)size + (size_t)i0;
-                for (int k = 0; k < 4; k++) {
-                    a[k] = fmin_fast(a[k], row[k]);
-                    b[k] = fmax_fast(b[k], row[k]);
-                }
-            }
-            smin = fmin_fast(fmin_fast(a[0], a[1]), fmin_fast(a[2], a[3]));
-            smax = fmax_fast(fmax_fast(b[0], b[1]), fmax_fast(b[2], b[3]));
-        } else {
-            for (int j = j0; j <= j1; j++) {
-                const float *row = map + (size_t)j * (size_t)size;
-                for (int i = i0; i <= i1; i++) {
-                    smin = fmin_fast(smin, row[i]);
-                    smax = fmax_fast(smax, row[i]);
-                }
-            }
-        }
-        float reach = f.max_dev * (rad + 1.0f) * 1.4142136f;
-        if (!(smin < 1.0f) || linear_depth(v, smin) >= d + reach - bias_world)
-            return 1.0f;
-        if (smax < 1.0f && linear_depth(v, smax) < d - reach - bias_world)
-            return 0.0f;
-        if (i1 - i0 == 3)
-            return pcf_window(&f, i0, i1, j0, j1, true);
+    i0 = i0 < 0 ? 0 : i0;
+    i1 = i1 >= size ? size - 1 : i1;
+    j0 = j0 < 0 ? 0 : j0;
+    j1 = j1 >= size ? size - 1 : j1;
+    for (int j = j0; j <= j1; j++) {
+        const float *row = map + (size_t)j * (size_t)size;
+        __builtin_prefetch(row + i0);
+        __builtin_prefetch(row + i1);
     }
-    return pcf_window(&f, i0, i1, j0, j1, false);
+#else
+    (void)map, (void)size, (void)rad, (void)u, (void)vv;
+#endif
+}
+
+/* Lookups prefetched ahead of the one being done: their first reads miss the cache (the map is
+ * larger than it, and shading visits its texels in screen order). */
+#define PREFETCH_AHEAD 4u
+
+/* m ? a : b as bit operations, so that GCC if-converts it in a loop (it does not move a
+ * floating-point operation that could trap out of a branch, -ftrapping-math) */
+static inline float sel(int32_t m, float a, float b)
+{
+    uint32_t ua, ub, mask = 0u - (uint32_t)m;
+    memcpy(&ua, &a, sizeof(ua));
+    memcpy(&ub, &b, sizeof(ub));
+    uint32_t r = (ua & mask) | (ub & ~mask);
+    float f;
+    memcpy(&f, &r, sizeof(f));
+    return f;
+}
+
+/* Per-point set-up of an orthographic map's lookups, CHUNK points at a time in SoA loops that
+ * vectorize (nc_shadow_lookup's operations, with its early returns as a mask). */
+#define CHUNK 64u
+
+void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, const float *py, const float *pz,
+                        const float *nx, const float *ny, const float *nz, float pcf_radius, float bias, float *out)
+{
+    if (!sm || !sm->depth || sm->size < 1) {
+        for (uint32_t i = 0; i < n; i++)
+            out[i] = 1.0f;
+        return;
+    }
+    const float rad = fmin_fast(fmax_fast(pcf_radius, 0.5f), 8.0f);
+    if (sm->kind != NC_SHADOW_ORTHO || !sm->views[0].orthographic) {
+        /* Perspective and cube maps: one lookup at a time, single-face maps prefetched */
+        const nc_mat4 *m = &sm->world_to_clip[0];
+        const bool hint = sm->kind != NC_SHADOW_CUBE;
+        for (uint32_t i = 0; i < n; i++) {
+            if (hint && i + PREFETCH_AHEAD < n) {
+                uint32_t a = i + PREFETCH_AHEAD;
+                nc_vec4 c = nc_mat4_apply(m, (nc_vec4){px[a], py[a], pz[a], 1.0f});
+                prefetch_window(sm->depth, sm->size, rad, (c.x / c.w * 0.5f + 0.5f) * (float)sm->size,
+                                (0.5f - c.y / c.w * 0.5f) * (float)sm->size);
+            }
+            out[i] = nc_shadow_lookup(sm, nc_v3(px[i], py[i], pz[i]), nc_v3(nx[i], ny[i], nz[i]), pcf_radius, bias);
+        }
+        return;
+    }
+    const nc_raster_view *v = &sm->views[0];
+    const nc_mat4 *vm = &v->view, *pm = &v->proj;
+    const int size = sm->size;
+    const float fsize = (float)size;
+    const float near_d = linear_depth(v, 0.0f), far_d = linear_depth(v, 1.0f);
+    const float m00 = pm->m[0][0], m11 = pm->m[1][1];
+    const float texel = fmax_fast(2.0f / (m00 * fsize), 2.0f / (m11 * fsize));
+    const float bias_texel = fmax_fast(bias, 0.0f) * texel * 0.5f;
+    const pcf_frame base = {
+        .map = sm->depth,
+        .size = size,
+        .ortho = true,
+        .clamp = false,
+        .rad = rad,
+        .inv_size = 2.0f / fsize,
+        .inv_m00 = 1.0f / m00,
+        .inv_m11 = 1.0f / m11,
+        .m03 = pm->m[0][3],
+        .m13 = pm->m[1][3],
+        .m22 = pm->m[2][2],
+        .m23 = pm->m[2][3],
+        .inv_m22 = 1.0f / pm->m[2][2],
+        .max_dev = MAX_SLOPE * texel,
+    };
+    /* The matrices' entries as scalars: the loops must not reload them through pointers that
+     * could alias the outputs */
+    float V[3][4], P[4][4];
+    memcpy(V, vm->m, sizeof(V));
+    memcpy(P, pm->m, sizeof(P));
+    for (uint32_t c0 = 0; c0 < n; c0 += CHUNK) {
+        const uint32_t cn = n - c0 < CHUNK ? n - c0 : CHUNK;
+        float U[CHUNK], VV[CHUNK], D[CHUNK], PD[CHUNK], INZ[CHUNK], BW[CHUNK];
+        float PVX[CHUNK], PVY[CHUNK], PVZ[CHUNK], NVX[CHUNK], NVY[CHUNK], NVZ[CHUNK];
+        int32_t ok[CHUNK];
+        for (uint32_t k = 0; k < cn; k++) {
+            const uint32_t i = c0 + k;
+            const float x = px[i], y = py[i], z = pz[i];
+            float pvx = V[0][0] * x + V[0][1] * y + V[0][2] * z + V[0][3];
+            float pvy = V[1][0] * x + V[1][1] * y + V[1][2] * z + V[1][3];
+            float pvz = V[2][0] * x + V[2][1] * y + V[2][2] * z + V[2][3];
+            float d = -pvz;
+            float cx = P[0][0] * pvx + P[0][1] * pvy + P[0][2] * pvz + P[0][3] * 1.0f;
+            float cy = P[1][0] * pvx + P[1][1] * pvy + P[1][2] * pvz + P[1][3] * 1.0f;
+            float cw = P[3][0] * pvx + P[3][1] * pvy + P[3][2] * pvz + P[3][3] * 1.0f;
+            float u = (cx / cw * 0.5f + 0.5f) * fsize, vv = (0.5f - cy / cw * 0.5f) * fsize;
+            float ax = nx[i], ay = ny[i], az = nz[i];
+            float dx = V[0][0] * ax + V[0][1] * ay + V[0][2] * az;
+            float dy = V[1][0] * ax + V[1][1] * ay + V[1][2] * az;
+            float dz = V[2][0] * ax + V[2][1] * ay + V[2][2] * az;
+            float l = sqrtf(dx * dx + dy * dy + dz * dz);
+            float inv_l = 1.0f / l;
+            int32_t pos = l > 0.0f;
+            dx = sel(pos, dx * inv_l, dx);
+            dy = sel(pos, dy * inv_l, dy);
+            dz = sel(pos, dz * inv_l, dz);
+            float cos_t = fabsf(dz);
+            float sin_t = sqrtf(fmax_fast(0.0f, 1.0f - cos_t * cos_t));
+            float slope = sel(sin_t < MAX_SLOPE * cos_t, sin_t / cos_t, MAX_SLOPE);
+            ok[k] = (d >= near_d) & (d <= far_d) & (fabsf(u) <= 3.4028235e38f) & (fabsf(vv) <= 3.4028235e38f);
+            U[k] = u;
+            VV[k] = vv;
+            D[k] = d;
+            BW[k] = bias_texel * (1.0f + slope);
+            PD[k] = dx * pvx + dy * pvy + dz * pvz;
+            INZ[k] = 1.0f / dz;
+            PVX[k] = pvx;
+            PVY[k] = pvy;
+            PVZ[k] = pvz;
+            NVX[k] = dx;
+            NVY[k] = dy;
+            NVZ[k] = dz;
+        }
+        for (uint32_t k = 0; k < cn && k < PREFETCH_AHEAD; k++)
+            prefetch_window(base.map, size, rad, U[k], VV[k]);
+        for (uint32_t k = 0; k < cn; k++) {
+            if (k + PREFETCH_AHEAD < cn)
+                prefetch_window(base.map, size, rad, U[k + PREFETCH_AHEAD], VV[k + PREFETCH_AHEAD]);
+            if (!ok[k]) {
+                out[c0 + k] = 1.0f;
+                continue;
+            }
+            pcf_frame f = base;
+            f.u = U[k];
+            f.vv = VV[k];
+            f.d = D[k];
+            f.plane_d = PD[k];
+            f.inv_nz = INZ[k];
+            f.bias_world = BW[k];
+            f.pv = nc_v3(PVX[k], PVY[k], PVZ[k]);
+            f.nv = nc_v3(NVX[k], NVY[k], NVZ[k]);
+            out[c0 + k] = lookup_window(v, &f);
+        }
+    }
 }

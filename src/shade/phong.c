@@ -96,42 +96,6 @@ static void pow_batch(uint32_t count, const float *x, float s, float *out)
         out[i] = (float)r[i];
 }
 
-/* Shadow lookups prefetched ahead of the one being done (see shade_light). */
-#define PREFETCH_AHEAD 4u
-
-/* Cache hint for the texels nc_shadow_lookup will read for point p: the rows of its PCF window
- * in a single-face map (cube maps and kernels wider than 2 texels are left alone). Only a hint:
- * it follows the lookup's projection without its depth-range tests, and reads nothing. */
-static inline void shadow_prefetch(const nc_shadow_map *sm, float pcf_radius, float px, float py, float pz)
-{
-#if defined(__GNUC__)
-    float rad = pcf_radius < 0.5f ? 0.5f : pcf_radius;
-    if (sm->kind == NC_SHADOW_CUBE || !sm->depth || rad > 2.0f)
-        return;
-    const nc_mat4 *m = &sm->world_to_clip[0];
-    float cx = m->m[0][0] * px + m->m[0][1] * py + m->m[0][2] * pz + m->m[0][3];
-    float cy = m->m[1][0] * px + m->m[1][1] * py + m->m[1][2] * pz + m->m[1][3];
-    float cw = m->m[3][0] * px + m->m[3][1] * py + m->m[3][2] * pz + m->m[3][3];
-    const int32_t size = sm->size;
-    float u = (cx / cw * 0.5f + 0.5f) * (float)size, v = (0.5f - cy / cw * 0.5f) * (float)size;
-    if (!(u > -rad && v > -rad && u < (float)size + rad && v < (float)size + rad))
-        return; /* also NaN */
-    int32_t i0 = (int32_t)floorf(u - rad), i1 = (int32_t)floorf(u + rad);
-    int32_t j0 = (int32_t)floorf(v - rad), j1 = (int32_t)floorf(v + rad);
-    i0 = i0 < 0 ? 0 : i0;
-    i1 = i1 >= size ? size - 1 : i1;
-    j0 = j0 < 0 ? 0 : j0;
-    j1 = j1 >= size ? size - 1 : j1;
-    for (int32_t j = j0; j <= j1; j++) {
-        const float *row = sm->depth + (size_t)j * (size_t)size;
-        __builtin_prefetch(row + i0);
-        __builtin_prefetch(row + i1);
-    }
-#else
-    (void)sm, (void)pcf_radius, (void)px, (void)py, (void)pz;
-#endif
-}
-
 /* Per-material constants of the pass. */
 typedef struct mat_k {
     float kd[3], spec_norm, nh_cut;
@@ -245,25 +209,31 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
             have = nc_shade_sel(acc[2][i] > have, acc[2][i], have);
             ok[i] = ok[i] & !(un <= NEGLIGIBLE * have);
         }
-        /* The lookups' first reads miss the cache (the map is far larger than it, and its
-         * texels are visited in screen order): hint the window of the lookup PREFETCH_AHEAD
-         * pixels ahead while doing this one. */
+        /* The remaining lanes' lookups together (nc_shadow_lookup_n), at their positions with
+         * the geometric normals */
         uint32_t lanes[NC_SHADE_BATCH], nl = 0;
         for (uint32_t i = 0; i < count; i++)
             if (ok[i])
                 lanes[nl++] = i;
-        for (uint32_t t = 0; t < nl && t < PREFETCH_AHEAD; t++)
-            shadow_prefetch(sl->shadow, params->pcf_radius, b->px[lanes[t]], b->py[lanes[t]], b->pz[lanes[t]]);
-        for (uint32_t t = 0; t < nl; t++) {
-            uint32_t i = lanes[t];
-            if (t + PREFETCH_AHEAD < nl) {
-                uint32_t a = lanes[t + PREFETCH_AHEAD];
-                shadow_prefetch(sl->shadow, params->pcf_radius, b->px[a], b->py[a], b->pz[a]);
+        if (nl > 0) {
+            float qx[NC_SHADE_BATCH], qy[NC_SHADE_BATCH], qz[NC_SHADE_BATCH];
+            float gx[NC_SHADE_BATCH], gy[NC_SHADE_BATCH], gz[NC_SHADE_BATCH], lit[NC_SHADE_BATCH];
+            for (uint32_t t = 0; t < nl; t++) {
+                const uint32_t i = lanes[t];
+                const float *ng = gb->geo_normal + 3 * (first + i);
+                qx[t] = b->px[i];
+                qy[t] = b->py[i];
+                qz[t] = b->pz[i];
+                gx[t] = ng[0];
+                gy[t] = ng[1];
+                gz[t] = ng[2];
             }
-            const float *ng = gb->geo_normal + 3 * (first + i);
-            scale[i] *= nc_shadow_lookup(sl->shadow, nc_v3(b->px[i], b->py[i], b->pz[i]), nc_v3(ng[0], ng[1], ng[2]),
-                                         params->pcf_radius, params->shadow_bias);
-            ok[i] = scale[i] > 0;
+            nc_shadow_lookup_n(sl->shadow, nl, qx, qy, qz, gx, gy, gz, params->pcf_radius, params->shadow_bias, lit);
+            for (uint32_t t = 0; t < nl; t++) {
+                const uint32_t i = lanes[t];
+                scale[i] *= lit[t];
+                ok[i] = scale[i] > 0;
+            }
         }
     }
     for (uint32_t i = 0; i < count; i++) {
@@ -435,7 +405,24 @@ static void shade_row(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
             continue;
         }
         uint32_t o = obj[x0], mi = mat[x0];
-        while (x < end && x - x0 < NC_SHADE_BATCH && obj[x] == o && mat[x] == mi)
+        const int32_t batch_end = end - x0 < NC_SHADE_BATCH ? end : x0 + NC_SHADE_BATCH;
+#ifdef __AVX2__
+        /* The run's end eight ids at a time: where object or material first differ */
+        {
+            const __m256i vo = _mm256_set1_epi32((int)o), vm = _mm256_set1_epi32((int)mi);
+            for (; x + 8 <= batch_end; x += 8) {
+                __m256i same = _mm256_and_si256(
+                    _mm256_cmpeq_epi32(_mm256_loadu_si256((const __m256i *)(obj + x)), vo),
+                    _mm256_cmpeq_epi32(_mm256_loadu_si256((const __m256i *)(mat + x)), vm));
+                uint32_t bits = (uint32_t)_mm256_movemask_ps(_mm256_castsi256_ps(same));
+                if (bits != 0xffu) {
+                    x += __builtin_ctz(~bits);
+                    break;
+                }
+            }
+        }
+#endif
+        while (x < batch_end && obj[x] == o && mat[x] == mi)
             x++;
         mat_k local;
         const mat_k *mk = mi < cached ? &mks[mi] : &local;

@@ -186,6 +186,45 @@ static double box_dist(double x, double z, double cx, double cz, double half)
     return fmax(fabs(x - cx) - half, fabs(z - cz) - half);
 }
 
+/* nc_shadow_lookup_n gives nc_shadow_lookup's values (to the rounding of its vectorized set-up)
+ * for points over the ground, the occluders and outside the map, with tilted normals, in batches
+ * of uneven size; enough of them partly lit that the PCF taps are compared too. */
+static void check_batch(const nc_shadow_map *sm, double extent, double top)
+{
+    enum { N = 3000 };
+    static float px[N], py[N], pz[N], nx[N], ny[N], nz[N], got[N];
+    uint32_t state = 12345u;
+    for (int i = 0; i < N; i++) {
+        float r[6];
+        for (int k = 0; k < 6; k++) {
+            state = state * 1664525u + 1013904223u;
+            r[k] = (float)(state >> 8) / 16777216.0f;
+        }
+        /* every other point near the middle, where the occluders' shadow edges are */
+        double e = i % 2 ? 2.5 : extent * 1.2;
+        px[i] = (float)((2.0 * r[0] - 1.0) * e);
+        pz[i] = (float)((2.0 * r[1] - 1.0) * e);
+        py[i] = r[2] < 0.7f ? 0.0f : (float)(r[2] * top);
+        nx[i] = 0.6f * (r[3] - 0.5f);
+        ny[i] = r[4] < 0.1f ? -1.0f : 1.0f;
+        nz[i] = 0.6f * (r[5] - 0.5f);
+    }
+    int bad = 0, partial = 0;
+    for (int i = 0, n = 1; i < N; i += n, n = n % 97 + 13) {
+        int m = i + n <= N ? n : N - i;
+        nc_shadow_lookup_n(sm, (uint32_t)m, px + i, py + i, pz + i, nx + i, ny + i, nz + i, PCF, BIAS, got + i);
+    }
+    for (int i = 0; i < N; i++) {
+        float want = nc_shadow_lookup(sm, nc_v3(px[i], py[i], pz[i]), nc_v3(nx[i], ny[i], nz[i]), PCF, BIAS);
+        bad += !(fabsf(got[i] - want) <= 1e-5f);
+        partial += want > 0.0f && want < 1.0f;
+    }
+    CHECK(bad == 0);
+    CHECK(partial > 10);
+    if (bad || partial <= 10)
+        printf("  batch lookups: %d of %d differ, %d partly lit\n", bad, N, partial);
+}
+
 static void test_directional(void)
 {
     nacre_context *ctx = make_ctx(2);
@@ -255,6 +294,7 @@ static void test_directional(void)
                                      BIAS) != 1.0f;
     CHECK(acne == 0);
     CHECK(nc_shadow_lookup(&sm, nc_v3(50, 0, 50), nc_v3(0, 1, 0), PCF, BIAS) == 1.0f);
+    check_batch(&sm, 10.0, 2.5);
     /* Rendering again into the same map reuses it and gives the same texels. */
     float *copy = malloc(sizeof(float) * 1024 * 1024);
     memcpy(copy, sm.depth, sizeof(float) * 1024 * 1024);
@@ -330,6 +370,7 @@ static void test_spot(void)
     CHECK(acne == 0);
     /* Behind the light: outside the map, lit. */
     CHECK(nc_shadow_lookup(&sm, nc_v3(0.4f, 8, -0.3f), nc_v3(0, 1, 0), PCF, BIAS) == 1.0f);
+    check_batch(&sm, 10.0, 2.5);
     nc_shadow_free(ctx, &sm);
     geo_free(&g[0]);
     geo_free(&g[1]);
@@ -389,6 +430,7 @@ static void test_point(void)
           faces_seen[5] > 0);
     CHECK(shadow_faces[0] > 50 && shadow_faces[1] > 50 && shadow_faces[3] > 50 &&
           shadow_faces[5] > 50);
+    check_batch(&sm, 10.0, 4.0);
     nc_shadow_free(ctx, &sm);
     for (int i = 0; i < 5; i++)
         geo_free(&g[i]);
