@@ -11,9 +11,26 @@
 
 #include <math.h>
 #include <stdbool.h>
+#include <stdint.h>
+#include <string.h>
 
 #define NC_PI 3.14159265358979323846f
 #define NC_DEG2RAD (NC_PI / 180.0f)
+
+/* m ? a : b for a mask m of 0 or 1, as bit operations, for loops meant to vectorize: they
+ * compute every value on every lane and pick with this. A ?: on floats lets GCC move the chosen
+ * operation into a branch, and it does not if-convert a floating-point operation that could trap
+ * (-ftrapping-math), so the loop would stay scalar. */
+static inline float nc_sel(int32_t m, float a, float b)
+{
+    uint32_t ua, ub, mask = 0u - (uint32_t)m;
+    memcpy(&ua, &a, sizeof(ua));
+    memcpy(&ub, &b, sizeof(ub));
+    uint32_t r = (ua & mask) | (ub & ~mask);
+    float f;
+    memcpy(&f, &r, sizeof(f));
+    return f;
+}
 
 typedef struct nc_vec3 { float x, y, z; } nc_vec3;
 typedef struct nc_vec4 { float x, y, z, w; } nc_vec4;

@@ -468,17 +468,17 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
     float E[4][NC_SHADE_BATCH];
     int32_t inside[NC_SHADE_BATCH], valid[NC_SHADE_BATCH];
     /* (1 - F) / (pi (1 - F_diffuse)) with nc_fresnel_dielectric_f's total-reflection branch as a
-     * select (nc_shade_sel; the discarded lanes may hold NaN). */
+     * select (nc_sel; the discarded lanes may hold NaN). */
     const float eta = o->eta, inv_eta2 = o->inv_eta2, radiance_k = o->radiance_k;
     for (uint32_t i = 0; i < count; i++) {
         float cos_o = b->nx[i] * b->vx[i] + b->ny[i] * b->vy[i] + b->nz[i] * b->vz[i];
-        cos_o = nc_shade_sel(cos_o < 0.0f, 0.0f, nc_shade_sel(cos_o > 1.0f, 1.0f, cos_o));
+        cos_o = nc_sel(cos_o < 0.0f, 0.0f, nc_sel(cos_o > 1.0f, 1.0f, cos_o));
         float sin2_t = (1.0f - cos_o * cos_o) * inv_eta2;
         float t = 1.0f - sin2_t;
-        float cos_t = sqrtf(nc_shade_sel(t > 0.0f, t, 0.0f));
+        float cos_t = sqrtf(nc_sel(t > 0.0f, t, 0.0f));
         float rs = (cos_o - eta * cos_t) / (cos_o + eta * cos_t);
         float rp = (eta * cos_o - cos_t) / (eta * cos_o + cos_t);
-        float f = nc_shade_sel(sin2_t >= 1.0f, 1.0f, 0.5f * (rs * rs + rp * rp));
+        float f = nc_sel(sin2_t >= 1.0f, 1.0f, 0.5f * (rs * rs + rp * rp));
         k[i] = (1.0f - f) * radiance_k;
     }
     /* The sample point NC_DIFF_SAMPLE_DEPTH cells below the surface, in padded grid coordinates:
@@ -495,8 +495,8 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
         inside[i] = packed & (gx[i] >= 0.0f) & (gy[i] >= 0.0f) & (gz[i] >= 0.0f) & (gx[i] < lim_x) &
                     (gy[i] < lim_y) & (gz[i] < lim_z);
         /* Outside lanes compute garbage here and are masked (their gx may be NaN or huge) */
-        float x = nc_shade_sel(inside[i], gx[i], 0.0f), y = nc_shade_sel(inside[i], gy[i], 0.0f),
-              z = nc_shade_sel(inside[i], gz[i], 0.0f);
+        float x = nc_sel(inside[i], gx[i], 0.0f), y = nc_sel(inside[i], gy[i], 0.0f),
+              z = nc_sel(inside[i], gz[i], 0.0f);
         int32_t x0 = (int32_t)x, y0 = (int32_t)y, z0 = (int32_t)z; /* non-negative: truncation is floor */
         fx[i] = x - (float)x0;
         fy[i] = y - (float)y0;
@@ -522,7 +522,7 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
     for (int c = 0; c < 3; c++)
         for (uint32_t i = 0; i < count; i++) {
             float inv = 1.0f / E[3][i];
-            E[c][i] = nc_shade_sel(valid[i], E[c][i] * inv, E[c][i]);
+            E[c][i] = nc_sel(valid[i], E[c][i] * inv, E[c][i]);
         }
     bool any_slow = (o->face_mode && o->q[0]) || outside;
     /* One cache per field: the exitance is read below the surface and q at it, in other cells */
@@ -577,5 +577,5 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
         }
     for (int c = 0; c < 3; c++)
         for (uint32_t i = 0; i < count; i++)
-            out[c][i] = nc_shade_sel(valid[i], E[c][i] * k[i], 0.0f);
+            out[c][i] = nc_sel(valid[i], E[c][i] * k[i], 0.0f);
 }

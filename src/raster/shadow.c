@@ -501,19 +501,6 @@ static inline void prefetch_window(const float *map, int size, float rad, float 
  * larger than it, and shading visits its texels in screen order). */
 #define PREFETCH_AHEAD 4u
 
-/* m ? a : b as bit operations, so that GCC if-converts it in a loop (it does not move a
- * floating-point operation that could trap out of a branch, -ftrapping-math) */
-static inline float sel(int32_t m, float a, float b)
-{
-    uint32_t ua, ub, mask = 0u - (uint32_t)m;
-    memcpy(&ua, &a, sizeof(ua));
-    memcpy(&ub, &b, sizeof(ub));
-    uint32_t r = (ua & mask) | (ub & ~mask);
-    float f;
-    memcpy(&f, &r, sizeof(f));
-    return f;
-}
-
 /* Per-point set-up of an orthographic map's lookups, CHUNK points at a time in SoA loops that
  * vectorize (nc_shadow_lookup's operations, with its early returns as a mask). */
 #define CHUNK 64u
@@ -594,12 +581,12 @@ void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, co
             float l = sqrtf(dx * dx + dy * dy + dz * dz);
             float inv_l = 1.0f / l;
             int32_t pos = l > 0.0f;
-            dx = sel(pos, dx * inv_l, dx);
-            dy = sel(pos, dy * inv_l, dy);
-            dz = sel(pos, dz * inv_l, dz);
+            dx = nc_sel(pos, dx * inv_l, dx);
+            dy = nc_sel(pos, dy * inv_l, dy);
+            dz = nc_sel(pos, dz * inv_l, dz);
             float cos_t = fabsf(dz);
             float sin_t = sqrtf(fmax_fast(0.0f, 1.0f - cos_t * cos_t));
-            float slope = sel(sin_t < MAX_SLOPE * cos_t, sin_t / cos_t, MAX_SLOPE);
+            float slope = nc_sel(sin_t < MAX_SLOPE * cos_t, sin_t / cos_t, MAX_SLOPE);
             ok[k] = (d >= near_d) & (d <= far_d) & (fabsf(u) <= 3.4028235e38f) & (fabsf(vv) <= 3.4028235e38f);
             U[k] = u;
             VV[k] = vv;

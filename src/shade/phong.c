@@ -112,7 +112,7 @@ static void material_constants(const nacre_material_desc *m, mat_k *k)
  * operation for operation (the image does not depend on the batching); the lanes are split into
  * vectorizable loops (geometry, lobe, sum) around the shadow lookups, which stay per pixel.
  * In those loops every value is computed for every lane and conditions only select
- * (nc_shade_sel; masks are int32 and combined with &). */
+ * (nc_sel; masks are int32 and combined with &). */
 static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, const mat_k *mk, float lambert,
                         const nc_shade_batch *b, const nc_gbuffer *gb, size_t first, const nc_shade_params *params,
                         float acc[3][NC_SHADE_BATCH])
@@ -152,7 +152,7 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
                 float c = dx0 * -wx[i] + dy0 * -wy[i] + dz0 * -wz[i];
                 float t = (c - co) / (ci - co);
                 float smooth = t * t * (3.0f - 2.0f * t);
-                float f = nc_shade_sel(c <= co, 0.0f, nc_shade_sel((c >= ci) | hard, 1.0f, smooth));
+                float f = nc_sel(c <= co, 0.0f, nc_sel((c >= ci) | hard, 1.0f, smooth));
                 scale[i] *= f;
             }
         }
@@ -165,17 +165,17 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
         float len = sqrtf(hx * hx + hy * hy + hz * hz);
         float inv_len = 1.0f / len;
         int32_t pos = len > 0.0f;
-        hx = nc_shade_sel(pos, hx * inv_len, hx);
-        hy = nc_shade_sel(pos, hy * inv_len, hy);
-        hz = nc_shade_sel(pos, hz * inv_len, hz);
+        hx = nc_sel(pos, hx * inv_len, hx);
+        hy = nc_sel(pos, hy * inv_len, hy);
+        hz = nc_sel(pos, hz * inv_len, hz);
         float d = b->nx[i] * hx + b->ny[i] * hy + b->nz[i] * hz;
-        d = nc_shade_sel(d > 0.0f, d, 0.0f);
+        d = nc_sel(d > 0.0f, d, 0.0f);
         int32_t up = d > nh_cut;
         /* cos_i <= 0 or scale <= 0: unlit; no highlight and no Lambert term: nothing to add */
         ok[i] = ok[i] & !(ct <= 0) & !(scale[i] <= 0) & (up | has_lambert);
         cos_i[i] = ct;
         above[i] = up;
-        nh[i] = nc_shade_sel(up, d, 1.0f);
+        nh[i] = nc_sel(up, d, 1.0f);
     }
     const float spec_norm = mk->spec_norm;
     if (m->shininess > 0) {
@@ -183,11 +183,11 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
         pow_batch(count, nh, m->shininess, pw);
         for (uint32_t i = 0; i < count; i++) {
             float v = spec_norm * pw[i];
-            spec[i] = nc_shade_sel(above[i], v, 0.0f);
+            spec[i] = nc_sel(above[i], v, 0.0f);
         }
     } else {
         for (uint32_t i = 0; i < count; i++)
-            spec[i] = nc_shade_sel(above[i], spec_norm, 0.0f);
+            spec[i] = nc_sel(above[i], spec_norm, 0.0f);
     }
     const float s0 = l->strength[0], s1 = l->strength[1], s2 = l->strength[2];
     const float kl0 = mk->kd[0] * lambert, kl1 = mk->kd[1] * lambert, kl2 = mk->kd[2] * lambert;
@@ -201,12 +201,12 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
             float u0 = fabsf(s0 * scale[i] * cos_i[i] * (kl0 + ks0 * spec[i]));
             float u1 = fabsf(s1 * scale[i] * cos_i[i] * (kl1 + ks1 * spec[i]));
             float u2 = fabsf(s2 * scale[i] * cos_i[i] * (kl2 + ks2 * spec[i]));
-            float un = nc_shade_sel(u0 > 0.0f, u0, 0.0f);
-            un = nc_shade_sel(u1 > un, u1, un);
-            un = nc_shade_sel(u2 > un, u2, un);
-            float have = nc_shade_sel(acc[0][i] > 0.0f, acc[0][i], 0.0f);
-            have = nc_shade_sel(acc[1][i] > have, acc[1][i], have);
-            have = nc_shade_sel(acc[2][i] > have, acc[2][i], have);
+            float un = nc_sel(u0 > 0.0f, u0, 0.0f);
+            un = nc_sel(u1 > un, u1, un);
+            un = nc_sel(u2 > un, u2, un);
+            float have = nc_sel(acc[0][i] > 0.0f, acc[0][i], 0.0f);
+            have = nc_sel(acc[1][i] > have, acc[1][i], have);
+            have = nc_sel(acc[2][i] > have, acc[2][i], have);
             ok[i] = ok[i] & !(un <= NEGLIGIBLE * have);
         }
         /* The remaining lanes' lookups together (nc_shadow_lookup_n), at their positions with
@@ -242,9 +242,9 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
         float t1 = s1 * e * (kl1 + ks1 * spec[i]);
         float t2 = s2 * e * (kl2 + ks2 * spec[i]);
         float a0 = acc[0][i] + t0, a1 = acc[1][i] + t1, a2 = acc[2][i] + t2;
-        acc[0][i] = nc_shade_sel(ok[i], a0, acc[0][i]);
-        acc[1][i] = nc_shade_sel(ok[i], a1, acc[1][i]);
-        acc[2][i] = nc_shade_sel(ok[i], a2, acc[2][i]);
+        acc[0][i] = nc_sel(ok[i], a0, acc[0][i]);
+        acc[1][i] = nc_sel(ok[i], a1, acc[1][i]);
+        acc[2][i] = nc_sel(ok[i], a2, acc[2][i]);
     }
 }
 
@@ -326,9 +326,9 @@ static void shade_run(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
             float x = ex - b.px[i], y = ey - b.py[i], z = ez - b.pz[i];
             float l = sqrtf(x * x + y * y + z * z);
             float inv = 1.0f / l;
-            b.vx[i] = nc_shade_sel(l > 0.0f, x * inv, x);
-            b.vy[i] = nc_shade_sel(l > 0.0f, y * inv, y);
-            b.vz[i] = nc_shade_sel(l > 0.0f, z * inv, z);
+            b.vx[i] = nc_sel(l > 0.0f, x * inv, x);
+            b.vy[i] = nc_sel(l > 0.0f, y * inv, y);
+            b.vz[i] = nc_sel(l > 0.0f, z * inv, z);
         }
     }
     for (int c = 0; c < 3; c++) {

@@ -20,21 +20,6 @@ typedef struct nc_shade_light {
  * most NC_SHADE_BATCH long, held as SoA arrays so that the per-pixel arithmetic vectorizes. */
 #define NC_SHADE_BATCH 64
 
-/* m ? a : b for a mask m of 0 or 1, as bit operations, for the batch loops: they compute every
- * value on every lane and pick with this. A ?: on floats lets GCC move the chosen operation into
- * a branch, and it does not if-convert a floating-point operation that could trap
- * (-ftrapping-math), so the loop would stay scalar. */
-static inline float nc_shade_sel(int32_t m, float a, float b)
-{
-    uint32_t ua, ub, mask = 0u - (uint32_t)m;
-    memcpy(&ua, &a, sizeof(ua));
-    memcpy(&ub, &b, sizeof(ub));
-    uint32_t r = (ua & mask) | (ub & ~mask);
-    float f;
-    memcpy(&f, &r, sizeof(f));
-    return f;
-}
-
 typedef struct nc_shade_batch {
     uint32_t count;                     /* pixels in use, 1..NC_SHADE_BATCH */
     float px[NC_SHADE_BATCH], py[NC_SHADE_BATCH], pz[NC_SHADE_BATCH]; /* world position */
