@@ -178,7 +178,14 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
         nh[i] = nc_sel(up, d, 1.0f);
     }
     const float spec_norm = mk->spec_norm;
-    if (m->shininess > 0) {
+    int32_t any_above = 0;
+    for (uint32_t i = 0; i < count; i++)
+        any_above |= above[i];
+    if (m->shininess > 0 && !any_above) {
+        /* No lane in the lobe (most batches away from the highlight): no powers to raise */
+        for (uint32_t i = 0; i < count; i++)
+            spec[i] = 0.0f;
+    } else if (m->shininess > 0) {
         float pw[NC_SHADE_BATCH];
         pow_batch(count, nh, m->shininess, pw);
         for (uint32_t i = 0; i < count; i++) {
@@ -212,7 +219,10 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
         /* The remaining lanes' lookups together (nc_shadow_lookup_n), at their positions with
          * the geometric normals */
         uint32_t lanes[NC_SHADE_BATCH], nl = 0;
+        int32_t any_ok = 0;
         for (uint32_t i = 0; i < count; i++)
+            any_ok |= ok[i];
+        for (uint32_t i = 0; any_ok && i < count; i++)
             if (ok[i])
                 lanes[nl++] = i;
         if (nl > 0) {
