@@ -19,8 +19,9 @@
  * Layout: each row is cut into runs; empty pixels get the environment in bulk (streaming stores
  * with AVX), and object pixels are shaded in batches (up to NC_SHADE_BATCH pixels of one object
  * and material, SoA) whose per-light arithmetic is written as branch-free loops the compiler
- * vectorizes. Only the shadow lookups (with the next lookups' texels prefetched) and the
- * diffusion method's corner reads stay per pixel. The batches compute the same values as a
+ * vectorizes. A batch's shadow lookups go to nc_shadow_lookup_n together (the set-up of an
+ * orthographic map's lookups is vectorized there; each PCF window stays per pixel, with the next
+ * windows' texels prefetched). The batches compute the same values as a
  * per-pixel loop, except that an integer shininess is raised by exact binary powering in double
  * rather than powf (pow_batch): the two differ in the last bit of a few pixels per image.
  *

@@ -8,8 +8,6 @@
 #include "raster/raster.h"
 #include "scene/scene.h"
 
-#include <string.h>
-
 /* Lights resolved for shading: one per scene light, with its shadow map (NULL = unshadowed). */
 typedef struct nc_shade_light {
     const nacre_light_desc *desc;
