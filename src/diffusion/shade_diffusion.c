@@ -49,22 +49,21 @@
  * already the flux that leaves, and the normalization above distributes it over the outside
  * hemisphere, which accounts for that compression.
  *
- * The shading pass calls nc_diff_subsurface_radiance once per batch of pixels (shade.h): the
- * per-pixel arithmetic runs as vectorized loops over the batch, the corner reads 8 lanes at a
- * time with each cell's records broadcast once (group_sums), and only the per-point ghost
- * records of larger grids and the points outside the grid run per pixel. Against one 4-wide
- * trilinear read per pixel this took the subsurface part of Suzanne's 4^3 pass from 15 to 7.5
- * million instructions per frame (callgrind), with bit-identical images.
+ * The shading pass calls nc_diff_subsurface_radiance once per batch of pixels (shade.h), which
+ * takes them 8 lanes at a time from the G-buffer values to the radiance in vector registers
+ * (core/simd.h): the corner reads broadcast each cell's records once for the lanes in it
+ * (group_sums), and only the per-point ghost records of larger grids, the points outside the grid
+ * and FACE mode's q run per lane. Against one 4-wide trilinear read per pixel, the 8-lane corner
+ * reads took the subsurface part of Suzanne's 4^3 pass from 15 to 7.5 million instructions per
+ * frame (callgrind), and the 8-lane groups from there to 6.1 million, with bit-identical images.
  */
 #include "diffusion/pipeline.h"
 #include "core/optics.h"
+#include "core/simd.h"
 
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
-#ifdef __AVX__
-#include <immintrin.h>
-#endif
 
 /* Trilinear interpolation of a per-cell field (3 channels) at p over the solid cells around it
  * (weights renormalized); where no solid corner has weight, over the corners' ghost values
@@ -351,28 +350,13 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
     return NACRE_OK;
 }
 
-/* Padded grid coordinates of p: relative to the padded grid's cell centres (hence + 1 - 0.5).
- * The shading pass reads o->packed (exitance RGB and solid weight, 0 outside the domain and in
- * the padding, so the solid test is folded into the data: a corner outside adds w x 0) and
- * o->packed_ghost at these coordinates, with sample_field_cached's weights and corners. */
-static inline void padded_coords(const nc_diff_object *o, float inv_h, float px, float py, float pz, float *gx,
-                                 float *gy, float *gz)
-{
-    *gx = (px - o->origin[0]) * inv_h + 0.5f;
-    *gy = (py - o->origin[1]) * inv_h + 0.5f;
-    *gz = (pz - o->origin[2]) * inv_h + 0.5f;
-}
-
 /* The shading pass evaluates a padded record grid for 8 lanes of a batch at a time: lanes are
  * neighbouring pixels of one row and mostly share their cell (a cell spans about 20 pixels at
  * 28^3, 100 at 4^3), so a cell's 8 records are broadcast once (group_cache) and the trilinear
  * sums run 8 lanes wide with lerp8's operations per channel (the same values). */
-typedef float v8f __attribute__((vector_size(32)));
-typedef int32_t v8i __attribute__((vector_size(32)));
-
 typedef struct group_cache {
     int32_t cell;    /* offset of the cached cell's first record in the grid; -1: none */
-    v8f c[4][8];     /* corner k's value of channel c on every lane */
+    nc_v8f c[4][8];  /* corner k's value of channel c on every lane */
 } group_cache;
 
 static void group_cache_load(group_cache *gc, const float *grid, int32_t cell, size_t sy, size_t sz)
@@ -381,201 +365,168 @@ static void group_cache_load(group_cache *gc, const float *grid, int32_t cell, s
     for (int k = 0; k < 8; k++) {
         const float *r = base + 4 * (size_t)(k & 1) + sy * (size_t)((k >> 1) & 1) + sz * (size_t)((k >> 2) & 1);
         for (int ch = 0; ch < 4; ch++)
-            gc->c[ch][k] = (v8f){0} + r[ch];
+            gc->c[ch][k] = nc_v8_splat(r[ch]);
     }
     gc->cell = cell;
 }
 
 /* lerp8 of one channel's corners c on 8 lanes */
-static inline v8f lerp8_v8(const v8f c[8], v8f fx, v8f fy, v8f fz, v8f gx0, v8f gy0, v8f gz0)
+static inline nc_v8f lerp8_v8(const nc_v8f c[8], nc_v8f fx, nc_v8f fy, nc_v8f fz, nc_v8f gx0, nc_v8f gy0,
+                              nc_v8f gz0)
 {
-    v8f c00 = c[0] * gx0 + c[1] * fx, c10 = c[2] * gx0 + c[3] * fx;
-    v8f c01 = c[4] * gx0 + c[5] * fx, c11 = c[6] * gx0 + c[7] * fx;
+    nc_v8f c00 = c[0] * gx0 + c[1] * fx, c10 = c[2] * gx0 + c[3] * fx;
+    nc_v8f c01 = c[4] * gx0 + c[5] * fx, c11 = c[6] * gx0 + c[7] * fx;
     return (c00 * gy0 + c10 * fy) * gz0 + (c01 * gy0 + c11 * fy) * fz;
 }
 
-/* Bit l set where lane l of cg equals c */
-static inline uint32_t lanes_equal(v8i cg, int32_t c)
+/* The trilinear sums over grid (o->packed or o->packed_ghost) of 8 lanes: lane l at fractions
+ * (x, y, z)[l] of the padded cell whose first record is at grid + cell[l], or 0 where
+ * cell[l] < 0; into out[channel]. */
+static void group_sums(const float *grid, size_t sy, size_t sz, nc_v8i cell, nc_v8f x, nc_v8f y, nc_v8f z,
+                       group_cache *gc, nc_v8f out[4])
 {
-    v8i m = cg == c;
-#ifdef __AVX__
-    return (uint32_t)_mm256_movemask_ps((__m256)m);
-#else
-    uint32_t bits = 0;
-    for (int l = 0; l < 8; l++)
-        bits |= m[l] ? 1u << l : 0u;
-    return bits;
-#endif
-}
-
-/* The trilinear sums over grid (o->packed or o->packed_ghost) of lanes [g, g + 8): lane i at
- * fractions (fx, fy, fz)[i] of the padded cell whose first record is at grid + cell[i], or 0
- * where cell[i] < 0; into out[channel][lane]. */
-static void group_sums(const float *grid, size_t sy, size_t sz, const int32_t *cell, const float *fx,
-                       const float *fy, const float *fz, uint32_t g, group_cache *gc, float out[4][NC_SHADE_BATCH])
-{
-    v8f x, y, z;
-    v8i cg;
-    memcpy(&x, fx + g, sizeof(x));
-    memcpy(&y, fy + g, sizeof(y));
-    memcpy(&z, fz + g, sizeof(z));
-    memcpy(&cg, cell + g, sizeof(cg));
-    const v8f one = (v8f){0} + 1.0f;
-    const v8f gx0 = one - x, gy0 = one - y, gz0 = one - z;
-    const int32_t c0 = cell[g];
-    uint32_t done = lanes_equal(cg, c0);
+    const nc_v8f one = nc_v8_splat(1.0f);
+    const nc_v8f gx0 = one - x, gy0 = one - y, gz0 = one - z;
+    const int32_t c0 = cell[0];
+    uint32_t done = nc_v8_bits(cell == c0);
     if (done == 0xffu) { /* the usual case: one cell */
         if (c0 >= 0 && gc->cell != c0)
             group_cache_load(gc, grid, c0, sy, sz);
-        for (int ch = 0; ch < 4; ch++) {
-            v8f v = c0 >= 0 ? lerp8_v8(gc->c[ch], x, y, z, gx0, gy0, gz0) : (v8f){0};
-            memcpy(out[ch] + g, &v, sizeof(v));
-        }
+        for (int ch = 0; ch < 4; ch++)
+            out[ch] = c0 >= 0 ? lerp8_v8(gc->c[ch], x, y, z, gx0, gy0, gz0) : (nc_v8f){0};
         return;
     }
     /* Each distinct cell once; lanes take their cell's sums */
-    v8f r[4] = {{0}, {0}, {0}, {0}};
+    for (int ch = 0; ch < 4; ch++)
+        out[ch] = (nc_v8f){0};
     for (int l = 0; l < 8; l++) {
-        const int32_t c = cell[g + (uint32_t)l];
-        const uint32_t bits = l == 0 ? done : lanes_equal(cg, c);
+        const int32_t c = cell[l];
+        const nc_v8i m = cell == c;
         if (l > 0) {
             if (done & (1u << l))
                 continue;
-            done |= bits;
+            done |= nc_v8_bits(m);
         }
         if (c < 0)
-            continue; /* r is 0 there already */
+            continue; /* out is 0 there already */
         if (gc->cell != c)
             group_cache_load(gc, grid, c, sy, sz);
-        const v8i m = cg == c;
-        for (int ch = 0; ch < 4; ch++) {
-            v8f v = lerp8_v8(gc->c[ch], x, y, z, gx0, gy0, gz0);
-            r[ch] = (v8f)(((v8i)v & m) | ((v8i)r[ch] & ~m));
-        }
+        for (int ch = 0; ch < 4; ch++)
+            out[ch] = nc_v8_sel(m, lerp8_v8(gc->c[ch], x, y, z, gx0, gy0, gz0), out[ch]);
     }
-    for (int ch = 0; ch < 4; ch++)
-        memcpy(out[ch] + g, &r[ch], sizeof(r[ch]));
 }
 
+/* Lanes of the batch are processed 8 at a time from the G-buffer values to the radiance, with
+ * the per-lane fallbacks (ghosts of larger grids, points outside the grid, FACE mode's q) run
+ * per lane in the groups that need them. */
 void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_shade_batch *b,
                                  float out[3][NC_SHADE_BATCH])
 {
     const nc_diff_state *st = user;
     const nc_diff_object *o = &st->objects[object];
     const uint32_t count = b->count;
-    /* Exitance and view factor for the whole batch, split into loops that vectorize */
-    float k[NC_SHADE_BATCH], gx[NC_SHADE_BATCH], gy[NC_SHADE_BATCH], gz[NC_SHADE_BATCH];
-    float E[4][NC_SHADE_BATCH];
-    int32_t inside[NC_SHADE_BATCH], valid[NC_SHADE_BATCH];
-    /* (1 - F) / (pi (1 - F_diffuse)) with nc_fresnel_dielectric_f's total-reflection branch as a
-     * select (nc_sel; the discarded lanes may hold NaN). */
     const float eta = o->eta, inv_eta2 = o->inv_eta2, radiance_k = o->radiance_k;
-    for (uint32_t i = 0; i < count; i++) {
-        float cos_o = b->nx[i] * b->vx[i] + b->ny[i] * b->vy[i] + b->nz[i] * b->vz[i];
-        cos_o = nc_sel(cos_o < 0.0f, 0.0f, nc_sel(cos_o > 1.0f, 1.0f, cos_o));
-        float sin2_t = (1.0f - cos_o * cos_o) * inv_eta2;
-        float t = 1.0f - sin2_t;
-        float cos_t = sqrtf(nc_sel(t > 0.0f, t, 0.0f));
-        float rs = (cos_o - eta * cos_t) / (cos_o + eta * cos_t);
-        float rp = (eta * cos_o - cos_t) / (eta * cos_o + cos_t);
-        float f = nc_sel(sin2_t >= 1.0f, 1.0f, 0.5f * (rs * rs + rp * rp));
-        k[i] = (1.0f - f) * radiance_k;
-    }
     /* The sample point NC_DIFF_SAMPLE_DEPTH cells below the surface, in padded grid coordinates:
      * the cell (its first record's offset in o->packed, -1 outside) and the fractions */
-    const bool packed = o->solid && o->solid_count != 0 && o->packed;
+    const nc_v8i packed = (nc_v8i){0} - (int32_t)(o->solid && o->solid_count != 0 && o->packed);
     const float depth = NC_DIFF_SAMPLE_DEPTH * o->h, inv_h = 1.0f / o->h;
+    const float ox = o->origin[0], oy = o->origin[1], oz = o->origin[2];
     const float lim_x = (float)(o->dims[0] + 1), lim_y = (float)(o->dims[1] + 1), lim_z = (float)(o->dims[2] + 1);
     const int32_t sy = 4 * ((int32_t)o->dims[0] + 2), sz = sy * ((int32_t)o->dims[1] + 2);
-    int32_t cell[NC_SHADE_BATCH];
-    float fx[NC_SHADE_BATCH], fy[NC_SHADE_BATCH], fz[NC_SHADE_BATCH];
-    for (uint32_t i = 0; i < count; i++) {
-        padded_coords(o, inv_h, b->px[i] - b->nx[i] * depth, b->py[i] - b->ny[i] * depth,
-                      b->pz[i] - b->nz[i] * depth, &gx[i], &gy[i], &gz[i]);
-        inside[i] = packed & (gx[i] >= 0.0f) & (gy[i] >= 0.0f) & (gz[i] >= 0.0f) & (gx[i] < lim_x) &
-                    (gy[i] < lim_y) & (gz[i] < lim_z);
-        /* Outside lanes compute garbage here and are masked (their gx may be NaN or huge) */
-        float x = nc_sel(inside[i], gx[i], 0.0f), y = nc_sel(inside[i], gy[i], 0.0f),
-              z = nc_sel(inside[i], gz[i], 0.0f);
-        int32_t x0 = (int32_t)x, y0 = (int32_t)y, z0 = (int32_t)z; /* non-negative: truncation is floor */
-        fx[i] = x - (float)x0;
-        fy[i] = y - (float)y0;
-        fz[i] = z - (float)z0;
-        int32_t c = 4 * x0 + sy * y0 + sz * z0;
-        cell[i] = inside[i] ? c : -1;
-    }
-    /* Lanes up to the next multiple of 8 take part in the groups as outside lanes */
-    for (uint32_t i = count; i < NC_SHADE_BATCH && (i & 7u); i++) {
-        cell[i] = -1;
-        fx[i] = fy[i] = fz[i] = 0.0f;
-    }
+    const bool face_q = o->face_mode && o->q[0];
     group_cache gc_e, gc_g; /* not zeroed: 1 KB each, filled on first use */
     gc_e.cell = gc_g.cell = -1;
-    for (uint32_t g = 0; g < count; g += 8)
-        group_sums(o->packed, (size_t)sy, (size_t)sz, cell, fx, fy, fz, g, &gc_e, E);
-    int32_t need_ghost = 0, outside = 0;
-    for (uint32_t i = 0; i < count; i++) {
-        valid[i] = E[3][i] > 1e-6f;
-        need_ghost |= inside[i] & !valid[i];
-        outside |= !inside[i];
-    }
-    for (int c = 0; c < 3; c++)
-        for (uint32_t i = 0; i < count; i++) {
-            float inv = 1.0f / E[3][i];
-            E[c][i] = nc_sel(valid[i], E[c][i] * inv, E[c][i]);
-        }
-    bool any_slow = (o->face_mode && o->q[0]) || outside;
     /* One cache per field: the exitance is read below the surface and q at it, in other cells */
     field_cache fc_e = {.corner_valid = false, .ghost_valid = false}, fc_q = fc_e;
-    /* No solid corner with weight: the ghost fallback, its records read from o->packed_ghost
-     * when it holds this frame's (small grids), else computed */
-    if (need_ghost && o->ghosts) {
-        float G[4][NC_SHADE_BATCH];
-        for (uint32_t g = 0; g < count; g += 8) {
-            int32_t need = 0;
-            for (uint32_t i = g; i < g + 8 && i < count; i++)
-                need |= inside[i] & !valid[i];
-            if (!need)
-                continue;
-            group_sums(o->packed_ghost, (size_t)sy, (size_t)sz, cell, fx, fy, fz, g, &gc_g, G);
-            for (uint32_t i = g; i < g + 8 && i < count; i++)
-                if (inside[i] && !valid[i]) {
-                    v4f acc = {G[0][i], G[1][i], G[2][i], G[3][i]};
-                    float e[3];
-                    valid[i] = ghost_result(acc, e);
+    for (uint32_t g = 0; g < count; g += 8) {
+        const uint32_t n = count - g < 8 ? count - g : 8;
+        const nc_v8f px = nc_v8_load(b->px + g), py = nc_v8_load(b->py + g), pz = nc_v8_load(b->pz + g);
+        const nc_v8f nx = nc_v8_load(b->nx + g), ny = nc_v8_load(b->ny + g), nz = nc_v8_load(b->nz + g);
+        const nc_v8f vx = nc_v8_load(b->vx + g), vy = nc_v8_load(b->vy + g), vz = nc_v8_load(b->vz + g);
+        const nc_v8f zero = {0}, one = nc_v8_splat(1.0f);
+        /* View factor (1 - F) / (pi (1 - F_diffuse)), nc_fresnel_dielectric_f with its
+         * total-reflection branch as a select (the discarded lanes may hold NaN) */
+        nc_v8f cos_o = nx * vx + ny * vy + nz * vz;
+        cos_o = nc_v8_sel(cos_o < 0.0f, zero, nc_v8_sel(cos_o > 1.0f, one, cos_o));
+        const nc_v8f sin2_t = (1.0f - cos_o * cos_o) * inv_eta2;
+        const nc_v8f t = 1.0f - sin2_t;
+        const nc_v8f cos_t = nc_v8_sqrt(nc_v8_sel(t > 0.0f, t, zero));
+        const nc_v8f rs = (cos_o - eta * cos_t) / (cos_o + eta * cos_t);
+        const nc_v8f rp = (eta * cos_o - cos_t) / (eta * cos_o + cos_t);
+        const nc_v8f f = nc_v8_sel(sin2_t >= 1.0f, one, 0.5f * (rs * rs + rp * rp));
+        const nc_v8f k = (1.0f - f) * radiance_k;
+        /* Padded grid coordinates: relative to the padded grid's cell centres (hence + 1 - 0.5).
+         * o->packed holds exitance RGB and solid weight, 0 outside the domain and in the
+         * padding, so the solid test is folded into the data (a corner outside adds w x 0);
+         * o->packed_ghost is read at the same coordinates, with sample_field_cached's weights
+         * and corners. Lanes outside compute garbage here and are masked (gx may be NaN). */
+        const nc_v8f gx = (px - nx * depth - ox) * inv_h + 0.5f, gy = (py - ny * depth - oy) * inv_h + 0.5f,
+                     gz = (pz - nz * depth - oz) * inv_h + 0.5f;
+        const nc_v8i live = nc_v8_first(n);
+        const nc_v8i inside = packed & live & (gx >= 0.0f) & (gy >= 0.0f) & (gz >= 0.0f) & (gx < lim_x) &
+                              (gy < lim_y) & (gz < lim_z);
+        const nc_v8f x = nc_v8_sel(inside, gx, zero), y = nc_v8_sel(inside, gy, zero), z = nc_v8_sel(inside, gz, zero);
+        /* non-negative: truncation is floor */
+        const nc_v8i x0 = __builtin_convertvector(x, nc_v8i), y0 = __builtin_convertvector(y, nc_v8i),
+                     z0 = __builtin_convertvector(z, nc_v8i);
+        const nc_v8f fx = x - __builtin_convertvector(x0, nc_v8f), fy = y - __builtin_convertvector(y0, nc_v8f),
+                     fz = z - __builtin_convertvector(z0, nc_v8f);
+        const nc_v8i cell = nc_v8i_sel(inside, 4 * x0 + sy * y0 + sz * z0, (nc_v8i){0} - 1);
+        nc_v8f E[4];
+        group_sums(o->packed, (size_t)sy, (size_t)sz, cell, fx, fy, fz, &gc_e, E);
+        nc_v8i valid = E[3] > 1e-6f;
+        const nc_v8f inv = 1.0f / E[3];
+        for (int c = 0; c < 3; c++)
+            E[c] = nc_v8_sel(valid, E[c] * inv, E[c]);
+        /* No solid corner with weight: the ghost fallback, its records read from o->packed_ghost
+         * when it holds this frame's (small grids), else computed per lane */
+        const nc_v8i need_ghost = inside & ~valid;
+        const bool ghosts = nc_v8_bits(need_ghost) != 0;
+        if (ghosts && o->ghosts) {
+            nc_v8f G[4];
+            group_sums(o->packed_ghost, (size_t)sy, (size_t)sz, cell, fx, fy, fz, &gc_g, G);
+            /* ghost_result: the records' mean where a corner with weight has one, else none */
+            const nc_v8i has = G[3] > 0.0f;
+            for (int c = 0; c < 3; c++)
+                E[c] = nc_v8_sel(need_ghost, nc_v8_sel(has, G[c] / G[3], zero), E[c]);
+            valid = nc_v8i_sel(need_ghost, has, valid);
+        }
+        /* The rare per-lane paths */
+        const bool outside = nc_v8_bits(live & ~inside) != 0;
+        if ((ghosts && !o->ghosts) || outside || face_q) {
+            float e8[3][8];
+            int32_t v8[8];
+            for (int c = 0; c < 3; c++)
+                nc_v8_store(e8[c], E[c]);
+            nc_v8i_store(v8, valid);
+            for (uint32_t l = 0; l < n; l++) {
+                const uint32_t i = g + l;
+                float e[3];
+                if (inside[l] && !v8[l] && !o->ghosts) {
+                    int xi = (int)gx[l], yi = (int)gy[l], zi = (int)gz[l]; /* padded: cell xi - 1 */
+                    v4f acc = ghost_sum(o, o->exitance, xi - 1, yi - 1, zi - 1, gx[l] - (float)xi,
+                                        gy[l] - (float)yi, gz[l] - (float)zi, &fc_e);
+                    v8[l] = ghost_result(acc, e) ? -1 : 0;
                     for (int c = 0; c < 3; c++)
-                        E[c][i] = e[c];
+                        e8[c][l] = e[c];
                 }
-        }
-    } else if (need_ghost) {
-        for (uint32_t i = 0; i < count; i++)
-            if (inside[i] && !valid[i]) {
-                int x0 = (int)gx[i], y0 = (int)gy[i], z0 = (int)gz[i]; /* padded: cell x0 - 1 */
-                v4f acc = ghost_sum(o, o->exitance, x0 - 1, y0 - 1, z0 - 1, gx[i] - (float)x0, gy[i] - (float)y0,
-                                    gz[i] - (float)z0, &fc_e);
-                float e[3];
-                valid[i] = ghost_result(acc, e);
-                for (int c = 0; c < 3; c++)
-                    E[c][i] = e[c];
+                nc_vec3 p = nc_v3(b->px[i], b->py[i], b->pz[i]);
+                if (!inside[l]) {
+                    nc_vec3 nn = nc_v3(b->nx[i], b->ny[i], b->nz[i]);
+                    v8[l] = sample_field_cached(o, o->exitance, nc_sub(p, nc_scale(nn, depth)), &fc_e, e) ? -1 : 0;
+                    for (int c = 0; c < 3; c++)
+                        e8[c][l] = e[c];
+                }
+                float qt[3];
+                if (v8[l] && face_q && sample_field_cached(o, o->q, p, &fc_q, qt))
+                    for (int c = 0; c < 3; c++)
+                        e8[c][l] = fmaxf(e8[c][l] + qt[c], 0.0f);
             }
+            for (int c = 0; c < 3; c++)
+                E[c] = nc_v8_load(e8[c]);
+            valid = nc_v8i_load(v8);
+        }
+        for (int c = 0; c < 3; c++)
+            nc_v8_store(out[c] + g, nc_v8_sel(valid, E[c] * k, zero));
     }
-    /* The rare per-point paths: more than half a cell outside the grid, and FACE mode's q */
-    if (any_slow)
-        for (uint32_t i = 0; i < count; i++) {
-            nc_vec3 p = nc_v3(b->px[i], b->py[i], b->pz[i]);
-            if (!inside[i]) {
-                float e[3];
-                nc_vec3 n = nc_v3(b->nx[i], b->ny[i], b->nz[i]);
-                valid[i] = sample_field_cached(o, o->exitance, nc_sub(p, nc_scale(n, depth)), &fc_e, e);
-                for (int c = 0; c < 3; c++)
-                    E[c][i] = e[c];
-            }
-            float qt[3];
-            if (valid[i] && o->face_mode && o->q[0] && sample_field_cached(o, o->q, p, &fc_q, qt))
-                for (int c = 0; c < 3; c++)
-                    E[c][i] = fmaxf(E[c][i] + qt[c], 0.0f);
-        }
-    for (int c = 0; c < 3; c++)
-        for (uint32_t i = 0; i < count; i++)
-            out[c][i] = nc_sel(valid[i], E[c][i] * k[i], 0.0f);
 }

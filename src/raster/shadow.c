@@ -17,11 +17,9 @@
  * are compared linearly (distance along the map's view axis), in scene units.
  */
 #include "raster/raster.h"
+#include "core/simd.h"
 
 #include <string.h>
-#ifdef __SSE2__
-#include <immintrin.h>
-#endif
 
 /* Extra texels around a cube face (see the file comment). */
 #define CUBE_MARGIN_TEXELS 4.0f
@@ -267,54 +265,50 @@ static inline bool pcf_tap_lit(const pcf_frame *f, float stored, float col_r, fl
     return occluder >= recv - f->bias_world;
 }
 
-#ifdef __SSE2__
-typedef float v4s __attribute__((vector_size(16)));
-typedef int32_t v4m __attribute__((vector_size(16)));
+static inline nc_v8f min8(nc_v8f a, nc_v8f b) { return nc_v8_sel(a < b, a, b); }
+static inline nc_v8f max8(nc_v8f a, nc_v8f b) { return nc_v8_sel(a > b, a, b); }
 
-static inline v4s sel4(v4m m, v4s a, v4s b) { return (v4s)(((v4m)a & m) | ((v4m)b & ~m)); }
-
-static inline v4s min4(v4s a, v4s b) { return sel4(a < b, a, b); }
-static inline v4s max4(v4s a, v4s b) { return sel4(a > b, a, b); }
-
-/* The usual window (pcf_radius 1.5): 4 columns i0 .. i0 + 3 and rows j0 .. j1, wholly inside the
- * map. pcf_window's weights and pcf_tap_lit's comparisons, a row of four taps per vector, with
- * the branches as selects. The sums differ from pcf_window's only in their rounding: the total
- * weight is the product of the column and row overlaps' sums, and the lit weight is summed per
- * column over the rows, then across the columns. */
-static float pcf_window4(const pcf_frame *f, int i0, int j0, int j1)
+/* The usual window (pcf_radius 1.5): columns i0 .. i0 + 3 and rows j0 .. j0 + 3, wholly inside
+ * the map, whose texels T hold two rows each (T[0]: rows j0 and j0 + 1 in lanes 0-3 and 4-7;
+ * T[1]: rows j0 + 2 and j0 + 3). pcf_window's weights and pcf_tap_lit's comparisons, 8 taps per
+ * vector, with the branches as selects. The sums differ from pcf_window's only in their
+ * rounding: the total weight is the product of the column and row overlaps' sums, and the lit
+ * weight is summed per lane over the two vectors, then across the lanes. */
+static float pcf_window4x4(const pcf_frame *f, int i0, int j0, const nc_v8f T[2])
 {
-    const v4s zero = {0.0f, 0.0f, 0.0f, 0.0f};
-    const v4s ci = (float)i0 + (v4s){0.0f, 1.0f, 2.0f, 3.0f};
-    v4s col_o = min4(ci + 1.0f, (v4s){0} + (f->u + f->rad)) - max4(ci, (v4s){0} + (f->u - f->rad));
-    const v4s tx = (ci + 0.5f) * f->inv_size - 1.0f;
-    const v4s col_r = f->ortho ? f->nv.x * ((tx - f->m03) * f->inv_m00 - f->pv.x) : f->nv.x * (tx * f->inv_m00);
-    const v4s du = ci + 0.5f - f->u;
-    const v4s col_d2 = du * du;
-    col_o = sel4(col_o > 0.0f, col_o, zero);
+    const nc_v8f zero = {0};
+    const nc_v8f ci = (float)i0 + (nc_v8f){0.0f, 1.0f, 2.0f, 3.0f, 0.0f, 1.0f, 2.0f, 3.0f};
+    nc_v8f col_o = min8(ci + 1.0f, nc_v8_splat(f->u + f->rad)) - max8(ci, nc_v8_splat(f->u - f->rad));
+    col_o = nc_v8_sel(col_o > 0.0f, col_o, zero);
+    const nc_v8f tx = (ci + 0.5f) * f->inv_size - 1.0f;
+    const nc_v8f col_r = f->ortho ? f->nv.x * ((tx - f->m03) * f->inv_m00 - f->pv.x) : f->nv.x * (tx * f->inv_m00);
+    const nc_v8f du = ci + 0.5f - f->u;
+    const nc_v8f col_d2 = du * du;
     const float d = f->d;
-    v4s lit = zero;
-    float rows = 0.0f;
-    for (int j = j0; j <= j1; j++) {
-        float row_r, dv2;
-        float oy = pcf_row(f, j, &row_r, &dv2);
-        if (oy <= 0.0f)
-            continue;
-        rows += oy;
-        v4s stored;
-        memcpy(&stored, f->map + (size_t)j * (size_t)f->size + (size_t)i0, sizeof(stored));
-        v4s recv = f->ortho ? d + (col_r + row_r) * f->inv_nz : f->plane_d / (col_r + row_r + f->nv.z * -1.0f);
-        v4s lim = f->max_dev * (v4s)_mm_sqrt_ps((__m128)(col_d2 + dv2));
-        v4s lo = d - lim, hi = d + lim;
-        recv = sel4(recv >= lo, sel4(recv > hi, hi, recv), lo);
-        v4s occluder = f->ortho ? (f->m23 - stored) * f->inv_m22 : f->m23 / (stored + f->m22);
-        v4m is_lit = ~(stored < 1.0f) | (occluder >= recv - f->bias_world);
-        lit += sel4(is_lit, col_o, zero) * oy;
+    nc_v8f lit = zero, oy_sum = zero;
+    for (int h = 0; h < 2; h++) {
+        const nc_v8f rj = (float)(j0 + 2 * h) + (nc_v8f){0.0f, 0.0f, 0.0f, 0.0f, 1.0f, 1.0f, 1.0f, 1.0f};
+        const nc_v8f ty = 1.0f - (rj + 0.5f) * f->inv_size;
+        const nc_v8f row_r = f->ortho ? f->nv.y * ((ty - f->m13) * f->inv_m11 - f->pv.y) : f->nv.y * (ty * f->inv_m11);
+        const nc_v8f dv = rj + 0.5f - f->vv;
+        nc_v8f oy = min8(rj + 1.0f, nc_v8_splat(f->vv + f->rad)) - max8(rj, nc_v8_splat(f->vv - f->rad));
+        oy = nc_v8_sel(oy > 0.0f, oy, zero); /* rows outside the window weigh 0 */
+        oy_sum += oy;
+        const nc_v8f stored = T[h];
+        nc_v8f recv = f->ortho ? d + (col_r + row_r) * f->inv_nz : f->plane_d / (col_r + row_r + f->nv.z * -1.0f);
+        const nc_v8f lim = f->max_dev * nc_v8_sqrt(col_d2 + dv * dv);
+        const nc_v8f lo = d - lim, hi = d + lim;
+        recv = nc_v8_sel(recv >= lo, nc_v8_sel(recv > hi, hi, recv), lo);
+        const nc_v8f occluder = f->ortho ? (f->m23 - stored) * f->inv_m22 : f->m23 / (stored + f->m22);
+        const nc_v8i is_lit = ~(stored < 1.0f) | (occluder >= recv - f->bias_world);
+        lit += nc_v8_sel(is_lit, col_o, zero) * oy;
     }
-    float total = (col_o[0] + col_o[1] + col_o[2] + col_o[3]) * rows;
-    float sum = (lit[0] + lit[1]) + (lit[2] + lit[3]);
+    /* oy_sum: rows j0 + j0 + 2 in lanes 0-3, j0 + 1 + j0 + 3 in lanes 4-7 */
+    const float rows = oy_sum[0] + oy_sum[4];
+    const float total = (col_o[0] + col_o[1] + col_o[2] + col_o[3]) * rows;
+    const float sum = ((lit[0] + lit[4]) + (lit[1] + lit[5])) + ((lit[2] + lit[6]) + (lit[3] + lit[7]));
     return total > 0.0f ? sum / total : 1.0f;
 }
-#endif
 
 /* The taps of the window [i0, i1] x [j0, j1], each weighted by its overlap with the box filter.
  * Texels beyond the map are lit (one map) or clamped to its edge (cube faces, whose margin
@@ -367,38 +361,41 @@ static inline float lookup_window(const nc_raster_view *v, const pcf_frame *f)
     /* Most receivers are wholly lit or wholly shadowed: decide from the window's depth range
      * against the widest receiver deviation before doing per-tap plane intersections. */
     if (i0 >= 0 && j0 >= 0 && i1 < size && j1 < size) {
-        float smin = INFINITY, smax = -INFINITY;
-        if (i1 - i0 == 3) {
-            /* The usual 4-texel-wide window (pcf_radius 1.5): one running min and max per
-             * column, so the rows' reads and comparisons overlap instead of forming one chain */
-            float a[4] = {INFINITY, INFINITY, INFINITY, INFINITY}, b[4] = {-INFINITY, -INFINITY, -INFINITY, -INFINITY};
-            for (int j = j0; j <= j1; j++) {
-                const float *row = map + (size_t)j * (size_t)size + (size_t)i0;
-                for (int k = 0; k < 4; k++) {
-                    a[k] = fmin_fast(a[k], row[k]);
-                    b[k] = fmax_fast(b[k], row[k]);
-                }
+        const float reach = f->max_dev * (rad + 1.0f) * 1.4142136f;
+        if (i1 - i0 == 3 && j1 - j0 == 3) {
+            /* The usual 4x4 window (pcf_radius 1.5): its 16 texels in two vectors, for the depth
+             * range and the taps */
+            nc_v8f T[2];
+            for (int h = 0; h < 2; h++) {
+                float t[8];
+                const float *row = map + (size_t)(j0 + 2 * h) * (size_t)size + (size_t)i0;
+                memcpy(t, row, 4 * sizeof(float));
+                memcpy(t + 4, row + size, 4 * sizeof(float));
+                T[h] = nc_v8_load(t);
             }
-            smin = fmin_fast(fmin_fast(a[0], a[1]), fmin_fast(a[2], a[3]));
-            smax = fmax_fast(fmax_fast(b[0], b[1]), fmax_fast(b[2], b[3]));
-        } else {
-            for (int j = j0; j <= j1; j++) {
-                const float *row = map + (size_t)j * (size_t)size;
-                for (int i = i0; i <= i1; i++) {
-                    smin = fmin_fast(smin, row[i]);
-                    smax = fmax_fast(smax, row[i]);
-                }
+            const nc_v8f lo = min8(T[0], T[1]), hi = max8(T[0], T[1]);
+            const float smin = fmin_fast(fmin_fast(fmin_fast(lo[0], lo[1]), fmin_fast(lo[2], lo[3])),
+                                         fmin_fast(fmin_fast(lo[4], lo[5]), fmin_fast(lo[6], lo[7])));
+            const float smax = fmax_fast(fmax_fast(fmax_fast(hi[0], hi[1]), fmax_fast(hi[2], hi[3])),
+                                         fmax_fast(fmax_fast(hi[4], hi[5]), fmax_fast(hi[6], hi[7])));
+            if (!(smin < 1.0f) || linear_depth(v, smin) >= d + reach - bias_world)
+                return 1.0f;
+            if (smax < 1.0f && linear_depth(v, smax) < d - reach - bias_world)
+                return 0.0f;
+            return pcf_window4x4(f, i0, j0, T);
+        }
+        float smin = INFINITY, smax = -INFINITY;
+        for (int j = j0; j <= j1; j++) {
+            const float *row = map + (size_t)j * (size_t)size;
+            for (int i = i0; i <= i1; i++) {
+                smin = fmin_fast(smin, row[i]);
+                smax = fmax_fast(smax, row[i]);
             }
         }
-        float reach = f->max_dev * (rad + 1.0f) * 1.4142136f;
         if (!(smin < 1.0f) || linear_depth(v, smin) >= d + reach - bias_world)
             return 1.0f;
         if (smax < 1.0f && linear_depth(v, smax) < d - reach - bias_world)
             return 0.0f;
-#ifdef __SSE2__
-        if (i1 - i0 == 3)
-            return pcf_window4(f, i0, j0, j1);
-#endif
     }
     return pcf_window(f, i0, i1, j0, j1);
 }

@@ -18,12 +18,13 @@
  *
  * Layout: each row is cut into runs; empty pixels get the environment in bulk (streaming stores
  * with AVX), and object pixels are shaded in batches (up to NC_SHADE_BATCH pixels of one object
- * and material, SoA) whose per-light arithmetic is written as branch-free loops the compiler
- * vectorizes. A batch's shadow lookups go to nc_shadow_lookup_n together (the set-up of an
- * orthographic map's lookups is vectorized there; each PCF window stays per pixel, with the next
- * windows' texels prefetched). The batches compute the same values as a
+ * and material, SoA) whose per-light arithmetic runs 8 lanes at a time in vector registers
+ * (core/simd.h), every value computed on every lane and conditions as selects. The lanes that
+ * need a shadow lookup are collected over the batch and go to nc_shadow_lookup_n together (the
+ * set-up of an orthographic map's lookups is vectorized there; each PCF window stays per pixel,
+ * with the next windows' texels prefetched). The batches compute the same values as a
  * per-pixel loop, except that an integer shininess is raised by exact binary powering in double
- * rather than powf (pow_batch): the two differ in the last bit of a few pixels per image.
+ * rather than powf (pow8): the two differ in the last bit of a few pixels per image.
  *
  * The diffusion method reuses this pass through the subsurface hook of nc_shade_params: its
  * translucent objects keep ambient and specular and get the diffusion radiance in place of the
@@ -31,9 +32,11 @@
  */
 #include "shade/shade.h"
 #include "core/optics.h"
+#include "core/simd.h"
 
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
 #ifdef __AVX__
 #include <immintrin.h>
 #endif
@@ -66,36 +69,48 @@ static float spec_cut(float shininess)
     return shininess > 0.0f ? powf(SPEC_FLOOR, 1.0f / shininess) : -1.0f;
 }
 
-/* x^s for the lanes of a batch. An integer exponent (the usual shininess) is computed by
- * binary powering in double: a few vectorized multiplies per lane instead of a powf call, with
- * an error far below a float ulp, so the result is powf's (correctly rounded) value except in
- * rare last-bit cases. Other exponents take powf. Lanes with x = 1 are the callers' don't-care
- * lanes (kept at 1 so that no lane goes through slow denormal arithmetic). */
-static void pow_batch(uint32_t count, const float *x, float s, float *out)
+/* x^s on 8 lanes. An integer exponent (the usual shininess) is computed by binary powering in
+ * double: a few multiplies per lane instead of a powf call, with an error far below a float ulp,
+ * so the result is powf's (correctly rounded) value except in rare last-bit cases. Other
+ * exponents take powf. Lanes with x = 1 are the callers' don't-care lanes (kept at 1 so that no
+ * lane goes through slow denormal arithmetic). */
+static nc_v8f pow8(nc_v8f x, float s)
 {
+    float in[8], out[8];
+    nc_v8_store(in, x);
     if (!(s >= 1.0f && s <= 65536.0f && s == (float)(int32_t)s)) {
-        for (uint32_t i = 0; i < count; i++)
-            out[i] = powf(x[i], s);
-        return;
+        for (int l = 0; l < 8; l++)
+            out[l] = powf(in[l], s);
+        return nc_v8_load(out);
     }
-    double r[NC_SHADE_BATCH], b[NC_SHADE_BATCH];
-    for (uint32_t i = 0; i < count; i++) {
-        r[i] = 1.0;
-        b[i] = (double)x[i];
-    }
+    /* The two halves in double: 4 lanes per vector */
+    typedef float v4f __attribute__((vector_size(16)));
+    typedef double v4d __attribute__((vector_size(32)));
+    v4f lo, hi;
+    memcpy(&lo, in, sizeof(lo));
+    memcpy(&hi, in + 4, sizeof(hi));
+    v4d r0 = {1.0, 1.0, 1.0, 1.0}, r1 = r0;
+    v4d b0 = __builtin_convertvector(lo, v4d), b1 = __builtin_convertvector(hi, v4d);
     for (uint32_t e = (uint32_t)s;;) {
-        if (e & 1u)
-            for (uint32_t i = 0; i < count; i++)
-                r[i] *= b[i];
+        if (e & 1u) {
+            r0 *= b0;
+            r1 *= b1;
+        }
         e >>= 1;
         if (!e)
             break;
-        for (uint32_t i = 0; i < count; i++)
-            b[i] *= b[i];
+        b0 *= b0;
+        b1 *= b1;
     }
-    for (uint32_t i = 0; i < count; i++)
-        out[i] = (float)r[i];
+    lo = __builtin_convertvector(r0, v4f);
+    hi = __builtin_convertvector(r1, v4f);
+    memcpy(out, &lo, sizeof(lo));
+    memcpy(out + 4, &hi, sizeof(hi));
+    return nc_v8_load(out);
 }
+
+/* |x| per lane (clears the sign bit, as fabsf) */
+static inline nc_v8f abs8(nc_v8f x) { return (nc_v8f)((nc_v8i)x & 0x7fffffff); }
 
 /* Per-material constants of the pass. */
 typedef struct mat_k {
@@ -110,152 +125,132 @@ static void material_constants(const nacre_material_desc *m, mat_k *k)
 }
 
 /* Add light l to the batch's radiance acc. The arithmetic per lane is the scalar shading's,
- * operation for operation (the image does not depend on the batching); the lanes are split into
- * vectorizable loops (geometry, lobe, sum) around the shadow lookups, which stay per pixel.
- * In those loops every value is computed for every lane and conditions only select
- * (nc_sel; masks are int32 and combined with &). */
+ * operation for operation (the image does not depend on the batching), 8 lanes at a time
+ * (core/simd.h): every value is computed on every lane and conditions only select. A shadowed
+ * light's lanes that need a lookup are collected over the batch and looked up together. */
 static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, const mat_k *mk, float lambert,
                         const nc_shade_batch *b, const nc_gbuffer *gb, size_t first, const nc_shade_params *params,
                         float acc[3][NC_SHADE_BATCH])
 {
     const nacre_light_desc *l = sl->desc;
     const uint32_t count = b->count;
-    float scale[NC_SHADE_BATCH], cos_i[NC_SHADE_BATCH], nh[NC_SHADE_BATCH], spec[NC_SHADE_BATCH];
-    float wx[NC_SHADE_BATCH], wy[NC_SHADE_BATCH], wz[NC_SHADE_BATCH];
-    int32_t ok[NC_SHADE_BATCH], above[NC_SHADE_BATCH];
     const float lx = l->position[0], ly = l->position[1], lz = l->position[2];
     const float dx0 = l->direction[0], dy0 = l->direction[1], dz0 = l->direction[2];
-    /* Direction to the light and its strength factor (distance, spot cone) */
-    if (l->type == NACRE_LIGHT_DIRECTIONAL) {
-        for (uint32_t i = 0; i < count; i++) {
-            wx[i] = -dx0;
-            wy[i] = -dy0;
-            wz[i] = -dz0;
-            scale[i] = 1.0f;
-            ok[i] = 1;
-        }
-    } else {
-        for (uint32_t i = 0; i < count; i++) {
-            float dx = lx - b->px[i], dy = ly - b->py[i], dz = lz - b->pz[i];
-            float d2 = dx * dx + dy * dy + dz * dz;
-            float inv = 1.0f / sqrtf(d2);
-            wx[i] = dx * inv;
-            wy[i] = dy * inv;
-            wz[i] = dz * inv;
-            scale[i] = 1.0f / d2;
-            ok[i] = !(d2 <= 0);
-        }
-        if (l->type == NACRE_LIGHT_SPOT) {
-            /* The cone's cosines once per batch, not per pixel */
-            const float co = cosf(l->outer_angle * NC_DEG2RAD), ci = cosf(l->inner_angle * NC_DEG2RAD);
-            const bool hard = ci <= co;
-            for (uint32_t i = 0; i < count; i++) {
-                float c = dx0 * -wx[i] + dy0 * -wy[i] + dz0 * -wz[i];
-                float t = (c - co) / (ci - co);
-                float smooth = t * t * (3.0f - 2.0f * t);
-                float f = nc_sel(c <= co, 0.0f, nc_sel((c >= ci) | hard, 1.0f, smooth));
-                scale[i] *= f;
-            }
-        }
-    }
-    const float nh_cut = mk->nh_cut;
-    const int32_t has_lambert = lambert != 0.0f;
-    for (uint32_t i = 0; i < count; i++) {
-        float ct = b->nx[i] * wx[i] + b->ny[i] * wy[i] + b->nz[i] * wz[i];
-        float hx = wx[i] + b->vx[i], hy = wy[i] + b->vy[i], hz = wz[i] + b->vz[i];
-        float len = sqrtf(hx * hx + hy * hy + hz * hz);
-        float inv_len = 1.0f / len;
-        int32_t pos = len > 0.0f;
-        hx = nc_sel(pos, hx * inv_len, hx);
-        hy = nc_sel(pos, hy * inv_len, hy);
-        hz = nc_sel(pos, hz * inv_len, hz);
-        float d = b->nx[i] * hx + b->ny[i] * hy + b->nz[i] * hz;
-        d = nc_sel(d > 0.0f, d, 0.0f);
-        int32_t up = d > nh_cut;
-        /* cos_i <= 0 or scale <= 0: unlit; no highlight and no Lambert term: nothing to add */
-        ok[i] = ok[i] & !(ct <= 0) & !(scale[i] <= 0) & (up | has_lambert);
-        cos_i[i] = ct;
-        above[i] = up;
-        nh[i] = nc_sel(up, d, 1.0f);
-    }
-    const float spec_norm = mk->spec_norm;
-    int32_t any_above = 0;
-    for (uint32_t i = 0; i < count; i++)
-        any_above |= above[i];
-    if (m->shininess > 0 && !any_above) {
-        /* No lane in the lobe (most batches away from the highlight): no powers to raise */
-        for (uint32_t i = 0; i < count; i++)
-            spec[i] = 0.0f;
-    } else if (m->shininess > 0) {
-        float pw[NC_SHADE_BATCH];
-        pow_batch(count, nh, m->shininess, pw);
-        for (uint32_t i = 0; i < count; i++) {
-            float v = spec_norm * pw[i];
-            spec[i] = nc_sel(above[i], v, 0.0f);
-        }
-    } else {
-        for (uint32_t i = 0; i < count; i++)
-            spec[i] = nc_sel(above[i], spec_norm, 0.0f);
-    }
+    const bool directional = l->type == NACRE_LIGHT_DIRECTIONAL, spot = l->type == NACRE_LIGHT_SPOT;
+    /* The spot cone's cosines once per batch, not per pixel */
+    const float co = spot ? cosf(l->outer_angle * NC_DEG2RAD) : 0.0f, ci = spot ? cosf(l->inner_angle * NC_DEG2RAD) : 0.0f;
+    const nc_v8i hard = (nc_v8i){0} - (int32_t)(ci <= co);
+    const float nh_cut = mk->nh_cut, spec_norm = mk->spec_norm;
+    const nc_v8i has_lambert = (nc_v8i){0} - (int32_t)(lambert != 0.0f);
     const float s0 = l->strength[0], s1 = l->strength[1], s2 = l->strength[2];
     const float kl0 = mk->kd[0] * lambert, kl1 = mk->kd[1] * lambert, kl2 = mk->kd[2] * lambert;
     const float ks0 = m->specular[0], ks1 = m->specular[1], ks2 = m->specular[2];
-    if (sl->shadow) {
+    const nc_v8f zero = {0}, one = nc_v8_splat(1.0f);
+    /* A shadowed light's lanes to look up, and their scale, cos_i and spec */
+    uint32_t lanes[NC_SHADE_BATCH], nl = 0;
+    float S[NC_SHADE_BATCH], C[NC_SHADE_BATCH], P[NC_SHADE_BATCH];
+    for (uint32_t g = 0; g < count; g += 8) {
+        const uint32_t n = count - g < 8 ? count - g : 8;
+        const nc_v8f nx = nc_v8_load(b->nx + g), ny = nc_v8_load(b->ny + g), nz = nc_v8_load(b->nz + g);
+        /* Direction to the light and its strength factor (distance, spot cone) */
+        nc_v8f wx, wy, wz, scale;
+        nc_v8i ok = nc_v8_first(n);
+        if (directional) {
+            wx = nc_v8_splat(-dx0);
+            wy = nc_v8_splat(-dy0);
+            wz = nc_v8_splat(-dz0);
+            scale = one;
+        } else {
+            const nc_v8f dx = lx - nc_v8_load(b->px + g), dy = ly - nc_v8_load(b->py + g),
+                         dz = lz - nc_v8_load(b->pz + g);
+            const nc_v8f d2 = dx * dx + dy * dy + dz * dz;
+            const nc_v8f inv = 1.0f / nc_v8_sqrt(d2);
+            wx = dx * inv;
+            wy = dy * inv;
+            wz = dz * inv;
+            scale = 1.0f / d2;
+            ok &= ~(d2 <= 0.0f);
+            if (spot) {
+                const nc_v8f c = dx0 * -wx + dy0 * -wy + dz0 * -wz;
+                const nc_v8f t = (c - co) / (ci - co);
+                const nc_v8f smooth = t * t * (3.0f - 2.0f * t);
+                scale *= nc_v8_sel(c <= co, zero, nc_v8_sel((c >= ci) | hard, one, smooth));
+            }
+        }
+        const nc_v8f ct = nx * wx + ny * wy + nz * wz;
+        nc_v8f hx = wx + nc_v8_load(b->vx + g), hy = wy + nc_v8_load(b->vy + g), hz = wz + nc_v8_load(b->vz + g);
+        const nc_v8f len = nc_v8_sqrt(hx * hx + hy * hy + hz * hz);
+        const nc_v8f inv_len = 1.0f / len;
+        const nc_v8i pos = len > 0.0f;
+        hx = nc_v8_sel(pos, hx * inv_len, hx);
+        hy = nc_v8_sel(pos, hy * inv_len, hy);
+        hz = nc_v8_sel(pos, hz * inv_len, hz);
+        nc_v8f d = nx * hx + ny * hy + nz * hz;
+        d = nc_v8_sel(d > 0.0f, d, zero);
+        const nc_v8i up = (d > nh_cut) & ok;
+        /* cos_i <= 0 or scale <= 0: unlit; no highlight and no Lambert term: nothing to add */
+        ok &= ~(ct <= 0.0f) & ~(scale <= 0.0f) & (up | has_lambert);
+        nc_v8f spec = zero;
+        if (m->shininess > 0 && nc_v8_bits(up)) /* else no lane is in the lobe: no powers */
+            spec = nc_v8_sel(up, spec_norm * pow8(nc_v8_sel(up, d, one), m->shininess), zero);
+        else if (!(m->shininess > 0))
+            spec = nc_v8_sel(up, nc_v8_splat(spec_norm), zero);
+        const nc_v8f a0 = nc_v8_load(acc[0] + g), a1 = nc_v8_load(acc[1] + g), a2 = nc_v8_load(acc[2] + g);
+        if (!sl->shadow) {
+            const nc_v8f e = scale * ct;
+            nc_v8_store(acc[0] + g, nc_v8_sel(ok, a0 + s0 * e * (kl0 + ks0 * spec), a0));
+            nc_v8_store(acc[1] + g, nc_v8_sel(ok, a1 + s1 * e * (kl1 + ks1 * spec), a1));
+            nc_v8_store(acc[2] + g, nc_v8_sel(ok, a2 + s2 * e * (kl2 + ks2 * spec), a2));
+            continue;
+        }
         /* The shadow lookup (PCF) is the most expensive part of a pixel. When this light's
          * unshadowed term is below NEGLIGIBLE of what the pixel already has (typically the
          * specular highlight of a subsurface pixel away from the highlight), it cannot change
          * the pixel beyond that bound: the light is skipped. */
-        for (uint32_t i = 0; i < count; i++) {
-            float u0 = fabsf(s0 * scale[i] * cos_i[i] * (kl0 + ks0 * spec[i]));
-            float u1 = fabsf(s1 * scale[i] * cos_i[i] * (kl1 + ks1 * spec[i]));
-            float u2 = fabsf(s2 * scale[i] * cos_i[i] * (kl2 + ks2 * spec[i]));
-            float un = nc_sel(u0 > 0.0f, u0, 0.0f);
-            un = nc_sel(u1 > un, u1, un);
-            un = nc_sel(u2 > un, u2, un);
-            float have = nc_sel(acc[0][i] > 0.0f, acc[0][i], 0.0f);
-            have = nc_sel(acc[1][i] > have, acc[1][i], have);
-            have = nc_sel(acc[2][i] > have, acc[2][i], have);
-            ok[i] = ok[i] & !(un <= NEGLIGIBLE * have);
-        }
-        /* The remaining lanes' lookups together (nc_shadow_lookup_n), at their positions with
-         * the geometric normals */
-        uint32_t lanes[NC_SHADE_BATCH], nl = 0;
-        int32_t any_ok = 0;
-        for (uint32_t i = 0; i < count; i++)
-            any_ok |= ok[i];
-        for (uint32_t i = 0; any_ok && i < count; i++)
-            if (ok[i])
-                lanes[nl++] = i;
-        if (nl > 0) {
-            float qx[NC_SHADE_BATCH], qy[NC_SHADE_BATCH], qz[NC_SHADE_BATCH];
-            float gx[NC_SHADE_BATCH], gy[NC_SHADE_BATCH], gz[NC_SHADE_BATCH], lit[NC_SHADE_BATCH];
-            for (uint32_t t = 0; t < nl; t++) {
-                const uint32_t i = lanes[t];
-                const float *ng = gb->geo_normal + 3 * (first + i);
-                qx[t] = b->px[i];
-                qy[t] = b->py[i];
-                qz[t] = b->pz[i];
-                gx[t] = ng[0];
-                gy[t] = ng[1];
-                gz[t] = ng[2];
-            }
-            nc_shadow_lookup_n(sl->shadow, nl, qx, qy, qz, gx, gy, gz, params->pcf_radius, params->shadow_bias, lit);
-            for (uint32_t t = 0; t < nl; t++) {
-                const uint32_t i = lanes[t];
-                scale[i] *= lit[t];
-                ok[i] = scale[i] > 0;
-            }
-        }
+        const nc_v8f u0 = abs8(s0 * scale * ct * (kl0 + ks0 * spec)), u1 = abs8(s1 * scale * ct * (kl1 + ks1 * spec)),
+                     u2 = abs8(s2 * scale * ct * (kl2 + ks2 * spec));
+        nc_v8f un = nc_v8_sel(u0 > 0.0f, u0, zero);
+        un = nc_v8_sel(u1 > un, u1, un);
+        un = nc_v8_sel(u2 > un, u2, un);
+        nc_v8f have = nc_v8_sel(a0 > 0.0f, a0, zero);
+        have = nc_v8_sel(a1 > have, a1, have);
+        have = nc_v8_sel(a2 > have, a2, have);
+        ok &= ~(un <= NEGLIGIBLE * have);
+        uint32_t bits = nc_v8_bits(ok);
+        if (!bits)
+            continue;
+        nc_v8_store(S + g, scale);
+        nc_v8_store(C + g, ct);
+        nc_v8_store(P + g, spec);
+        for (; bits; bits &= bits - 1)
+            lanes[nl++] = g + (uint32_t)__builtin_ctz(bits);
     }
-    for (uint32_t i = 0; i < count; i++) {
-        float e = scale[i] * cos_i[i];
-        float t0 = s0 * e * (kl0 + ks0 * spec[i]);
-        float t1 = s1 * e * (kl1 + ks1 * spec[i]);
-        float t2 = s2 * e * (kl2 + ks2 * spec[i]);
-        float a0 = acc[0][i] + t0, a1 = acc[1][i] + t1, a2 = acc[2][i] + t2;
-        acc[0][i] = nc_sel(ok[i], a0, acc[0][i]);
-        acc[1][i] = nc_sel(ok[i], a1, acc[1][i]);
-        acc[2][i] = nc_sel(ok[i], a2, acc[2][i]);
+    if (nl == 0)
+        return;
+    /* The collected lanes' lookups together (nc_shadow_lookup_n), at their positions with the
+     * geometric normals; then their terms, scaled by the lit fraction */
+    float qx[NC_SHADE_BATCH], qy[NC_SHADE_BATCH], qz[NC_SHADE_BATCH];
+    float gx[NC_SHADE_BATCH], gy[NC_SHADE_BATCH], gz[NC_SHADE_BATCH], lit[NC_SHADE_BATCH];
+    for (uint32_t t = 0; t < nl; t++) {
+        const uint32_t i = lanes[t];
+        const float *ng = gb->geo_normal + 3 * (first + i);
+        qx[t] = b->px[i];
+        qy[t] = b->py[i];
+        qz[t] = b->pz[i];
+        gx[t] = ng[0];
+        gy[t] = ng[1];
+        gz[t] = ng[2];
+    }
+    nc_shadow_lookup_n(sl->shadow, nl, qx, qy, qz, gx, gy, gz, params->pcf_radius, params->shadow_bias, lit);
+    for (uint32_t t = 0; t < nl; t++) {
+        const uint32_t i = lanes[t];
+        const float scale = S[i] * lit[t];
+        if (!(scale > 0))
+            continue;
+        const float e = scale * C[i];
+        acc[0][i] += s0 * e * (kl0 + ks0 * P[i]);
+        acc[1][i] += s1 * e * (kl1 + ks1 * P[i]);
+        acc[2][i] += s2 * e * (kl2 + ks2 * P[i]);
     }
 }
 
@@ -324,6 +319,8 @@ static void shade_run(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
         b.ny[i] = N[3 * i + 1];
         b.nz[i] = N[3 * i + 2];
     }
+    for (uint32_t i = count; i < NC_SHADE_BATCH && (i & 7u); i++) /* see nc_shade_batch */
+        b.px[i] = b.py[i] = b.pz[i] = b.nx[i] = b.ny[i] = b.nz[i] = 0.0f;
     if (params->orthographic) {
         const float vx = -params->view_dir.x, vy = -params->view_dir.y, vz = -params->view_dir.z;
         for (uint32_t i = 0; i < count; i++) {

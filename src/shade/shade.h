@@ -15,7 +15,9 @@ typedef struct nc_shade_light {
 } nc_shade_light;
 
 /* Pixels shaded together: a run of one row's pixels with the same object and material, at
- * most NC_SHADE_BATCH long, held as SoA arrays so that the per-pixel arithmetic vectorizes. */
+ * most NC_SHADE_BATCH long, held as SoA arrays so that the per-pixel arithmetic vectorizes.
+ * Lanes from count up to the next multiple of 8 hold finite values (position and normal 0), so
+ * that kernels working on groups of 8 lanes read no garbage there; their results are unused. */
 #define NC_SHADE_BATCH 64
 
 typedef struct nc_shade_batch {

@@ -1,0 +1,90 @@
+/*
+ * simd.h: 8-lane float and int32 vectors for the per-pixel kernels of the shading passes (GCC and
+ * Clang vector extensions: +, *, /, comparisons work lane-wise and compile to AVX with
+ * -march=x86-64-v3, to plain code elsewhere).
+ *
+ * Why explicit vectors: a batch of pixels written as one loop per step keeps every intermediate
+ * in a stack array, and the loads and stores between the steps were a large part of the
+ * shading pass. Written per group of 8 lanes, the intermediates stay in registers.
+ *
+ * Conventions: comparisons give masks of -1 (true) or 0 per lane (nc_v8i); nc_v8_sel picks by
+ * such a mask. Loads and stores are unaligned (memcpy). The operations are the scalar ones lane by
+ * lane, in the same order, so a kernel written with them rounds exactly as its scalar form.
+ */
+#ifndef NACRE_SIMD_H
+#define NACRE_SIMD_H
+
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+#ifdef __AVX__
+#include <immintrin.h>
+#endif
+
+typedef float nc_v8f __attribute__((vector_size(32)));
+typedef int32_t nc_v8i __attribute__((vector_size(32)));
+
+static inline nc_v8f nc_v8_load(const float *p)
+{
+    nc_v8f v;
+    memcpy(&v, p, sizeof(v));
+    return v;
+}
+
+static inline void nc_v8_store(float *p, nc_v8f v) { memcpy(p, &v, sizeof(v)); }
+
+static inline nc_v8i nc_v8i_load(const int32_t *p)
+{
+    nc_v8i v;
+    memcpy(&v, p, sizeof(v));
+    return v;
+}
+
+static inline void nc_v8i_store(int32_t *p, nc_v8i v) { memcpy(p, &v, sizeof(v)); }
+
+static inline nc_v8f nc_v8_splat(float x) { return (nc_v8f){0} + x; }
+
+/* m ? a : b per lane (m: -1 or 0) */
+static inline nc_v8f nc_v8_sel(nc_v8i m, nc_v8f a, nc_v8f b)
+{
+#ifdef __AVX__
+    return (nc_v8f)_mm256_blendv_ps((__m256)b, (__m256)a, (__m256)m); /* by the sign bit: same for -1 / 0 */
+#else
+    return (nc_v8f)((m & (nc_v8i)a) | (~m & (nc_v8i)b));
+#endif
+}
+
+static inline nc_v8i nc_v8i_sel(nc_v8i m, nc_v8i a, nc_v8i b) { return (m & a) | (~m & b); }
+
+/* Lanes 0 .. n - 1 set (n <= 8) */
+static inline nc_v8i nc_v8_first(uint32_t n)
+{
+    const nc_v8i iota = {0, 1, 2, 3, 4, 5, 6, 7};
+    return iota < (int32_t)n;
+}
+
+/* Bit l set where lane l of m is set */
+static inline uint32_t nc_v8_bits(nc_v8i m)
+{
+#ifdef __AVX__
+    return (uint32_t)_mm256_movemask_ps((__m256)m);
+#else
+    uint32_t bits = 0;
+    for (int l = 0; l < 8; l++)
+        bits |= m[l] ? 1u << l : 0u;
+    return bits;
+#endif
+}
+
+static inline nc_v8f nc_v8_sqrt(nc_v8f x)
+{
+#ifdef __AVX__
+    return (nc_v8f)_mm256_sqrt_ps((__m256)x);
+#else
+    for (int l = 0; l < 8; l++)
+        x[l] = sqrtf(x[l]);
+    return x;
+#endif
+}
+
+#endif /* NACRE_SIMD_H */
