@@ -33,6 +33,19 @@ static inline nc_v8f nc_v8_load(const float *p)
 
 static inline void nc_v8_store(float *p, nc_v8f v) { memcpy(p, &v, sizeof(v)); }
 
+/* Lanes 0-3 from lo, 4-7 from hi (two rows of a 2D array) */
+static inline nc_v8f nc_v8_load2(const float *lo, const float *hi)
+{
+#ifdef __AVX__
+    return (nc_v8f)_mm256_loadu2_m128(hi, lo);
+#else
+    float t[8];
+    memcpy(t, lo, 4 * sizeof(float));
+    memcpy(t + 4, hi, 4 * sizeof(float));
+    return nc_v8_load(t);
+#endif
+}
+
 static inline nc_v8i nc_v8i_load(const int32_t *p)
 {
     nc_v8i v;

@@ -367,11 +367,8 @@ static inline float lookup_window(const nc_raster_view *v, const pcf_frame *f)
              * range and the taps */
             nc_v8f T[2];
             for (int h = 0; h < 2; h++) {
-                float t[8];
                 const float *row = map + (size_t)(j0 + 2 * h) * (size_t)size + (size_t)i0;
-                memcpy(t, row, 4 * sizeof(float));
-                memcpy(t + 4, row + size, 4 * sizeof(float));
-                T[h] = nc_v8_load(t);
+                T[h] = nc_v8_load2(row, row + size);
             }
             const nc_v8f lo = min8(T[0], T[1]), hi = max8(T[0], T[1]);
             const float smin = fmin_fast(fmin_fast(fmin_fast(lo[0], lo[1]), fmin_fast(lo[2], lo[3])),
@@ -555,6 +552,7 @@ void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, co
     float V[3][4], P[4][4];
     memcpy(V, vm->m, sizeof(V));
     memcpy(P, pm->m, sizeof(P));
+    pcf_frame f = base; /* the map's part, once; each lookup sets the point's part */
     for (uint32_t c0 = 0; c0 < n; c0 += CHUNK) {
         const uint32_t cn = n - c0 < CHUNK ? n - c0 : CHUNK;
         float U[CHUNK], VV[CHUNK], D[CHUNK], PD[CHUNK], INZ[CHUNK], BW[CHUNK];
@@ -607,7 +605,6 @@ void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, co
                 out[c0 + k] = 1.0f;
                 continue;
             }
-            pcf_frame f = base;
             f.u = U[k];
             f.vv = VV[k];
             f.d = D[k];

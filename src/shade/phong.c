@@ -76,21 +76,17 @@ static float spec_cut(float shininess)
  * lane goes through slow denormal arithmetic). */
 static nc_v8f pow8(nc_v8f x, float s)
 {
-    float in[8], out[8];
-    nc_v8_store(in, x);
     if (!(s >= 1.0f && s <= 65536.0f && s == (float)(int32_t)s)) {
         for (int l = 0; l < 8; l++)
-            out[l] = powf(in[l], s);
-        return nc_v8_load(out);
+            x[l] = powf(x[l], s);
+        return x;
     }
-    /* The two halves in double: 4 lanes per vector */
+    /* The two halves in double, 4 lanes per vector, in registers */
     typedef float v4f __attribute__((vector_size(16)));
     typedef double v4d __attribute__((vector_size(32)));
-    v4f lo, hi;
-    memcpy(&lo, in, sizeof(lo));
-    memcpy(&hi, in + 4, sizeof(hi));
     v4d r0 = {1.0, 1.0, 1.0, 1.0}, r1 = r0;
-    v4d b0 = __builtin_convertvector(lo, v4d), b1 = __builtin_convertvector(hi, v4d);
+    v4d b0 = __builtin_convertvector(__builtin_shufflevector(x, x, 0, 1, 2, 3), v4d);
+    v4d b1 = __builtin_convertvector(__builtin_shufflevector(x, x, 4, 5, 6, 7), v4d);
     for (uint32_t e = (uint32_t)s;;) {
         if (e & 1u) {
             r0 *= b0;
@@ -102,11 +98,8 @@ static nc_v8f pow8(nc_v8f x, float s)
         b0 *= b0;
         b1 *= b1;
     }
-    lo = __builtin_convertvector(r0, v4f);
-    hi = __builtin_convertvector(r1, v4f);
-    memcpy(out, &lo, sizeof(lo));
-    memcpy(out + 4, &hi, sizeof(hi));
-    return nc_v8_load(out);
+    const v4f lo = __builtin_convertvector(r0, v4f), hi = __builtin_convertvector(r1, v4f);
+    return __builtin_shufflevector(lo, hi, 0, 1, 2, 3, 4, 5, 6, 7);
 }
 
 /* |x| per lane (clears the sign bit, as fabsf) */
@@ -222,8 +215,12 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
         nc_v8_store(S + g, scale);
         nc_v8_store(C + g, ct);
         nc_v8_store(P + g, spec);
-        for (; bits; bits &= bits - 1)
-            lanes[nl++] = g + (uint32_t)__builtin_ctz(bits);
+        for (; bits; bits &= bits - 1) {
+            const uint32_t i = g + (uint32_t)__builtin_ctz(bits);
+            lanes[nl++] = i;
+            /* Its geometric normal, read after the loop: that array is not streamed otherwise */
+            __builtin_prefetch(gb->geo_normal + 3 * (first + i));
+        }
     }
     if (nl == 0)
         return;
