@@ -338,7 +338,7 @@ static void shade_run(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
     }
     for (int c = 0; c < 3; c++) {
         const float a = mk->kd[c] * env[c];
-        for (uint32_t i = 0; i < count; i++)
+        for (uint32_t i = 0; i < ((count + 7u) & ~7u); i++) /* the 8-lane groups read the padding */
             acc[c][i] = a;
     }
     /* Diffusion method: the light that enters and leaves the medium replaces Lambert. */
