@@ -362,37 +362,36 @@ static inline float lookup_window(const nc_raster_view *v, const pcf_frame *f)
      * against the widest receiver deviation before doing per-tap plane intersections. */
     if (i0 >= 0 && j0 >= 0 && i1 < size && j1 < size) {
         const float reach = f->max_dev * (rad + 1.0f) * 1.4142136f;
-        if (i1 - i0 == 3 && j1 - j0 == 3) {
-            /* The usual 4x4 window (pcf_radius 1.5): its 16 texels in two vectors, for the depth
-             * range and the taps */
-            nc_v8f T[2];
+        /* The usual 4x4 window (pcf_radius 1.5): its 16 texels in two vectors, for the depth
+         * range and the taps */
+        const bool four = i1 - i0 == 3 && j1 - j0 == 3;
+        nc_v8f T[2];
+        float smin = INFINITY, smax = -INFINITY;
+        if (four) {
             for (int h = 0; h < 2; h++) {
                 const float *row = map + (size_t)(j0 + 2 * h) * (size_t)size + (size_t)i0;
                 T[h] = nc_v8_load2(row, row + size);
             }
             const nc_v8f lo = min8(T[0], T[1]), hi = max8(T[0], T[1]);
-            const float smin = fmin_fast(fmin_fast(fmin_fast(lo[0], lo[1]), fmin_fast(lo[2], lo[3])),
-                                         fmin_fast(fmin_fast(lo[4], lo[5]), fmin_fast(lo[6], lo[7])));
-            const float smax = fmax_fast(fmax_fast(fmax_fast(hi[0], hi[1]), fmax_fast(hi[2], hi[3])),
-                                         fmax_fast(fmax_fast(hi[4], hi[5]), fmax_fast(hi[6], hi[7])));
-            if (!(smin < 1.0f) || linear_depth(v, smin) >= d + reach - bias_world)
-                return 1.0f;
-            if (smax < 1.0f && linear_depth(v, smax) < d - reach - bias_world)
-                return 0.0f;
-            return pcf_window4x4(f, i0, j0, T);
-        }
-        float smin = INFINITY, smax = -INFINITY;
-        for (int j = j0; j <= j1; j++) {
-            const float *row = map + (size_t)j * (size_t)size;
-            for (int i = i0; i <= i1; i++) {
-                smin = fmin_fast(smin, row[i]);
-                smax = fmax_fast(smax, row[i]);
+            smin = fmin_fast(fmin_fast(fmin_fast(lo[0], lo[1]), fmin_fast(lo[2], lo[3])),
+                             fmin_fast(fmin_fast(lo[4], lo[5]), fmin_fast(lo[6], lo[7])));
+            smax = fmax_fast(fmax_fast(fmax_fast(hi[0], hi[1]), fmax_fast(hi[2], hi[3])),
+                             fmax_fast(fmax_fast(hi[4], hi[5]), fmax_fast(hi[6], hi[7])));
+        } else {
+            for (int j = j0; j <= j1; j++) {
+                const float *row = map + (size_t)j * (size_t)size;
+                for (int i = i0; i <= i1; i++) {
+                    smin = fmin_fast(smin, row[i]);
+                    smax = fmax_fast(smax, row[i]);
+                }
             }
         }
         if (!(smin < 1.0f) || linear_depth(v, smin) >= d + reach - bias_world)
             return 1.0f;
         if (smax < 1.0f && linear_depth(v, smax) < d - reach - bias_world)
             return 0.0f;
+        if (four)
+            return pcf_window4x4(f, i0, j0, T);
     }
     return pcf_window(f, i0, i1, j0, j1);
 }
