@@ -15,6 +15,14 @@
  * that plane's depth at the texel centre (receiver-plane depth bias): planar receivers need only a
  * small constant bias, given in texels and scaled with the slope of n against the light. Depths
  * are compared linearly (distance along the map's view axis), in scene units.
+ *
+ * Cost: the lookups of the shading pass read a cold map (it is rendered before the diffusion
+ * stages), and most of them are on lit surfaces, whose window's depth range straddles the
+ * receiver, so the depth-range shortcut rarely decides and the taps run. For an orthographic map
+ * and a receiver no steeper than MAX_SLOPE (nearly all), pcf_window4x4_affine does the 4x4 taps as
+ * one compare each against the plane's depth, affine in the texel indices: Suzanne's 4^3 pass
+ * went from 432 to 197 instructions per lookup (callgrind), the shading pass of the bench's
+ * Armadillo from 3.08 to 2.76 ms (medians of 5 alternating runs).
  */
 #include "raster/raster.h"
 #include "core/simd.h"
@@ -347,6 +355,45 @@ static float pcf_window(const pcf_frame *f, int i0, int i1, int j0, int j1)
     return total > 0.0f ? lit / total : 1.0f;
 }
 
+/* An orthographic map's 4x4 window when the receiver plane is no steeper than the depth limit
+ * (slope < MAX_SLOPE, so pcf_tap_lit never clamps the plane's depth: |recv - d| <= slope x
+ * distance < lim): the plane's depth at the texel centres is then affine in the texel indices,
+ * recv(i0 + a, j0 + b) = r0 + a ci + b cj, and each tap is one compare against it. The same
+ * taps and weights as pcf_window4x4, without its per-tap clamp, square root and plane terms;
+ * the depths differ from the per-tap ones only in rounding, far below the bias. Wholly lit and
+ * wholly shadowed windows return exactly 1 and 0 (as the depth-range test does). */
+static inline float pcf_window4x4_affine(const float *map, int size, int i0, int j0, float u, float vv, float rad,
+                                         float r0, float ci, float cj, float m23, float inv_m22)
+{
+    const nc_v8f zero = {0};
+    const nc_v8f col = {0.0f, 1.0f, 2.0f, 3.0f, 0.0f, 1.0f, 2.0f, 3.0f};
+    const nc_v8f row = {0.0f, 0.0f, 0.0f, 0.0f, 1.0f, 1.0f, 1.0f, 1.0f};
+    const float *p = map + (size_t)j0 * (size_t)size + (size_t)i0;
+    const nc_v8f t0 = nc_v8_load2(p, p + size), t1 = nc_v8_load2(p + 2 * (size_t)size, p + 3 * (size_t)size);
+    /* Receiver depth minus the bias at each tap, and the stored depths as distances */
+    const nc_v8f r_0 = r0 + ci * col + cj * row, r_1 = r_0 + 2.0f * cj;
+    const nc_v8i lit0 = ~(t0 < 1.0f) | ((m23 - t0) * inv_m22 >= r_0);
+    const nc_v8i lit1 = ~(t1 < 1.0f) | ((m23 - t1) * inv_m22 >= r_1);
+    const uint32_t bits = nc_v8_bits(lit0) | nc_v8_bits(lit1) << 8;
+    if (bits == 0xffffu)
+        return 1.0f;
+    if (bits == 0)
+        return 0.0f;
+    /* Box-filter overlaps of the columns and of the two row pairs */
+    const nc_v8f ci_ = (float)i0 + col, rj0 = (float)j0 + row, rj1 = rj0 + 2.0f;
+    nc_v8f wx = min8(ci_ + 1.0f, nc_v8_splat(u + rad)) - max8(ci_, nc_v8_splat(u - rad));
+    nc_v8f wy0 = min8(rj0 + 1.0f, nc_v8_splat(vv + rad)) - max8(rj0, nc_v8_splat(vv - rad));
+    nc_v8f wy1 = min8(rj1 + 1.0f, nc_v8_splat(vv + rad)) - max8(rj1, nc_v8_splat(vv - rad));
+    wx = nc_v8_sel(wx > 0.0f, wx, zero);
+    wy0 = nc_v8_sel(wy0 > 0.0f, wy0, zero);
+    wy1 = nc_v8_sel(wy1 > 0.0f, wy1, zero);
+    const nc_v8f w0 = wx * wy0, w1 = wx * wy1;
+    const nc_v8f lit = nc_v8_sel(lit0, w0, zero) + nc_v8_sel(lit1, w1, zero), all = w0 + w1;
+    const float sum = ((lit[0] + lit[4]) + (lit[1] + lit[5])) + ((lit[2] + lit[6]) + (lit[3] + lit[7]));
+    const float total = ((all[0] + all[4]) + (all[1] + all[5])) + ((all[2] + all[6]) + (all[3] + all[7]));
+    return total > 0.0f ? sum / total : 1.0f;
+}
+
 /* The window part of a lookup (f: the receiver and the map, f->map the face's texels): the lit
  * fraction, from the window's depth range when that decides it, else from the PCF taps. */
 static inline float lookup_window(const nc_raster_view *v, const pcf_frame *f)
@@ -551,12 +598,16 @@ void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, co
     float V[3][4], P[4][4];
     memcpy(V, vm->m, sizeof(V));
     memcpy(P, pm->m, sizeof(P));
+    /* Squared plane slope (depth per texel) below which the taps never clamp: the limit is
+     * max_dev per texel of distance; the margin keeps rounding away from it */
+    const float affine_lim2 = (0.999f * base.max_dev) * (0.999f * base.max_dev);
     pcf_frame f = base; /* the map's part, once; each lookup sets the point's part */
     for (uint32_t c0 = 0; c0 < n; c0 += CHUNK) {
         const uint32_t cn = n - c0 < CHUNK ? n - c0 : CHUNK;
         float U[CHUNK], VV[CHUNK], D[CHUNK], PD[CHUNK], INZ[CHUNK], BW[CHUNK];
         float PVX[CHUNK], PVY[CHUNK], PVZ[CHUNK], NVX[CHUNK], NVY[CHUNK], NVZ[CHUNK];
-        int32_t ok[CHUNK];
+        float CI[CHUNK], CJ[CHUNK];
+        int32_t ok[CHUNK], fast[CHUNK];
         for (uint32_t k = 0; k < cn; k++) {
             const uint32_t i = c0 + k;
             const float x = px[i], y = py[i], z = pz[i];
@@ -582,12 +633,20 @@ void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, co
             float sin_t = sqrtf(fmax_fast(0.0f, 1.0f - cos_t * cos_t));
             float slope = nc_sel(sin_t < MAX_SLOPE * cos_t, sin_t / cos_t, MAX_SLOPE);
             ok[k] = (d >= near_d) & (d <= far_d) & (fabsf(u) <= 3.4028235e38f) & (fabsf(vv) <= 3.4028235e38f);
+            /* The receiver plane's depth per texel along i and j (pcf_window4x4_affine), and
+             * whether its 4x4 window applies: a slope below the limit, the window in the map */
+            const float inz = 1.0f / dz;
+            const float ci = dx * inz * base.inv_size * base.inv_m00, cj = -(dy * inz * base.inv_size * base.inv_m11);
+            CI[k] = ci;
+            CJ[k] = cj;
+            fast[k] = ok[k] & (ci * ci + cj * cj < affine_lim2) & (u - rad >= 0.0f) & (vv - rad >= 0.0f) &
+                      (u + rad < fsize) & (vv + rad < fsize);
             U[k] = u;
             VV[k] = vv;
             D[k] = d;
             BW[k] = bias_texel * (1.0f + slope);
             PD[k] = dx * pvx + dy * pvy + dz * pvz;
-            INZ[k] = 1.0f / dz;
+            INZ[k] = inz;
             PVX[k] = pvx;
             PVY[k] = pvy;
             PVZ[k] = pvz;
@@ -603,6 +662,21 @@ void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, co
             if (!ok[k]) {
                 out[c0 + k] = 1.0f;
                 continue;
+            }
+            if (fast[k]) {
+                const float u = U[k], vv = VV[k];
+                const int i0 = (int)floorf(u - rad), j0 = (int)floorf(vv - rad);
+                if ((int)floorf(u + rad) - i0 == 3 && (int)floorf(vv + rad) - j0 == 3) {
+                    /* The receiver's depth at texel (i0, j0) as pcf_tap_lit computes it, less the bias */
+                    const float tx = ((float)i0 + 0.5f) * base.inv_size - 1.0f;
+                    const float ty = 1.0f - ((float)j0 + 0.5f) * base.inv_size;
+                    const float col_r = NVX[k] * ((tx - base.m03) * base.inv_m00 - PVX[k]);
+                    const float row_r = NVY[k] * ((ty - base.m13) * base.inv_m11 - PVY[k]);
+                    const float r0 = D[k] + (col_r + row_r) * INZ[k] - BW[k];
+                    out[c0 + k] = pcf_window4x4_affine(base.map, size, i0, j0, u, vv, rad, r0, CI[k], CJ[k], base.m23,
+                                                       base.inv_m22);
+                    continue;
+                }
             }
             f.u = U[k];
             f.vv = VV[k];
