@@ -590,6 +590,7 @@ typedef struct tri_source {
     const uint32_t *idx;
     double origin[3], inv_h;
     bool all_finite; /* no vertex is NaN or infinite: skip the per-corner checks */
+    float margin;    /* of the float prefilter (prefilter8), grid units; 0: no prefilter */
 } tri_source;
 
 /* Grid coordinates of triangle t and its normal (e1 x e2); 1 if a vertex is not finite, 2 if
@@ -1039,6 +1040,131 @@ static inline int indices_check4(const uint32_t *ti, uint32_t nv)
     uint32_t top = (uint32_t)_mm_cvtsi128_si32(m);
     return top >= nv ? 0 : top == nv - 1 ? 1 : 2;
 }
+
+typedef struct pre_consts {
+    __m256 origin[3], inv_h, dimm1[3];
+    __m256 m, lo_c, hi_c; /* margin, 0.5 + margin, margin - 0.5 */
+    __m128i nx, words;
+    bool robust;
+} pre_consts;
+
+/* The conservative float prefilter: the lanes of eight triangles (24 valid indices at ti, finite vertices)
+ * for which triangles4 would certainly do nothing but mark one surface voxel, and that voxel marked. The
+ * others are left for the exact path.
+ *
+ * Why it is safe (g the exact (p - origin) / h, m the margin of voxelize_impl, S = (|p|max + |origin|max) / h):
+ * the float g differs from g by at most 3 roundings of 2^-24 relative (p - origin, the float 1/h, the
+ * product), the double from triangles4 by 2 of 2^-53, so each corner, hence each min and max, is within
+ * 4 * 2^-24 * S of the double one; m = 64 * 2^-24 * S + 1e-6 also covers the float roundings of mn - m and
+ * the like (2^-24 of values below S + 1 each). So floor(mn - m) == floor(mx + m) == k puts the double min
+ * and max strictly inside (k, k + 1): triangles4's voxel bounds are l = h = k (the clamps do nothing for
+ * 0 <= k < dims), a one-voxel "line", and the same holds for the column-centre ranges, which are empty
+ * (pl > ph) along every axis without `maybe`; PARITY walks the z lines only when both x and y ranges are
+ * non-empty, ROBUST each axis pair, so the conditions below leave no parity work. Not degenerate: the edges
+ * come from the float positions (p1 - p0, no cancellation against the origin), so they are within 3 * 2^-24
+ * relative of the exact ones and the float normal within about 1e-6 |e1| |e2| of the exact normal; with
+ * |n| > 1e-4 |e1| |e2| the exact normal is not small, and with |e1|, |e2| > 2^-20 voxel the double edges
+ * (absolute error below 2^-51 * 4096 from coordinates under 4096) are within 4e-6 relative, so the double
+ * normal is not zero either. A NaN or an infinity (overflow) fails every test. */
+static inline unsigned prefilter8(const tri_out *o, const float *pos, const uint32_t *ti, bool last,
+                                  const pre_consts *q)
+{
+    __m256 p[3][3]; /* corner, axis; lane i = triangle i */
+    for (int c = 0; c < 3; c++) {
+        __m256 r[4];
+        for (int i = 0; i < 4; i++)
+            r[i] = _mm256_set_m128(vertex_load(pos, ti[3 * (i + 4) + c], last), vertex_load(pos, ti[3 * i + c], last));
+        __m256 t0 = _mm256_unpacklo_ps(r[0], r[1]), t1 = _mm256_unpackhi_ps(r[0], r[1]);
+        __m256 t2 = _mm256_unpacklo_ps(r[2], r[3]), t3 = _mm256_unpackhi_ps(r[2], r[3]);
+        p[c][0] = _mm256_shuffle_ps(t0, t2, _MM_SHUFFLE(1, 0, 1, 0));
+        p[c][1] = _mm256_shuffle_ps(t0, t2, _MM_SHUFFLE(3, 2, 3, 2));
+        p[c][2] = _mm256_shuffle_ps(t1, t3, _MM_SHUFFLE(1, 0, 1, 0));
+    }
+    __m256 e1[3], e2[3], k[3], maybe[3] = {_mm256_setzero_ps(), _mm256_setzero_ps(), _mm256_setzero_ps()};
+    __m256 ok = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
+    for (int a = 0; a < 3; a++) {
+        e1[a] = _mm256_mul_ps(_mm256_sub_ps(p[1][a], p[0][a]), q->inv_h);
+        e2[a] = _mm256_mul_ps(_mm256_sub_ps(p[2][a], p[0][a]), q->inv_h);
+        __m256 g0 = _mm256_mul_ps(_mm256_sub_ps(p[0][a], q->origin[a]), q->inv_h);
+        __m256 g1 = _mm256_mul_ps(_mm256_sub_ps(p[1][a], q->origin[a]), q->inv_h);
+        __m256 g2 = _mm256_mul_ps(_mm256_sub_ps(p[2][a], q->origin[a]), q->inv_h);
+        __m256 mn = _mm256_min_ps(g0, _mm256_min_ps(g1, g2)), mx = _mm256_max_ps(g0, _mm256_max_ps(g1, g2));
+        k[a] = _mm256_floor_ps(_mm256_sub_ps(mn, q->m));
+        ok = _mm256_and_ps(ok, _mm256_cmp_ps(k[a], _mm256_floor_ps(_mm256_add_ps(mx, q->m)), _CMP_EQ_OQ));
+        ok = _mm256_and_ps(ok, _mm256_cmp_ps(k[a], _mm256_setzero_ps(), _CMP_GE_OQ));
+        ok = _mm256_and_ps(ok, _mm256_cmp_ps(k[a], q->dimm1[a], _CMP_LE_OQ));
+        if (a < 2 || q->robust)
+            maybe[a] = _mm256_cmp_ps(_mm256_floor_ps(_mm256_sub_ps(mn, q->lo_c)),
+                                     _mm256_floor_ps(_mm256_add_ps(mx, q->hi_c)), _CMP_NEQ_UQ);
+    }
+    __m256 busy = _mm256_and_ps(maybe[0], maybe[1]);
+    if (q->robust)
+        busy = _mm256_or_ps(busy, _mm256_and_ps(maybe[2], _mm256_or_ps(maybe[0], maybe[1])));
+    ok = _mm256_andnot_ps(busy, ok);
+    __m256 n0 = _mm256_sub_ps(_mm256_mul_ps(e1[1], e2[2]), _mm256_mul_ps(e1[2], e2[1]));
+    __m256 n1 = _mm256_sub_ps(_mm256_mul_ps(e1[2], e2[0]), _mm256_mul_ps(e1[0], e2[2]));
+    __m256 n2 = _mm256_sub_ps(_mm256_mul_ps(e1[0], e2[1]), _mm256_mul_ps(e1[1], e2[0]));
+    __m256 nn = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(n0, n0), _mm256_mul_ps(n1, n1)), _mm256_mul_ps(n2, n2));
+    __m256 l1 = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(e1[0], e1[0]), _mm256_mul_ps(e1[1], e1[1])),
+                              _mm256_mul_ps(e1[2], e1[2]));
+    __m256 l2 = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(e2[0], e2[0]), _mm256_mul_ps(e2[1], e2[1])),
+                              _mm256_mul_ps(e2[2], e2[2]));
+    const __m256 tiny = _mm256_set1_ps(0x1p-40f);
+    ok = _mm256_and_ps(ok, _mm256_cmp_ps(nn, _mm256_mul_ps(_mm256_mul_ps(_mm256_set1_ps(1e-8f), l1), l2), _CMP_GT_OQ));
+    ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(l1, tiny, _CMP_GT_OQ), _mm256_cmp_ps(l2, tiny, _CMP_GT_OQ)));
+    unsigned pass = (unsigned)_mm256_movemask_ps(ok);
+    if (!pass)
+        return 0;
+    /* triangles4's "line" marking of voxel k: word (ky nx + kx) words + kz / 64 (32 bits suffice, see there),
+     * looked at first since on a coarse grid the bit is nearly always set; failed lanes read word 0. */
+    const bitset *b = o->b;
+    __m256i on = _mm256_castps_si256(ok);
+    __m256i kx = _mm256_cvttps_epi32(k[0]), ky = _mm256_cvttps_epi32(k[1]), kz = _mm256_cvttps_epi32(k[2]);
+    __m256i w = _mm256_add_epi32(_mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(ky, _mm256_set_m128i(q->nx, q->nx)), kx),
+                                                    _mm256_set_m128i(q->words, q->words)),
+                                 _mm256_srli_epi32(kz, 6));
+    w = _mm256_and_si256(w, on);
+    __m256i bit = _mm256_and_si256(kz, _mm256_set1_epi32(63));
+    const __m256i one64 = _mm256_set1_epi64x(1);
+    __m128i wl = _mm256_castsi256_si128(w), wh = _mm256_extracti128_si256(w, 1);
+    __m256i ml = _mm256_and_si256(_mm256_sllv_epi64(one64, _mm256_cvtepu32_epi64(_mm256_castsi256_si128(bit))),
+                                  _mm256_cvtepi32_epi64(_mm256_castsi256_si128(on)));
+    __m256i mh = _mm256_and_si256(_mm256_sllv_epi64(one64, _mm256_cvtepu32_epi64(_mm256_extracti128_si256(bit, 1))),
+                                  _mm256_cvtepi32_epi64(_mm256_extracti128_si256(on, 1)));
+    __m256i gl = _mm256_i32gather_epi64((const long long *)b->surface, wl, 8);
+    __m256i gh = _mm256_i32gather_epi64((const long long *)b->surface, wh, 8);
+    __m256i miss = _mm256_or_si256(_mm256_andnot_si256(gl, ml), _mm256_andnot_si256(gh, mh));
+    if (!_mm256_testz_si256(miss, miss)) {
+        uint32_t wi[8];
+        uint64_t mi[8];
+        _mm256_storeu_si256((__m256i *)wi, w);
+        _mm256_storeu_si256((__m256i *)mi, ml);
+        _mm256_storeu_si256((__m256i *)(mi + 4), mh);
+        for (unsigned m = pass; m; m &= m - 1) {
+            int t = __builtin_ctz(m);
+            bits_or(b->shared, b->surface + wi[t], mi[t]);
+        }
+    }
+    return pass;
+}
+#endif
+
+#ifdef __AVX2__
+/* Four triangles at t (indices not yet checked) through the exact four-lane path. */
+static inline void triangles_step4(const tri_out *o, const tri_source *src, uint32_t nv, size_t t,
+                                   const soa_consts *k, tri_counts *cnt)
+{
+    const uint32_t *ti = src->idx + 3 * t;
+    int ok = indices_check4(ti, nv);
+    if (!ok) {
+        for (size_t u = t; u < t + 4; u++)
+            triangle_one(o, src, nv, u, cnt);
+        return;
+    }
+    __m256d v[3][3];
+    load4(src->pos, ti, ok == 1, k, v);
+    cnt->degenerate += triangles4(o, k, v);
+}
 #endif
 
 /* Triangles t0..t1 of the mesh. */
@@ -1048,6 +1174,8 @@ static void triangle_range(const tri_out *o, const tri_source *src, uint32_t nv,
     size_t t = t0;
     (void)nt; /* only the look-ahead of the AVX2 path needs it */
 #ifdef __AVX2__
+    size_t queued[4]; /* triangles the prefilter left for the exact path, run four at a time */
+    unsigned nq = 0;
     if (src->all_finite) {
         soa_consts k;
         for (int a = 0; a < 3; a++) {
@@ -1058,24 +1186,58 @@ static void triangle_range(const tri_out *o, const tri_source *src, uint32_t nv,
         /* Vertex loads are random gathers and dominate on large meshes: fetch ahead, unless the
          * vertices fit in the L2 cache anyway (Suzanne's 96 KiB), where it is only overhead. */
         const size_t ahead = nv > VOXEL_PREFETCH_MIN ? nt : 0;
+        if (src->margin > 0) {
+            pre_consts q;
+            for (int a = 0; a < 3; a++) {
+                q.origin[a] = _mm256_set1_ps((float)src->origin[a]); /* exact: the grid's float origin */
+                q.dimm1[a] = _mm256_set1_ps((float)o->b->dims[a] - 1);
+            }
+            q.inv_h = _mm256_set1_ps((float)src->inv_h);
+            q.m = _mm256_set1_ps(src->margin);
+            q.lo_c = _mm256_set1_ps(0.5f + src->margin);
+            q.hi_c = _mm256_set1_ps(src->margin - 0.5f);
+            q.nx = _mm_set1_epi32((int)o->b->dims[0]);
+            q.words = _mm_set1_epi32((int)o->b->words);
+            q.robust = o->px != NULL;
+            uint32_t qi[12];
+            for (; t + 8 <= t1; t += 8) {
+                for (size_t f = t + 32; f < t + 40 && f < ahead; f++)
+                    for (int c = 0; c < 3; c++) { /* clamped: no out-of-range pointer is formed */
+                        uint32_t i = src->idx[3 * f + (size_t)c];
+                        __builtin_prefetch(src->pos + 3 * (size_t)(i < nv ? i : 0));
+                    }
+                const uint32_t *ti = src->idx + 3 * t;
+                int ok0 = indices_check4(ti, nv), ok1 = indices_check4(ti + 12, nv);
+                if (!ok0 || !ok1) { /* the exact path counts the bad indices */
+                    triangles_step4(o, src, nv, t, &k, cnt);
+                    triangles_step4(o, src, nv, t + 4, &k, cnt);
+                    continue;
+                }
+                unsigned left = ~prefilter8(o, src->pos, ti, ok0 == 1 || ok1 == 1, &q) & 0xFFu;
+                for (; left; left &= left - 1) {
+                    unsigned l = (unsigned)__builtin_ctz(left);
+                    memcpy(qi + 3 * nq, ti + 3 * l, 3 * sizeof(uint32_t));
+                    queued[nq] = t + l;
+                    if (++nq == 4) {
+                        __m256d v[3][3];
+                        load4(src->pos, qi, indices_check4(qi, nv) == 1, &k, v);
+                        cnt->degenerate += triangles4(o, &k, v);
+                        nq = 0;
+                    }
+                }
+            }
+        }
         for (; t + 4 <= t1; t += 4) {
             for (size_t f = t + 32; f < t + 36 && f < ahead; f++)
                 for (int c = 0; c < 3; c++) { /* clamped: no out-of-range pointer is formed */
                     uint32_t i = src->idx[3 * f + (size_t)c];
                     __builtin_prefetch(src->pos + 3 * (size_t)(i < nv ? i : 0));
                 }
-            const uint32_t *ti = src->idx + 3 * t;
-            int ok = indices_check4(ti, nv);
-            if (!ok) {
-                for (size_t u = t; u < t + 4; u++)
-                    triangle_one(o, src, nv, u, cnt);
-                continue;
-            }
-            __m256d v[3][3];
-            load4(src->pos, ti, ok == 1, &k, v);
-            cnt->degenerate += triangles4(o, &k, v);
+            triangles_step4(o, src, nv, t, &k, cnt);
         }
     }
+    for (unsigned i = 0; i < nq; i++)
+        triangle_one(o, src, nv, queued[i], cnt);
 #endif
     for (; t < t1; t++)
         triangle_one(o, src, nv, t, cnt);
@@ -1323,7 +1485,20 @@ static nacre_result voxelize_impl(nacre_context *ctx, const nacre_mesh_data *mes
         goto fail;
     /* Use the float-rounded origin and size so queries and exports describe exactly this grid. */
     tri_source src = {pos, idx, {g->origin[0], g->origin[1], g->origin[2]}, 1.0 / (double)g->voxel_size,
-                      nonfinite_vertices == 0};
+                      nonfinite_vertices == 0, 0.0f};
+    {
+        /* Float grid coordinates differ from the doubles by at most 4 * 2^-24 * (|p| + |origin|) / h (see
+         * prefilter8); the margin is 16 times that, plus an absolute term for the roundings of small values. A
+         * margin of an eighth of a voxel or more would pass almost nothing: no prefilter then. */
+        double amax = 0, omax = 0;
+        for (int a = 0; a < 3; a++) {
+            amax = dmax(amax, dmax(fabs((double)bmin[a]), fabs((double)bmax[a])));
+            omax = dmax(omax, fabs((double)g->origin[a]));
+        }
+        double m = 64.0 * 0x1p-24 * (amax + omax) * src.inv_h + 1e-6;
+        if (m < 0.125 && isfinite((float)src.inv_h))
+            src.margin = (float)m;
+    }
 
     nacre_voxel_solid_rule rule = s.solid_rule;
     bool closed = rule == NACRE_VOXEL_SOLID_PARITY;
@@ -1698,7 +1873,8 @@ nacre_result nacre_voxel_grid_rest_positions(const nacre_voxel_grid *grid,
         out[3 * i] = out[3 * i + 1] = out[3 * i + 2] = NAN;
     }
     tri_source src = {deformed->positions, deformed->indices,
-                      {grid->origin[0], grid->origin[1], grid->origin[2]}, 1.0 / (double)grid->voxel_size, false};
+                      {grid->origin[0], grid->origin[1], grid->origin[2]}, 1.0 / (double)grid->voxel_size, false,
+                      0.0f};
     const double h = grid->voxel_size;
     /* Surface voxels: closest deformed triangle among those touching the voxel (bounding box). */
     for (size_t t = 0; t < deformed->triangle_count; t++) {
