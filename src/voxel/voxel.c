@@ -45,11 +45,12 @@
  * it, so all that work only sets one surface bit. A float prefilter (prefilter8) comes first, eight
  * triangles at a time: with a margin that covers the float error it proves that the double path
  * would do exactly that (one-voxel bounds, no parity work, not degenerate) and sets the bit; the
- * triangles it cannot clear are queued for load4 / triangles4, so the bits stay the same. On
- * Armadillo (400k triangles, PARITY, 2 threads) that took the update from 3.0 to 2.1 ms at 4^3 and
- * the triangle pass from 112 to 78 instructions per triangle; at 28^3 (80% cleared) about 12% off.
- * On finer grids most triangles fail it and it would cost more than it saves: a range leaves it once
- * its running pass rate drops below about 70%, which keeps 64^3 and up at the exact path's cost.
+ * triangles it cannot clear are queued for load4 / triangles4, so the bits stay the same. At 4^3
+ * (97% cleared) the triangle pass went from 112 to 78 instructions per triangle on Armadillo (400k
+ * triangles) and an update (PARITY, 2 threads) about 30% faster (3.0 -> 2.1-2.3 ms; the Dragon's
+ * 870k, 39%); at 28^3 (80% cleared) 5-15%. On finer grids most triangles fail it and it would cost
+ * more than it saves: a range leaves it once its running pass rate drops below about 70%, which
+ * keeps 64^3 and up at the exact path's instruction count (within 1%).
  *
  * Parallelism: chunks of triangles go to whichever thread is free. Bits are set with OR and
  * toggled with XOR, which commute, so the result does not depend on the thread count or the
