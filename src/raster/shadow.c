@@ -16,13 +16,14 @@
  * small constant bias, given in texels and scaled with the slope of n against the light. Depths
  * are compared linearly (distance along the map's view axis), in scene units.
  *
- * Cost: the lookups of the shading pass read a cold map (it is rendered before the diffusion
- * stages), and most of them are on lit surfaces, whose window's depth range straddles the
- * receiver, so the depth-range shortcut rarely decides and the taps run. For an orthographic map
- * and a receiver no steeper than MAX_SLOPE (nearly all), pcf_window4x4_affine does the 4x4 taps as
- * one compare each against the plane's depth, affine in the texel indices: Suzanne's 4^3 pass
- * went from 432 to 197 instructions per lookup (callgrind), the shading pass of the bench's
- * Armadillo from 3.08 to 2.76 ms (medians of 5 alternating runs).
+ * Cost: most lookups of the shading pass are on lit surfaces, whose window's depth range
+ * straddles the receiver (the map holds that very surface), so the depth-range shortcut rarely
+ * decides and the taps run. For an orthographic map and a receiver no steeper than MAX_SLOPE
+ * (nearly all), pcf_window4x4_affine does the 4x4 taps as one compare each against the plane's
+ * depth, affine in the texel indices: Suzanne's 4^3 pass went from 432 to 197 instructions per
+ * lookup (callgrind), the shading pass of the bench's Armadillo from 3.08 to 2.76 ms (medians of
+ * 5 alternating runs). Prefetching every window of a batch at once, or each window when its pixel
+ * is found (lookups deferred to the end of the row), did not measurably help.
  */
 #include "raster/raster.h"
 #include "core/simd.h"
