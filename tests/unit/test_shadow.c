@@ -208,6 +208,19 @@ static void check_batch(const nc_shadow_map *sm, double extent, double top)
         nx[i] = 0.6f * (r[3] - 0.5f);
         ny[i] = r[4] < 0.1f ? -1.0f : 1.0f;
         nz[i] = 0.6f * (r[5] - 0.5f);
+        if (i % 4 == 3) {
+            /* Grazing receivers, slope (tangent against the map's axis) 4 to 16: across the
+             * limit where the per-tap depth clamp starts to act (MAX_SLOPE 10), which decides
+             * between the batch's affine taps and the exact ones */
+            const nc_mat4 *v = &sm->views[0].view;
+            double f[3] = {-v->m[2][0], -v->m[2][1], -v->m[2][2]};
+            double a[3] = {v->m[0][0], v->m[0][1], v->m[0][2]}, b[3] = {v->m[1][0], v->m[1][1], v->m[1][2]};
+            double ang = 6.283185307179586 * r[3], t = 4.0 + 12.0 * r[5];
+            for (int k = 0; k < 3; k++) {
+                double w = cos(ang) * a[k] + sin(ang) * b[k] - f[k] / t;
+                (k == 0 ? nx : k == 1 ? ny : nz)[i] = (float)w;
+            }
+        }
     }
     int bad = 0, partial = 0;
     for (int i = 0, n = 1; i < N; i += n, n = n % 97 + 13) {
