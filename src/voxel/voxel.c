@@ -903,6 +903,28 @@ static __attribute__((noinline)) unsigned box4(const bitset *bs, __m256d v[3][3]
     return lanes;
 }
 
+/* OR the surface bits m0 (lane t: word w0[t]) and m1 (words w1[t]) in, after one look at the eight
+ * words: on a coarse grid the bits are nearly always set already (a plain gather; a stale word only
+ * sends us to bits_or, which reads again). Lanes with a zero mask change nothing. */
+static inline void surface_or8(const bitset *b, __m128i w0, __m256i m0, __m128i w1, __m256i m1)
+{
+    __m256i g0 = _mm256_i32gather_epi64((const long long *)b->surface, w0, 8);
+    __m256i g1 = _mm256_i32gather_epi64((const long long *)b->surface, w1, 8);
+    __m256i miss = _mm256_or_si256(_mm256_andnot_si256(g0, m0), _mm256_andnot_si256(g1, m1));
+    if (_mm256_testz_si256(miss, miss))
+        return;
+    uint32_t w[2][4];
+    uint64_t m[2][4];
+    _mm_storeu_si128((__m128i *)w[0], w0);
+    _mm_storeu_si128((__m128i *)w[1], w1);
+    _mm256_storeu_si256((__m256i *)m[0], m0);
+    _mm256_storeu_si256((__m256i *)m[1], m1);
+    for (int t = 0; t < 4; t++) {
+        bits_or(b->shared, b->surface + w[0][t], m[0][t]);
+        bits_or(b->shared, b->surface + w[1][t], m[1][t]);
+    }
+}
+
 /* Four triangles at once, one per lane: the normal, the surface bounds of surface_triangle and
  * the column-centre ranges of parity_triangle, all with the same double operations, so every
  * decision is bit-identical to triangle_one. A triangle inside one voxel with no column centre
@@ -968,23 +990,7 @@ static inline __attribute__((always_inline)) uint32_t triangles4(const tri_out *
         __m256i bh = _mm256_cvtepu32_epi64(_mm_and_si128(hi4[2], m63));
         __m256i ml = _mm256_and_si256(_mm256_sllv_epi64(one64, bl), on64);
         __m256i mh = _mm256_and_si256(_mm256_sllv_epi64(one64, bh), on64);
-        /* On a coarse grid the bits are nearly always set already: one look at the eight words
-         * (a plain gather; a stale word only sends us to the atomic path, which reads again). */
-        __m256i gl = _mm256_i32gather_epi64((const long long *)b->surface, wl, 8);
-        __m256i gh = _mm256_i32gather_epi64((const long long *)b->surface, wh, 8);
-        __m256i miss = _mm256_or_si256(_mm256_andnot_si256(gl, ml), _mm256_andnot_si256(gh, mh));
-        if (!_mm256_testz_si256(miss, miss)) {
-            uint32_t w[2][4];
-            uint64_t m[2][4];
-            _mm_storeu_si128((__m128i *)w[0], wl);
-            _mm_storeu_si128((__m128i *)w[1], wh);
-            _mm256_storeu_si256((__m256i *)m[0], ml);
-            _mm256_storeu_si256((__m256i *)m[1], mh);
-            for (int t = 0; t < 4; t++) {
-                bits_or(b->shared, b->surface + w[0][t], m[0][t]);
-                bits_or(b->shared, b->surface + w[1][t], m[1][t]);
-            }
-        }
+        surface_or8(b, wl, ml, wh, mh);
     }
     /* Most crossings are the only column centre of their triangle: done here, four at a time. */
     if (zpar & pone[0] & pone[1])
@@ -1155,25 +1161,10 @@ static __attribute__((noinline)) unsigned prefilter8(const tri_out *o, const flo
             bits_or(b->shared, b->surface + w0, 1ull << b0);
         return pass;
     }
-    __m256i gl = _mm256_i32gather_epi64((const long long *)b->surface, wl, 8);
-    __m256i gh = _mm256_i32gather_epi64((const long long *)b->surface, wh, 8);
-    __m256i miss = _mm256_or_si256(_mm256_andnot_si256(gl, ml), _mm256_andnot_si256(gh, mh));
-    if (!_mm256_testz_si256(miss, miss)) {
-        uint32_t wi[8];
-        uint64_t mi[8];
-        _mm256_storeu_si256((__m256i *)wi, w);
-        _mm256_storeu_si256((__m256i *)mi, ml);
-        _mm256_storeu_si256((__m256i *)(mi + 4), mh);
-        for (unsigned m = pass; m; m &= m - 1) {
-            int t = __builtin_ctz(m);
-            bits_or(b->shared, b->surface + wi[t], mi[t]);
-        }
-    }
+    surface_or8(b, wl, ml, wh, mh);
     return pass;
 }
-#endif
 
-#ifdef __AVX2__
 /* triangles4 for the prefilter's leftovers, out of line: the exact path's own loop in triangle_range keeps
  * its inlined copy (a call passes the lanes through memory, and the loop's state would crowd the registers). */
 static __attribute__((noinline)) uint32_t triangles4_at(const tri_out *o, const float *pos, const uint32_t *ti,
