@@ -100,4 +100,7 @@ static inline nc_v8f nc_v8_sqrt(nc_v8f x)
 #endif
 }
 
+/* The sum of the 8 lanes, in a fixed order: ((0 + 4) + (1 + 5)) + ((2 + 6) + (3 + 7)) */
+static inline float nc_v8_sum(nc_v8f x) { return ((x[0] + x[4]) + (x[1] + x[5])) + ((x[2] + x[6]) + (x[3] + x[7])); }
+
 #endif /* NACRE_SIMD_H */

@@ -277,6 +277,14 @@ static inline bool pcf_tap_lit(const pcf_frame *f, float stored, float col_r, fl
 static inline nc_v8f min8(nc_v8f a, nc_v8f b) { return nc_v8_sel(a < b, a, b); }
 static inline nc_v8f max8(nc_v8f a, nc_v8f b) { return nc_v8_sel(a > b, a, b); }
 
+/* Overlap of texel columns (or rows) c .. c + 1 with the box filter [centre - rad, centre + rad],
+ * 0 outside it */
+static inline nc_v8f overlap8(nc_v8f c, float centre, float rad)
+{
+    const nc_v8f o = min8(c + 1.0f, nc_v8_splat(centre + rad)) - max8(c, nc_v8_splat(centre - rad));
+    return nc_v8_sel(o > 0.0f, o, (nc_v8f){0});
+}
+
 /* The usual window (pcf_radius 1.5): columns i0 .. i0 + 3 and rows j0 .. j0 + 3, wholly inside
  * the map, whose texels T hold two rows each (T[0]: rows j0 and j0 + 1 in lanes 0-3 and 4-7;
  * T[1]: rows j0 + 2 and j0 + 3). pcf_window's weights and pcf_tap_lit's comparisons, 8 taps per
@@ -287,8 +295,7 @@ static float pcf_window4x4(const pcf_frame *f, int i0, int j0, const nc_v8f T[2]
 {
     const nc_v8f zero = {0};
     const nc_v8f ci = (float)i0 + (nc_v8f){0.0f, 1.0f, 2.0f, 3.0f, 0.0f, 1.0f, 2.0f, 3.0f};
-    nc_v8f col_o = min8(ci + 1.0f, nc_v8_splat(f->u + f->rad)) - max8(ci, nc_v8_splat(f->u - f->rad));
-    col_o = nc_v8_sel(col_o > 0.0f, col_o, zero);
+    const nc_v8f col_o = overlap8(ci, f->u, f->rad);
     const nc_v8f tx = (ci + 0.5f) * f->inv_size - 1.0f;
     const nc_v8f col_r = f->ortho ? f->nv.x * ((tx - f->m03) * f->inv_m00 - f->pv.x) : f->nv.x * (tx * f->inv_m00);
     const nc_v8f du = ci + 0.5f - f->u;
@@ -300,8 +307,7 @@ static float pcf_window4x4(const pcf_frame *f, int i0, int j0, const nc_v8f T[2]
         const nc_v8f ty = 1.0f - (rj + 0.5f) * f->inv_size;
         const nc_v8f row_r = f->ortho ? f->nv.y * ((ty - f->m13) * f->inv_m11 - f->pv.y) : f->nv.y * (ty * f->inv_m11);
         const nc_v8f dv = rj + 0.5f - f->vv;
-        nc_v8f oy = min8(rj + 1.0f, nc_v8_splat(f->vv + f->rad)) - max8(rj, nc_v8_splat(f->vv - f->rad));
-        oy = nc_v8_sel(oy > 0.0f, oy, zero); /* rows outside the window weigh 0 */
+        const nc_v8f oy = overlap8(rj, f->vv, f->rad); /* rows outside the window weigh 0 */
         oy_sum += oy;
         const nc_v8f stored = T[h];
         nc_v8f recv = f->ortho ? d + (col_r + row_r) * f->inv_nz : f->plane_d / (col_r + row_r + f->nv.z * -1.0f);
@@ -315,7 +321,7 @@ static float pcf_window4x4(const pcf_frame *f, int i0, int j0, const nc_v8f T[2]
     /* oy_sum: rows j0 + j0 + 2 in lanes 0-3, j0 + 1 + j0 + 3 in lanes 4-7 */
     const float rows = oy_sum[0] + oy_sum[4];
     const float total = (col_o[0] + col_o[1] + col_o[2] + col_o[3]) * rows;
-    const float sum = ((lit[0] + lit[4]) + (lit[1] + lit[5])) + ((lit[2] + lit[6]) + (lit[3] + lit[7]));
+    const float sum = nc_v8_sum(lit);
     return total > 0.0f ? sum / total : 1.0f;
 }
 
@@ -382,16 +388,9 @@ static inline float pcf_window4x4_affine(const float *map, int size, int i0, int
         return 0.0f;
     /* Box-filter overlaps of the columns and of the two row pairs */
     const nc_v8f ci_ = (float)i0 + col, rj0 = (float)j0 + row, rj1 = rj0 + 2.0f;
-    nc_v8f wx = min8(ci_ + 1.0f, nc_v8_splat(u + rad)) - max8(ci_, nc_v8_splat(u - rad));
-    nc_v8f wy0 = min8(rj0 + 1.0f, nc_v8_splat(vv + rad)) - max8(rj0, nc_v8_splat(vv - rad));
-    nc_v8f wy1 = min8(rj1 + 1.0f, nc_v8_splat(vv + rad)) - max8(rj1, nc_v8_splat(vv - rad));
-    wx = nc_v8_sel(wx > 0.0f, wx, zero);
-    wy0 = nc_v8_sel(wy0 > 0.0f, wy0, zero);
-    wy1 = nc_v8_sel(wy1 > 0.0f, wy1, zero);
-    const nc_v8f w0 = wx * wy0, w1 = wx * wy1;
-    const nc_v8f lit = nc_v8_sel(lit0, w0, zero) + nc_v8_sel(lit1, w1, zero), all = w0 + w1;
-    const float sum = ((lit[0] + lit[4]) + (lit[1] + lit[5])) + ((lit[2] + lit[6]) + (lit[3] + lit[7]));
-    const float total = ((all[0] + all[4]) + (all[1] + all[5])) + ((all[2] + all[6]) + (all[3] + all[7]));
+    const nc_v8f wx = overlap8(ci_, u, rad);
+    const nc_v8f w0 = wx * overlap8(rj0, vv, rad), w1 = wx * overlap8(rj1, vv, rad);
+    const float sum = nc_v8_sum(nc_v8_sel(lit0, w0, zero) + nc_v8_sel(lit1, w1, zero)), total = nc_v8_sum(w0 + w1);
     return total > 0.0f ? sum / total : 1.0f;
 }
 
