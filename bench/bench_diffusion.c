@@ -11,6 +11,11 @@
  * maps (PLV), inject, propagate and the diffusion shading pass, not the G-buffer: our `total`
  * is the same sum, and `raster` (visibility + G-buffer) is reported beside it. Commit (vertex
  * transform) is not in either.
+ *
+ * Frames render into the same image with reuse_output, as a viewer does: background pixels that
+ * were background in the previous frame are not rewritten (a GPU clears its frame buffer at
+ * almost no cost; we skip the clear where it would change nothing). --repaint writes every pixel
+ * of every frame; the JSON rows say which ("reuse_output").
  */
 #include "cli.h"
 
@@ -99,13 +104,14 @@ fail:
 
 static int run_case(nacre_context *ctx, nacre_renderer *renderer, nacre_scene *scene, nacre_object obj,
                     nacre_object_desc *od, uint32_t res_n, int width, int height, int runs, double *samples,
-                    double med[COL_COUNT], uint32_t *iterations, uint32_t dims[3])
+                    double med[COL_COUNT], uint32_t *iterations, uint32_t dims[3], bool repaint)
 {
     nacre_render_settings rs = nacre_render_settings_defaults();
     rs.method = NACRE_METHOD_DIFFUSION;
     rs.width = width;
     rs.height = height;
     rs.voxel_resolution = res_n;
+    rs.reuse_output = !repaint;
     nacre_image img = {0};
     int rc = 0;
     for (int run = -1; run < runs; run++) {
@@ -139,15 +145,16 @@ static int run_case(nacre_context *ctx, nacre_renderer *renderer, nacre_scene *s
 }
 
 static void print_row(bool json, const char *file, uint32_t tris, uint32_t res_n, int w, int h, const double m[COL_COUNT],
-                      uint32_t iterations, const uint32_t dims[3], const double *seed)
+                      uint32_t iterations, const uint32_t dims[3], const double *seed, bool repaint)
 {
     double fps = m[COL_TOTAL] > 0 ? 1e6 / m[COL_TOTAL] : 0;
     if (json) {
         printf("{\"bench\":\"diffusion\",\"mesh\":\"%s\",\"triangles\":%u,\"res\":%u,\"width\":%d,\"height\":%d,"
                "\"voxel_dims\":[%u,%u,%u],\"voxelize_us\":%.0f,\"tsm_us\":%.0f,\"inject_us\":%.0f,\"propagate_us\":%.0f,"
-               "\"shade_us\":%.0f,\"total_us\":%.0f,\"fps\":%.1f,\"raster_us\":%.0f,\"iterations\":%u",
+               "\"shade_us\":%.0f,\"total_us\":%.0f,\"fps\":%.1f,\"raster_us\":%.0f,\"iterations\":%u,"
+               "\"reuse_output\":%s",
                file, tris, res_n, w, h, dims[0], dims[1], dims[2], m[COL_VOX], m[COL_TSM], m[COL_INJ], m[COL_PROP],
-               m[COL_SHADE], m[COL_TOTAL], fps, m[COL_RASTER], iterations);
+               m[COL_SHADE], m[COL_TOTAL], fps, m[COL_RASTER], iterations, repaint ? "false" : "true");
         if (seed)
             printf(",\"seed_voxelize_us\":%.0f,\"seed_tsm_us\":%.0f,\"seed_inject_us\":%.0f,\"seed_propagate_us\":%.0f,"
                    "\"seed_shade_us\":%.0f,\"seed_total_us\":%.0f,\"seed_fps\":%.0f",
@@ -164,7 +171,7 @@ static void print_row(bool json, const char *file, uint32_t tris, uint32_t res_n
     fflush(stdout);
 }
 
-int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filter)
+int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filter, bool repaint)
 {
     nacre_context *ctx = nc_cli_context(0);
     if (!ctx)
@@ -181,10 +188,11 @@ int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filt
         goto out;
     if (!json)
         printf("diffusion pipeline (us), %d threads, median of %d runs; total = voxelize+tsm+inject+propagate+shade "
-               "(the seed's), raster = G-buffer beside it\n"
+               "(the seed's), raster = G-buffer beside it; %s\n"
                "%-20s %5s %9s %8s %7s %7s %9s %7s %8s %6s %8s %5s  | seed GTX 470 (tables 5.1-5.3): vox PLV inj prop "
                "rend total fps\n",
-               nacre_context_threads(ctx), runs, "mesh", "res", "image", "voxelize", "tsm", "inject", "propagate",
+               nacre_context_threads(ctx), runs,
+               repaint ? "every pixel written every frame" : "frames reuse the previous frame's background", "mesh", "res", "image", "voxelize", "tsm", "inject", "propagate",
                "shade", "total", "fps", "raster", "iter");
     for (size_t mi = 0; mi < sizeof(meshes) / sizeof(meshes[0]); mi++) {
         char path[4096];
@@ -211,22 +219,23 @@ int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filt
             if (filter->res && filter->res != resolutions[r])
                 continue;
             if (run_case(ctx, renderer, scene, obj, &od, resolutions[r], 1280, 720, runs, samples, med, &iterations,
-                         dims) != 0) {
+                         dims, repaint) != 0) {
                 nacre_scene_destroy(scene);
                 goto out;
             }
             print_row(json, meshes[mi].file, tris, resolutions[r], 1280, 720, med, iterations, dims,
-                      r < 3 ? meshes[mi].seed[r] : NULL);
+                      r < 3 ? meshes[mi].seed[r] : NULL, repaint);
         }
         if (mi == 0 && (!filter->res || filter->res == 64)) {
             /* The interactive target: Suzanne at 64^3 shaded at 640x480. */
             double med[COL_COUNT];
             uint32_t iterations = 0, dims[3] = {0, 0, 0};
-            if (run_case(ctx, renderer, scene, obj, &od, 64, 640, 480, runs, samples, med, &iterations, dims) != 0) {
+            if (run_case(ctx, renderer, scene, obj, &od, 64, 640, 480, runs, samples, med, &iterations, dims,
+                         repaint) != 0) {
                 nacre_scene_destroy(scene);
                 goto out;
             }
-            print_row(json, meshes[mi].file, tris, 64, 640, 480, med, iterations, dims, NULL);
+            print_row(json, meshes[mi].file, tris, 64, 640, 480, med, iterations, dims, NULL, repaint);
         }
         nacre_scene_destroy(scene);
     }

@@ -623,6 +623,14 @@ typedef struct nacre_render_settings {
     /* pathtrace */
     double time_limit;               /* seconds; 0 = none (stops early, at a whole pass) */
     uint32_t max_scatter;            /* scattering events per path in media; 0 = unlimited */
+    /* Raster methods (phong, diffusion): true promises that `out` holds, unchanged, the image this
+     * renderer wrote in its previous frame (same pixels, size and stride), as in a viewer that
+     * shows each frame and passes the buffer back. Pixels that were background then and still are
+     * hold the environment already and are not rewritten (on a 1280x720 frame mostly background,
+     * ~0.6 ms of memory writes); the image is identical to a full repaint. The renderer repaints
+     * everything when the buffer, its size, the environment or the method differ from its last
+     * frame. Default false. */
+    bool reuse_output;
 } nacre_render_settings;
 
 NACRE_API nacre_render_settings nacre_render_settings_defaults(void);

@@ -49,6 +49,16 @@ struct nacre_renderer {
     nc_gbuffer_source *sources;
     nc_shade_light *shade_lights;
     uint32_t draw_capacity, light_capacity;
+    /* The last raster frame's image (settings.reuse_output): where it was written, with which
+     * environment, and the G-buffer's row spans it was shaded with; outside them it holds the
+     * environment. image_valid is false until a frame completes. */
+    bool image_valid;
+    const float *image_pixels;
+    int32_t image_width, image_height;
+    size_t image_stride;
+    float image_env[3];
+    int32_t *image_span;
+    int32_t image_span_rows;
     nc_pathtracer *pathtracer; /* created by the first path-traced frame */
     nc_diff_state *diffusion;  /* created by the first diffusion frame */
 };
@@ -85,6 +95,7 @@ void nacre_renderer_destroy(nacre_renderer *r)
     nc_free(ctx, r->draws);
     nc_free(ctx, r->sources);
     nc_free(ctx, r->shade_lights);
+    nc_free(ctx, r->image_span);
     nc_pathtracer_destroy(ctx, r->pathtracer);
     nc_diff_state_destroy(r->diffusion);
     nc_free(ctx, r);
@@ -225,6 +236,14 @@ nacre_result nacre_renderer_render(nacre_renderer *r, const nacre_scene *s, cons
     if (s->object_count == 0 && !(settings->method == NACRE_METHOD_PATHTRACE && s->fog_count > 0))
         return nc_fail(ctx, NACRE_ERROR_INVALID_OPERATION, "render: scene has no objects");
     int32_t w = settings->width, h = settings->height;
+    /* Whether out still holds the last raster frame (reuse_output); decided before anything is
+     * written, and forgotten until this frame completes. */
+    const bool reuse = settings->reuse_output && r->image_valid && out->pixels &&
+                       out->pixels == r->image_pixels && out->width == r->image_width &&
+                       out->height == r->image_height && out->stride == r->image_stride &&
+                       out->channels == 3 && settings->method != NACRE_METHOD_PATHTRACE &&
+                       memcmp(r->image_env, s->environment, sizeof(r->image_env)) == 0;
+    r->image_valid = false;
     bool allocated = false;
     if (out->pixels) {
         if (out->width != w || out->height != h || out->channels != 3 || out->stride < (size_t)w * 3)
@@ -351,7 +370,26 @@ nacre_result nacre_renderer_render(nacre_renderer *r, const nacre_scene *s, cons
     };
     if (settings->method == NACRE_METHOD_DIFFUSION)
         nc_diffusion_shade_params(r->diffusion, s, &params);
-    nc_shade_phong(s, &r->gbuffer, r->shade_lights, s->light_count, &params, out->pixels, out->stride, ctx->threads);
+    if (r->image_span_rows != h) {
+        nc_free(ctx, r->image_span);
+        r->image_span_rows = 0;
+        if (!(r->image_span = nc_alloc(ctx, 2 * (size_t)h * sizeof(int32_t)))) {
+            res = NACRE_ERROR_OUT_OF_MEMORY;
+            goto fail;
+        }
+        r->image_span_rows = h;
+    }
+    nc_shade_phong(s, &r->gbuffer, r->shade_lights, s->light_count, &params, out->pixels, out->stride,
+                   reuse ? r->image_span : NULL, ctx->threads);
+    if (r->gbuffer.row_span) {
+        memcpy(r->image_span, r->gbuffer.row_span, 2 * (size_t)h * sizeof(int32_t));
+        r->image_valid = true;
+        r->image_pixels = out->pixels;
+        r->image_width = w;
+        r->image_height = h;
+        r->image_stride = out->stride;
+        memcpy(r->image_env, s->environment, sizeof(r->image_env));
+    }
     st.stage_us[NACRE_STAGE_SHADE] = nc_now_us() - t0;
     st.stage_ran[NACRE_STAGE_SHADE] = true;
     st.total_us = nc_now_us() - t_start;

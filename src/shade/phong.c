@@ -17,7 +17,9 @@
  * slow denormal arithmetic, over most of a glossy object.
  *
  * Layout: each row is cut into runs; empty pixels get the environment in bulk (streaming stores
- * with AVX), and object pixels are shaded in batches (up to NC_SHADE_BATCH pixels of one object
+ * with AVX; only inside the previous frame's object span when the image still holds that frame,
+ * nacre_render_settings.reuse_output: the rest of the row is that environment already), and
+ * object pixels are shaded in batches (up to NC_SHADE_BATCH pixels of one object
  * and material, SoA) whose per-light arithmetic runs 8 lanes at a time in vector registers
  * (core/simd.h), every value computed on every lane and conditions as selects. The lanes that
  * need a shadow lookup are collected over the batch and go to nc_shadow_lookup_n together (the
@@ -364,7 +366,7 @@ static void shade_run(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
  * batches of one object and material (shade_run). */
 static void shade_row(const nacre_scene *scene, const nc_gbuffer *gb, const nc_shade_light *lights,
                       uint32_t light_count, const nc_shade_params *params, const mat_k *mks, uint32_t cached,
-                      int32_t y, float *row)
+                      const int32_t *prev_span, int32_t y, float *row)
 {
     const int32_t w = gb->width;
     const size_t base = (size_t)y * (size_t)w;
@@ -376,10 +378,17 @@ static void shade_row(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
         end = gb->row_span[2 * y + 1];
         x = x < 0 ? 0 : x > w ? w : x;
         end = end < x ? x : end > w ? w : end;
-        if (x > 0)
-            fill_env(row, x, scene->environment);
-        if (end < w)
-            fill_env(row + 3 * (size_t)end, w - end, scene->environment);
+        /* Outside the previous frame's span too, the pixels hold the environment already */
+        int32_t lo = 0, hi = w;
+        if (prev_span) {
+            lo = prev_span[2 * y] < 0 ? 0 : prev_span[2 * y];
+            hi = prev_span[2 * y + 1] > w ? w : prev_span[2 * y + 1];
+        }
+        int32_t e0 = x < hi ? x : hi, s1 = end > lo ? end : lo;
+        if (e0 > lo)
+            fill_env(row + 3 * (size_t)lo, e0 - lo, scene->environment);
+        if (hi > s1)
+            fill_env(row + 3 * (size_t)s1, hi - s1, scene->environment);
     }
     while (x < end) {
         int32_t x0 = x;
@@ -440,7 +449,7 @@ static void shade_row(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
 
 void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_shade_light *lights,
                     uint32_t light_count, const nc_shade_params *params, float *rgb, size_t stride,
-                    int threads)
+                    const int32_t *prev_span, int threads)
 {
     const int32_t h = gb->height;
     /* Per-material constants, looked up per run of pixels by index. Materials are few; a fixed
@@ -458,7 +467,8 @@ void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_sha
     {
 #pragma omp for schedule(dynamic, 8)
         for (int32_t y = 0; y < h; y++)
-            shade_row(scene, gb, lights, light_count, params, mks, cached, y, rgb + (size_t)y * stride);
+            shade_row(scene, gb, lights, light_count, params, mks, cached, gb->row_span ? prev_span : NULL, y,
+                      rgb + (size_t)y * stride);
         stream_fence(); /* this thread's streaming stores, before the region ends */
     }
 }

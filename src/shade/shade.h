@@ -49,9 +49,12 @@ typedef struct nc_shade_params {
 void nc_material_albedo(const nacre_material_desc *m, float out[3]);
 
 /* Ambient + Lambert + normalized Blinn-Phong with shadow maps, into rgb (width*height*3, row
- * stride `stride` floats). Empty pixels get the environment radiance. */
+ * stride `stride` floats). Empty pixels get the environment radiance, except that with
+ * prev_span (2 per row, the G-buffer's row_span of the frame rgb already holds, whose other
+ * pixels are the same environment) the empty pixels outside the previous frame's span are left
+ * as they are. prev_span NULL: every pixel is written. */
 void nc_shade_phong(const nacre_scene *scene, const nc_gbuffer *gb, const nc_shade_light *lights,
                     uint32_t light_count, const nc_shade_params *params, float *rgb, size_t stride,
-                    int threads);
+                    const int32_t *prev_span, int threads);
 
 #endif /* NACRE_SHADE_H */

@@ -42,12 +42,14 @@ static const char bench_help[] =
     "usage: nacre bench voxelize [--json] [--runs N] [--only MESH] [--res N]\n"
     "  voxelize suzanne_subdiv2, armadillo_400k, dragon, lucy_1600k (missing ones skipped) at\n"
     "           4,12,28,64,128,256 voxels per side, beside the seed's tables 5.1-5.3\n"
-    "usage: nacre bench diffusion [--json] [--runs N] [--only MESH] [--res N]\n"
+    "usage: nacre bench diffusion [--json] [--runs N] [--only MESH] [--res N] [--repaint]\n"
     "  diffusion  the seed's tables 5.1-5.3 layout (per-stage us, fps) for its meshes' stand-ins\n"
     "           at 4..128 voxels (bench/bench_diffusion.c), then iterations to converge (seed\n"
     "           table 4.3) and converged propagation at 32^3..256^3 (bench/bench_diffusion_solver.c)\n"
     "  --only MESH  only the meshes whose file name contains MESH; --res N  only that resolution\n"
     "           (either filter skips the solver tables of `bench diffusion`)\n"
+    "  --repaint  every frame writes every pixel; by default frames reuse the previous frame's\n"
+    "           background, as a viewer does (nacre_render_settings.reuse_output)\n"
     "usage: nacre bench pathtrace [--json] [--runs N]\n"
     "  pathtrace  samples/s and extrapolated time to relative MSE 1e-3 at 512x512: translucent\n"
     "           sphere (index matched, dielectric, layered skin) and the demo scene, N x 30 s each\n"
@@ -244,6 +246,7 @@ int nc_cli_bench(int argc, char **argv)
     bool json = false;
     long runs = pathtrace ? 1 : 15, res_only = 0;
     nc_bench_filter filter = {NULL, 0};
+    bool repaint = false;
     for (int i = 1; i < argc; i++) {
         if (nc_cli_common_flag("bench", argv[i], bench_help, &code))
             return code;
@@ -256,6 +259,8 @@ int nc_cli_bench(int argc, char **argv)
         else if ((voxelize || diffusion) && strcmp(argv[i], "--res") == 0 && i + 1 < argc &&
                  nc_cli_parse_int(argv[i + 1], 1, 4096, &res_only))
             filter.res = (uint32_t)res_only, i++;
+        else if (diffusion && strcmp(argv[i], "--repaint") == 0)
+            repaint = true;
         else if (!voxelize && strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
             i++; /* read by nc_bench_raster */
         else
@@ -264,7 +269,7 @@ int nc_cli_bench(int argc, char **argv)
     if (voxelize)
         return bench_voxelize(json, (int)runs, &filter);
     if (diffusion) {
-        int rc = nc_bench_diffusion_pipeline(json, (int)runs, &filter);
+        int rc = nc_bench_diffusion_pipeline(json, (int)runs, &filter, repaint);
         if (rc != 0 || filter.only || filter.res)
             return rc;
         if (!json)

@@ -49,8 +49,9 @@ typedef struct nc_bench_filter {
     uint32_t res;
 } nc_bench_filter;
 bool nc_bench_filter_mesh(const nc_bench_filter *f, const char *file);
-/* `nacre bench diffusion`, pipeline part (bench/bench_diffusion.c). */
-int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filter);
+/* `nacre bench diffusion`, pipeline part (bench/bench_diffusion.c); repaint: every frame
+ * writes every pixel (no reuse_output). */
+int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filter, bool repaint);
 /* `nacre bench raster` part for lucy_1600k (bench/bench_raster.c). */
 int nc_bench_raster(int argc, char **argv);
 
