@@ -123,6 +123,11 @@ struct nc_diff_solver {
     size_t span_capacity[MAX_LEVELS];
     uint32_t span_n[MAX_LEVELS][3];
     bool span_valid[MAX_LEVELS];
+    /* Coarse levels: solid, diag and g are zero outside the spans span[li] of a level of shape
+     * op_n[li] (op_clean; diag is 1 at the cells inside them that are not solid), so the next
+     * build clears those spans only (build_coarse). */
+    bool op_clean[MAX_LEVELS];
+    uint32_t op_n[MAX_LEVELS][3];
     v4d *part;   /* per-slab partial sums of the reductions, 3 (nz + 2) */
     size_t part_capacity;
     size_t *hot; /* warm start: the cells that hold most of the residual (hot_relax) */
@@ -238,6 +243,7 @@ static nacre_result level_alloc(nc_diff_solver *s, int li, size_t user_cells)
         level keep = *l;
         level_free(ctx, l);
         s->span_valid[li] = false; /* fresh arrays: nothing known to be zero */
+        s->op_clean[li] = false;
         memcpy(l->n, keep.n, sizeof(keep.n));
         memcpy(l->r, keep.r, sizeof(keep.r));
         l->cells = keep.cells;
@@ -310,23 +316,38 @@ static void zero_padding(const level *l, v4 *a)
  * (its own +faces and its neighbours' -faces), so z slabs run in parallel. Lanes that would be
  * 0 (the unused fourth lane, a channel without medium: sigma_t' = 0 decouples the cell) get 1,
  * so the kernels can divide by the diagonal without a test. */
-static void finish_level(level *l, int threads)
+static inline void finish_cell(level *l, size_t i)
 {
+    if (!l->solid[i]) {
+        l->diag[i] = V4_ONE;
+        return;
+    }
+    /* solid cells are interior, so i - sz etc. are in range */
     const size_t sy = l->sy, sz = l->sz;
-    const size_t nz = l->n[2] + 2;
+    v4 d = l->diag[i] + l->g[0][i] + l->g[0][i - 1] + l->g[1][i] + l->g[1][i - sy] + l->g[2][i] + l->g[2][i - sz];
+    for (int c = 0; c < 4; c++)
+        d[c] = d[c] > 0 ? d[c] : 1.0f;
+    l->diag[i] = d;
+}
+
+/* Every cell of the level (spans false), or the cells of its row spans (level.ext) only: the
+ * kernels read the diagonal nowhere else. */
+static void finish_level(level *l, bool spans, int threads)
+{
+    const size_t sz = l->sz, nz = l->n[2] + 2, ry = (size_t)l->n[1] + 2;
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
-    for (size_t z = 0; z < nz; z++)
-        for (size_t i = z * sz; i < (z + 1) * sz; i++) {
-            if (!l->solid[i]) {
-                l->diag[i] = V4_ONE;
-                continue;
-            }
-            /* solid cells are interior, so i - sz etc. are in range */
-            v4 d = l->diag[i] + l->g[0][i] + l->g[0][i - 1] + l->g[1][i] + l->g[1][i - sy] + l->g[2][i] + l->g[2][i - sz];
-            for (int c = 0; c < 4; c++)
-                d[c] = d[c] > 0 ? d[c] : 1.0f;
-            l->diag[i] = d;
+    for (size_t z = 0; z < nz; z++) {
+        if (!spans) {
+            for (size_t i = z * sz; i < (z + 1) * sz; i++)
+                finish_cell(l, i);
+            continue;
         }
+        for (size_t y = 0; y < ry; y++) {
+            const size_t r = y + ry * z, row = y * l->sy + z * sz;
+            for (size_t i = row + l->ext[2 * r]; i < row + l->ext[2 * r + 1]; i++)
+                finish_cell(l, i);
+        }
+    }
 }
 
 /* Sum over the exposed faces of cell i of their share of true surface area (diffusion.h,
@@ -343,23 +364,24 @@ static float boundary_weight(const level *l, size_t i, const int open_axes[3], b
                 open += !l->solid[i - st[a]] + !l->solid[i + st[a]];
         return (float)open;
     }
+    /* Integer sums (exact, and the same values as float ones: small integers), with no
+     * conversion per neighbour */
     float grad[3] = {0, 0, 0};
     for (int a = 0; a < 3; a++) {
         if (!open_axes[a])
             continue;
         int b = (a + 1) % 3, c = (a + 2) % 3;
-        float sum = 0.0f;
+        /* the padding layer keeps every index in range for an interior cell, but an axis of
+         * one cell has no neighbours across: use the row itself there */
+        const ptrdiff_t sb = open_axes[b] ? (ptrdiff_t)st[b] : 0, sc = open_axes[c] ? (ptrdiff_t)st[c] : 0;
+        const uint8_t *lo = l->solid + i - st[a], *hi = l->solid + i + st[a];
+        int sum = 0;
         for (int ob = -1; ob <= 1; ob++)
             for (int oc = -1; oc <= 1; oc++) {
-                /* the padding layer keeps every index in range for an interior cell, but an
-                 * axis of one cell has no neighbours across: use the row itself there */
-                size_t off = (size_t)((ptrdiff_t)ob * (ptrdiff_t)(open_axes[b] ? st[b] : 0) +
-                                      (ptrdiff_t)oc * (ptrdiff_t)(open_axes[c] ? st[c] : 0));
-                float wgt = (float)((2 - (ob != 0)) * (2 - (oc != 0)));
-                size_t j = i + off;
-                sum += wgt * ((float)l->solid[j - st[a]] - (float)l->solid[j + st[a]]);
+                const ptrdiff_t off = ob * sb + oc * sc;
+                sum += (2 - (ob != 0)) * (2 - (oc != 0)) * ((int)lo[off] - (int)hi[off]);
             }
-        grad[a] = sum;
+        grad[a] = (float)sum;
     }
     float len = sqrtf(grad[0] * grad[0] + grad[1] * grad[1] + grad[2] * grad[2]);
     float w = 0.0f;
@@ -447,7 +469,7 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
     const bool fast = homogeneous && dconst[0] > 0 && dconst[1] > 0 && dconst[2] > 0;
     s->aconst = aconst;
     /* Pass 1: domain, D and absorption per cell (the fast path: domain and the caller's D). */
-#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) if (l->cells > 32768)
     for (uint32_t z = 0; z < nz; z++)
         for (uint32_t y = 0; y < cy; y++) {
             size_t u0 = (size_t)off[0] + (size_t)nx * ((y + off[1]) + (size_t)ny * (z + off[2])), i0 = pidx(l, 0, y, z);
@@ -503,7 +525,7 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
         memset(l->bw, 0, l->cells * sizeof(float));
     }
     const size_t ry = (size_t)cy + 2;
-#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) if (l->cells > 32768)
     for (size_t z = 0; z < (size_t)nz + 2; z++)
         for (size_t y = 0; y < ry; y++) {
             size_t row = y * sy + z * sz, i0 = row, i1 = row + sy;
@@ -537,7 +559,7 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
          * neighbouring faces (blotches in the image): each cell takes the mean share of true
          * area per exposed face over its 3x3x3 neighbourhood, times its own exposed faces. */
         float *smooth = (float *)s->pr; /* scratch: the PCG vectors are free during setup (nc_diff_setup clears pr's padding after) */
-#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) if (l->cells > 32768)
         for (size_t z = 1; z <= (size_t)nz; z++)
             for (size_t y = 1; y <= cy; y++) {
                 size_t a, e;
@@ -546,21 +568,25 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
                     smooth[i] = l->bw[i];
                     if (l->bw[i] == 0.0f)
                         continue;
-                    float wsum = 0.0f, osum = 0.0f;
+                    /* Cells with bw = 0 have k = 0 (not solid, or no exposed face), so summing
+                     * them too adds zeros: the same sums, without a branch per neighbour; the
+                     * padding keeps every index of an interior cell in range. */
+                    float wsum = 0.0f;
+                    int osum_i = 0;
                     for (int dz = -1; dz <= 1; dz++)
-                        for (int dy = -1; dy <= 1; dy++)
+                        for (int dy = -1; dy <= 1; dy++) {
+                            const size_t j = (size_t)((ptrdiff_t)i + (ptrdiff_t)dy * (ptrdiff_t)sy + (ptrdiff_t)dz * (ptrdiff_t)sz);
                             for (int dx = -1; dx <= 1; dx++) {
-                                size_t j = (size_t)((ptrdiff_t)i + dx + (ptrdiff_t)dy * (ptrdiff_t)sy + (ptrdiff_t)dz * (ptrdiff_t)sz);
-                                if (j >= l->cells || l->bw[j] == 0.0f)
-                                    continue;
-                                wsum += l->bw[j];
-                                osum += (float)l->k[j];
+                                wsum += l->bw[(size_t)((ptrdiff_t)j + dx)];
+                                osum_i += l->k[(size_t)((ptrdiff_t)j + dx)];
                             }
+                        }
+                    const float osum = (float)osum_i;
                     smooth[i] = osum > 0 ? (float)l->k[i] * wsum / osum : l->bw[i];
                 }
             }
         /* bw is nonzero at solid cells only, which the spans hold */
-#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) if (l->cells > 32768)
         for (size_t z = 1; z <= (size_t)nz; z++)
             for (size_t y = 1; y <= cy; y++) {
                 size_t a, e;
@@ -569,7 +595,7 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
             }
     }
     /* Pass 3: Robin terms and diagonal (finish_level gives cells outside a unit diagonal). */
-#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) if (l->cells > 32768)
     for (size_t z = 1; z <= (size_t)nz; z++)
         for (size_t y = 1; y <= cy; y++) {
             size_t a, e;
@@ -590,7 +616,7 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
             }
         }
     if (!fast)
-        finish_level(l, threads);
+        finish_level(l, false, threads);
     homogeneous = fast;
     s->homogeneous = homogeneous;
     l->homogeneous_level = homogeneous;
@@ -606,7 +632,7 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
         l->kbase[7] = V4_ONE;
         l->kg[7] = V4_ZERO;
         l->kb = B;
-#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) if (l->cells > 32768)
         for (size_t z = 1; z <= (size_t)nz; z++)
             for (size_t y = 1; y <= cy; y++) {
                 size_t i0, i1;
@@ -640,20 +666,13 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
  * must approximate the fine one: it keeps the re-discretization's 1/2. */
 #define SEED_G_SCALE 0.5f
 
-/* Zero padded plane z of a coarse level's domain and operator (solid, diag, g). */
-static void clear_plane(const level *l, size_t z)
-{
-    const size_t plane = l->sz, p0 = z * plane;
-    memset(l->solid + p0, 0, plane);
-    memset(l->diag + p0, 0, plane * sizeof(v4));
-    for (int a = 0; a < 3; a++)
-        memset(l->g[a] + p0, 0, plane * sizeof(v4));
-}
-
 /* Coarse level li from li - 1: Galerkin sums with conductances scaled by `scale` per coarsened
  * axis (COARSE_G_SCALE for multigrid, SEED_G_SCALE for the seed's cascade). Parallel over coarse
- * z slabs, each gathering its own fine children. */
-
+ * z slabs, each gathering its own fine children. Leaves solid, diag and g zero outside the new
+ * domain; the caller finds the spans and finishes the diagonal (build_coarse_levels). Only the
+ * previous build's spans are cleared when they are known (op_clean): at 128^3 the whole of level
+ * 1's operator is 65 bytes times four to five times as many cells as its spans hold, and clearing
+ * and finishing all of it was most of the coarse levels' setup. */
 static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
 {
     level *f = &s->lv[li - 1], *l = &s->lv[li];
@@ -661,33 +680,59 @@ static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
      * conductance is G between solid cells, its boundary in bnd, its absorption aconst. */
     const bool hom = f->homogeneous_level;
     const v4 G = f->kg[0];
-    /* Cleared plane by plane: the padding planes here, each interior plane by the iteration that
-     * fills it (its cells are written by that iteration only). */
-    clear_plane(l, 0);
-    clear_plane(l, l->n[2] + 1);
+    const bool known = s->op_clean[li] && memcmp(s->op_n[li], l->n, sizeof(l->n)) == 0;
+    s->op_clean[li] = false;
+    const uint32_t *old = s->span[li];
+    const size_t ry = (size_t)l->n[1] + 2, nzp = (size_t)l->n[2] + 2;
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+    for (size_t z = 0; z < nzp; z++) {
+        if (!known) {
+            const size_t p0 = z * l->sz, plane = l->sz;
+            memset(l->solid + p0, 0, plane);
+            memset(l->diag + p0, 0, plane * sizeof(v4));
+            for (int a = 0; a < 3; a++)
+                memset(l->g[a] + p0, 0, plane * sizeof(v4));
+            continue;
+        }
+        for (size_t y = 0; y < ry; y++) {
+            const size_t r = y + ry * z, a0 = y * l->sy + z * l->sz + old[2 * r], n = old[2 * r + 1] - old[2 * r];
+            memset(l->solid + a0, 0, n);
+            memset(l->diag + a0, 0, n * sizeof(v4));
+            for (int a = 0; a < 3; a++)
+                memset(l->g[a] + a0, 0, n * sizeof(v4));
+        }
+    }
     const size_t fst[3] = {1, f->sy, f->sz};
     float g_scale[3];
     for (int a = 0; a < 3; a++)
         g_scale[a] = l->r[a] == 2 ? scale : 1.0f;
-#pragma omp parallel for num_threads(threads) schedule(static) if (f->cells > 32768)
+    /* r is 1 or 2 per axis: coarse index = fine index >> (r - 1) (a division by the run-time r
+     * per cell and axis was most of this loop's time) */
+    const uint32_t shx = l->r[0] - 1, shy = l->r[1] - 1;
+    const v4 aconst = s->aconst;
+    const v4 *bnd = s->bnd;
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1) if (f->cells > 32768)
     for (uint32_t Z = 0; Z < l->n[2]; Z++) {
-        clear_plane(l, Z + 1);
         for (uint32_t z = Z * l->r[2]; z < (Z + 1) * l->r[2] && z < f->n[2]; z++)
             for (uint32_t y = 0; y < f->n[1]; y++) {
                 /* the fine level's spans hold all its solid cells (padded x = interior x + 1) */
                 const uint32_t *span = f->ext + 2 * ((size_t)y + 1 + ((size_t)f->n[1] + 2) * (z + 1));
-                for (uint32_t x = span[0] - 1; x + 1 < span[1]; x++) {
-                    size_t i = pidx(f, x, y, z);
+                const uint32_t Y = y >> shy;
+                /* faces inside an aggregate cancel: a +y (+z) face counts on the aggregate's
+                 * last fine row (plane) only */
+                const bool face_y = ((y + 1) >> shy) != Y, face_z = (z + 1) / l->r[2] != Z;
+                const size_t frow = pidx(f, 0, y, z) - 1, crow = pidx(l, 0, Y, Z) - 1;
+                for (uint32_t px = span[0]; px < span[1]; px++) {
+                    const size_t i = frow + px;
                     if (!f->solid[i])
                         continue;
-                    uint32_t p[3] = {x, y, z};
-                    uint32_t cp[3] = {x / l->r[0], y / l->r[1], Z};
-                    size_t I = pidx(l, cp[0], cp[1], cp[2]);
+                    const uint32_t x = px - 1, X = x >> shx;
+                    const size_t I = crow + 1 + X;
                     l->solid[I] = 1;
                     /* diag minus the six conductances = boundary + absorption of the fine cell */
                     v4 nonc;
                     if (hom) {
-                        nonc = s->bnd[i] + s->aconst;
+                        nonc = bnd[i] + aconst;
                     } else {
                         nonc = f->diag[i];
                         for (int a = 0; a < 3; a++)
@@ -696,13 +741,13 @@ static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
                     for (int c = 0; c < 4; c++)
                         nonc[c] = nonc[c] > 0 ? nonc[c] : 0.0f;
                     l->diag[I] += nonc;
+                    const bool face[3] = {((x + 1) >> shx) != X, face_y, face_z};
                     for (int a = 0; a < 3; a++)
-                        if ((p[a] + 1) / l->r[a] != cp[a]) /* faces inside the aggregate cancel */
+                        if (face[a])
                             l->g[a][I] += (hom ? (f->solid[i + fst[a]] ? G : V4_ZERO) : f->g[a][i]) * g_scale[a];
                 }
             }
     }
-    finish_level(l, threads);
 }
 
 /* The active span of each row of level li (level.ext), from its solid cells; the previous
@@ -862,6 +907,9 @@ static nacre_result build_coarse_levels(nc_diff_solver *s, float scale, bool spa
         nacre_result res;
         if (spans && (res = level_spans(s, li, threads)) != NACRE_OK)
             return res;
+        finish_level(&s->lv[li], true, threads);
+        s->op_clean[li] = true;
+        memcpy(s->op_n[li], s->lv[li].n, sizeof(s->lv[li].n));
     }
     s->coarse_scale = scale;
     coarsest_factor(s);
