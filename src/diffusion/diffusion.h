@@ -56,6 +56,8 @@ typedef struct nc_diff_solve_opts {
                                     (solver.c, hot_relax), for comparisons */
     bool no_energy;              /* skip the energy sums of the report (they stay 0): a pass over
                                     the domain that a renderer has no use for */
+    bool phi_unchanged;          /* phi holds this solver's last output, untouched since: only
+                                    the cells that change are written (the rest are 0 already) */
 } nc_diff_solve_opts;
 
 typedef struct nc_diff_solve_report {

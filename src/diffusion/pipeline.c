@@ -42,15 +42,15 @@ static void free_arrays(nc_diff_object *o)
     nc_free(ctx, o->eval_s);
     nc_free(ctx, o->packed);
     nc_free(ctx, o->acc);
-    nc_free(ctx, o->row_live);
+    nc_free(ctx, o->exit_span);
     nc_free(ctx, o->packed_ghost);
     o->packed_ghost = NULL;
     o->ghost_capacity = 0;
     o->ghosts = false;
     o->packed = NULL;
     o->packed_capacity = 0;
-    o->row_live = NULL;
-    o->row_live_capacity = 0;
+    o->exit_span = NULL;
+    o->exit_span_capacity = 0;
     o->exit_valid = false;
     o->acc = NULL;
     o->solid = NULL;
@@ -292,6 +292,7 @@ static nacre_result object_solve(nc_diff_object *o, const nacre_render_settings 
     opts.tolerance = settings->tolerance;
     opts.seed_iterations = settings->seed_iterations;
     opts.warm_start = warm;
+    opts.phi_unchanged = warm; /* phi is written by the solver only */
     opts.no_energy = true;
     o->iterations = 0;
     o->residual = 0.0;

@@ -65,11 +65,12 @@ typedef struct nc_diff_object {
                                       * (nx + 2) (ny + 2) (nz + 2) cells, so that every point within
                                       * half a cell of the grid interpolates without bounds tests */
     size_t packed_capacity;          /* padded cells allocated in packed */
-    /* Rows (y, z) of the grid that held a solid cell at the last exitance pass (row_live, ny nz
-     * bytes) for the grid exit_dims, when exit_valid: rows empty then and now hold zeros in
-     * exitance and packed already and are skipped. */
-    uint8_t *row_live;
-    size_t row_live_capacity;
+    /* Per row (y, z) of the grid, the x range [lo, hi) from its first to its last solid cell at
+     * the last exitance pass (exit_span, 2 per row), for the grid exit_dims, when exit_valid:
+     * packed is 0 outside those ranges, so a pass writes the new ranges and clears what is left
+     * of the old ones. */
+    uint32_t *exit_span;
+    size_t exit_span_capacity;       /* rows */
     float *packed_ghost;             /* when ghosts: the fallback's record of every padded cell
                                       * (shade_diffusion.c), 4 floats each, packed's layout; then
                                       * as much scratch */

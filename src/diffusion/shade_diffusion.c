@@ -263,20 +263,21 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
             return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the exitance grid");
         o->packed_capacity = padded;
     }
-    if (ny * nz > o->row_live_capacity) {
-        nc_free(o->ctx, o->row_live);
-        o->row_live_capacity = 0;
+    if (ny * nz > o->exit_span_capacity) {
+        nc_free(o->ctx, o->exit_span);
+        o->exit_span_capacity = 0;
         o->exit_valid = false;
-        o->row_live = nc_alloc(o->ctx, ny * nz);
-        if (!o->row_live)
+        o->exit_span = nc_alloc(o->ctx, 2 * ny * nz * sizeof(uint32_t));
+        if (!o->exit_span)
             return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the exitance grid");
-        o->row_live_capacity = ny * nz;
+        o->exit_span_capacity = ny * nz;
     }
     if (memcmp(o->exit_dims, o->dims, sizeof(o->dims)) != 0)
         o->exit_valid = false;
     /* Without a valid record every row is written (and the padding with it) */
     const bool known = o->exit_valid;
-    uint8_t *live = o->row_live;
+    o->exit_valid = false;
+    uint32_t *spans = o->exit_span;
     const uint8_t *solid = o->solid;
     const float h = o->h, delta = NC_DIFF_SAMPLE_DEPTH * h, A = o->robin_a, inv_1mfdr = 1.0f / (1.0f - o->fdr);
     const bool face = mode == NACRE_SOURCE_FACE;
@@ -292,19 +293,38 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
                     memset(row, 0, 4 * px * sizeof(float));
                 continue;
             }
+            /* Only the row's first to last solid cell: exitance is read at solid cells only
+             * (ghost_record, sample_field_cached), and packed is 0 elsewhere. At 128^3 these
+             * spans hold a quarter of the rows' cells. */
             const size_t u = nx * ((y - 1) + ny * (z - 1));
-            const bool any = memchr(solid + u, 1, nx) != NULL;
-            uint8_t *was = &live[(y - 1) + ny * (z - 1)];
-            if (known && !any && !*was)
-                continue;
-            *was = any;
+            const uint8_t *srow = solid + u, *first = memchr(srow, 1, nx);
+            size_t lo = 0, hi = 0;
+            if (first) {
+                lo = (size_t)(first - srow);
+                hi = nx;
+                while (!srow[hi - 1])
+                    hi--;
+            }
+            uint32_t *sp = spans + 2 * ((y - 1) + ny * (z - 1));
+            if (!known) {
+                memset(row, 0, 4 * px * sizeof(float));
+            } else {
+                /* what is left of the old range (packed x = grid x + 1) */
+                const size_t olo = sp[0], ohi = sp[1], c1 = lo < ohi ? lo : ohi, c2 = hi > olo ? hi : olo;
+                if (c1 > olo)
+                    memset(row + 4 * (olo + 1), 0, 4 * (c1 - olo) * sizeof(float));
+                if (ohi > c2)
+                    memset(row + 4 * (c2 + 1), 0, 4 * (ohi - c2) * sizeof(float));
+            }
+            sp[0] = (uint32_t)lo;
+            sp[1] = (uint32_t)hi;
             /* k phi with k = D / (delta + 2 A D): nc_diff_exitance with the distance 2 delta.
              * Outside the domain phi and D are 0 (the solver's contract), so e is 0 there
              * without a test and the loop vectorizes. */
             for (int c = 0; c < 3; c++) {
                 const float *restrict pc = phi[c] + u, *restrict dc = D[c] + u;
                 float *restrict ec = E[c] + u;
-                for (size_t x = 0; x < nx; x++) {
+                for (size_t x = lo; x < hi; x++) {
                     float e = nc_diff_exitance(pc[x], dc[x], A, 2.0f * delta);
                     ec[x] = e > 0.0f ? e : 0.0f;
                 }
@@ -313,15 +333,13 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
                  * quantity. */
                 float *q = face ? o->q[c] : NULL;
                 if (q)
-                    for (size_t x = 0; x < nx; x++)
+                    for (size_t x = lo; x < hi; x++)
                         if (solid[u + x] && q[u + x] != 0.0f) {
                             float kf = 2.0f * dc[x] / (h + 4.0f * A * dc[x]);
                             q[u + x] *= 1.0f - 4.0f * kf * inv_1mfdr;
                         }
             }
-            memset(row, 0, 4 * sizeof(float));
-            memset(row + 4 * (px - 1), 0, 4 * sizeof(float));
-            for (size_t x = 0; x < nx; x++) {
+            for (size_t x = lo; x < hi; x++) {
                 float *v = row + 4 * (x + 1);
                 v[0] = E[0][u + x];
                 v[1] = E[1][u + x];

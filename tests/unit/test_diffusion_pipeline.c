@@ -913,7 +913,7 @@ static void test_exitance_ghosts(void)
     }
     nc_free(ctx, g.o.packed);
     nc_free(ctx, g.o.packed_ghost);
-    nc_free(ctx, g.o.row_live);
+    nc_free(ctx, g.o.exit_span);
     nacre_context_destroy(ctx);
 }
 
