@@ -82,8 +82,10 @@ nacre_result nc_diff_solve(nc_diff_solver *s, int channel, const float *source, 
  * report may be NULL, else receives one report per channel. */
 nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], float *const phi[3],
                                const nc_diff_solve_opts *opts, nc_diff_solve_report report[3]);
-/* D per cell of channel c after setup (nx*ny*nz; 0 outside), for the exitance. */
-const float *nc_diff_coefficient_d(const nc_diff_solver *s, int channel);
+/* D per cell of channel c after setup (nx*ny*nz; 0 outside), for the exitance; NULL with
+ * *uniform = D when the medium is homogeneous (then no per-cell array is kept: writing it was
+ * 12 bytes per cell of the bounding box per setup, and reading it most of the exitance pass). */
+const float *nc_diff_coefficient_d(const nc_diff_solver *s, int channel, float *uniform);
 
 /* The boundary area the Robin terms use after setup: sum over exposed faces of w_f h^2 (scene
  * units squared), the surface through which light escapes. */

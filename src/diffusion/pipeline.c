@@ -310,14 +310,15 @@ static nacre_result object_solve(nc_diff_object *o, const nacre_render_settings 
         return res;
     }
     const float *D[3];
+    float d_uniform[3] = {0.0f, 0.0f, 0.0f};
     for (int c = 0; c < 3; c++) {
         o->iterations = rep[c].iterations > o->iterations ? rep[c].iterations : o->iterations;
         o->residual = rep[c].residual > o->residual ? rep[c].residual : o->residual;
-        D[c] = nc_diff_coefficient_d(o->solver, c);
+        D[c] = nc_diff_coefficient_d(o->solver, c, &d_uniform[c]);
     }
     o->phi_valid = true;
     memcpy(o->phi_dims, o->dims, sizeof(o->dims));
-    if ((res = nc_diff_compute_exitance(o, D, settings->source, threads)) != NACRE_OK)
+    if ((res = nc_diff_compute_exitance(o, D, d_uniform, settings->source, threads)) != NACRE_OK)
         return res;
     o->face_mode = settings->source == NACRE_SOURCE_FACE;
     o->lit = true;

@@ -177,9 +177,10 @@ void nc_tsm_band_free(nacre_context *ctx, nc_tsm_band *band);
 
 /* After the solve: per cell and channel, the exitance a surface NC_DIFF_SAMPLE_DEPTH cells away
  * would have (FACE mode adds the lit faces' own term, see the file), into o->exitance and
- * o->packed (padded, see nc_diff_object; grown if needed). D[c]: diffusion coefficient per cell. */
-nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3], nacre_diffusion_source mode,
-                                      int threads);
+ * o->packed (padded, see nc_diff_object; grown if needed). D[c]: diffusion coefficient per cell,
+ * or NULL for d_uniform[c] in every solid cell (nc_diff_coefficient_d). */
+nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3], const float d_uniform[3],
+                                      nacre_diffusion_source mode, int threads);
 /* The subsurface hook of the phong pass: radiance towards the viewer at a batch of pixels of a
  * translucent object, into out[channel][pixel]. user = the nc_diff_state. */
 void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_shade_batch *batch,

@@ -245,8 +245,8 @@ static void ghost_grid(const float *packed, v4f *ghost, v4f *scratch, size_t px,
 
 /* One pass over the padded grid writes both layouts: o->exitance (the fallback's) and o->packed
  * (the shading pass's corner reads). */
-nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3], nacre_diffusion_source mode,
-                                      int threads)
+nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3], const float d_uniform[3],
+                                      nacre_diffusion_source mode, int threads)
 {
     const size_t nx = o->dims[0], ny = o->dims[1], nz = o->dims[2];
     const size_t px = nx + 2, py = ny + 2, pz = nz + 2;
@@ -319,15 +319,22 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
             sp[0] = (uint32_t)lo;
             sp[1] = (uint32_t)hi;
             /* k phi with k = D / (delta + 2 A D): nc_diff_exitance with the distance 2 delta.
-             * Outside the domain phi and D are 0 (the solver's contract), so e is 0 there
-             * without a test and the loop vectorizes. */
+             * Outside the domain phi is 0 (the solver's contract) and D finite (0, or the
+             * uniform D), so e is 0 there without a test and the loop vectorizes. */
             for (int c = 0; c < 3; c++) {
-                const float *restrict pc = phi[c] + u, *restrict dc = D[c] + u;
+                const float *restrict pc = phi[c] + u, *restrict dc = D[c] ? D[c] + u : NULL;
+                const float du = dc ? 0.0f : d_uniform[c];
                 float *restrict ec = E[c] + u;
-                for (size_t x = lo; x < hi; x++) {
-                    float e = nc_diff_exitance(pc[x], dc[x], A, 2.0f * delta);
-                    ec[x] = e > 0.0f ? e : 0.0f;
-                }
+                if (dc)
+                    for (size_t x = lo; x < hi; x++) {
+                        float e = nc_diff_exitance(pc[x], dc[x], A, 2.0f * delta);
+                        ec[x] = e > 0.0f ? e : 0.0f;
+                    }
+                else
+                    for (size_t x = lo; x < hi; x++) {
+                        float e = nc_diff_exitance(pc[x], du, A, 2.0f * delta);
+                        ec[x] = e > 0.0f ? e : 0.0f;
+                    }
                 /* FACE: the lit faces' own term replaces q in place (once per solve), read at
                  * the surface (see the file). Its k uses the face distance h / 2: q is a face
                  * quantity. */
@@ -335,7 +342,7 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
                 if (q)
                     for (size_t x = lo; x < hi; x++)
                         if (solid[u + x] && q[u + x] != 0.0f) {
-                            float kf = 2.0f * dc[x] / (h + 4.0f * A * dc[x]);
+                            const float d = dc ? dc[x] : du, kf = 2.0f * d / (h + 4.0f * A * d);
                             q[u + x] *= 1.0f - 4.0f * kf * inv_1mfdr;
                         }
             }

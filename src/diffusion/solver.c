@@ -147,6 +147,7 @@ struct nc_diff_solver {
     uint32_t d_dims[3], d_off[3], d_n[3];
     bool homogeneous; /* level 0 uses the fast path */
     v4 aconst;        /* the fast path's absorption sigma_a h^3 (absorb is not written then) */
+    v4 dconst;        /* ... and its D (d_user is not written then) */
     float coarse_scale; /* the conductance scale the coarse levels were built with */
     /* The coarsest level (at most 2 cells per axis) solved exactly: the inverse of its operator
      * per channel over its solid cells (padded indices cidx), or coarse_direct false (a pivot
@@ -217,9 +218,15 @@ void nc_diff_solver_destroy(nc_diff_solver *s)
     nc_free(s->ctx, s);
 }
 
-const float *nc_diff_coefficient_d(const nc_diff_solver *s, int channel)
+const float *nc_diff_coefficient_d(const nc_diff_solver *s, int channel, float *uniform)
 {
-    return (s && channel >= 0 && channel < 3) ? s->d_user[channel] : NULL;
+    if (!s || channel < 0 || channel > 2)
+        return NULL;
+    if (s->homogeneous) {
+        *uniform = s->dconst[channel];
+        return NULL;
+    }
+    return s->d_user[channel];
 }
 
 double nc_diff_boundary_area(const nc_diff_solver *s)
@@ -417,45 +424,6 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
     const size_t sy = l->sy, sz = l->sz;
     v4 *d = l->res; /* scratch: level 0's res serves the seed scheme only, which writes it first */
     const size_t user_cells = (size_t)m->dims[0] * m->dims[1] * m->dims[2];
-    /* D in the caller's grid: pass 1 writes every cell of the new box, so only the cells of the
-     * previous box outside it need clearing (all of the grid if unknown); clearing the whole
-     * grid (12 bytes per cell) was a tenth of a setup at 128^3. */
-    const bool d_known = s->d_valid && memcmp(s->d_dims, m->dims, sizeof(s->d_dims)) == 0;
-    const uint32_t *po = d_known ? s->d_off : NULL, *pn = s->d_n;
-#pragma omp parallel for num_threads(threads) schedule(static) if (user_cells > 32768)
-    for (uint32_t z = 0; z < m->dims[2]; z++) {
-        const size_t plane = (size_t)nx * ny;
-        if (!po) {
-            for (int c = 0; c < 3; c++)
-                memset(s->d_user[c] + plane * z, 0, plane * sizeof(float));
-            continue;
-        }
-        if (z < po[2] || z >= po[2] + pn[2])
-            continue;
-        for (uint32_t y = po[1]; y < po[1] + pn[1]; y++) {
-            /* the old row [x0, x1) minus the new box's [n0, n1) when the row is in the new box */
-            size_t row = plane * z + (size_t)nx * y, x0 = po[0], x1 = (size_t)po[0] + pn[0];
-            bool inside = z >= off[2] && z < off[2] + nz && y >= off[1] && y < off[1] + cy;
-            size_t n0 = inside ? off[0] : x1, n1 = inside ? (size_t)off[0] + cx : x1;
-            n0 = n0 > x0 ? n0 : x0;
-            n1 = n1 < x1 ? n1 : x1;
-            for (int c = 0; c < 3; c++) {
-                float *du = s->d_user[c] + row;
-                if (n0 >= n1) { /* no overlap */
-                    memset(du + x0, 0, (x1 - x0) * sizeof(float));
-                    continue;
-                }
-                memset(du + x0, 0, (n0 - x0) * sizeof(float));
-                memset(du + n1, 0, (x1 - n1) * sizeof(float));
-            }
-        }
-    }
-    memcpy(s->d_dims, m->dims, sizeof(s->d_dims));
-    memcpy(s->d_off, off, sizeof(s->d_off));
-    s->d_n[0] = cx;
-    s->d_n[1] = cy;
-    s->d_n[2] = nz;
-    s->d_valid = true;
     bool homogeneous = true;
     for (int c = 0; c < 3; c++)
         homogeneous &= !m->sigma_a[c] && !m->sigma_sp[c];
@@ -475,8 +443,51 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
      * (sigma_t' = 0: no medium) would make it divide by 0; the general path gives such cells a
      * unit diagonal (finish_level). */
     const bool fast = homogeneous && dconst[0] > 0 && dconst[1] > 0 && dconst[2] > 0;
+    /* D in the caller's grid: pass 1 writes every cell of the new box, so only the cells of the
+     * previous box outside it need clearing (all of the grid if unknown); clearing the whole
+     * grid (12 bytes per cell) was a tenth of a setup at 128^3. */
+    /* The fast path keeps D as dconst (nc_diff_coefficient_d) and writes no d_user. */
+    const bool d_known = s->d_valid && memcmp(s->d_dims, m->dims, sizeof(s->d_dims)) == 0;
+    const uint32_t *po = d_known ? s->d_off : NULL, *pn = s->d_n;
+    if (!fast) {
+#pragma omp parallel for num_threads(threads) schedule(static) if (user_cells > 32768)
+        for (uint32_t z = 0; z < m->dims[2]; z++) {
+            const size_t plane = (size_t)nx * ny;
+            if (!po) {
+                for (int c = 0; c < 3; c++)
+                    memset(s->d_user[c] + plane * z, 0, plane * sizeof(float));
+                continue;
+            }
+            if (z < po[2] || z >= po[2] + pn[2])
+                continue;
+            for (uint32_t y = po[1]; y < po[1] + pn[1]; y++) {
+                /* the old row [x0, x1) minus the new box's [n0, n1) when the row is in the new box */
+                size_t row = plane * z + (size_t)nx * y, x0 = po[0], x1 = (size_t)po[0] + pn[0];
+                bool inside = z >= off[2] && z < off[2] + nz && y >= off[1] && y < off[1] + cy;
+                size_t n0 = inside ? off[0] : x1, n1 = inside ? (size_t)off[0] + cx : x1;
+                n0 = n0 > x0 ? n0 : x0;
+                n1 = n1 < x1 ? n1 : x1;
+                for (int c = 0; c < 3; c++) {
+                    float *du = s->d_user[c] + row;
+                    if (n0 >= n1) { /* no overlap */
+                        memset(du + x0, 0, (x1 - x0) * sizeof(float));
+                        continue;
+                    }
+                    memset(du + x0, 0, (n0 - x0) * sizeof(float));
+                    memset(du + n1, 0, (x1 - n1) * sizeof(float));
+                }
+            }
+        }
+    }
+    memcpy(s->d_dims, m->dims, sizeof(s->d_dims));
+    memcpy(s->d_off, off, sizeof(s->d_off));
+    s->d_n[0] = cx;
+    s->d_n[1] = cy;
+    s->d_n[2] = nz;
+    s->d_valid = !fast;
     s->aconst = aconst;
-    /* Pass 1: domain, D and absorption per cell (the fast path: domain and the caller's D). */
+    s->dconst = dconst;
+    /* Pass 1: domain, D and absorption per cell (the fast path: the domain only). */
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 1) if (l->cells > 32768)
     for (uint32_t z = 0; z < nz; z++)
         for (uint32_t y = 0; y < cy; y++) {
@@ -486,11 +497,6 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
                 uint8_t *ls = l->solid + i0;
                 for (uint32_t x = 0; x < cx; x++)
                     ls[x] = ms[x] != 0;
-                for (int c = 0; c < 3; c++) {
-                    float *du = s->d_user[c] + u0, dc = dconst[c];
-                    for (uint32_t x = 0; x < cx; x++)
-                        du[x] = ms[x] ? dc : 0.0f;
-                }
                 continue;
             }
             for (uint32_t x = 0; x < cx; x++) {

@@ -846,7 +846,7 @@ static void ghost_object(nacre_context *ctx, ghost_fixture *g, const int (*cells
         }
     }
     const float *D[3] = {g->store[6], g->store[7], g->store[8]};
-    CHECK(nc_diff_compute_exitance(o, D, NACRE_SOURCE_VOLUME, 2) == NACRE_OK);
+    CHECK(nc_diff_compute_exitance(o, D, NULL, NACRE_SOURCE_VOLUME, 2) == NACRE_OK);
 }
 
 /* Radiance at the surface points whose sample points (NC_DIFF_SAMPLE_DEPTH cells below, along -z)
