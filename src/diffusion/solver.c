@@ -112,7 +112,7 @@ struct nc_diff_solver {
     level lv[MAX_LEVELS];
     size_t capacity[MAX_LEVELS]; /* padded cells allocated per level */
     /* level 0 extras */
-    v4 *bnd;     /* boundary conductance sum per cell (escape) */
+    v4 *bnd;     /* boundary conductance sum per cell (escape); not written on the fast path (robin_bnd) */
     v4 *absorb;  /* sigma_a h^3 per cell (not written on the homogeneous fast path: aconst) */
     v4 *pr, *pz, *pp, *pq, *px; /* conjugate-gradient vectors */
     v4 *pp2;     /* the other buffer of the direction p (apply_dot_dir) */
@@ -154,6 +154,7 @@ struct nc_diff_solver {
     bool homogeneous; /* level 0 uses the fast path */
     v4 aconst;        /* the fast path's absorption sigma_a h^3 (absorb is not written then) */
     v4 dconst;        /* ... and its D (d_user is not written then) */
+    v4 bden;          /* ... and h + 4 A D, for its Robin terms (robin_bnd; bnd is not written then) */
     float coarse_scale; /* the conductance scale the coarse levels were built with */
     /* The coarsest level (at most 2 cells per axis) solved exactly: the inverse of its operator
      * per channel over its solid cells (padded indices cidx), or coarse_direct false (a pivot
@@ -419,6 +420,18 @@ static float boundary_weight(const level *l, size_t i, const int open_axes[3], b
 }
 
 static nacre_result level_spans(nc_diff_solver *s, uint32_t li, int threads);
+/* The Robin conductance of a cell with boundary weight w, D dv and den = h + 4 A dv per channel:
+ * w h^2 2 D / (h + 4 A D). The fast path stores no per-cell copy (bnd): its readers (the coarse
+ * level's diagonal, the energy sums) form it from bw with these same operations. */
+static inline v4 robin_bnd(float w, v4 dv, v4 den, float h)
+{
+    v4 bv = {0.0f, 0.0f, 0.0f, 0.0f};
+    if (w > 0)
+        for (int c = 0; c < 3; c++)
+            bv[c] = w * h * h * 2.0f * dv[c] / den[c];
+    return bv;
+}
+
 static inline void row_span(const level *l, uint32_t y, uint32_t z, size_t *a, size_t *e);
 
 /* Level 0 from the medium; also finds its row spans (level_spans). */
@@ -495,6 +508,9 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
     s->d_valid = !fast;
     s->aconst = aconst;
     s->dconst = dconst;
+    for (int c = 0; c < 3; c++)
+        s->bden[c] = h + 4.0f * A * dconst[c];
+    s->bden[3] = 1.0f;
     /* Pass 1: domain, D and absorption per cell (the fast path: the domain only). */
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 1) if (l->cells > 32768)
     for (uint32_t z = 0; z < nz; z++)
@@ -625,27 +641,28 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
             size_t a, e;
             row_span(l, (uint32_t)y, (uint32_t)z, &a, &e);
             for (size_t i = a; i < e; i++) {
-                if (!l->solid[i]) {
-                    s->bnd[i] = V4_ZERO;
-                    if (fast)
-                        l->k[i] = 7;
+                if (fast) {
+                    int k = 7;
+                    if (l->solid[i]) {
+                        k = 0;
+                        for (int ax = 0; ax < 3; ax++)
+                            if (open_axes[ax])
+                                k += l->solid[i - st[ax]] + l->solid[i + st[ax]];
+                    }
+                    l->k[i] = (uint8_t)k;
                     continue;
                 }
-                if (fast) {
-                    int k = 0;
-                    for (int ax = 0; ax < 3; ax++)
-                        if (open_axes[ax])
-                            k += l->solid[i - st[ax]] + l->solid[i + st[ax]];
-                    l->k[i] = (uint8_t)k;
+                if (!l->solid[i]) {
+                    s->bnd[i] = V4_ZERO;
+                    continue;
                 }
-                float w = l->bw[i];
-                v4 dv = fast ? dconst : d[i], bv = V4_ZERO;
-                if (w > 0)
-                    for (int c = 0; c < 3; c++)
-                        bv[c] = w * h * h * 2.0f * dv[c] / (h + 4.0f * A * dv[c]);
+                const v4 dv = d[i];
+                v4 den = V4_ZERO;
+                for (int c = 0; c < 3; c++)
+                    den[c] = h + 4.0f * A * dv[c];
+                const v4 bv = robin_bnd(l->bw[i], dv, den, h);
                 s->bnd[i] = bv;
-                if (!fast)
-                    l->diag[i] = bv + s->absorb[i];
+                l->diag[i] = bv + s->absorb[i];
             }
         }
     if (!fast)
@@ -725,8 +742,8 @@ static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
     /* r is 1 or 2 per axis: coarse index = fine index >> (r - 1) (a division by the run-time r
      * per cell and axis was most of this loop's time) */
     const uint32_t shx = l->r[0] - 1, shy = l->r[1] - 1;
-    const v4 aconst = s->aconst;
-    const v4 *bnd = s->bnd;
+    const v4 aconst = s->aconst, dconst = s->dconst, bden = s->bden;
+    const float *bw = f->bw, h = s->h;
 #pragma omp parallel for num_threads(threads) schedule(dynamic, 1) if (f->cells > 32768)
     for (uint32_t Z = 0; Z < l->n[2]; Z++) {
         for (uint32_t z = Z * l->r[2]; z < (Z + 1) * l->r[2] && z < f->n[2]; z++)
@@ -748,7 +765,7 @@ static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
                     /* diag minus the six conductances = boundary + absorption of the fine cell */
                     v4 nonc;
                     if (hom) {
-                        nonc = bnd[i] + aconst;
+                        nonc = robin_bnd(bw[i], dconst, bden, h) + aconst;
                     } else {
                         nonc = f->diag[i];
                         for (int a = 0; a < 3; a++)
@@ -1896,7 +1913,7 @@ nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], 
                     v4d xi = widen(x[i]);
                     si += widen(b[i]);
                     sa += widen(s->homogeneous ? s->aconst : s->absorb[i]) * xi;
-                    se += widen(s->bnd[i]) * xi;
+                    se += widen(s->homogeneous ? robin_bnd(l->bw[i], s->dconst, s->bden, s->h) : s->bnd[i]) * xi;
                 }
             }
             part[z] = si;
