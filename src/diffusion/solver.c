@@ -703,9 +703,9 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
  * axis (COARSE_G_SCALE for multigrid, SEED_G_SCALE for the seed's cascade). Parallel over coarse
  * z slabs, each gathering its own fine children. Leaves solid, diag and g zero outside the new
  * domain; the caller finds the spans and finishes the diagonal (build_coarse_levels). Only the
- * previous build's spans are cleared when they are known (op_clean): at 128^3 the whole of level
- * 1's operator is 65 bytes times four to five times as many cells as its spans hold, and clearing
- * and finishing all of it was most of the coarse levels' setup. */
+ * previous build's spans are cleared when they are known (op_clean): at 128^3 level 1's padded
+ * box has four times as many cells as its spans (Suzanne: 130k against 31k, 65 bytes each), which
+ * saved about 0.3 ms per setup; the shifts below saved another 0.7 ms. */
 static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
 {
     level *f = &s->lv[li - 1], *l = &s->lv[li];
