@@ -52,6 +52,18 @@ static inline bool nc_mul_size_ok(size_t a, size_t b, size_t *out)
     return true;
 }
 
+/* What a row's new range [b0, b1) leaves of its old range [a0, a1): [r[0], r[1]) left of the new
+ * range and [r[2], r[3]) right of it, either possibly empty (end <= start; an empty new range
+ * leaves all of the old one). The passes that keep their last output and rewrite only what
+ * changed (the shading pass's background, the solver's zeros, the exitance grid) clear these. */
+static inline void nc_range_minus(int64_t a0, int64_t a1, int64_t b0, int64_t b1, int64_t r[4])
+{
+    r[0] = a0;
+    r[1] = b0 < a1 ? b0 : a1;
+    r[2] = b1 > a0 ? b1 : a0;
+    r[3] = a1;
+}
+
 /* Monotonic clock in microseconds. */
 uint64_t nc_now_us(void);
 

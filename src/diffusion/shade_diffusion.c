@@ -310,11 +310,11 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
                 memset(row, 0, 4 * px * sizeof(float));
             } else {
                 /* what is left of the old range (packed x = grid x + 1) */
-                const size_t olo = sp[0], ohi = sp[1], c1 = lo < ohi ? lo : ohi, c2 = hi > olo ? hi : olo;
-                if (c1 > olo)
-                    memset(row + 4 * (olo + 1), 0, 4 * (c1 - olo) * sizeof(float));
-                if (ohi > c2)
-                    memset(row + 4 * (c2 + 1), 0, 4 * (ohi - c2) * sizeof(float));
+                int64_t r[4];
+                nc_range_minus(sp[0], sp[1], (int64_t)lo, (int64_t)hi, r);
+                for (int k = 0; k < 4; k += 2)
+                    if (r[k + 1] > r[k])
+                        memset(row + 4 * (r[k] + 1), 0, 4 * (size_t)(r[k + 1] - r[k]) * sizeof(float));
             }
             sp[0] = (uint32_t)lo;
             sp[1] = (uint32_t)hi;

@@ -336,6 +336,8 @@ static void zero_padding(const level *l, v4 *a)
     }
 }
 
+static inline void row_span(const level *l, uint32_t y, uint32_t z, size_t *a, size_t *e);
+
 /* diag (holding boundary + absorption on entry) += the six face conductances. Gathered per cell
  * (its own +faces and its neighbours' -faces), so z slabs run in parallel. Lanes that would be
  * 0 (the unused fourth lane, a channel without medium: sigma_t' = 0 decouples the cell) get 1,
@@ -358,7 +360,7 @@ static inline void finish_cell(level *l, size_t i)
  * kernels read the diagonal nowhere else. */
 static void finish_level(level *l, bool spans, int threads)
 {
-    const size_t sz = l->sz, nz = l->n[2] + 2, ry = (size_t)l->n[1] + 2;
+    const size_t sz = l->sz, nz = l->n[2] + 2;
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
     for (size_t z = 0; z < nz; z++) {
         if (!spans) {
@@ -366,9 +368,12 @@ static void finish_level(level *l, bool spans, int threads)
                 finish_cell(l, i);
             continue;
         }
-        for (size_t y = 0; y < ry; y++) {
-            const size_t r = y + ry * z, row = y * l->sy + z * sz;
-            for (size_t i = row + l->ext[2 * r]; i < row + l->ext[2 * r + 1]; i++)
+        if (z == 0 || z == nz - 1) /* padding planes: no spans */
+            continue;
+        for (uint32_t y = 1; y <= l->n[1]; y++) {
+            size_t a, e;
+            row_span(l, y, (uint32_t)z, &a, &e);
+            for (size_t i = a; i < e; i++)
                 finish_cell(l, i);
         }
     }
@@ -432,8 +437,6 @@ static inline v4 robin_bnd(float w, v4 dv, v4 den, float h)
     return bv;
 }
 
-static inline void row_span(const level *l, uint32_t y, uint32_t z, size_t *a, size_t *e);
-
 /* Level 0 from the medium; also finds its row spans (level_spans). */
 static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int threads)
 {
@@ -464,10 +467,10 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
      * (sigma_t' = 0: no medium) would make it divide by 0; the general path gives such cells a
      * unit diagonal (finish_level). */
     const bool fast = homogeneous && dconst[0] > 0 && dconst[1] > 0 && dconst[2] > 0;
-    /* D in the caller's grid: pass 1 writes every cell of the new box, so only the cells of the
+    /* D in the caller's grid (not on the fast path, which keeps D as dconst: see
+     * nc_diff_coefficient_d): pass 1 writes every cell of the new box, so only the cells of the
      * previous box outside it need clearing (all of the grid if unknown); clearing the whole
      * grid (12 bytes per cell) was a tenth of a setup at 128^3. */
-    /* The fast path keeps D as dconst (nc_diff_coefficient_d) and writes no d_user. */
     const bool d_known = s->d_valid && memcmp(s->d_dims, m->dims, sizeof(s->d_dims)) == 0;
     const uint32_t *po = d_known ? s->d_off : NULL, *pn = s->d_n;
     if (!fast) {
@@ -1960,25 +1963,19 @@ nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], 
             }
             /* the zeros: [0, lo) and [hi, nx), or of those only what the last output wrote */
             uint32_t *os = ospan + 2 * (yu + (size_t)ny * zu);
-            size_t z0 = 0, z1 = lo, z2 = hi, z3 = nx;
-            if (same) {
-                z0 = os[0];
-                z3 = os[1];
-                z1 = z1 < z3 ? z1 : z3;
-                z2 = z2 > z0 ? z2 : z0;
-            }
+            int64_t zr[4];
+            nc_range_minus(same ? os[0] : 0, same ? os[1] : nx, (int64_t)lo, (int64_t)hi, zr);
             os[0] = (uint32_t)lo;
             os[1] = (uint32_t)hi;
             for (int c = 0; c < 3; c++) {
                 float *out = phi[c];
                 if (!out)
                     continue;
-                if (z1 > z0)
-                    memset(out + u0 + z0, 0, (z1 - z0) * sizeof(float));
+                for (int k = 0; k < 4; k += 2)
+                    if (zr[k + 1] > zr[k])
+                        memset(out + u0 + zr[k], 0, (size_t)(zr[k + 1] - zr[k]) * sizeof(float));
                 for (size_t i = a; i < e; i++)
                     out[u0 + lo + (i - a)] = x[i][c];
-                if (z3 > z2)
-                    memset(out + u0 + z2, 0, (z3 - z2) * sizeof(float));
             }
         }
     s->out_valid = true;

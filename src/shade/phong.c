@@ -378,17 +378,18 @@ static void shade_row(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
         end = gb->row_span[2 * y + 1];
         x = x < 0 ? 0 : x > w ? w : x;
         end = end < x ? x : end > w ? w : end;
-        /* Outside the previous frame's span too, the pixels hold the environment already */
+        /* The row outside its object span; outside the previous frame's span too, the pixels
+         * hold the environment already */
         int32_t lo = 0, hi = w;
         if (prev_span) {
             lo = prev_span[2 * y] < 0 ? 0 : prev_span[2 * y];
             hi = prev_span[2 * y + 1] > w ? w : prev_span[2 * y + 1];
         }
-        int32_t e0 = x < hi ? x : hi, s1 = end > lo ? end : lo;
-        if (e0 > lo)
-            fill_env(row + 3 * (size_t)lo, e0 - lo, scene->environment);
-        if (hi > s1)
-            fill_env(row + 3 * (size_t)s1, hi - s1, scene->environment);
+        int64_t r[4];
+        nc_range_minus(lo, hi, x, end, r);
+        for (int k = 0; k < 4; k += 2)
+            if (r[k + 1] > r[k])
+                fill_env(row + 3 * (size_t)r[k], (int32_t)(r[k + 1] - r[k]), scene->environment);
     }
     while (x < end) {
         int32_t x0 = x;
