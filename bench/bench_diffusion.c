@@ -9,8 +9,9 @@
  * frame rotates the object by 0.01 degree and commits, so every stage runs again as for a
  * deforming mesh (the seed re-voxelizes every frame). The seed's total covers voxelize, shadow
  * maps (PLV), inject, propagate and the diffusion shading pass, not the G-buffer: our `total`
- * is the same sum, and `raster` (visibility + G-buffer) is reported beside it. Commit (vertex
- * transform) is not in either.
+ * is the same sum. Reported beside it and not in it: `raster` (visibility + G-buffer), `shadow`
+ * (the lights' mesh shadow maps, which the shading pass reads to shadow the specular term; the
+ * seed's tables list no such stage; re-rendered every frame here because the object moves) and `frame` (the whole render call, every stage). Commit (vertex transform) is in none.
  *
  * Frames render into the same image with reuse_output, as a viewer does: background pixels that
  * were background in the previous frame are not rewritten (a GPU clears its frame buffer at
@@ -42,7 +43,7 @@ static const struct {
 };
 static const uint32_t resolutions[] = {4, 12, 28, 64, 128};
 
-enum { COL_VOX, COL_TSM, COL_INJ, COL_PROP, COL_SHADE, COL_TOTAL, COL_RASTER, COL_COUNT };
+enum { COL_VOX, COL_TSM, COL_INJ, COL_PROP, COL_SHADE, COL_TOTAL, COL_RASTER, COL_SHADOW, COL_FRAME, COL_COUNT };
 
 /* Build the scene for one mesh: scaled to 50 mm, jade, a sun from the upper right. */
 static nacre_result make_scene(nacre_context *ctx, const nacre_mesh_data *mesh, nacre_scene **out, nacre_object *obj,
@@ -134,6 +135,8 @@ static int run_case(nacre_context *ctx, nacre_renderer *renderer, nacre_scene *s
         v[COL_SHADE] = (double)st.stage_us[NACRE_STAGE_SHADE];
         v[COL_TOTAL] = v[COL_VOX] + v[COL_TSM] + v[COL_INJ] + v[COL_PROP] + v[COL_SHADE];
         v[COL_RASTER] = (double)(st.stage_us[NACRE_STAGE_RASTER] + st.stage_us[NACRE_STAGE_GBUFFER]);
+        v[COL_SHADOW] = (double)st.stage_us[NACRE_STAGE_SHADOW];
+        v[COL_FRAME] = (double)st.total_us;
         for (int c = 0; c < COL_COUNT; c++)
             samples[c * runs + run] = v[c];
     }
@@ -151,18 +154,20 @@ static void print_row(bool json, const char *file, uint32_t tris, uint32_t res_n
     if (json) {
         printf("{\"bench\":\"diffusion\",\"mesh\":\"%s\",\"triangles\":%u,\"res\":%u,\"width\":%d,\"height\":%d,"
                "\"voxel_dims\":[%u,%u,%u],\"voxelize_us\":%.0f,\"tsm_us\":%.0f,\"inject_us\":%.0f,\"propagate_us\":%.0f,"
-               "\"shade_us\":%.0f,\"total_us\":%.0f,\"fps\":%.1f,\"raster_us\":%.0f,\"iterations\":%u,"
-               "\"reuse_output\":%s",
+               "\"shade_us\":%.0f,\"total_us\":%.0f,\"fps\":%.1f,\"raster_us\":%.0f,\"shadow_us\":%.0f,"
+               "\"frame_us\":%.0f,\"iterations\":%u,\"reuse_output\":%s",
                file, tris, res_n, w, h, dims[0], dims[1], dims[2], m[COL_VOX], m[COL_TSM], m[COL_INJ], m[COL_PROP],
-               m[COL_SHADE], m[COL_TOTAL], fps, m[COL_RASTER], iterations, repaint ? "false" : "true");
+               m[COL_SHADE], m[COL_TOTAL], fps, m[COL_RASTER], m[COL_SHADOW], m[COL_FRAME], iterations,
+               repaint ? "false" : "true");
         if (seed)
             printf(",\"seed_voxelize_us\":%.0f,\"seed_tsm_us\":%.0f,\"seed_inject_us\":%.0f,\"seed_propagate_us\":%.0f,"
                    "\"seed_shade_us\":%.0f,\"seed_total_us\":%.0f,\"seed_fps\":%.0f",
                    seed[0], seed[1], seed[2], seed[3], seed[4], seed[5], seed[6]);
         printf("}\n");
     } else {
-        printf("%-20s %5u %4dx%-4d %8.0f %7.0f %7.0f %9.0f %7.0f %8.0f %6.1f %8.0f %5u", file, res_n, w, h, m[COL_VOX],
-               m[COL_TSM], m[COL_INJ], m[COL_PROP], m[COL_SHADE], m[COL_TOTAL], fps, m[COL_RASTER], iterations);
+        printf("%-20s %5u %4dx%-4d %8.0f %7.0f %7.0f %9.0f %7.0f %8.0f %6.1f %8.0f %7.0f %7.0f %5u", file, res_n, w, h,
+               m[COL_VOX], m[COL_TSM], m[COL_INJ], m[COL_PROP], m[COL_SHADE], m[COL_TOTAL], fps, m[COL_RASTER],
+               m[COL_SHADOW], m[COL_FRAME], iterations);
         if (seed)
             printf("  | %6.0f %5.0f %5.0f %6.0f %4.0f %6.0f %4.0f", seed[0], seed[1], seed[2], seed[3], seed[4], seed[5],
                    seed[6]);
@@ -188,12 +193,13 @@ int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filt
         goto out;
     if (!json)
         printf("diffusion pipeline (us), %d threads, median of %d runs; total = voxelize+tsm+inject+propagate+shade "
-               "(the seed's), raster = G-buffer beside it; %s\n"
-               "%-20s %5s %9s %8s %7s %7s %9s %7s %8s %6s %8s %5s  | seed GTX 470 (tables 5.1-5.3): vox PLV inj prop "
-               "rend total fps\n",
+               "(the seed's); beside it, not in it: raster = camera G-buffer, shadow = the lights' shadow maps (the "
+               "specular term's shadows), frame = the whole render call; %s\n"
+               "%-20s %5s %9s %8s %7s %7s %9s %7s %8s %6s %8s %7s %7s %5s  | seed GTX 470 (tables 5.1-5.3): vox PLV inj "
+               "prop rend total fps\n",
                nacre_context_threads(ctx), runs,
                repaint ? "every pixel written every frame" : "frames reuse the previous frame's background", "mesh", "res", "image", "voxelize", "tsm", "inject", "propagate",
-               "shade", "total", "fps", "raster", "iter");
+               "shade", "total", "fps", "raster", "shadow", "frame", "iter");
     for (size_t mi = 0; mi < sizeof(meshes) / sizeof(meshes[0]); mi++) {
         char path[4096];
         if (!nc_bench_filter_mesh(filter, meshes[mi].file))
