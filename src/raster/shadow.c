@@ -607,7 +607,8 @@ void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, co
         float U[CHUNK], VV[CHUNK], D[CHUNK], PD[CHUNK], INZ[CHUNK], BW[CHUNK];
         float PVX[CHUNK], PVY[CHUNK], PVZ[CHUNK], NVX[CHUNK], NVY[CHUNK], NVZ[CHUNK];
         float CI[CHUNK], CJ[CHUNK];
-        int32_t ok[CHUNK], fast[CHUNK];
+        int32_t ok[CHUNK], fast[CHUNK], I0[CHUNK], J0[CHUNK];
+        float R0[CHUNK];
         for (uint32_t k = 0; k < cn; k++) {
             const uint32_t i = c0 + k;
             const float x = px[i], y = py[i], z = pz[i];
@@ -654,6 +655,31 @@ void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, co
             NVY[k] = dy;
             NVZ[k] = dz;
         }
+        /* The fast points' 4x4 window (pcf_window4x4_affine): its first texel (i0, j0) and the
+         * receiver's depth there as pcf_tap_lit computes it, less the bias; fast[k] is cleared
+         * where the window is not 4x4. Eight points at a time: fast points have u, vv >= rad, so
+         * truncation is floor, and the other lanes compute on zeros (no garbage, no denormals). */
+        for (uint32_t k = 0; k < cn; k += 8) {
+            const nc_v8f zero = {0};
+            const nc_v8i m = nc_v8_first(cn - k) & (nc_v8i_load(fast + k) != 0);
+            const nc_v8f u = nc_v8_sel(m, nc_v8_load(U + k), zero), vv = nc_v8_sel(m, nc_v8_load(VV + k), zero);
+            const nc_v8i i0 = __builtin_convertvector(nc_v8_sel(m, u - rad, zero), nc_v8i),
+                         j0 = __builtin_convertvector(nc_v8_sel(m, vv - rad, zero), nc_v8i),
+                         i1 = __builtin_convertvector(nc_v8_sel(m, u + rad, zero), nc_v8i),
+                         j1 = __builtin_convertvector(nc_v8_sel(m, vv + rad, zero), nc_v8i);
+            nc_v8i_store(fast + k, m & (i1 - i0 == 3) & (j1 - j0 == 3));
+            nc_v8i_store(I0 + k, i0);
+            nc_v8i_store(J0 + k, j0);
+            const nc_v8f tx = (__builtin_convertvector(i0, nc_v8f) + 0.5f) * base.inv_size - 1.0f;
+            const nc_v8f ty = 1.0f - (__builtin_convertvector(j0, nc_v8f) + 0.5f) * base.inv_size;
+            const nc_v8f col_r = nc_v8_sel(m, nc_v8_load(NVX + k), zero) *
+                                 ((tx - base.m03) * base.inv_m00 - nc_v8_sel(m, nc_v8_load(PVX + k), zero));
+            const nc_v8f row_r = nc_v8_sel(m, nc_v8_load(NVY + k), zero) *
+                                 ((ty - base.m13) * base.inv_m11 - nc_v8_sel(m, nc_v8_load(PVY + k), zero));
+            nc_v8_store(R0 + k, nc_v8_sel(m, nc_v8_load(D + k), zero) +
+                                    (col_r + row_r) * nc_v8_sel(m, nc_v8_load(INZ + k), zero) -
+                                    nc_v8_sel(m, nc_v8_load(BW + k), zero));
+        }
         for (uint32_t k = 0; k < cn && k < PREFETCH_AHEAD; k++)
             prefetch_window(base.map, size, rad, U[k], VV[k]);
         for (uint32_t k = 0; k < cn; k++) {
@@ -664,19 +690,9 @@ void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, co
                 continue;
             }
             if (fast[k]) {
-                const float u = U[k], vv = VV[k];
-                const int i0 = (int)floorf(u - rad), j0 = (int)floorf(vv - rad);
-                if ((int)floorf(u + rad) - i0 == 3 && (int)floorf(vv + rad) - j0 == 3) {
-                    /* The receiver's depth at texel (i0, j0) as pcf_tap_lit computes it, less the bias */
-                    const float tx = ((float)i0 + 0.5f) * base.inv_size - 1.0f;
-                    const float ty = 1.0f - ((float)j0 + 0.5f) * base.inv_size;
-                    const float col_r = NVX[k] * ((tx - base.m03) * base.inv_m00 - PVX[k]);
-                    const float row_r = NVY[k] * ((ty - base.m13) * base.inv_m11 - PVY[k]);
-                    const float r0 = D[k] + (col_r + row_r) * INZ[k] - BW[k];
-                    out[c0 + k] = pcf_window4x4_affine(base.map, size, i0, j0, u, vv, rad, r0, CI[k], CJ[k], base.m23,
-                                                       base.inv_m22);
-                    continue;
-                }
+                out[c0 + k] = pcf_window4x4_affine(base.map, size, I0[k], J0[k], U[k], VV[k], rad, R0[k], CI[k], CJ[k],
+                                                   base.m23, base.inv_m22);
+                continue;
             }
             f.u = U[k];
             f.vv = VV[k];
