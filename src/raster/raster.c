@@ -841,6 +841,19 @@ static void fill_span(const frame *f, size_t row, int lo, int hi, float zrow, fl
             _mm256_storeu_si256((__m256i *)(ir + i), nid);
         }
     }
+    if (i <= hi) { /* the last 1..7 pixels, masked: the same expression */
+        const __m256i m = _mm256_cmpgt_epi32(_mm256_set1_epi32(hi - i + 1), lane);
+        __m256i xi = _mm256_add_epi32(_mm256_set1_epi32(i), lane);
+        __m256i xs = _mm256_add_epi32(_mm256_slli_epi32(xi, SUB_BITS), _mm256_set1_epi32(cx));
+        __m256 fx = _mm256_mul_ps(_mm256_cvtepi32_ps(xs), vinv);
+        __m256 z = _mm256_add_ps(vzr, _mm256_mul_ps(va, fx));
+        __m256 old = _mm256_maskload_ps(dr + i, m);
+        __m256i closer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(z, old, _CMP_LT_OQ)), m);
+        _mm256_maskstore_ps(dr + i, closer, z);
+        if (ir)
+            _mm256_maskstore_epi32((int *)(ir + i), closer, vid);
+        return;
+    }
 #endif
     for (; i <= hi; i++) {
         float fx = (float)(i * SUB_ONE + cx) * inv;
