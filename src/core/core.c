@@ -2,8 +2,10 @@
  * core.c: context lifetime, the error message slot, allocation hooks, result and version names.
  * No global mutable state: everything lives in the nacre_context.
  */
+#define _DEFAULT_SOURCE 1 /* madvise's MADV_HUGEPAGE (glibc); the build asks for POSIX 2008 only */
 #include "core/core.h"
 
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -16,10 +18,32 @@
 #define NACRE_VERSION_STRING "0.1.0"
 #endif
 
+#if defined(__linux__)
+#include <sys/mman.h>
+#endif
+
+/* Blocks of at least this size are frame-sized buffers (G-buffer planes, shadow maps, images,
+ * voxel grids) that the passes sweep every frame: the default allocator asks Linux to back them
+ * with 2 MB pages. With 4 KB pages these sweeps miss the TLB on every page, and on a virtual
+ * machine each miss is a two-level page walk: the huge pages took the shading pass, the shadow
+ * map, the G-buffer and the visibility pass of Suzanne's bench frame 4-9% faster. A caller's own
+ * allocator is left alone. */
+#define HUGE_PAGE_MIN (4u << 20)
+
 static void *default_alloc(size_t size, void *user)
 {
     (void)user;
-    return malloc(size);
+    void *p = malloc(size);
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+    if (p && size >= HUGE_PAGE_MIN) {
+        /* The whole 2 MB pages inside the block; only advice, so a refusal changes nothing */
+        const uintptr_t page = (uintptr_t)2 << 20;
+        const uintptr_t lo = ((uintptr_t)p + page - 1) & ~(page - 1), hi = ((uintptr_t)p + size) & ~(page - 1);
+        if (hi > lo)
+            (void)madvise((void *)lo, (size_t)(hi - lo), MADV_HUGEPAGE);
+    }
+#endif
+    return p;
 }
 
 static void default_free(void *ptr, void *user)
