@@ -13,6 +13,7 @@
 #include <pthread.h>
 #include <stdarg.h>
 #include <stdint.h>
+#include <string.h>
 
 #define NC_ERROR_MAX 1024
 
@@ -62,6 +63,44 @@ static inline void nc_range_minus(int64_t a0, int64_t a1, int64_t b0, int64_t b1
     r[1] = b0 < a1 ? b0 : a1;
     r[2] = b1 > a0 ? b1 : a0;
     r[3] = a1;
+}
+
+/* The first (last) nonzero byte of p[0, n), n if none: 8 bytes at a time on little-endian
+ * machines. For the extent of a row of solid flags: the diffusion solver's bounding box and row
+ * spans and the exitance pass scan every row of the grid, most of them empty (a byte at a time,
+ * the bounding box alone took 0.6-1 ms per setup at 128^3). */
+static inline size_t nc_first_nonzero(const uint8_t *p, size_t n)
+{
+    size_t i = 0;
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+    for (; i + 8 <= n; i += 8) {
+        uint64_t w;
+        memcpy(&w, p + i, 8);
+        if (w)
+            return i + (size_t)__builtin_ctzll(w) / 8;
+    }
+#endif
+    for (; i < n; i++)
+        if (p[i])
+            return i;
+    return n;
+}
+
+static inline size_t nc_last_nonzero(const uint8_t *p, size_t n)
+{
+    size_t i = n;
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+    for (; i >= 8; i -= 8) {
+        uint64_t w;
+        memcpy(&w, p + i - 8, 8);
+        if (w)
+            return i - 1 - (size_t)__builtin_clzll(w) / 8;
+    }
+#endif
+    while (i > 0)
+        if (p[--i])
+            return i;
+    return n;
 }
 
 /* Monotonic clock in microseconds. */

@@ -297,14 +297,11 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
              * (ghost_record, sample_field_cached), and packed is 0 elsewhere. At 128^3 these
              * spans hold a quarter of the rows' cells. */
             const size_t u = nx * ((y - 1) + ny * (z - 1));
-            const uint8_t *srow = solid + u, *first = memchr(srow, 1, nx);
-            size_t lo = 0, hi = 0;
-            if (first) {
-                lo = (size_t)(first - srow);
-                hi = nx;
-                while (!srow[hi - 1])
-                    hi--;
-            }
+            size_t lo = nc_first_nonzero(solid + u, nx), hi = lo;
+            if (lo < nx)
+                hi = nc_last_nonzero(solid + u, nx) + 1;
+            else
+                lo = hi = 0;
             uint32_t *sp = spans + 2 * ((y - 1) + ny * (z - 1));
             if (!known) {
                 memset(row, 0, 4 * px * sizeof(float));

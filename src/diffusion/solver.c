@@ -786,43 +786,6 @@ static void build_coarse(nc_diff_solver *s, int li, float scale, int threads)
     }
 }
 
-/* The first (last) nonzero byte of p[0, n), n if none: 8 bytes at a time on little-endian
- * machines. The domain's bounding box and row spans scan every row of the grid, most of them
- * empty (a byte at a time, the bounding box alone took 0.6-1 ms per setup at 128^3). */
-static size_t first_nonzero(const uint8_t *p, size_t n)
-{
-    size_t i = 0;
-#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-    for (; i + 8 <= n; i += 8) {
-        uint64_t w;
-        memcpy(&w, p + i, 8);
-        if (w)
-            return i + (size_t)__builtin_ctzll(w) / 8;
-    }
-#endif
-    for (; i < n; i++)
-        if (p[i])
-            return i;
-    return n;
-}
-
-static size_t last_nonzero(const uint8_t *p, size_t n)
-{
-    size_t i = n;
-#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-    for (; i >= 8; i -= 8) {
-        uint64_t w;
-        memcpy(&w, p + i - 8, 8);
-        if (w)
-            return i - 1 - (size_t)__builtin_clzll(w) / 8;
-    }
-#endif
-    while (i > 0)
-        if (p[--i])
-            return i;
-    return n;
-}
-
 /* The active span of each row of level li (level.ext), from its solid cells; the previous
  * setup's spans move to span_old. */
 static nacre_result level_spans(nc_diff_solver *s, uint32_t li, int threads)
@@ -849,10 +812,10 @@ static nacre_result level_spans(nc_diff_solver *s, uint32_t li, int threads)
             uint32_t lo = 1, hi = 1;
             if (z >= 1 && z <= nz && y >= 1 && y <= ny) {
                 const uint8_t *row = l->solid + l->sy * y + l->sz * z + 1; /* interior x = 1..nx */
-                const size_t first = first_nonzero(row, nx);
+                const size_t first = nc_first_nonzero(row, nx);
                 if (first < nx) {
                     lo = (uint32_t)first + 1;
-                    hi = (uint32_t)last_nonzero(row, nx) + 2;
+                    hi = (uint32_t)nc_last_nonzero(row, nx) + 2;
                 }
             }
             e[2 * (y + ry * z)] = lo;
@@ -1016,10 +979,10 @@ nacre_result nc_diff_setup(nc_diff_solver *s, const nc_diff_medium *m)
     for (uint32_t z = 0; z < m->dims[2]; z++)
         for (uint32_t y = 0; y < m->dims[1]; y++) {
             const uint8_t *row = m->solid + (size_t)dx * (y + (size_t)m->dims[1] * z);
-            const uint32_t first = (uint32_t)first_nonzero(row, dx);
+            const uint32_t first = (uint32_t)nc_first_nonzero(row, dx);
             if (first == dx)
                 continue;
-            const uint32_t last = (uint32_t)last_nonzero(row, dx);
+            const uint32_t last = (uint32_t)nc_last_nonzero(row, dx);
             lo0 = first < lo0 ? first : lo0;
             hi0 = last > hi0 ? last : hi0;
             lo1 = y < lo1 ? y : lo1;
