@@ -100,6 +100,33 @@ static inline nc_v8f nc_v8_sqrt(nc_v8f x)
 #endif
 }
 
+/* 8 consecutive triples (x0 y0 z0 x1 ... z7, 24 words in a, b, c) as three 8-lane vectors x, y,
+ * z (bit patterns: int32 or float words). With AVX2, two blends and one lane permutation each. */
+static inline void nc_v8_deinterleave3(nc_v8i a, nc_v8i b, nc_v8i c, nc_v8i *x, nc_v8i *y, nc_v8i *z)
+{
+#ifdef __AVX2__
+    const __m256i va = (__m256i)a, vb = (__m256i)b, vc = (__m256i)c;
+    /* x_k sits in a at lanes 0 3 6, in b at 1 4 7, in c at 2 5 (y and z likewise, shifted) */
+    *x = (nc_v8i)_mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(va, vb, 0x92), vc, 0x24),
+                                             _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5));
+    *y = (nc_v8i)_mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(va, vb, 0x24), vc, 0x49),
+                                             _mm256_setr_epi32(1, 4, 7, 2, 5, 0, 3, 6));
+    *z = (nc_v8i)_mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(va, vb, 0x49), vc, 0x92),
+                                             _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7));
+#else
+    int32_t w[24], t[3][8];
+    memcpy(w, &a, 32);
+    memcpy(w + 8, &b, 32);
+    memcpy(w + 16, &c, 32);
+    for (int k = 0; k < 8; k++)
+        for (int q = 0; q < 3; q++)
+            t[q][k] = w[3 * k + q];
+    *x = nc_v8i_load(t[0]);
+    *y = nc_v8i_load(t[1]);
+    *z = nc_v8i_load(t[2]);
+#endif
+}
+
 /* The sum of the 8 lanes, in a fixed order: ((0 + 4) + (1 + 5)) + ((2 + 6) + (3 + 7)) */
 static inline float nc_v8_sum(nc_v8f x) { return ((x[0] + x[4]) + (x[1] + x[5])) + ((x[2] + x[6]) + (x[3] + x[7])); }
 

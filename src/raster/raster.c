@@ -25,6 +25,7 @@
  * a pixel's depth does not depend on tiling. Front faces are counter-clockwise in NDC (y up).
  */
 #include "raster/raster.h"
+#include "core/simd.h"
 
 #include <string.h>
 #if defined(__SSE2__) || defined(__AVX__)
@@ -623,16 +624,9 @@ static inline unsigned filter8(const frame *f, const mesh_span *ms, uint64_t t)
     const __m256i *ib = (const __m256i *)(ms->idx + 3 * t);
     __m256i v0 = _mm256_loadu_si256(ib), v1 = _mm256_loadu_si256(ib + 1),
             v2 = _mm256_loadu_si256(ib + 2);
-    __m256i vi[3];
-    vi[0] =
-        _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(v0, v1, 0x92), v2, 0x24),
-                                    _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5));
-    vi[1] =
-        _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(v0, v1, 0x24), v2, 0x49),
-                                    _mm256_setr_epi32(1, 4, 7, 2, 5, 0, 3, 6));
-    vi[2] =
-        _mm256_permutevar8x32_epi32(_mm256_blend_epi32(_mm256_blend_epi32(v0, v1, 0x49), v2, 0x92),
-                                    _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7));
+    nc_v8i d[3];
+    nc_v8_deinterleave3((nc_v8i)v0, (nc_v8i)v1, (nc_v8i)v2, &d[0], &d[1], &d[2]);
+    const __m256i vi[3] = {(__m256i)d[0], (__m256i)d[1], (__m256i)d[2]};
     /* Bad indices: hand the lanes to setup_tri, which reports them. */
     const __m256i vmax = _mm256_set1_epi32((int)(ms->vc - 1));
     __m256i bad = _mm256_setzero_si256();

@@ -108,38 +108,32 @@ static nc_v8f pow8(nc_v8f x, float s)
 static inline nc_v8f abs8(nc_v8f x) { return (nc_v8f)((nc_v8i)x & 0x7fffffff); }
 
 /* n (1..8) consecutive xyz triples at p as three 8-lane vectors, lanes n..7 zero: three loads
- * (masked when n < 8: nothing past the n-th triple is read), two blends and a lane permutation
- * per coordinate. */
+ * (masked when n < 8: nothing past the n-th triple is read) and nc_v8_deinterleave3. */
 static inline void load_xyz8(const float *p, uint32_t n, nc_v8f *x, nc_v8f *y, nc_v8f *z)
 {
+    nc_v8i a, b, c, xi, yi, zi;
 #ifdef __AVX2__
-    __m256 a, b, c;
     if (n == 8) {
-        a = _mm256_loadu_ps(p);
-        b = _mm256_loadu_ps(p + 8);
-        c = _mm256_loadu_ps(p + 16);
+        a = nc_v8i_load((const int32_t *)(const void *)p);
+        b = nc_v8i_load((const int32_t *)(const void *)(p + 8));
+        c = nc_v8i_load((const int32_t *)(const void *)(p + 16));
     } else {
         const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7), m = _mm256_set1_epi32((int)(3 * n));
-        a = _mm256_maskload_ps(p, _mm256_cmpgt_epi32(m, lane));
-        b = _mm256_maskload_ps(p + 8, _mm256_cmpgt_epi32(m, _mm256_add_epi32(lane, _mm256_set1_epi32(8))));
-        c = _mm256_maskload_ps(p + 16, _mm256_cmpgt_epi32(m, _mm256_add_epi32(lane, _mm256_set1_epi32(16))));
+        a = (nc_v8i)_mm256_maskload_ps(p, _mm256_cmpgt_epi32(m, lane));
+        b = (nc_v8i)_mm256_maskload_ps(p + 8, _mm256_cmpgt_epi32(m, _mm256_add_epi32(lane, _mm256_set1_epi32(8))));
+        c = (nc_v8i)_mm256_maskload_ps(p + 16, _mm256_cmpgt_epi32(m, _mm256_add_epi32(lane, _mm256_set1_epi32(16))));
     }
-    /* x_k sits in a at lanes 0 3 6, in b at 1 4 7, in c at 2 5 (y and z likewise, shifted) */
-    const __m256 tx = _mm256_blend_ps(_mm256_blend_ps(a, b, 0x92), c, 0x24);
-    const __m256 ty = _mm256_blend_ps(_mm256_blend_ps(a, b, 0x24), c, 0x49);
-    const __m256 tz = _mm256_blend_ps(_mm256_blend_ps(a, b, 0x49), c, 0x92);
-    *x = (nc_v8f)_mm256_permutevar8x32_ps(tx, _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5));
-    *y = (nc_v8f)_mm256_permutevar8x32_ps(ty, _mm256_setr_epi32(1, 4, 7, 2, 5, 0, 3, 6));
-    *z = (nc_v8f)_mm256_permutevar8x32_ps(tz, _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7));
 #else
-    float t[3][8] = {{0}};
-    for (uint32_t k = 0; k < n; k++)
-        for (int a = 0; a < 3; a++)
-            t[a][k] = p[3 * k + a];
-    *x = nc_v8_load(t[0]);
-    *y = nc_v8_load(t[1]);
-    *z = nc_v8_load(t[2]);
+    float t[24] = {0};
+    memcpy(t, p, 3 * n * sizeof(float));
+    memcpy(&a, t, 32);
+    memcpy(&b, t + 8, 32);
+    memcpy(&c, t + 16, 32);
 #endif
+    nc_v8_deinterleave3(a, b, c, &xi, &yi, &zi);
+    *x = (nc_v8f)xi;
+    *y = (nc_v8f)yi;
+    *z = (nc_v8f)zi;
 }
 
 /* Per-material constants of the pass. */
