@@ -820,38 +820,34 @@ static void fill_span(const frame *f, size_t row, int lo, int hi, float zrow, fl
     const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
     const __m256 vinv = _mm256_set1_ps(inv), va = _mm256_set1_ps(dzdx), vzr = _mm256_set1_ps(zrow);
     const __m256i vid = _mm256_set1_epi32((int)id);
-    for (; i + 8 <= hi + 1; i += 8) {
+    /* Eight pixels a step; the last 1..7 masked, with the same expression. As a scalar loop they
+     * cost a third of a shadow map's time: the next vector load of those pixels waited for their
+     * one-float stores (no store forwarding). */
+    for (; i <= hi; i += 8) {
         __m256i xi = _mm256_add_epi32(_mm256_set1_epi32(i), lane);
         __m256i xs = _mm256_add_epi32(_mm256_slli_epi32(xi, SUB_BITS), _mm256_set1_epi32(cx));
         __m256 fx = _mm256_mul_ps(_mm256_cvtepi32_ps(xs), vinv);
         __m256 z = _mm256_add_ps(vzr, _mm256_mul_ps(va, fx));
-        __m256 old = _mm256_loadu_ps(dr + i);
-        __m256 closer = _mm256_cmp_ps(z, old, _CMP_LT_OQ);
-        _mm256_storeu_ps(dr + i, _mm256_blendv_ps(old, z, closer));
-        if (ir) {
-            __m256i oid = _mm256_loadu_si256((const __m256i *)(ir + i));
-            __m256i nid = _mm256_castps_si256(
-                _mm256_blendv_ps(_mm256_castsi256_ps(oid), _mm256_castsi256_ps(vid), closer));
-            _mm256_storeu_si256((__m256i *)(ir + i), nid);
+        if (i + 8 <= hi + 1) {
+            __m256 old = _mm256_loadu_ps(dr + i);
+            __m256 closer = _mm256_cmp_ps(z, old, _CMP_LT_OQ);
+            _mm256_storeu_ps(dr + i, _mm256_blendv_ps(old, z, closer));
+            if (ir) {
+                __m256i oid = _mm256_loadu_si256((const __m256i *)(ir + i));
+                __m256i nid = _mm256_castps_si256(
+                    _mm256_blendv_ps(_mm256_castsi256_ps(oid), _mm256_castsi256_ps(vid), closer));
+                _mm256_storeu_si256((__m256i *)(ir + i), nid);
+            }
+        } else {
+            const __m256i m = _mm256_cmpgt_epi32(_mm256_set1_epi32(hi - i + 1), lane);
+            __m256 old = _mm256_maskload_ps(dr + i, m);
+            __m256i closer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(z, old, _CMP_LT_OQ)), m);
+            _mm256_maskstore_ps(dr + i, closer, z);
+            if (ir)
+                _mm256_maskstore_epi32((int *)(ir + i), closer, vid);
         }
     }
-    /* The last 1..7 pixels, masked, with the same expression. As a scalar loop they cost a third
-     * of a shadow map's time: the next vector load of those pixels waited for their one-float
-     * stores (no store forwarding). */
-    if (i <= hi) {
-        const __m256i m = _mm256_cmpgt_epi32(_mm256_set1_epi32(hi - i + 1), lane);
-        __m256i xi = _mm256_add_epi32(_mm256_set1_epi32(i), lane);
-        __m256i xs = _mm256_add_epi32(_mm256_slli_epi32(xi, SUB_BITS), _mm256_set1_epi32(cx));
-        __m256 fx = _mm256_mul_ps(_mm256_cvtepi32_ps(xs), vinv);
-        __m256 z = _mm256_add_ps(vzr, _mm256_mul_ps(va, fx));
-        __m256 old = _mm256_maskload_ps(dr + i, m);
-        __m256i closer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(z, old, _CMP_LT_OQ)), m);
-        _mm256_maskstore_ps(dr + i, closer, z);
-        if (ir)
-            _mm256_maskstore_epi32((int *)(ir + i), closer, vid);
-        return;
-    }
-#endif
+#else
     for (; i <= hi; i++) {
         float fx = (float)(i * SUB_ONE + cx) * inv;
         float z = zrow + dzdx * fx;
@@ -861,6 +857,7 @@ static void fill_span(const frame *f, size_t row, int lo, int hi, float zrow, fl
                 ir[i] = id;
         }
     }
+#endif
 }
 
 static inline int32_t extent3(const int32_t v[3])
