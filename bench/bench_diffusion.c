@@ -11,7 +11,8 @@
  * maps (PLV), inject, propagate and the diffusion shading pass, not the G-buffer: our `total`
  * is the same sum. Reported beside it and not in it: `raster` (visibility + G-buffer), `shadow`
  * (the lights' mesh shadow maps, which the shading pass reads to shadow the specular term; the
- * seed's tables list no such stage; re-rendered every frame here because the object moves) and `frame` (the whole render call, every stage). Commit (vertex transform) is in none.
+ * seed's tables list no such stage; re-rendered every frame here because the object moves) and
+ * `frame` (the whole render call, every stage). Commit (vertex transform) is in none.
  *
  * Frames render into the same image with reuse_output, as a viewer does: background pixels that
  * were background in the previous frame are not rewritten (a GPU clears its frame buffer at
@@ -198,8 +199,9 @@ int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filt
                "%-20s %5s %9s %8s %7s %7s %9s %7s %8s %6s %8s %7s %7s %5s  | seed GTX 470 (tables 5.1-5.3): vox PLV inj "
                "prop rend total fps\n",
                nacre_context_threads(ctx), runs,
-               repaint ? "every pixel written every frame" : "frames reuse the previous frame's background", "mesh", "res", "image", "voxelize", "tsm", "inject", "propagate",
-               "shade", "total", "fps", "raster", "shadow", "frame", "iter");
+               repaint ? "every pixel written every frame" : "frames reuse the previous frame's background", "mesh",
+               "res", "image", "voxelize", "tsm", "inject", "propagate", "shade", "total", "fps", "raster", "shadow",
+               "frame", "iter");
     for (size_t mi = 0; mi < sizeof(meshes) / sizeof(meshes[0]); mi++) {
         char path[4096];
         if (!nc_bench_filter_mesh(filter, meshes[mi].file))

@@ -616,7 +616,8 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
                     int osum_i = 0;
                     for (int dz = -1; dz <= 1; dz++)
                         for (int dy = -1; dy <= 1; dy++) {
-                            const size_t j = (size_t)((ptrdiff_t)i + (ptrdiff_t)dy * (ptrdiff_t)sy + (ptrdiff_t)dz * (ptrdiff_t)sz);
+                            const size_t j =
+                                (size_t)((ptrdiff_t)i + (ptrdiff_t)dy * (ptrdiff_t)sy + (ptrdiff_t)dz * (ptrdiff_t)sz);
                             for (int dx = -1; dx <= 1; dx++) {
                                 wsum += l->bw[(size_t)((ptrdiff_t)j + dx)];
                                 osum_i += l->k[(size_t)((ptrdiff_t)j + dx)];

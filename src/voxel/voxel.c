@@ -1141,9 +1141,8 @@ static __attribute__((noinline)) unsigned prefilter8(const tri_out *o, const flo
     const bitset *b = o->b;
     __m256i on = _mm256_castps_si256(ok);
     __m256i kx = _mm256_cvttps_epi32(k[0]), ky = _mm256_cvttps_epi32(k[1]), kz = _mm256_cvttps_epi32(k[2]);
-    __m256i w = _mm256_add_epi32(_mm256_mullo_epi32(_mm256_add_epi32(_mm256_mullo_epi32(ky, _mm256_set_m128i(q->nx, q->nx)), kx),
-                                                    _mm256_set_m128i(q->words, q->words)),
-                                 _mm256_srli_epi32(kz, 6));
+    const __m256i column = _mm256_add_epi32(_mm256_mullo_epi32(ky, _mm256_set_m128i(q->nx, q->nx)), kx);
+    __m256i w = _mm256_add_epi32(_mm256_mullo_epi32(column, _mm256_set_m128i(q->words, q->words)), _mm256_srli_epi32(kz, 6));
     w = _mm256_and_si256(w, on);
     __m256i bit = _mm256_and_si256(kz, _mm256_set1_epi32(63));
     const __m256i one64 = _mm256_set1_epi64x(1);
