@@ -55,7 +55,8 @@
  * (group_sums), and only the per-point ghost records of larger grids, the points outside the grid
  * and FACE mode's q run per lane. Against one 4-wide trilinear read per pixel, the 8-lane corner
  * reads took the subsurface part of Suzanne's 4^3 pass from 15 to 7.5 million instructions per
- * frame (callgrind), and the 8-lane groups from there to 6.1 million, with bit-identical images.
+ * frame (callgrind), and the 8-lane groups from there to 6.1 million, with bit-identical images
+ * (before FMA contraction was turned on).
  */
 #include "diffusion/pipeline.h"
 #include "core/optics.h"
@@ -375,7 +376,8 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
 /* The shading pass evaluates a padded record grid for 8 lanes of a batch at a time: lanes are
  * neighbouring pixels of one row and mostly share their cell (a cell spans about 20 pixels at
  * 28^3, 100 at 4^3), so a cell's 8 records are broadcast once (group_cache) and the trilinear
- * sums run 8 lanes wide with lerp8's operations per channel (the same values). */
+ * sums run 8 lanes wide with lerp8's operations per channel (the same formula; FMA contraction
+ * may round the two differently in the last bit). */
 typedef struct group_cache {
     int32_t cell;    /* offset of the cached cell's first record in the grid; -1: none */
     nc_v8f c[4][8];  /* corner k's value of channel c on every lane */

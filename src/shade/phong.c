@@ -24,9 +24,10 @@
  * (core/simd.h), every value computed on every lane and conditions as selects. The lanes that
  * need a shadow lookup are collected over the batch and go to nc_shadow_lookup_n together (the
  * set-up of an orthographic map's lookups is vectorized there; each PCF window stays per pixel,
- * with the next windows' texels prefetched). The batches compute the same values as a
- * per-pixel loop, except that an integer shininess is raised by exact binary powering in double
- * rather than powf (pow8): the two differ in the last bit of a few pixels per image.
+ * with the next windows' texels prefetched). The batches compute a per-pixel loop's formulas,
+ * with two differences in the last bit: an integer shininess is raised by exact binary powering
+ * in double rather than powf (pow8), and products and sums may be fused into FMAs (the build's
+ * -ffp-contract=fast, CMakeLists.txt).
  *
  * The diffusion method reuses this pass through the subsurface hook of nc_shade_params: its
  * translucent objects keep ambient and specular and get the diffusion radiance in place of the
@@ -148,10 +149,10 @@ static void material_constants(const nacre_material_desc *m, mat_k *k)
     k->nh_cut = spec_cut(m->shininess);
 }
 
-/* Add light l to the batch's radiance acc. The arithmetic per lane is the scalar shading's,
- * operation for operation (the image does not depend on the batching), 8 lanes at a time
- * (core/simd.h): every value is computed on every lane and conditions only select. A shadowed
- * light's lanes that need a lookup are collected over the batch and looked up together. */
+/* Add light l to the batch's radiance acc. Every lane runs the same operations (the image does
+ * not depend on how rows are cut into batches), 8 lanes at a time (core/simd.h): every value is
+ * computed on every lane and conditions only select. A shadowed light's lanes that need a lookup
+ * are collected over the batch and looked up together. */
 static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, const mat_k *mk, float lambert,
                         const nc_shade_batch *b, const nc_gbuffer *gb, size_t first, const nc_shade_params *params,
                         float acc[3][NC_SHADE_BATCH])
