@@ -1,10 +1,12 @@
 # Top-level entry points. `make run`: install dependencies, build (release), render the demo.
-# `make test`: install dependencies, build with ASan+UBSan, run the whole test suite.
+# `make test`: install dependencies, build with ASan+UBSan, run the whole test suite; then the same
+# for the portable build (no x86-64-v3: the scalar fallbacks of the vector kernels).
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 RELEASE_DIR ?= build/release
 TEST_DIR ?= build/test
+GENERIC_TEST_DIR ?= build/test-generic
 
-.PHONY: run test deps build build-test bench clean
+.PHONY: run test deps build build-test build-test-generic bench clean
 
 deps:
 	@bash scripts/install-deps.sh
@@ -21,8 +23,14 @@ build-test: deps
 	cmake -S . -B $(TEST_DIR) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DNACRE_SANITIZE=ON -DNACRE_WERROR=ON
 	cmake --build $(TEST_DIR) -j $(JOBS)
 
-test: build-test
+build-test-generic: deps
+	cmake -S . -B $(GENERIC_TEST_DIR) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DNACRE_SANITIZE=ON -DNACRE_WERROR=ON \
+		-DNACRE_NATIVE_V3=OFF
+	cmake --build $(GENERIC_TEST_DIR) -j $(JOBS)
+
+test: build-test build-test-generic
 	cd $(TEST_DIR) && ctest --output-on-failure -j $(JOBS)
+	cd $(GENERIC_TEST_DIR) && ctest --output-on-failure -j $(JOBS)
 
 bench: build
 	./$(RELEASE_DIR)/nacre bench raster
