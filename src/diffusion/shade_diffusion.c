@@ -323,16 +323,10 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
                 const float *restrict pc = phi[c] + u, *restrict dc = D[c] ? D[c] + u : NULL;
                 const float du = dc ? 0.0f : d_uniform[c];
                 float *restrict ec = E[c] + u;
-                if (dc)
-                    for (size_t x = lo; x < hi; x++) {
-                        float e = nc_diff_exitance(pc[x], dc[x], A, 2.0f * delta);
-                        ec[x] = e > 0.0f ? e : 0.0f;
-                    }
-                else
-                    for (size_t x = lo; x < hi; x++) {
-                        float e = nc_diff_exitance(pc[x], du, A, 2.0f * delta);
-                        ec[x] = e > 0.0f ? e : 0.0f;
-                    }
+                for (size_t x = lo; x < hi; x++) { /* -O3 unswitches the test of dc */
+                    float e = nc_diff_exitance(pc[x], dc ? dc[x] : du, A, 2.0f * delta);
+                    ec[x] = e > 0.0f ? e : 0.0f;
+                }
                 /* FACE: the lit faces' own term replaces q in place (once per solve), read at
                  * the surface (see the file). Its k uses the face distance h / 2: q is a face
                  * quantity. */
