@@ -27,6 +27,7 @@
 #include "raster/raster.h"
 #include "core/simd.h"
 
+#include <float.h>
 #include <string.h>
 #if defined(__SSE2__) || defined(__AVX__)
 #include <immintrin.h>
@@ -244,8 +245,13 @@ static inline void clip_of(const frame *f, const float *p, float c[4])
 /* Inside the near plane and the guard band: safe to snap. Written so that NaN fails. */
 static inline bool snappable(const frame *f, const float c[4])
 {
+    /* w in [FLT_MIN, FLT_MAX] and z <= FLT_MAX: 1/w and the projected x, y, z stay finite (an
+     * infinite x or w from vertices near the float range gave inf/w or inf/inf, snapped to
+     * INT32_MIN).
+     * Anything else goes to the clipper, which works in double and rejects non-finite vertices. */
     float gw = f->gx * c[3], hw = f->gy * c[3];
-    return c[2] >= 0.0f && c[3] > 0.0f && c[0] >= -gw && c[0] <= gw && c[1] >= -hw && c[1] <= hw;
+    return c[2] >= 0.0f && c[2] <= FLT_MAX && c[3] >= FLT_MIN && gw <= FLT_MAX && hw <= FLT_MAX &&
+           c[0] >= -gw && c[0] <= gw && c[1] >= -hw && c[1] <= hw;
 }
 
 static inline void snap(const frame *f, const float c[4], int32_t *x, int32_t *y, float *z)
@@ -291,7 +297,7 @@ static void transform_vertices(const frame *f, const float *restrict pos, size_t
     for (int r = 0; r < 4; r++)
         for (int c = 0; c < 4; c++)
             m[r][c] = _mm256_set1_ps(f->m[r][c]);
-    const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
+    const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f), fmax = _mm256_set1_ps(FLT_MAX);
     const __m256 gx = _mm256_set1_ps(f->gx), gy = _mm256_set1_ps(f->gy);
     const __m256 sx = _mm256_set1_ps(f->sx), sy = _mm256_set1_ps(f->sy);
     const __m256 sign = _mm256_set1_ps(-0.0f);
@@ -310,7 +316,10 @@ static void transform_vertices(const frame *f, const float *restrict pos, size_t
         __m256 gw = _mm256_mul_ps(gx, c[3]), hw = _mm256_mul_ps(gy, c[3]);
         __m256 ngw = _mm256_xor_ps(gw, sign), nhw = _mm256_xor_ps(hw, sign);
         __m256 ok = _mm256_and_ps(_mm256_cmp_ps(c[2], zero, _CMP_GE_OQ),
-                                  _mm256_cmp_ps(c[3], zero, _CMP_GT_OQ));
+                                  _mm256_cmp_ps(c[3], _mm256_set1_ps(FLT_MIN), _CMP_GE_OQ));
+        ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(c[2], fmax, _CMP_LE_OQ),
+                                             _mm256_and_ps(_mm256_cmp_ps(gw, fmax, _CMP_LE_OQ),
+                                                           _mm256_cmp_ps(hw, fmax, _CMP_LE_OQ))));
         ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(c[0], ngw, _CMP_GE_OQ),
                                              _mm256_cmp_ps(c[0], gw, _CMP_LE_OQ)));
         ok = _mm256_and_ps(ok, _mm256_and_ps(_mm256_cmp_ps(c[1], nhw, _CMP_GE_OQ),
@@ -380,7 +389,7 @@ static inline bool emit(const frame *f, setup_out *o, int32_t x0, int32_t y0, fl
                         int32_t y1, float z1, int32_t x2, int32_t y2, float z2, uint32_t id,
                         bool cull)
 {
-    int64_t area = (int64_t)(x1 - x0) * (y2 - y0) - (int64_t)(x2 - x0) * (y1 - y0);
+    int64_t area = ((int64_t)x1 - x0) * ((int64_t)y2 - y0) - ((int64_t)x2 - x0) * ((int64_t)y1 - y0);
     if (area == 0)
         return false;
     /* y points down on screen, so counter-clockwise in NDC (front) means negative area here. */

@@ -1233,12 +1233,14 @@ static void triangle_range(const tri_out *o, const tri_source *src, uint32_t nv,
                 }
                 unsigned left = ~prefilter8(o, src->pos, ti, ok0 == 1 || ok1 == 1, &q) & 0xFFu;
                 rate += 8u - (unsigned)__builtin_popcount(left) - (rate >> 3);
-                if (left)
-                    qlast |= ok0 == 1 || ok1 == 1;
+                const bool block_last = ok0 == 1 || ok1 == 1;
                 for (; left; left &= left - 1) {
                     unsigned l = (unsigned)__builtin_ctz(left);
                     memcpy(qi + 3 * nq, ti + 3 * l, 3 * sizeof(uint32_t));
                     queued[nq] = t + l;
+                    /* Per queued triangle: a flush below clears it while more of this block may
+                     * follow into the next group of four. */
+                    qlast |= block_last;
                     if (++nq == 4) {
                         cnt->degenerate += triangles4_at(o, src->pos, qi, qlast, &k);
                         nq = 0;

@@ -935,6 +935,52 @@ static void test_errors(void)
     rig_free(&g);
 }
 
+/* Vertices near the float range under a perspective view: clip-space x or w overflow to inf,
+ * which the vertex pass once snapped to INT32_MIN (then the edge setup overflowed int32 under
+ * UBSan). Every vertex set must rasterize without undefined behaviour, and the visible cases
+ * still cover pixels. */
+static void test_huge_vertices(void)
+{
+    const int W = 64, H = 48;
+    rig g = rig_make(2, W, H);
+    nc_raster_view view;
+    memset(&view, 0, sizeof(view));
+    view.view = nc_mat4_identity();
+    /* Infinite far plane with z_ndc = near / w: no vertex in front of the camera is beyond far. */
+    view.proj = nc_mat4_perspective(1.2f, (float)W / H, 0.1f, 100.0f);
+    view.proj.m[2][2] = 0.0f;
+    view.proj.m[2][3] = 0.1f;
+    view.width = W;
+    view.height = H;
+    const float big[][9] = {
+        {-3e38f, -3e38f, -3e38f, 3e38f, -3e38f, -3e38f, 0, 3e38f, -3e38f},
+        {-3.4e38f, 0, -1, 3.4e38f, 0, -1, 0, 3.4e38f, -1},
+        {-3e38f, -3e38f, -1e30f, 3e38f, -3e38f, -1e30f, 0, 3e38f, -1e30f},
+        {0, 0, -3e38f, 3e38f, 0, -3e38f, 0, 3e38f, -3.4e38f},
+        {0, 0, -3.2e38f, 3.4e38f, 0, -3.2e38f, 0, 1e38f, -3.2e38f}, /* x = inf, w finite */
+        {0, 0, -3.2e38f, 0, 1e38f, -3.2e38f, -3.4e38f, 0, -3.2e38f},
+        {-1, -1, -2, 1, -1, -2, 0, 1, -2}, /* an ordinary triangle among them */
+    };
+    const int n = (int)(sizeof(big) / sizeof(big[0]));
+    for (int t = 0; t < n; t++) {
+        /* Each alone, and eight copies so that the vector vertex pass sees them too. */
+        float pos[9 * 8];
+        uint32_t idx[3 * 8];
+        for (int c = 0; c < 8; c++) {
+            memcpy(pos + 9 * c, big[t], sizeof(big[t]));
+            for (int k = 0; k < 3; k++)
+                idx[3 * c + k] = (uint32_t)(3 * c + k);
+        }
+        for (int cull = 0; cull < 2; cull++) {
+            nc_raster_mesh m = {pos, idx, 24, 8, 1, cull == 1};
+            CHECK(nc_raster_visibility(g.r, &view, &m, 1, &g.vb, NULL) == NACRE_OK);
+            if (t == n - 1)
+                CHECK(count_covered(&g.vb) > 0);
+        }
+    }
+    rig_free(&g);
+}
+
 int main(void)
 {
     test_single_triangles();
@@ -946,5 +992,6 @@ int main(void)
     test_determinism();
     test_orthographic();
     test_errors();
+    test_huge_vertices();
     return TEST_MAIN_END();
 }

@@ -1111,6 +1111,62 @@ static void test_threads_open(void)
     nacre_context_destroy(c2);
 }
 
+/* A 100-sided polygon (issue: the prefilter queue lost the "last vertex" flag of a block when
+ * four queued triangles were flushed, and a later group read past the vertex array). Loaded from
+ * OBJ as a user would, and as fans from every pivot with the vertex array sized exactly, so that
+ * ASan sees any read past its end. */
+static void test_ngon(nacre_context *ctx)
+{
+    const char *path = NACRE_TEST_TMP "/vox_ngon100.obj";
+    FILE *f = fopen(path, "w");
+    CHECK(f != NULL);
+    if (!f)
+        return;
+    for (int i = 0; i < 100; i++)
+        fprintf(f, "v %.6f %.6f 0\n", cos(6.283185307179586 * i / 100), sin(6.283185307179586 * i / 100));
+    fprintf(f, "f");
+    for (int i = 1; i <= 100; i++)
+        fprintf(f, " %d", i);
+    fprintf(f, "\n");
+    fclose(f);
+    nacre_mesh_data m = {0};
+    CHECK(nacre_mesh_load(ctx, path, &m) == NACRE_OK);
+    for (uint32_t res = 4; res <= 64; res *= 2) {
+        nacre_voxel_report rep;
+        nacre_voxel_grid *g = vox(ctx, &m, res, false, NACRE_VOXEL_SOLID_ROBUST, &rep);
+        CHECK(g && rep.surface_voxels > 0);
+        nacre_voxel_grid_destroy(g);
+    }
+    nacre_mesh_data_free(ctx, &m);
+
+    enum { N = 100 };
+    for (uint32_t pivot = 0; pivot < N; pivot += 7) {
+        float *pos = malloc(3 * N * sizeof(float));
+        uint32_t *idx = malloc(3 * (N - 2) * sizeof(uint32_t));
+        for (int i = 0; i < N; i++) {
+            pos[3 * i] = (float)cos(6.283185307179586 * i / N);
+            pos[3 * i + 1] = (float)sin(6.283185307179586 * i / N);
+            pos[3 * i + 2] = 0.0f;
+        }
+        for (uint32_t t = 0; t < N - 2; t++) {
+            idx[3 * t] = pivot;
+            idx[3 * t + 1] = (pivot + 1 + t) % N;
+            idx[3 * t + 2] = (pivot + 2 + t) % N;
+        }
+        nacre_mesh_data fan = {0};
+        fan.positions = pos;
+        fan.vertex_count = N;
+        fan.indices = idx;
+        fan.triangle_count = N - 2;
+        nacre_voxel_report rep;
+        nacre_voxel_grid *g = vox(ctx, &fan, 16, false, NACRE_VOXEL_SOLID_ROBUST, &rep);
+        CHECK(g && rep.surface_voxels > 0);
+        nacre_voxel_grid_destroy(g);
+        free(pos);
+        free(idx);
+    }
+}
+
 int main(void)
 {
     nacre_context *ctx = ctx_threads(0);
@@ -1138,6 +1194,7 @@ int main(void)
     test_threads_open();
     test_rest(ctx);
     test_cli();
+    test_ngon(ctx);
     nacre_context_destroy(ctx);
     return TEST_MAIN_END();
 }
