@@ -58,6 +58,14 @@
  *   - Descs and arrays passed in are copied unless a field says "borrowed".
  *   - Scene elements are typed index handles; id 0 is never valid, so a zeroed handle is invalid.
  *
+ * MEMORY
+ *   - Every allocation the library makes goes through the context and counts against its memory
+ *     limit (nacre_context_desc.memory_limit; default half of physical memory). Large buffers
+ *     (voxel grids, solver arrays, shadow maps, images, volumes) are also estimated before they
+ *     are made, and file headers are checked against the file's size before anything is
+ *     allocated for them, so a bad setting or a corrupt file fails with one message instead of
+ *     being killed by the system. Memory held by the mesh importer and Embree is not counted.
+ *
  * THREADING
  *   - Contexts are independent. The library has no global mutable state.
  *   - A scene has one writer at a time. Between nacre_scene_commit and the next edit, a scene may
@@ -144,6 +152,12 @@ typedef struct nacre_context_desc {
     int threads;               /* 0: all hardware threads; 1: serial (debugging) */
     nacre_log_fn log_fn;       /* optional */
     void *log_user;
+    /* Bytes the library may hold at once through this context (images, meshes, voxel grids,
+     * shadow maps, solver arrays, volumes). 0: half of physical memory, or less when the
+     * process's address space is limited (RLIMIT_AS, `ulimit -v`). An allocation or an estimate
+     * made before a large allocation that would go over it fails with NACRE_ERROR_OUT_OF_MEMORY
+     * and a message naming the size needed and this limit. */
+    uint64_t memory_limit;
 } nacre_context_desc;
 
 /* Create a context. desc may be NULL (defaults). */
@@ -158,6 +172,16 @@ NACRE_API nacre_result nacre_context_last_result(const nacre_context *ctx);
 NACRE_API void nacre_context_clear_error(nacre_context *ctx);
 /* Number of threads renders use (resolved from the desc). */
 NACRE_API int nacre_context_threads(const nacre_context *ctx);
+/* Free one array the library allocated through this context (e.g. normals it computed into a
+ * mesh the caller built). NULL does nothing. */
+NACRE_API void nacre_free(nacre_context *ctx, void *ptr);
+/* The memory limit in bytes (resolved from the desc), and a new one (0: the default again).
+ * Lowering it below what is in use fails later allocations only; nothing is freed. */
+NACRE_API uint64_t nacre_context_memory_limit(const nacre_context *ctx);
+NACRE_API nacre_result nacre_context_set_memory_limit(nacre_context *ctx, uint64_t bytes);
+/* Bytes held now through this context, and the most held at once since its creation. */
+NACRE_API uint64_t nacre_context_memory_used(const nacre_context *ctx);
+NACRE_API uint64_t nacre_context_memory_peak(const nacre_context *ctx);
 
 /* ------------------------------------------------------------------------------------------ */
 /* Images                                                                                     */
@@ -272,7 +296,9 @@ NACRE_API void nacre_mesh_data_free(nacre_context *ctx, nacre_mesh_data *mesh);
 /* Check sizes, indices and finiteness; names the first problem. */
 NACRE_API nacre_result nacre_mesh_validate(nacre_context *ctx, const nacre_mesh_data *mesh,
                                            const char *name);
-/* (Re)compute area- and angle-weighted smooth normals across exactly coincident positions. */
+/* (Re)compute area- and angle-weighted smooth normals across exactly coincident positions.
+ * This and nacre_mesh_compute_tangents allocate a missing array through the context: free it
+ * with nacre_mesh_data_free along with the rest, or alone with nacre_free. */
 NACRE_API nacre_result nacre_mesh_compute_normals(nacre_context *ctx, nacre_mesh_data *mesh);
 /* (Re)compute tangents from UVs (MikkTSpace-like per-vertex accumulation), orthogonalised
  * against the normals; needs normals. Without UVs, an arbitrary perpendicular frame. */

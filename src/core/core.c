@@ -10,6 +10,8 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <sys/resource.h>
+#include <unistd.h>
 #ifdef _OPENMP
 #include <omp.h>
 #endif
@@ -50,6 +52,32 @@ static void default_free(void *ptr, void *user)
 {
     (void)user;
     free(ptr);
+}
+
+/* Half of physical memory: room for the rest of the process and the system. When the address
+ * space is limited (RLIMIT_AS, `ulimit -v`), three quarters of what is left of it now, since
+ * the libraries, thread stacks and the mesh importer's copies live there too. */
+static uint64_t default_memory_limit(void)
+{
+    uint64_t limit = (uint64_t)4 << 30; /* if the system does not say */
+    long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGESIZE);
+    if (pages > 0 && page > 0)
+        limit = (uint64_t)pages * (uint64_t)page / 2;
+    struct rlimit rl;
+    if (getrlimit(RLIMIT_AS, &rl) == 0 && rl.rlim_cur != RLIM_INFINITY) {
+        uint64_t vm = 0;
+        FILE *f = fopen("/proc/self/statm", "r");
+        unsigned long long vm_pages = 0;
+        if (f) {
+            if (fscanf(f, "%llu", &vm_pages) == 1 && page > 0)
+                vm = vm_pages * (uint64_t)page;
+            fclose(f);
+        }
+        uint64_t room = (uint64_t)rl.rlim_cur > vm ? (uint64_t)rl.rlim_cur - vm : 0;
+        if (room / 4 * 3 < limit)
+            limit = room / 4 * 3;
+    }
+    return limit > ((uint64_t)1 << 20) ? limit : ((uint64_t)1 << 20);
 }
 
 const char *nacre_version(void) { return NACRE_VERSION_STRING; }
@@ -95,6 +123,7 @@ nacre_result nacre_context_create(const nacre_context_desc *desc, nacre_context 
     threads = 1;
 #endif
     ctx->threads = threads < 1 ? 1 : threads;
+    ctx->memory_limit = d.memory_limit ? d.memory_limit : default_memory_limit();
     pthread_mutex_init(&ctx->lock, NULL);
     *out = ctx;
     return NACRE_OK;
@@ -129,6 +158,32 @@ void nacre_context_clear_error(nacre_context *ctx)
 }
 
 int nacre_context_threads(const nacre_context *ctx) { return ctx ? ctx->threads : 1; }
+
+void nacre_free(nacre_context *ctx, void *ptr)
+{
+    if (ctx)
+        nc_free(ctx, ptr);
+}
+
+uint64_t nacre_context_memory_limit(const nacre_context *ctx) { return ctx ? ctx->memory_limit : 0; }
+
+nacre_result nacre_context_set_memory_limit(nacre_context *ctx, uint64_t bytes)
+{
+    if (!ctx)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    ctx->memory_limit = bytes ? bytes : default_memory_limit();
+    return NACRE_OK;
+}
+
+uint64_t nacre_context_memory_used(const nacre_context *ctx)
+{
+    return ctx ? atomic_load_explicit(&ctx->memory_used, memory_order_relaxed) : 0;
+}
+
+uint64_t nacre_context_memory_peak(const nacre_context *ctx)
+{
+    return ctx ? atomic_load_explicit(&ctx->memory_peak, memory_order_relaxed) : 0;
+}
 
 nacre_result nc_failv(nacre_context *ctx, nacre_result code, const char *fmt, va_list ap)
 {
@@ -166,12 +221,75 @@ void nc_warn(nacre_context *ctx, const char *fmt, ...)
     ctx->log_fn(ctx->log_user, NACRE_LOG_WARNING, msg);
 }
 
+/* Each block carries its size and its context in a header, so that nc_free gives it back to
+ * the count of the context that made it (callers with two contexts on one allocator may free
+ * through either); 16 bytes keep the alignment malloc gives (the kernels use unaligned loads or
+ * align at run time). */
+#define BLOCK_HEADER 16u
+_Static_assert(sizeof(uint64_t) + sizeof(void *) <= BLOCK_HEADER, "block header holds a size and a context");
+
+static const char *limit_hint = "raise it with --memory-limit or nacre_context_desc.memory_limit";
+
+const char *nc_format_bytes(uint64_t bytes, char *buf, size_t size)
+{
+    static const char *unit[] = {"bytes", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"};
+    double v = (double)bytes;
+    int u = 0;
+    while (v >= 1024.0 && u < 6) {
+        v /= 1024.0;
+        u++;
+    }
+    if (u == 0)
+        snprintf(buf, size, "%llu bytes", (unsigned long long)bytes);
+    else
+        snprintf(buf, size, "%.*f %s", v < 10.0 ? 2 : 1, v, unit[u]);
+    return buf;
+}
+
+nacre_result nc_memory_check(nacre_context *ctx, uint64_t bytes, const char *what)
+{
+    uint64_t used = atomic_load_explicit(&ctx->memory_used, memory_order_relaxed);
+    if (bytes <= ctx->memory_limit && used <= ctx->memory_limit - bytes)
+        return NACRE_OK;
+    char need[32], lim[32], held[32];
+    return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "%s needs %s, over the memory limit of %s with %s held (%s)",
+                   what, nc_format_bytes(bytes, need, sizeof(need)),
+                   nc_format_bytes(ctx->memory_limit, lim, sizeof(lim)), nc_format_bytes(used, held, sizeof(held)),
+                   limit_hint);
+}
+
 void *nc_alloc(nacre_context *ctx, size_t size)
 {
-    void *p = ctx->allocator.alloc_fn(size ? size : 1, ctx->allocator.user);
-    if (!p)
-        nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "out of memory (%zu bytes)", size);
-    return p;
+    char a[32], b[32];
+    if (size > SIZE_MAX - BLOCK_HEADER) {
+        nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "allocation of %s overflows", nc_format_bytes(size, a, sizeof(a)));
+        return NULL;
+    }
+    const uint64_t total = (uint64_t)size + BLOCK_HEADER;
+    /* Reserve first, so that threads allocating at once cannot pass the limit together. */
+    uint64_t before = atomic_fetch_add_explicit(&ctx->memory_used, total, memory_order_relaxed);
+    if (before + total > ctx->memory_limit || before + total < before) {
+        atomic_fetch_sub_explicit(&ctx->memory_used, total, memory_order_relaxed);
+        nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "allocation of %s is over the memory limit of %s (%s)",
+                nc_format_bytes(size, a, sizeof(a)), nc_format_bytes(ctx->memory_limit, b, sizeof(b)),
+                limit_hint);
+        return NULL;
+    }
+    unsigned char *p = ctx->allocator.alloc_fn((size_t)total, ctx->allocator.user);
+    if (!p) {
+        atomic_fetch_sub_explicit(&ctx->memory_used, total, memory_order_relaxed);
+        nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "out of memory: the system refused %s",
+                nc_format_bytes(size, a, sizeof(a)));
+        return NULL;
+    }
+    uint64_t now = before + total, peak = atomic_load_explicit(&ctx->memory_peak, memory_order_relaxed);
+    while (now > peak &&
+           !atomic_compare_exchange_weak_explicit(&ctx->memory_peak, &peak, now, memory_order_relaxed,
+                                                  memory_order_relaxed)) {
+    }
+    memcpy(p, &total, sizeof(total));
+    memcpy(p + sizeof(total), &ctx, sizeof(ctx));
+    return p + BLOCK_HEADER;
 }
 
 void *nc_calloc(nacre_context *ctx, size_t count, size_t size)
@@ -189,8 +307,15 @@ void *nc_calloc(nacre_context *ctx, size_t count, size_t size)
 
 void nc_free(nacre_context *ctx, void *ptr)
 {
-    if (ptr)
-        ctx->allocator.free_fn(ptr, ctx->allocator.user);
+    if (!ptr)
+        return;
+    unsigned char *p = (unsigned char *)ptr - BLOCK_HEADER;
+    uint64_t total;
+    nacre_context *owner;
+    memcpy(&total, p, sizeof(total));
+    memcpy(&owner, p + sizeof(total), sizeof(owner));
+    atomic_fetch_sub_explicit(&owner->memory_used, total, memory_order_relaxed);
+    ctx->allocator.free_fn(p, ctx->allocator.user);
 }
 
 void *nc_realloc(nacre_context *ctx, void *ptr, size_t old_size, size_t new_size)

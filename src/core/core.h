@@ -11,6 +11,7 @@
 #include <nacre/nacre.h>
 
 #include <pthread.h>
+#include <stdatomic.h>
 #include <stdarg.h>
 #include <stdint.h>
 #include <string.h>
@@ -26,6 +27,8 @@ struct nacre_context {
     nacre_result last_result;
     char last_error[NC_ERROR_MAX];
     uint64_t scene_serial; /* identifies scenes for renderer caches (addresses get reused) */
+    uint64_t memory_limit; /* resolved: never 0 */
+    _Atomic uint64_t memory_used, memory_peak; /* bytes held through nc_alloc (headers included) */
 };
 
 /* Record a failure and return its code. printf-style message. */
@@ -43,6 +46,14 @@ void nc_free(nacre_context *ctx, void *ptr);
 /* Grow or shrink: copies min(old_size, new_size) bytes. */
 void *nc_realloc(nacre_context *ctx, void *ptr, size_t old_size, size_t new_size);
 char *nc_strdup(nacre_context *ctx, const char *s);
+
+/* An estimate made before a large allocation (or a set of them): fails with
+ * NACRE_ERROR_OUT_OF_MEMORY, "<what> needs <size>, over the memory limit of <limit> ...", when
+ * `bytes` more than what is held now would exceed the context's memory limit. `what` names the
+ * thing and the setting that sized it ("voxel grid 4096^3 (voxel resolution)"). */
+nacre_result nc_memory_check(nacre_context *ctx, uint64_t bytes, const char *what);
+/* "12.5 MiB": a byte count for messages, into buf (at least 32 chars); returns buf. */
+const char *nc_format_bytes(uint64_t bytes, char *buf, size_t size);
 
 /* a * b without overflow; false if it would overflow. */
 static inline bool nc_mul_size_ok(size_t a, size_t b, size_t *out)

@@ -25,6 +25,7 @@
 #include "scene/medium.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <string.h>
 
 bool nc_diffusion_available(void) { return true; }
@@ -154,6 +155,21 @@ nacre_result nc_diff_object_voxelize(nc_diff_object *o, const nacre_scene *s, ui
     if (o->rule_mesh != obj->desc.mesh.id)
         o->rule_known = false;
     vs.solid_rule = o->rule_known ? o->rule : NACRE_VOXEL_SOLID_AUTO;
+    /* The estimate before anything is made: the pipeline's per-cell arrays, the solver's levels
+     * and the voxel sets come to about 390 bytes per cell of the res^3 grid (measured peaks at
+     * 64^3 and 128^3); only a grid larger than the one held counts. */
+    uint64_t cells = (uint64_t)resolution * resolution * resolution;
+    if (cells > o->capacity) {
+        char what[96];
+        if (obj->name)
+            snprintf(what, sizeof(what), "diffusion grid %u^3 of object '%.40s' (voxel resolution)", resolution,
+                     obj->name);
+        else
+            snprintf(what, sizeof(what), "diffusion grid %u^3 of object %u (voxel resolution)", resolution, index);
+        nacre_result mr = nc_memory_check(ctx, (cells - o->capacity) * 384u, what);
+        if (mr != NACRE_OK)
+            return mr;
+    }
     nacre_voxel_report rep;
     nacre_result res = o->grid ? nacre_voxelize_update(o->grid, &dm, &vs, &rep)
                                : nacre_voxelize(ctx, &dm, &vs, &o->grid, &rep);

@@ -92,8 +92,8 @@ nacre_result nc_image_check(nacre_context *ctx, const nacre_image *image, const 
     return NACRE_OK;
 }
 
-nacre_result nc_image_check_file_size(nacre_context *ctx, const char *path, int64_t width,
-                                      int64_t height)
+nacre_result nc_image_check_file_size(nacre_context *ctx, const char *path, int64_t width, int64_t height,
+                                      int64_t file_size, double min_bits, double max_ratio)
 {
     if (width < 1 || height < 1 || width > NC_IMAGE_MAX_SIDE || height > NC_IMAGE_MAX_SIDE ||
         (uint64_t)width * (uint64_t)height > NC_IMAGE_MAX_PIXELS)
@@ -102,7 +102,15 @@ nacre_result nc_image_check_file_size(nacre_context *ctx, const char *path, int6
                        "pixels)",
                        path, (long long)width, (long long)height, NC_IMAGE_MAX_SIDE,
                        (unsigned long long)NC_IMAGE_MAX_PIXELS);
-    return NACRE_OK;
+    double least = (double)width * (double)height * min_bits / 8.0;
+    if (file_size >= 0 && least > (double)file_size * max_ratio + 4096.0)
+        return nc_fail(ctx, NACRE_ERROR_PARSE,
+                       "%s: header says %lldx%lld pixels, more than its %lld bytes can hold (truncated or "
+                       "corrupt file)",
+                       path, (long long)width, (long long)height, (long long)file_size);
+    char what[1100];
+    snprintf(what, sizeof(what), "%s: image %lldx%lld", path, (long long)width, (long long)height);
+    return nc_memory_check(ctx, (uint64_t)width * (uint64_t)height * 4 * sizeof(float), what);
 }
 
 /* ------------------------------------------------------------------------------------------ */

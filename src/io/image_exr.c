@@ -486,8 +486,16 @@ nacre_result nc_image_read_exr(nacre_context *ctx, const char *path, nacre_image
                     path);
         goto out_finish;
     }
-    r = nc_image_check_file_size(ctx, path, (int64_t)dw.max.x - dw.min.x + 1,
-                                 (int64_t)dw.max.y - dw.min.y + 1);
+    {
+        /* A pixel holds at least one half channel. Uncompressed data is stored as is; RLE
+         * (count + byte) expands at most 64:1; every other codec is bounded here by 4096:1
+         * (deflate's own limit is ~1032:1, and the lossy ones are coarser). */
+        exr_compression_t comp = EXR_COMPRESSION_ZIP;
+        (void)exr_get_compression(exr, 0, &comp);
+        double ratio = comp == EXR_COMPRESSION_NONE ? 1.0 : comp == EXR_COMPRESSION_RLE ? 64.0 : 4096.0;
+        r = nc_image_check_file_size(ctx, path, (int64_t)dw.max.x - dw.min.x + 1, (int64_t)dw.max.y - dw.min.y + 1,
+                                     stream_size(exr, &s), 16.0, ratio);
+    }
     if (r != NACRE_OK)
         goto out_finish;
     exr_layout lay;

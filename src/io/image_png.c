@@ -20,6 +20,7 @@
 #include <spng.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/stat.h>
 
 /* Ancillary chunks are not used; the cap keeps a hostile file from making libspng buffer
  * gigabytes of metadata. */
@@ -216,7 +217,13 @@ nacre_result nc_image_read_png(nacre_context *ctx, const char *path, bool srgb, 
         r = png_read_error(ctx, path, fp, e);
         goto out_free_dec;
     }
-    r = nc_image_check_file_size(ctx, path, ihdr.width, ihdr.height);
+    {
+        /* Deflate expands at most ~1032:1; a pixel holds at least bit_depth bits (1 for the
+         * smallest grey or palette images). */
+        struct stat st;
+        int64_t file_size = fstat(fileno(fp), &st) == 0 ? (int64_t)st.st_size : -1;
+        r = nc_image_check_file_size(ctx, path, ihdr.width, ihdr.height, file_size, ihdr.bit_depth, 1032.0);
+    }
     if (r != NACRE_OK)
         goto out_free_dec;
 

@@ -22,10 +22,13 @@ nacre_result nc_image_check(nacre_context *ctx, const nacre_image *image, const 
 /* Argument checks every writer starts with: context, path and image. */
 nacre_result nc_image_write_check(nacre_context *ctx, const nacre_image *image, const char *path);
 
-/* Check sizes read from a file header against the limits above; fails with
- * NACRE_ERROR_PARSE naming the path. */
-nacre_result nc_image_check_file_size(nacre_context *ctx, const char *path, int64_t width,
-                                      int64_t height);
+/* Check sizes read from a file header against the limits above and against the file's size:
+ * width x height pixels of at least `min_bits` bits each cannot come from `file_size` bytes of a
+ * format whose compression expands data by at most `max_ratio` (1 uncompressed, ~1032 for
+ * deflate). Also checks the decoded image (4 floats per pixel at most) against the memory limit.
+ * Runs before anything is allocated for the image; fails naming the path. */
+nacre_result nc_image_check_file_size(nacre_context *ctx, const char *path, int64_t width, int64_t height,
+                                      int64_t file_size, double min_bits, double max_ratio);
 
 /* The piecewise sRGB transfer (IEC 61966-2-1), not a plain 2.2 gamma. */
 static inline float nc_srgb_to_linear(float v)

@@ -481,18 +481,25 @@ static nacre_result check_ply_header(nacre_context *ctx, const char *path, const
                     unsigned cs = ply_type_size(ct, cn), is = ply_type_size(it, in);
                     bool corners = word_is(name, nn, "vertex_indices") ||
                                    word_is(name, nn, "vertex_index");
-                    if (cs && is)
-                        size = cs + (corners ? 3u * is : 0u);
+                    /* An unknown type would leave the body's size unchecked, and assimp then
+                     * sizes its arrays from the counts alone (tens of GB from a small file). */
+                    if (!cs || !is)
+                        return nc_fail(ctx, NACRE_ERROR_PARSE, "%s:%d: unknown PLY list type '%.*s %.*s'",
+                                       path, line, (int)(cn < 32 ? cn : 32), ct, (int)(in < 32 ? in : 32), it);
+                    size = cs + (corners ? 3u * is : 0u);
                     fields += corners ? 3u : 0u;
                 }
             } else {
                 size = ply_type_size(w, n);
+                if (size == 0)
+                    return nc_fail(ctx, NACRE_ERROR_PARSE, "%s:%d: unknown PLY property type '%.*s'", path, line,
+                                   (int)(n < 32 ? n : 32), w);
             }
             if (size == 0)
                 sized = false;
             record += size;
             if (record > 4096)
-                sized = false;
+                record = 4096; /* still a lower bound on the record's size */
             if (fields > 4096)
                 fields = 4096; /* keeps count * fields below 2^52; still a valid lower bound */
         } else if (has && word_is(w, n, "end_header")) {

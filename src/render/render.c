@@ -22,6 +22,7 @@
 #include "shade/shade.h"
 
 #include <math.h>
+#include <stdio.h>
 #include <string.h>
 
 typedef struct shadow_slot {
@@ -313,6 +314,28 @@ nacre_result nacre_renderer_render(nacre_renderer *r, const nacre_scene *s, cons
     for (uint32_t i = 0; i < s->object_count; i++)
         if (s->objects[i].desc.cast_shadows)
             r->draws[casters++] = r->draws[i];
+    if (settings->shadow_map_size > 0 && casters > 0) {
+        /* The estimate before any map is made: every shadowing light's depth map (six faces for
+         * a point light) that is not allocated at its size yet. */
+        uint64_t need = 0, texels = (uint64_t)settings->shadow_map_size * (uint64_t)settings->shadow_map_size;
+        uint32_t maps = 0;
+        for (uint32_t li = 0; li < s->light_count; li++) {
+            const nacre_light_desc *ld = &s->lights[li].desc;
+            uint64_t faces = ld->type == NACRE_LIGHT_POINT ? 6 : 1;
+            const nc_shadow_map *m = &r->shadows[li].map;
+            if (!ld->cast_shadows || (m->depth && m->size == settings->shadow_map_size && (uint64_t)m->face_count == faces))
+                continue;
+            need += faces * texels * sizeof(float);
+            maps++;
+        }
+        if (need) {
+            char what[96];
+            snprintf(what, sizeof(what), "%u shadow map%s of %d^2 texels (lights, shadow_map_size)", maps,
+                     maps == 1 ? "" : "s", settings->shadow_map_size);
+            if ((res = nc_memory_check(ctx, need, what)) != NACRE_OK)
+                goto fail;
+        }
+    }
     for (uint32_t li = 0; li < s->light_count; li++) {
         const nacre_light_desc *ld = &s->lights[li].desc;
         shadow_slot *slot = &r->shadows[li];

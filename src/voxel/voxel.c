@@ -1503,6 +1503,22 @@ static nacre_result voxelize_impl(nacre_context *ctx, const nacre_mesh_data *mes
     }
 
     bool fresh = *out == NULL;
+    {
+        /* The estimate before anything is made: level 0's two sets, two more parity sets under
+         * the robust rule, and the pyramid (under a seventh of level 0). Only what a reused grid
+         * does not hold yet counts. */
+        uint64_t words = (uint64_t)dims[0] * dims[1] * ((dims[2] + 63u) / 64u);
+        uint64_t sets = s.solid_rule == NACRE_VOXEL_SOLID_PARITY ? 2 : 4;
+        uint64_t need = words * 8 * sets + words * 8 * 2 / 7;
+        if (fresh || words > (*out)->cap[0]) {
+            char what[96];
+            snprintf(what, sizeof(what), "voxel grid %ux%ux%u (voxel resolution %u)", dims[0], dims[1], dims[2],
+                     s.resolution);
+            nacre_result mr = nc_memory_check(ctx, need, what);
+            if (mr != NACRE_OK)
+                return mr;
+        }
+    }
     nacre_voxel_grid *g = fresh ? nc_calloc(ctx, 1, sizeof(*g)) : *out;
     if (!g)
         return NACRE_ERROR_OUT_OF_MEMORY;

@@ -845,7 +845,7 @@ static void fuzz_nrrd(nacre_context *ctx, counter *c, rng *r, int iterations)
 int main(void)
 {
     counter c = {0};
-    nacre_context_desc desc = {{count_alloc, count_free, &c}, 1, NULL, NULL};
+    nacre_context_desc desc = {{count_alloc, count_free, &c}, 1, NULL, NULL, 0};
     nacre_context *ctx = NULL;
     CHECK(nacre_context_create(&desc, &ctx) == NACRE_OK);
     if (!ctx)

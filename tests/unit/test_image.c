@@ -811,6 +811,79 @@ static void test_exr_huge_header(nacre_context *ctx)
     CHECK(strstr(nacre_context_last_error(ctx), "out of range") != NULL);
 }
 
+/* A 17 KB EXR and a 33-byte PNG whose headers say 16384 x 16384 pixels (inside the size limits):
+ * refused from the file size before the 3-4 GB image is allocated. Then a real image over a
+ * context's memory limit: refused before decoding, naming the limit. */
+static void test_header_vs_file_size(nacre_context *ctx)
+{
+    char path[512];
+    FILE *fp = fopen(tpath(path, "big_window.exr"), "wb");
+    CHECK(fp != NULL);
+    if (!fp)
+        return;
+    exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
+    init.user_data = fp;
+    init.write_fn = write_at;
+    exr_context_t exr = NULL;
+    int part = 0;
+    exr_result_t rv = exr_start_write(&exr, path, EXR_WRITE_FILE_DIRECTLY, &init);
+    if (rv == EXR_ERR_SUCCESS)
+        rv = exr_add_part(exr, NULL, EXR_STORAGE_SCANLINE, &part);
+    if (rv == EXR_ERR_SUCCESS)
+        rv = exr_initialize_required_attr_simple(exr, part, 16384, 16384, EXR_COMPRESSION_ZIP);
+    if (rv == EXR_ERR_SUCCESS)
+        rv = exr_add_channel(exr, part, "R", EXR_PIXEL_HALF, EXR_PERCEPTUALLY_LOGARITHMIC, 1, 1);
+    if (rv == EXR_ERR_SUCCESS)
+        rv = exr_write_header(exr);
+    if (exr)
+        exr_finish(&exr);
+    CHECK(rv == EXR_ERR_SUCCESS);
+    static const unsigned char zeros[17 * 1024];
+    fseek(fp, 0, SEEK_END);
+    fwrite(zeros, 1, sizeof(zeros), fp);
+    fclose(fp);
+    nacre_context *fresh = NULL;
+    CHECK(nacre_context_create(NULL, &fresh) == NACRE_OK);
+    expect_read_error(fresh, path, NACRE_ERROR_PARSE);
+    CHECK(strstr(nacre_context_last_error(fresh), "can hold") != NULL);
+    CHECK(nacre_context_memory_peak(fresh) < ((uint64_t)64 << 20));
+    nacre_context_destroy(fresh);
+
+    unsigned char png[8 + 25] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n', 0, 0, 0, 13,
+                                 'I', 'H', 'D', 'R'};
+    put_be32(png + 16, 16384);
+    put_be32(png + 20, 16384);
+    png[24] = 8; /* bit depth */
+    png[25] = 2; /* RGB */
+    put_be32(png + 29, crc32_of(png + 12, 17));
+    write_bytes(tpath(path, "big_ihdr.png"), png, sizeof(png));
+    expect_read_error(ctx, path, NACRE_ERROR_PARSE);
+    CHECK(strstr(nacre_context_last_error(ctx), "can hold") != NULL);
+
+    nacre_context *small = NULL;
+    nacre_context_desc d = {0};
+    d.memory_limit = 2u << 20;
+    CHECK(nacre_context_create(&d, &small) == NACRE_OK);
+    CHECK(nacre_context_memory_limit(small) == (2u << 20));
+    nacre_image img = make_image(ctx, 512, 512, 3, 0);
+    for (size_t i = 0; i < 512 * 512 * 3; i++)
+        img.pixels[i] = 0.5f;
+    CHECK(nacre_image_write_png(ctx, &img, tpath(path, "big_for_limit.png"), 0.0f) == NACRE_OK);
+    free(img.pixels);
+    expect_read_error(small, path, NACRE_ERROR_OUT_OF_MEMORY);
+    CHECK(strstr(nacre_context_last_error(small), "memory limit of 2.00 MiB") != NULL);
+    CHECK(nacre_context_memory_used(small) == 0);
+    nacre_image big = {0};
+    CHECK(nacre_image_alloc(small, 1024, 1024, 3, &big) == NACRE_ERROR_OUT_OF_MEMORY);
+    CHECK(strstr(nacre_context_last_error(small), "memory limit") != NULL);
+    CHECK(nacre_context_set_memory_limit(small, 64u << 20) == NACRE_OK);
+    CHECK(nacre_image_alloc(small, 1024, 1024, 3, &big) == NACRE_OK);
+    CHECK(nacre_context_memory_used(small) >= 1024u * 1024u * 12u);
+    nacre_image_free(small, &big);
+    CHECK(nacre_context_memory_used(small) == 0);
+    nacre_context_destroy(small);
+}
+
 static void test_write_failures(nacre_context *ctx)
 {
     char path[512];
@@ -988,7 +1061,7 @@ static void test_allocation_failures(void)
     int failures = 0, successes = 0;
     for (int budget = 0; budget < 12; budget++) {
         limit_state a = {-1, 0};
-        nacre_context_desc desc = {{limited_alloc, limited_free, &a}, 1, NULL, NULL};
+        nacre_context_desc desc = {{limited_alloc, limited_free, &a}, 1, NULL, NULL, 0};
         nacre_context *ctx = NULL;
         if (nacre_context_create(&desc, &ctx) != NACRE_OK)
             continue;
@@ -1039,6 +1112,7 @@ int main(void)
     test_png_16bit(ctx);
     test_bad_files(ctx);
     test_exr_huge_header(ctx);
+    test_header_vs_file_size(ctx);
     test_write_failures(ctx);
     test_compare(ctx);
     test_allocation_failures();

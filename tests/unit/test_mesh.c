@@ -195,7 +195,7 @@ static void test_normals(void)
     m.normals[0] = 42;
     CHECK(nacre_mesh_compute_normals(ctx1, &m) == NACRE_OK);
     CHECK(m.normals == same && is_corner_normal(cube_pos, m.normals));
-    free(m.normals); /* allocated by the default context allocator */
+    nacre_free(ctx1, m.normals); /* allocated through the context */
 
     /* Unshared corners (the box shape has three copies of each corner, one per face):
      * welding by position must give the same smooth result. */
@@ -207,7 +207,9 @@ static void test_normals(void)
     for (uint32_t v = 0; v < box.vertex_count; v++)
         bad += !is_corner_normal(box.positions + 3 * v, box.normals + 3 * v);
     CHECK(bad == 0);
-    free(flat);
+    nacre_free(ctx1, flat);
+    nacre_free(ctx2, box.normals); /* each array goes back to the context that made it */
+    box.normals = NULL;
     nacre_mesh_data_free(ctx1, &box);
 
     /* Degenerate triangles add nothing; a vertex with no usable triangle gets +y. */
@@ -221,7 +223,7 @@ static void test_normals(void)
         CHECK_NEAR(d.normals[3 * v + 1], want, 1e-7);
         CHECK_NEAR(d.normals[3 * v + 2], 0, 1e-7);
     }
-    free(d.normals);
+    nacre_free(ctx1, d.normals);
 
     /* Bad input fails cleanly. */
     uint32_t oob[] = {0, 1, 7};
@@ -245,8 +247,8 @@ static void test_tangents(void)
         bad += t[3] != 1.0f;
     }
     CHECK(bad == 0);
-    free(m.normals);
-    free(m.tangents);
+    nacre_free(ctx1, m.normals);
+    nacre_free(ctx1, m.tangents);
 
     /* A quad in the xy plane facing +z with u along +x, v along +y: t = +x, w = +1. Mirroring u
      * flips the tangent and the handedness. */
@@ -272,7 +274,7 @@ static void test_tangents(void)
                 CHECK(t[3] == 1.0f || t[3] == -1.0f);
             }
         }
-        free(q.tangents);
+        nacre_free(ctx2, q.tangents);
     }
 }
 
@@ -282,10 +284,10 @@ static void test_determinism(void)
     nacre_mesh_data a = shape(NACRE_SHAPE_TORUS, 300, 150);
     nacre_mesh_data b = shape(NACRE_SHAPE_TORUS, 300, 150);
     size_t nv = a.vertex_count;
-    free(a.normals);
-    free(a.tangents);
-    free(b.normals);
-    free(b.tangents);
+    nacre_free(ctx1, a.normals);
+    nacre_free(ctx1, a.tangents);
+    nacre_free(ctx1, b.normals);
+    nacre_free(ctx1, b.tangents);
     a.normals = a.tangents = b.normals = b.tangents = NULL;
     CHECK(nacre_mesh_compute_tangents(ctx1, &a) == NACRE_OK);
     CHECK(nacre_mesh_compute_tangents(ctx2, &b) == NACRE_OK);
@@ -713,6 +715,17 @@ static void test_load_errors(void)
         write_bytes(p, junk, sizeof(junk));
         expect_load_error(p, NACRE_ERROR_PARSE, NULL);
     }
+    /* Unknown property types: the body's size cannot be checked against the counts, and assimp
+     * would size its arrays from them (tens of GB from a few hundred bytes). */
+    const char *odd_ply = tmp_path("unknown_type.ply");
+    write_text(odd_ply, "ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\n"
+                        "property float x\nproperty float y\nproperty float z\nproperty quad w\n"
+                        "element face 1\nproperty list uchar int vertex_indices\nend_header\n0123456789");
+    expect_load_error(odd_ply, NACRE_ERROR_PARSE, "unknown PLY property type 'quad'");
+    write_text(odd_ply, "ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+                        "property float x\nproperty float y\nproperty float z\n"
+                        "element face 1000000000\nproperty list uchar huge vertex_indices\nend_header\n0123");
+    expect_load_error(odd_ply, NACRE_ERROR_PARSE, "unknown PLY list type 'uchar huge'");
     /* A PLY header followed by garbage */
     const char *junk_ply = tmp_path("garbage_body.ply");
     char body[4096 + 256];

@@ -50,7 +50,7 @@ static nacre_context *make_context(counter *c)
 {
     c->live = c->made = 0;
     c->fail_at = -1;
-    nacre_context_desc desc = {{count_alloc, count_free, c}, 1, NULL, NULL};
+    nacre_context_desc desc = {{count_alloc, count_free, c}, 1, NULL, NULL, 0};
     nacre_context *ctx = NULL;
     CHECK(nacre_context_create(&desc, &ctx) == NACRE_OK);
     return ctx;

@@ -349,10 +349,10 @@ static void test_recomputed_frames(nacre_context *ctx)
         if (worst_n <= 0.995 || worst_t <= 0.99 || w_mismatch)
             printf("recomputed frames of shape %d: normals %.6f tangents %.6f, %d w differ\n",
                    (int)types[i], worst_n, worst_t, w_mismatch);
-        /* c's new arrays came from the default context allocator (malloc). */
+        /* c's new arrays came from the context. */
         if (!box)
-            free(c.normals);
-        free(c.tangents);
+            nacre_free(ctx, c.normals);
+        nacre_free(ctx, c.tangents);
         nacre_mesh_data_free(ctx, &m);
     }
 }

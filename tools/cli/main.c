@@ -31,7 +31,11 @@ static void print_main_help(FILE *f)
             "  bench raster|voxelize benchmarks (medians)\n"
             "\n"
             "  nacre <command> --help   options of a command\n"
-            "  nacre --version          version\n");
+            "  nacre --version          version\n"
+            "\n"
+            "every command:\n"
+            "  --memory-limit SIZE      most memory nacre may hold (4G, 512M, bytes; default half of\n"
+            "                           physical memory, less under ulimit -v); over it: exit 2\n");
 }
 
 static int cli_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
@@ -96,10 +100,41 @@ bool nc_cli_common_flag(const char *command, const char *arg, const char *help, 
     return false;
 }
 
+/* --memory-limit, read by main() before the command runs; 0 = the library's default. The one
+ * piece of state the commands share, set once before any of them starts. */
+static uint64_t cli_memory_limit;
+
+/* "4G", "512M", "1.5g", "300k" or a plain byte count; false if malformed or 0. */
+static bool parse_bytes(const char *s, uint64_t *out)
+{
+    char *end = NULL;
+    errno = 0;
+    double v = strtod(s, &end);
+    if (end == s || errno || !(v > 0))
+        return false;
+    double scale = 1;
+    switch (*end) {
+    case 'k': case 'K': scale = 1024.0; end++; break;
+    case 'm': case 'M': scale = 1048576.0; end++; break;
+    case 'g': case 'G': scale = 1073741824.0; end++; break;
+    case 't': case 'T': scale = 1099511627776.0; end++; break;
+    default: break;
+    }
+    if (*end == 'i' || *end == 'I')
+        end++;
+    if (*end == 'b' || *end == 'B')
+        end++;
+    if (*end != '\0' || !(v * scale >= 1) || !(v * scale < 1.8e19))
+        return false;
+    *out = (uint64_t)(v * scale);
+    return true;
+}
+
 nacre_context *nc_cli_context(int threads)
 {
     nacre_context_desc desc = {0};
     desc.threads = threads;
+    desc.memory_limit = cli_memory_limit;
     nacre_context *ctx = NULL;
     if (nacre_context_create(&desc, &ctx) != NACRE_OK) {
         cli_error("cannot create a context (out of memory?)");
@@ -122,6 +157,7 @@ static const char render_help[] =
     "  --exposure EV       PNG exposure in stops (default: the scene's, else 0)\n"
     "  --time T            time in seconds at which deformers are evaluated (default: the scene's, else 0)\n"
     "  --threads N         worker threads (default: all cores)\n"
+    "  --memory-limit SIZE most memory nacre may hold (4G, 512M; default half of RAM)\n"
     "  --exr-float         write 32-bit float EXR instead of half\n"
     "  --stats             print one JSON object with per-stage timings in microseconds\n"
     "diffusion:\n"
@@ -140,7 +176,8 @@ static const char render_help[] =
     "  --help, --version\n";
 
 static void print_stats(const char *scene_name, const nacre_render_settings *rs, const nacre_render_stats *st,
-                        uint64_t load_us, uint64_t commit_us, uint64_t write_us, uint64_t total_us)
+                        uint64_t load_us, uint64_t commit_us, uint64_t write_us, uint64_t total_us,
+                        uint64_t memory_peak)
 {
     printf("{\"scene\":\"");
     for (const char *c = scene_name; *c; c++) {
@@ -164,7 +201,7 @@ static void print_stats(const char *scene_name, const nacre_render_settings *rs,
                st->voxel_dims[0], st->voxel_dims[1], st->voxel_dims[2]);
     if (rs->method == NACRE_METHOD_PATHTRACE)
         printf(",\"spp\":%u,\"samples_per_second\":%.6g", st->spp_done, st->samples_per_second);
-    printf("}\n");
+    printf(",\"memory_peak_bytes\":%llu}\n", (unsigned long long)memory_peak);
 }
 
 static bool has_suffix(const char *s, const char *suffix)
@@ -382,7 +419,7 @@ static int cmd_render(int argc, char **argv)
     uint64_t write_us = nc_cli_now_us() - t0;
     if (stats)
         print_stats(scene_path ? scene_path : "<built-in demo>", &rs, &st, load_us, commit_us, write_us,
-                    nc_cli_now_us() - t_start);
+                    nc_cli_now_us() - t_start, nacre_context_memory_peak(ctx));
     rc = 0;
 out:
     nacre_image_free(ctx, &img);
@@ -568,6 +605,7 @@ static const char voxelize_help[] =
     "  --aniso       fit the other axes to the bounds instead of an N^3 grid\n"
     "  -o FILE       write NRRD (uint8, sizes 2 x y z: channel 0 solid, channel 1 surface)\n"
     "  --json        one JSON object: dims, voxel_size, origin, counts, closed, ms\n"
+    "  --memory-limit SIZE  most memory nacre may hold (4G, 512M; default half of RAM)\n"
     "  --help, --version\n";
 
 static int cmd_voxelize(int argc, char **argv)
@@ -657,6 +695,19 @@ int main(int argc, char **argv)
         printf("nacre %s\n", nacre_version());
         return 0;
     }
+    /* --memory-limit applies to every command: taken out of argv here, wherever it stands. */
+    int kept = 2;
+    for (int i = 2; i < argc; i++) {
+        if (strcmp(argv[i], "--memory-limit") == 0) {
+            if (i + 1 >= argc || !parse_bytes(argv[i + 1], &cli_memory_limit))
+                return nc_cli_usage(cmd, "--memory-limit needs a size such as 4G, 512M or a byte count");
+            i++;
+            continue;
+        }
+        argv[kept++] = argv[i];
+    }
+    argc = kept;
+    argv[argc] = NULL;
     if (strcmp(cmd, "render") == 0)
         return cmd_render(argc - 2, argv + 2);
     if (strcmp(cmd, "info") == 0)
