@@ -355,6 +355,14 @@ typedef struct nacre_layering {
                                              at least `count` channels and a mesh with uvs */
 } nacre_layering;
 
+/* The range of a material's relative index of refraction eta (and of a slab's, for the diffusion
+ * method). The diffusion boundary uses the polynomial fit of the diffuse Fresnel reflectance Fdr
+ * (Egan and Hilgeman) in A = (1 + Fdr) / (1 - Fdr): Fdr reaches 1 near eta 3.85 and 0.26, where A
+ * becomes infinite and the images NaN. [0.3, 3] keeps A within 1..30 and holds every real
+ * material (water 1.33, glass 1.5, diamond 2.42) and its inverse down to 1 / 3. */
+#define NACRE_ETA_MIN 0.3
+#define NACRE_ETA_MAX 3.0
+
 typedef struct nacre_material_desc {
     nacre_material_type type;
     float diffuse[3];  /* opaque: Lambert albedo in [0,1] */
@@ -363,7 +371,7 @@ typedef struct nacre_material_desc {
     float sigma_a[3];  /* translucent: absorption per scene unit, >= 0 */
     float sigma_s[3];  /* translucent: scattering per scene unit, >= 0 */
     float g;           /* Henyey-Greenstein anisotropy, in (-1, 1) */
-    float eta;         /* relative index of refraction, > 0 */
+    float eta;         /* relative index of refraction, in [NACRE_ETA_MIN, NACRE_ETA_MAX] */
     nacre_medium_pattern pattern; /* translucent: heterogeneity (default NONE); of the core when layered */
     nacre_layering layering;      /* translucent: layers above the core (default count 0) */
 } nacre_material_desc;

@@ -43,6 +43,7 @@ static const range R_FINITE = {-INFINITY, INFINITY, true, true};
 static const range R_NONNEG = {0.0, INFINITY, false, true};
 static const range R_POSITIVE = {0.0, INFINITY, true, true};
 static const range R_UNIT = {0.0, 1.0, false, false};
+static const range R_ETA = {NACRE_ETA_MIN, NACRE_ETA_MAX, false, false};
 
 typedef struct material_entry {
     const char *name; /* borrowed from the cJSON tree */
@@ -960,7 +961,7 @@ static void parse_material(loader *ld, const cJSON *obj, nacre_material *out)
     get_floats(ld, obj, "sigma_a", 3, R_NONNEG, true, d.sigma_a);
     get_floats(ld, obj, "sigma_s", 3, R_NONNEG, true, d.sigma_s);
     get_number(ld, obj, "g", g_range, &d.g);
-    get_number(ld, obj, "eta", R_POSITIVE, &d.eta);
+    get_number(ld, obj, "eta", R_ETA, &d.eta);
     const cJSON *pattern = member(obj, "pattern");
     if (pattern && type == 1 && !ld->err)
         parse_pattern(ld, pattern, &d.pattern);

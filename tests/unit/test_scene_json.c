@@ -316,7 +316,12 @@ static const bad_case bad_cases[] = {
     {MAT("{\"type\": \"translucent\", \"sigma_a\": [1, -1, 1]}"), INVALID,
      "t.json: materials.m.sigma_a[1]: must be non-negative and finite (got -1)", NULL},
     {MAT("{\"type\": \"translucent\", \"sigma_s\": -2}"), INVALID, "materials.m.sigma_s: must be non-negative", NULL},
-    {MAT("{\"type\": \"translucent\", \"eta\": 0}"), INVALID, "materials.m.eta: must be positive and finite (got 0)", NULL},
+    {MAT("{\"type\": \"translucent\", \"eta\": 0}"), INVALID, "materials.m.eta: must be in [0.3, 3] (got 0)", NULL},
+    /* Issue 29 item 6: eta far from any material's turned diffusion images to NaN. */
+    {MAT("{\"type\": \"translucent\", \"eta\": 1e-6}"), INVALID, "materials.m.eta: must be in [0.3, 3] (got 1e-06)", NULL},
+    {MAT("{\"type\": \"translucent\", \"eta\": 1e9}"), INVALID, "materials.m.eta: must be in [0.3, 3] (got 1e+09)", NULL},
+    {MAT("{\"preset\": \"marble\", \"eta\": 3.5}"), INVALID, "materials.m.eta: must be in [0.3, 3] (got 3.5)", NULL},
+    {MAT("{\"preset\": \"marble\", \"eta\": 0.29}"), INVALID, "materials.m.eta: must be in [0.3, 3] (got 0.29)", NULL},
     {MAT("{\"type\": \"translucent\", \"g\": 1}"), INVALID, "materials.m.g: must be in (-1, 1) (got 1)", NULL},
     {MAT("{\"type\": \"translucent\", \"g\": -1}"), INVALID, "materials.m.g: must be in (-1, 1) (got -1)", NULL},
     {MAT("{\"type\": \"opaque\", \"diffuse\": [0.5, 1.5, 0.5]}"), INVALID, "materials.m.diffuse[1]: must be in [0, 1]", NULL},
