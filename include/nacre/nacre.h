@@ -184,8 +184,11 @@ typedef struct nacre_image_metrics {
     double psnr;          /* 10 log10(peak^2 / mse), peak = max reference value; inf if equal */
     double mean_rel_err;  /* mean(|a-b| / |b|) over values with b != 0 */
     double max_abs_err;   /* max |a-b| */
-    uint64_t count;       /* values compared (pixels * channels) */
+    uint64_t count;       /* values compared (pixels * channels, less those left out below) */
     uint64_t nonzero_ref; /* values with b != 0 */
+    /* Pixels with a NaN or infinite channel in the test and in the reference image. Values that
+     * are not finite in either image are left out of every metric above: check these first. */
+    uint64_t nonfinite_test, nonfinite_ref;
 } nacre_image_metrics;
 
 /* Allocate a zeroed image (stride = width * channels). 1 <= width, height <= 65536. */
@@ -195,7 +198,9 @@ NACRE_API nacre_result nacre_image_alloc(nacre_context *ctx, int32_t width, int3
 NACRE_API void nacre_image_free(nacre_context *ctx, nacre_image *image);
 /* Write by extension: .png (8-bit sRGB, exposure-scaled, RGB or RGBA) or .exr (linear).
  * Written to a temporary file in the same folder, then renamed: no partial file is left.
- * options may be NULL (exposure 0, half EXR). */
+ * options may be NULL (exposure 0, half EXR). EXR refuses images holding NaN or infinities
+ * (INVALID_ARGUMENT naming the first pixel). Half EXR holds magnitudes up to 65504: larger values
+ * are written as +-65504 and a warning with their count goes to the context's log callback. */
 NACRE_API nacre_result nacre_image_write(nacre_context *ctx, const nacre_image *image,
                                          const char *path, const nacre_image_write_options *options);
 NACRE_API nacre_result nacre_image_write_png(nacre_context *ctx, const nacre_image *image,
