@@ -96,10 +96,22 @@ bool nc_cli_common_flag(const char *command, const char *arg, const char *help, 
     return false;
 }
 
+/* Library warnings (a half EXR's clamped values) are printed; errors are printed by the command
+ * from nacre_context_last_error instead, once. */
+static const char *cli_warning_hint = ""; /* what the command suggests after a warning */
+
+static void cli_log(void *user, nacre_log_level level, const char *message)
+{
+    (void)user;
+    if (level == NACRE_LOG_WARNING)
+        fprintf(stderr, "nacre: warning: %s%s\n", message, cli_warning_hint);
+}
+
 nacre_context *nc_cli_context(int threads)
 {
     nacre_context_desc desc = {0};
     desc.threads = threads;
+    desc.log_fn = cli_log;
     nacre_context *ctx = NULL;
     if (nacre_context_create(&desc, &ctx) != NACRE_OK) {
         cli_error("cannot create a context (out of memory?)");
@@ -122,7 +134,8 @@ static const char render_help[] =
     "  --exposure EV       PNG exposure in stops (default: the scene's, else 0)\n"
     "  --time T            time in seconds at which deformers are evaluated (default: the scene's, else 0)\n"
     "  --threads N         worker threads (default: all cores)\n"
-    "  --exr-float         write 32-bit float EXR instead of half\n"
+    "  --exr-float         write 32-bit float EXR instead of half (half holds up to 65504: larger\n"
+    "                      values are written as 65504, with a warning giving their count)\n"
     "  --stats             print one JSON object with per-stage timings in microseconds\n"
     "diffusion:\n"
     "  --voxel-res N       voxels along each translucent object's longest axis (default 32)\n"
@@ -375,7 +388,10 @@ static int cmd_render(int argc, char **argv)
     }
     t0 = nc_cli_now_us();
     nacre_image_write_options wo = {.exposure = rs.exposure, .exr_type = exr_float ? NACRE_EXR_FLOAT : NACRE_EXR_HALF};
-    if (nacre_image_write(ctx, &img, out_path, &wo) != NACRE_OK) {
+    cli_warning_hint = " (--exr-float)"; /* the one warning an image write gives: half range */
+    nacre_result wr = nacre_image_write(ctx, &img, out_path, &wo);
+    cli_warning_hint = "";
+    if (wr != NACRE_OK) {
         nc_cli_fail(ctx);
         goto out;
     }
