@@ -191,6 +191,31 @@ static bool has_suffix(const char *s, const char *suffix)
     return true;
 }
 
+/* A rendered image with NaN or infinite values is the method's failure: say so (one line naming
+ * the method and the first pixel) instead of writing it. */
+static bool image_finite(const nacre_image *img, const nacre_render_settings *rs, const char *what)
+{
+    unsigned long long bad = 0;
+    int32_t fx = 0, fy = 0;
+    for (int32_t y = 0; y < img->height; y++)
+        for (int32_t x = 0; x < img->width; x++) {
+            const float *p = img->pixels + (size_t)y * img->stride + (size_t)x * (size_t)img->channels;
+            bool ok = true;
+            for (int32_t c = 0; c < img->channels; c++)
+                ok = ok && isfinite(p[c]);
+            if (!ok && bad++ == 0) {
+                fx = x;
+                fy = y;
+            }
+        }
+    if (bad == 0)
+        return true;
+    cli_error("render: method '%s' produced %llu pixel%s with NaN or infinite values in its %s (first at x %d, y %d); "
+              "nothing written",
+              nacre_method_name(rs->method), bad, bad == 1 ? "" : "s", what, (int)fx, (int)fy);
+    return false;
+}
+
 static int cmd_render(int argc, char **argv)
 {
     const char *scene_path = NULL, *out_path = "nacre.png", *method_name = NULL, *variance_path = NULL;
@@ -376,13 +401,17 @@ static int cmd_render(int argc, char **argv)
     if (nacre_scene_fog_count(scene) > 0 && rs.method != NACRE_METHOD_PATHTRACE)
         fprintf(stderr, "nacre: note: the scene's fog is rendered by --method pathtrace only; method '%s' ignores it\n",
                 nacre_method_name(rs.method));
+    if (!image_finite(&img, &rs, "image")) /* nothing is written */
+        goto out;
     if (variance_path) {
         nacre_image var = {0};
         nacre_image_write_options vo = {.exr_type = NACRE_EXR_FLOAT};
-        bool ok = nacre_renderer_variance(renderer, &var) == NACRE_OK && nacre_image_write(ctx, &var, variance_path, &vo) == NACRE_OK;
+        bool got = nacre_renderer_variance(renderer, &var) == NACRE_OK, finite = got && image_finite(&var, &rs, "variance");
+        bool ok = finite && nacre_image_write(ctx, &var, variance_path, &vo) == NACRE_OK;
         nacre_image_free(ctx, &var);
         if (!ok) {
-            nc_cli_fail(ctx);
+            if (!got || finite)
+                nc_cli_fail(ctx);
             goto out;
         }
     }
