@@ -533,6 +533,9 @@ static const char compare_help[] =
     "  psnr           10 log10(peak^2 / mse), peak = max reference value (dB)\n"
     "  mean_rel_err   mean(|t - r| / |r|) over values where the reference is non-zero\n"
     "  max_abs_err    max |t - r|\n"
+    "Pixels holding NaN or infinite values are counted (nonfinite_test, nonfinite_reference) and\n"
+    "left out of the metrics; if either image has any, compare prints the metrics and an error\n"
+    "and exits with status 2.\n"
     "\n"
     "  --json   one JSON object\n"
     "  --help, --version\n";
@@ -586,11 +589,22 @@ static int cmd_compare(int argc, char **argv)
         print_number(m.mean_rel_err);
         printf(",\"max_abs_err\":");
         print_number(m.max_abs_err);
-        printf(",\"values\":%llu,\"nonzero_reference_values\":%llu}\n", (unsigned long long)m.count,
-               (unsigned long long)m.nonzero_ref);
+        printf(",\"values\":%llu,\"nonzero_reference_values\":%llu,\"nonfinite_test\":%llu,"
+               "\"nonfinite_reference\":%llu}\n",
+               (unsigned long long)m.count, (unsigned long long)m.nonzero_ref, (unsigned long long)m.nonfinite_test,
+               (unsigned long long)m.nonfinite_ref);
     } else {
         printf("rmse          %.6g\nrel_mse       %.6g\npsnr          %.3f dB\nmean_rel_err  %.6g\nmax_abs_err   %.6g\n",
                m.rmse, m.rel_mse, m.psnr, m.mean_rel_err, m.max_abs_err);
+        if (m.nonfinite_test || m.nonfinite_ref)
+            printf("nonfinite     %llu test, %llu reference pixels (left out)\n", (unsigned long long)m.nonfinite_test,
+                   (unsigned long long)m.nonfinite_ref);
+    }
+    if (m.nonfinite_test || m.nonfinite_ref) {
+        fflush(stdout);
+        cli_error("compare: %s has %llu and %s has %llu pixels with NaN or infinite values; the metrics leave them out",
+                  paths[0], (unsigned long long)m.nonfinite_test, paths[1], (unsigned long long)m.nonfinite_ref);
+        goto out;
     }
     rc = 0;
 out:
