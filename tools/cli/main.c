@@ -5,13 +5,16 @@
  * Errors are one line on stderr: "nacre: <message>". The library returns errors; this file is
  * the only place that prints them.
  */
+#define _XOPEN_SOURCE 700 /* realpath (XSI); the build asks for POSIX 2008 only */
 #include "cli.h"
 
 #include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "demo_scene.h"
 
@@ -118,6 +121,54 @@ nacre_context *nc_cli_context(int threads)
         return NULL;
     }
     return ctx;
+}
+
+/* `path` made absolute without resolving its last component (which may not exist yet): the
+ * real path of its folder, then the name. Lexical (as given) when the folder does not resolve. */
+static void normalized_path(const char *path, char *out, size_t size)
+{
+    const char *slash = strrchr(path, '/');
+    const char *base = slash ? slash + 1 : path;
+    char dir[PATH_MAX], real[PATH_MAX];
+    size_t n = slash ? (size_t)(slash - path) : 0;
+    if (slash && n == 0)
+        n = 1; /* "/name": the root */
+    if (n >= sizeof(dir))
+        n = sizeof(dir) - 1;
+    memcpy(dir, slash ? path : ".", slash ? n : 1);
+    dir[slash ? n : 1] = '\0';
+    if (strcmp(base, ".") != 0 && strcmp(base, "..") != 0 && base[0] && realpath(dir, real))
+        snprintf(out, size, "%s%s%s", real, strcmp(real, "/") == 0 ? "" : "/", base);
+    else
+        snprintf(out, size, "%s", path);
+}
+
+/* Whether two paths name the same file: device and inode when both exist, the normalized paths
+ * when neither does (an output that does not exist yet cannot be an existing input). */
+static bool same_file(const char *a, const char *b)
+{
+    struct stat sa, sb;
+    bool ea = stat(a, &sa) == 0, eb = stat(b, &sb) == 0;
+    if (ea && eb)
+        return sa.st_dev == sb.st_dev && sa.st_ino == sb.st_ino;
+    if (ea != eb)
+        return false;
+    char na[PATH_MAX + 256], nb[PATH_MAX + 256];
+    normalized_path(a, na, sizeof(na));
+    normalized_path(b, nb, sizeof(nb));
+    return strcmp(na, nb) == 0;
+}
+
+/* Refuse to write an output over one of the run's inputs or over another of its outputs: false
+ * (after one line on stderr) if `out` names the same file as `other`. */
+static bool output_distinct(const char *command, const char *out, const char *out_what, const char *other,
+                            const char *other_what)
+{
+    if (!out || !other || !same_file(out, other))
+        return true;
+    fprintf(stderr, "nacre %s: %s '%s' is the same file as the %s '%s': refusing to overwrite it\n", command, out_what,
+            out, other_what, other);
+    return false;
 }
 
 /* ---------------------------------------------------------------------------------------- */
@@ -317,6 +368,10 @@ static int cmd_render(int argc, char **argv)
     }
     if (!has_suffix(out_path, ".png") && !has_suffix(out_path, ".exr"))
         return nc_cli_usage("render", "output '%s': use a .png or .exr file name", out_path);
+    if (!output_distinct("render", out_path, "output", scene_path, "scene") ||
+        !output_distinct("render", variance_path, "variance output", scene_path, "scene") ||
+        !output_distinct("render", variance_path, "variance output", out_path, "output"))
+        return EXIT_BAD;
     nacre_method method = NACRE_METHOD_PHONG;
     if (method_name && !nacre_method_from_name(method_name, &method))
         return nc_cli_usage("render", "unknown method '%s' (phong, diffusion, layered, pathtrace)", method_name);
@@ -661,6 +716,8 @@ static int cmd_voxelize(int argc, char **argv)
     }
     if (!path)
         return nc_cli_usage("voxelize", "missing MESH");
+    if (!output_distinct("voxelize", out_path, "output", path, "mesh"))
+        return EXIT_BAD;
     vs.resolution = (uint32_t)res;
     nacre_context *ctx = nc_cli_context(0);
     if (!ctx)
