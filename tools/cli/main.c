@@ -442,6 +442,12 @@ static int cmd_render(int argc, char **argv)
         cli_error("method '%s' is not implemented yet", nacre_method_name(rs.method));
         goto out;
     }
+    /* The renderer's own message cannot name the file. */
+    if (nacre_scene_object_count(scene) == 0 && !(rs.method == NACRE_METHOD_PATHTRACE && nacre_scene_fog_count(scene) > 0)) {
+        cli_error("%s: scene has no objects (nothing to render with method '%s')",
+                  scene_path ? scene_path : "<built-in demo>", nacre_method_name(rs.method));
+        goto out;
+    }
     uint64_t t0 = nc_cli_now_us();
     if (nacre_scene_commit(scene, rs.time) != NACRE_OK) {
         nc_cli_fail(ctx);
