@@ -268,9 +268,13 @@ NACRE_API nacre_shape_desc nacre_shape_desc_defaults(nacre_shape_type type);
 NACRE_API nacre_result nacre_mesh_make_shape(nacre_context *ctx, const nacre_shape_desc *desc,
                                              nacre_mesh_data *out);
 /* Load OBJ, PLY (ASCII/binary) or glTF 2.0 (.gltf/.glb); all meshes in the file are merged,
- * with node transforms applied. Polygons are triangulated. Normals and tangents are computed
- * when missing (tangents need UVs; without UVs a tangent is chosen perpendicular to the normal).
- * Fails on empty meshes, non-finite positions and out-of-range indices. */
+ * with node transforms applied. Polygons are triangulated: by assimp when none has more than 64
+ * corners, otherwise by nacre, in time linear in the corners for convex polygons (and those
+ * star-shaped around their first corner, which become fans) and by ear clipping for others of
+ * up to 512 corners; a longer polygon of that kind fails with UNSUPPORTED naming the face.
+ * Normals and tangents are computed when missing (tangents need UVs; without UVs a tangent is
+ * chosen perpendicular to the normal). Fails on empty meshes, non-finite positions and
+ * out-of-range indices. */
 NACRE_API nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_data *out);
 /* Free arrays allocated by the library and zero the struct. */
 NACRE_API void nacre_mesh_data_free(nacre_context *ctx, nacre_mesh_data *mesh);
