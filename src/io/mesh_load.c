@@ -46,6 +46,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 /* assimp's own post-processing recurses over nodes too; a file nested deeper than this is not a
  * mesh anyone meant to write. */
@@ -580,6 +581,9 @@ typedef struct ply_layout {
     uint64_t count[PLY_MAX_ELEMENTS];
     int properties[PLY_MAX_ELEMENTS];
     bool is_list[PLY_MAX_ELEMENTS][PLY_MAX_PROPERTIES];
+    bool is_corners[PLY_MAX_ELEMENTS][PLY_MAX_PROPERTIES]; /* vertex_indices lists */
+    uint64_t short_need; /* ASCII body shorter than its counts need (bytes needed); the body check
+                            runs first, so a face with too few indices is named as such */
 } ply_layout;
 
 /* count <= 2^40 and record <= 4096 keep each term below 2^52; many elements could still add up
@@ -656,11 +660,11 @@ static nacre_result check_ply_header(nacre_context *ctx, const char *path, const
             unsigned size = 0;
             fields++;
             bool list = next_word(&q, eol, &w, &n) && word_is(w, n, "list");
-            int e = layout->elements - 1;
+            int e = layout->elements - 1, pi = -1;
             if (e < 0 || layout->properties[e] >= PLY_MAX_PROPERTIES)
                 layout->known = false;
             else
-                layout->is_list[e][layout->properties[e]++] = list;
+                layout->is_list[e][pi = layout->properties[e]++] = list;
             if (list) {
                 const char *ct, *it, *name;
                 size_t cn, in, nn;
@@ -672,6 +676,8 @@ static nacre_result check_ply_header(nacre_context *ctx, const char *path, const
                     if (cs && is)
                         size = cs + (corners ? 3u * is : 0u);
                     fields += corners ? 3u : 0u;
+                    if (corners && pi >= 0)
+                        layout->is_corners[e][pi] = true;
                 }
             } else {
                 size = ply_type_size(w, n);
@@ -692,11 +698,7 @@ static nacre_result check_ply_header(nacre_context *ctx, const char *path, const
                 need_text = add_capped(need_text, count * fields);
                 need_text = need_text ? add_capped(header, 2 * need_text - 1) : header;
                 if (file_size < need_text)
-                    return nc_fail(ctx, NACRE_ERROR_PARSE,
-                                   "%s: truncated ASCII PLY: the header's element counts need at "
-                                   "least %llu bytes, the file has %llu",
-                                   path, (unsigned long long)need_text,
-                                   (unsigned long long)file_size);
+                    layout->short_need = need_text; /* reported after the body check */
                 return NACRE_OK;
             }
             if (!sized)
@@ -838,6 +840,11 @@ static nacre_result check_ply_ascii_body(nacre_context *ctx, const char *path, F
                            cur.property < layout->properties[cur.element]) {
                     if (layout->is_list[cur.element][cur.property]) {
                         uint64_t items = ply_leading_uint(tok, n);
+                        if (items < 3 && layout->is_corners[cur.element][cur.property])
+                            return nc_fail(ctx, NACRE_ERROR_PARSE,
+                                           "%s:%d: face %llu has %llu ind%s (need at least 3)", path, line,
+                                           (unsigned long long)cur.instance, (unsigned long long)items,
+                                           items == 1 ? "ex" : "ices");
                         if (items > file_size / 2)
                             return nc_fail(ctx, NACRE_ERROR_PARSE,
                                            "%s:%d: a list of %llu items cannot fit in the file",
@@ -1053,6 +1060,11 @@ nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_da
     FILE *f = fopen(path, "rb");
     if (!f)
         return nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot open: %s", path, strerror(errno));
+    struct stat st;
+    if (fstat(fileno(f), &st) == 0 && S_ISDIR(st.st_mode)) {
+        fclose(f); /* fopen opens a folder for reading; every read then fails */
+        return nc_fail(ctx, NACRE_ERROR_IO, "%s: is a directory, not a mesh file", path);
+    }
     char *head = nc_alloc(ctx, LOAD_HEAD_BYTES);
     if (!head) {
         fclose(f);
@@ -1069,6 +1081,10 @@ nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_da
                                    : check_ply_header(ctx, path, head, head_len, file_size, &layout);
     if (r == NACRE_OK && layout.body)
         r = check_ply_ascii_body(ctx, path, f, &layout, file_size, head, LOAD_HEAD_BYTES);
+    if (r == NACRE_OK && layout.short_need)
+        r = nc_fail(ctx, NACRE_ERROR_PARSE,
+                    "%s: truncated ASCII PLY: the header's element counts need at least %llu bytes, the file has %llu",
+                    path, (unsigned long long)layout.short_need, (unsigned long long)file_size);
     if (r == NACRE_OK && has_extension(path, ".obj"))
         r = check_obj_indices(ctx, path, f, head, LOAD_HEAD_BYTES);
     fclose(f);
