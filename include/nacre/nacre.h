@@ -208,8 +208,11 @@ typedef struct nacre_image_metrics {
     double psnr;          /* 10 log10(peak^2 / mse), peak = max reference value; inf if equal */
     double mean_rel_err;  /* mean(|a-b| / |b|) over values with b != 0 */
     double max_abs_err;   /* max |a-b| */
-    uint64_t count;       /* values compared (pixels * channels) */
+    uint64_t count;       /* values compared (pixels * channels, less those left out below) */
     uint64_t nonzero_ref; /* values with b != 0 */
+    /* Pixels with a NaN or infinite channel in the test and in the reference image. Values that
+     * are not finite in either image are left out of every metric above: check these first. */
+    uint64_t nonfinite_test, nonfinite_ref;
 } nacre_image_metrics;
 
 /* Allocate a zeroed image (stride = width * channels). 1 <= width, height <= 65536. */
@@ -219,7 +222,9 @@ NACRE_API nacre_result nacre_image_alloc(nacre_context *ctx, int32_t width, int3
 NACRE_API void nacre_image_free(nacre_context *ctx, nacre_image *image);
 /* Write by extension: .png (8-bit sRGB, exposure-scaled, RGB or RGBA) or .exr (linear).
  * Written to a temporary file in the same folder, then renamed: no partial file is left.
- * options may be NULL (exposure 0, half EXR). */
+ * options may be NULL (exposure 0, half EXR). EXR refuses images holding NaN or infinities
+ * (INVALID_ARGUMENT naming the first pixel). Half EXR holds magnitudes up to 65504: larger values
+ * are written as +-65504 and a warning with their count goes to the context's log callback. */
 NACRE_API nacre_result nacre_image_write(nacre_context *ctx, const nacre_image *image,
                                          const char *path, const nacre_image_write_options *options);
 NACRE_API nacre_result nacre_image_write_png(nacre_context *ctx, const nacre_image *image,
@@ -287,9 +292,13 @@ NACRE_API nacre_shape_desc nacre_shape_desc_defaults(nacre_shape_type type);
 NACRE_API nacre_result nacre_mesh_make_shape(nacre_context *ctx, const nacre_shape_desc *desc,
                                              nacre_mesh_data *out);
 /* Load OBJ, PLY (ASCII/binary) or glTF 2.0 (.gltf/.glb); all meshes in the file are merged,
- * with node transforms applied. Polygons are triangulated. Normals and tangents are computed
- * when missing (tangents need UVs; without UVs a tangent is chosen perpendicular to the normal).
- * Fails on empty meshes, non-finite positions and out-of-range indices. */
+ * with node transforms applied. Polygons are triangulated: by assimp when none has more than 64
+ * corners, otherwise by nacre, in time linear in the corners for convex polygons (and those
+ * star-shaped around their first corner, which become fans) and by ear clipping for others of
+ * up to 512 corners; a longer polygon of that kind fails with UNSUPPORTED naming the face.
+ * Normals and tangents are computed when missing (tangents need UVs; without UVs a tangent is
+ * chosen perpendicular to the normal). Fails on empty meshes, non-finite positions and
+ * out-of-range indices. */
 NACRE_API nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_data *out);
 /* Free arrays allocated by the library and zero the struct. */
 NACRE_API void nacre_mesh_data_free(nacre_context *ctx, nacre_mesh_data *mesh);
@@ -381,6 +390,14 @@ typedef struct nacre_layering {
                                              at least `count` channels and a mesh with uvs */
 } nacre_layering;
 
+/* The range of a material's relative index of refraction eta (and of a slab's, for the diffusion
+ * method). The diffusion boundary uses the polynomial fit of the diffuse Fresnel reflectance Fdr
+ * (Egan and Hilgeman) in A = (1 + Fdr) / (1 - Fdr): Fdr reaches 1 near eta 3.85 and 0.26, where A
+ * becomes infinite and the images NaN. [0.3, 3] keeps A within 1..30 and holds every real
+ * material (water 1.33, glass 1.5, diamond 2.42) and its inverse down to 1 / 3. */
+#define NACRE_ETA_MIN 0.3
+#define NACRE_ETA_MAX 3.0
+
 typedef struct nacre_material_desc {
     nacre_material_type type;
     float diffuse[3];  /* opaque: Lambert albedo in [0,1] */
@@ -389,7 +406,7 @@ typedef struct nacre_material_desc {
     float sigma_a[3];  /* translucent: absorption per scene unit, >= 0 */
     float sigma_s[3];  /* translucent: scattering per scene unit, >= 0 */
     float g;           /* Henyey-Greenstein anisotropy, in (-1, 1) */
-    float eta;         /* relative index of refraction, > 0 */
+    float eta;         /* relative index of refraction, in [NACRE_ETA_MIN, NACRE_ETA_MAX] */
     nacre_medium_pattern pattern; /* translucent: heterogeneity (default NONE); of the core when layered */
     nacre_layering layering;      /* translucent: layers above the core (default count 0) */
 } nacre_material_desc;

@@ -55,6 +55,10 @@ static nacre_result check_desc(nacre_context *ctx, const nacre_slab_desc *d)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: g must be in (-1, 1)");
     if (!(d->eta > 0) || !isfinite(d->eta))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: eta must be finite and > 0");
+    /* The path tracer's Fresnel equations hold for any eta; the diffusion boundary's fit does not. */
+    if (d->method == NACRE_METHOD_DIFFUSION && !(d->eta >= NACRE_ETA_MIN && d->eta <= NACRE_ETA_MAX))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: eta must be in [%g, %g] for diffusion (got %g)",
+                       NACRE_ETA_MIN, NACRE_ETA_MAX, d->eta);
     return NACRE_OK;
 }
 

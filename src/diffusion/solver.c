@@ -955,8 +955,9 @@ nacre_result nc_diff_setup(nc_diff_solver *s, const nc_diff_medium *m)
     nacre_context *ctx = s->ctx;
     if (m->dims[0] == 0 || m->dims[1] == 0 || m->dims[2] == 0 || !(m->h > 0) || !isfinite(m->h))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "diffusion: empty grid or bad cell size");
-    if (!(m->eta > 0) || !isfinite(m->eta))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "diffusion: eta must be finite and > 0");
+    if (!(m->eta >= NACRE_ETA_MIN && m->eta <= NACRE_ETA_MAX))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "diffusion: eta must be in [%g, %g] (got %g)", NACRE_ETA_MIN,
+                       NACRE_ETA_MAX, (double)m->eta);
     for (int a = 0; a < 3; a++)
         if (m->periodic[a] && m->dims[a] != 1)
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "diffusion: a periodic axis must have one cell");

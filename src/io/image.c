@@ -92,6 +92,29 @@ nacre_result nc_image_check(nacre_context *ctx, const nacre_image *image, const 
     return NACRE_OK;
 }
 
+uint64_t nc_image_count_nonfinite(const nacre_image *image, int32_t *x, int32_t *y, int32_t *c)
+{
+    uint64_t count = 0;
+    const int32_t nc = image->channels;
+    for (int32_t j = 0; j < image->height; j++) {
+        const float *row = image->pixels + (size_t)j * image->stride;
+        for (int32_t i = 0; i < image->width; i++) {
+            int32_t bad = -1;
+            for (int32_t k = nc - 1; k >= 0; k--)
+                if (!isfinite(row[(size_t)i * (size_t)nc + (size_t)k]))
+                    bad = k;
+            if (bad < 0)
+                continue;
+            if (count++ == 0) {
+                *x = i;
+                *y = j;
+                *c = bad;
+            }
+        }
+    }
+    return count;
+}
+
 nacre_result nc_image_check_file_size(nacre_context *ctx, const char *path, int64_t width, int64_t height,
                                       int64_t file_size, double min_bits, double max_ratio)
 {
@@ -308,11 +331,19 @@ nacre_result nacre_image_compare(nacre_context *ctx, const nacre_image *test,
     size_t row_values = (size_t)test->width * (size_t)test->channels;
     double sum_sq = 0.0, sum_rel_sq = 0.0, sum_rel = 0.0, max_abs = 0.0;
     double peak = -INFINITY;
-    uint64_t nonzero = 0;
+    uint64_t nonzero = 0, skipped = 0;
+    int32_t fx, fy, fc;
+    out->nonfinite_test = nc_image_count_nonfinite(test, &fx, &fy, &fc);
+    out->nonfinite_ref = nc_image_count_nonfinite(reference, &fx, &fy, &fc);
     for (int32_t y = 0; y < test->height; y++) {
         const float *a = test->pixels + (size_t)y * test->stride;
         const float *b = reference->pixels + (size_t)y * reference->stride;
         for (size_t i = 0; i < row_values; i++) {
+            /* A NaN would poison every sum and drop out of the maxima unseen. */
+            if (!isfinite(a[i]) || !isfinite(b[i])) {
+                skipped++;
+                continue;
+            }
             double bv = b[i];
             double d = (double)a[i] - bv;
             double ad = fabs(d);
@@ -328,12 +359,12 @@ nacre_result nacre_image_compare(nacre_context *ctx, const nacre_image *test,
                 peak = bv;
         }
     }
-    uint64_t count = (uint64_t)row_values * (uint64_t)test->height;
-    double mse = sum_sq / (double)count;
+    uint64_t count = (uint64_t)row_values * (uint64_t)test->height - skipped;
+    double mse = count ? sum_sq / (double)count : 0.0;
     if (!(peak > 0.0))
         peak = 1.0;
     out->rmse = sqrt(mse);
-    out->rel_mse = sum_rel_sq / (double)count;
+    out->rel_mse = count ? sum_rel_sq / (double)count : 0.0;
     out->psnr = mse == 0.0 ? INFINITY : 10.0 * log10(peak * peak / mse);
     out->mean_rel_err = nonzero ? sum_rel / (double)nonzero : 0.0;
     out->max_abs_err = max_abs;

@@ -1,6 +1,7 @@
 /*
  * image_exr.c: OpenEXR through the OpenEXR 3.1 C API (OpenEXRCore). Values are linear and stored
- * unchanged (HALF rounds to nearest). Writing: one scanline part, ZIP compression, channels
+ * unchanged (HALF rounds to nearest; magnitudes above 65504, the largest half, are clamped to it
+ * and counted in a warning through the log callback). NaN and infinities are refused. Writing: one scanline part, ZIP compression, channels
  * R, G, B (+ A) for 3 (4) channels, Y (+ A) for 1 (2). Reading: part 0, scanline or tiled
  * (level 0 of a mip/rip-mapped file), HALF, FLOAT or UINT channels converted to float; R, G, B
  * and A are taken by name (a missing colour channel reads as 0), a Y-only file is copied to
@@ -24,6 +25,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <limits.h>
+#include <math.h>
 #include <stdio.h>
 #include <string.h>
 #include <sys/stat.h>
@@ -142,6 +144,8 @@ static nacre_result exr_fail(nacre_context *ctx, const char *path, const exr_str
 /* Writing                                                                                    */
 /* ------------------------------------------------------------------------------------------ */
 
+#define NC_HALF_MAX 65504.0f /* the largest finite half */
+
 static const char *const channel_names[4][4] = {
     {"Y"}, {"Y", "A"}, {"R", "G", "B"}, {"R", "G", "B", "A"}};
 
@@ -236,10 +240,50 @@ nacre_result nacre_image_write_exr(nacre_context *ctx, const nacre_image *image,
                        "%s: image stride %zu is too large for the EXR writer", path,
                        image->stride);
 
+    /* No file ever holds NaN or infinity: they are a renderer's failure, not an image. */
+    int32_t bx = 0, by = 0, bc = 0;
+    uint64_t nonfinite = nc_image_count_nonfinite(image, &bx, &by, &bc);
+    if (nonfinite > 0) {
+        float v = image->pixels[(size_t)by * image->stride + (size_t)bx * (size_t)image->channels + (size_t)bc];
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                       "%s: pixel (%d, %d) channel %s is %s (%llu pixel%s not finite): not written", path, (int)bx,
+                       (int)by, channel_names[image->channels - 1][bc], isnan(v) ? "NaN" : v > 0 ? "+Inf" : "-Inf",
+                       (unsigned long long)nonfinite, nonfinite == 1 ? "" : "s");
+    }
+    /* Half holds magnitudes up to 65504; OpenEXR would turn larger ones into infinities. They
+     * are clamped to +-65504 in a copy instead, and the count goes to the log as a warning. */
+    nacre_image src = *image;
+    float *clamped = NULL;
+    uint64_t over = 0;
+    if (type == NACRE_EXR_HALF) {
+        const size_t row_values = (size_t)image->width * (size_t)image->channels;
+        for (int32_t y = 0; y < image->height; y++) {
+            const float *row = image->pixels + (size_t)y * image->stride;
+            for (size_t i = 0; i < row_values; i++)
+                over += fabsf(row[i]) > NC_HALF_MAX;
+        }
+        if (over > 0) {
+            clamped = nc_calloc(ctx, row_values, (size_t)image->height * sizeof(float));
+            if (!clamped)
+                return NACRE_ERROR_OUT_OF_MEMORY;
+            for (int32_t y = 0; y < image->height; y++) {
+                const float *row = image->pixels + (size_t)y * image->stride;
+                float *out = clamped + (size_t)y * row_values;
+                for (size_t i = 0; i < row_values; i++)
+                    out[i] = fminf(fmaxf(row[i], -NC_HALF_MAX), NC_HALF_MAX);
+            }
+            src.pixels = clamped;
+            src.stride = row_values;
+        }
+    }
+    image = &src;
+
     nc_tmpfile tmp;
     r = nc_tmpfile_open(ctx, path, &tmp);
-    if (r != NACRE_OK)
+    if (r != NACRE_OK) {
+        nc_free(ctx, clamped);
         return r;
+    }
     exr_stream s = {tmp.fd, 0, ""};
     exr_context_initializer_t init = EXR_DEFAULT_CONTEXT_INITIALIZER;
     init.error_handler_fn = write_error_cb;
@@ -267,12 +311,17 @@ nacre_result nacre_image_write_exr(nacre_context *ctx, const nacre_image *image,
         if (rv == EXR_ERR_SUCCESS)
             rv = frv;
     }
+    nc_free(ctx, clamped);
     if (rv != EXR_ERR_SUCCESS) {
         r = exr_fail(ctx, path, &s, rv, "writing");
         nc_tmpfile_abort(ctx, &tmp);
         return r;
     }
-    return nc_tmpfile_commit(ctx, &tmp);
+    r = nc_tmpfile_commit(ctx, &tmp);
+    if (r == NACRE_OK && over > 0)
+        nc_warn(ctx, "%s: %llu value%s beyond the half range clamped to +-65504; a float EXR keeps them",
+                path, (unsigned long long)over, over == 1 ? "" : "s");
+    return r;
 }
 
 /* ------------------------------------------------------------------------------------------ */

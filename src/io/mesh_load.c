@@ -7,7 +7,12 @@
  * bitangents by M (the handedness w is re-derived after the transform). A mirroring transform
  * (det < 0) reverses the corner order so triangles stay counter-clockwise seen from outside.
  * aiProcess_Triangulate fans polygons into triangles and aiProcess_SortByPType splits points and
- * lines off into meshes of their own, which are skipped. JoinIdenticalVertices is deliberately not
+ * lines off into meshes of their own, which are skipped. assimp's triangulation is an ear clipper
+ * that takes time quadratic in a polygon's corners (a 200,000-corner face took 39 s) and loses
+ * triangles on long polygons, so a file with a polygon of more than LOAD_ASSIMP_CORNERS_MAX corners
+ * is triangulated here instead (triangulate_polygon): convex polygons (and those star-shaped
+ * around their first corner) as fans, in linear time, others by ear clipping up to
+ * LOAD_EAR_CORNERS_MAX corners; a longer one of those is an error that names the face. JoinIdenticalVertices is deliberately not
  * asked for: it costs seconds on million-triangle scans, and the normal and analysis code weld
  * exact duplicates themselves. So OBJ files come out with one vertex per face corner.
  *
@@ -41,10 +46,18 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 /* assimp's own post-processing recurses over nodes too; a file nested deeper than this is not a
  * mesh anyone meant to write. */
 #define LOAD_MAX_NODE_DEPTH 1024
+
+/* Files whose polygons all have at most this many corners are triangulated by assimp (its
+ * quadratic ear clipper is quick at this size); otherwise by triangulate_polygon. */
+#define LOAD_ASSIMP_CORNERS_MAX 64
+/* The largest polygon triangulate_polygon clips (quadratic time) when a fan does not fit it;
+ * convex polygons may have any number of corners. */
+#define LOAD_EAR_CORNERS_MAX 512
 
 /* Bytes read ahead of assimp to check a PLY header (see check_ply_header). */
 #define LOAD_HEAD_BYTES 65536
@@ -64,6 +77,8 @@ typedef struct load_state {
     load_instance *inst;
     uint32_t count, capacity;
     uint64_t vertices, triangles;
+    double (*uv)[2]; /* triangulate_polygon's scratch for the longest polygon, or NULL */
+    uint32_t *tri;
 } load_state;
 
 static nc_mat4 from_ai(const struct aiMatrix4x4 *a)
@@ -81,6 +96,164 @@ static bool mesh_is_all_triangles(const struct aiMesh *mesh)
            aiPrimitiveType_TRIANGLE;
 }
 
+/* ------------------------------------------------------------------------------------------ */
+/* Polygons with many corners                                                                 */
+/* ------------------------------------------------------------------------------------------ */
+
+/* The corners of a polygon projected onto the plane of its Newell normal, counter-clockwise
+ * (positive area) in (u, v): the dominant axis of the normal is dropped, and u and v swapped when
+ * that axis points backwards, so a left turn is convex. */
+static void project_polygon(const struct aiVector3D *v, const unsigned *ix, unsigned n, double (*uv)[2])
+{
+    double nx = 0.0, ny = 0.0, nz = 0.0;
+    for (unsigned i = 0; i < n; i++) {
+        const struct aiVector3D *a = &v[ix[i]], *b = &v[ix[i + 1 == n ? 0 : i + 1]];
+        nx += ((double)a->y - b->y) * ((double)a->z + b->z);
+        ny += ((double)a->z - b->z) * ((double)a->x + b->x);
+        nz += ((double)a->x - b->x) * ((double)a->y + b->y);
+    }
+    int axis = fabs(nx) > fabs(ny) ? (fabs(nx) > fabs(nz) ? 0 : 2) : (fabs(ny) > fabs(nz) ? 1 : 2);
+    double sign = axis == 0 ? nx : axis == 1 ? ny : nz;
+    for (unsigned i = 0; i < n; i++) {
+        const struct aiVector3D *a = &v[ix[i]];
+        double c[3] = {a->x, a->y, a->z};
+        int u = (axis + 1) % 3, w = (axis + 2) % 3;
+        if (sign < 0.0) {
+            int t = u;
+            u = w;
+            w = t;
+        }
+        uv[i][0] = c[u];
+        uv[i][1] = c[w];
+    }
+}
+
+static inline double turn(const double *a, const double *b, const double *c)
+{
+    return (b[0] - a[0]) * (c[1] - b[1]) - (b[1] - a[1]) * (c[0] - b[0]);
+}
+
+/* Whether the fan from corner 0 triangulates the (projected) polygon: true for every convex
+ * polygon and every one star-shaped around its first corner. Fan triangles that turn right
+ * may hold at most a millionth of the area of those that turn left: a convex cap written with
+ * rounded coordinates has slivers of either orientation next to corner 0. */
+static bool fan_ok(const double (*uv)[2], unsigned n)
+{
+    double left = 0.0, right = 0.0;
+    for (unsigned i = 1; i + 1 < n; i++) {
+        double a = turn(uv[0], uv[i], uv[i + 1]);
+        if (a >= 0.0)
+            left += a;
+        else
+            right -= a;
+    }
+    return right <= 1e-6 * left;
+}
+
+static bool in_triangle(const double *p, const double *a, const double *b, const double *c)
+{
+    return turn(a, b, p) >= 0.0 && turn(b, c, p) >= 0.0 && turn(c, a, p) >= 0.0;
+}
+
+/* Triangulate one polygon of n >= 4 corners (face indices ix into v) into n - 2 triangles of
+ * corner positions 0..n-1, written to tri. False if no fan fits it and it has more than
+ * LOAD_EAR_CORNERS_MAX corners (then nothing is written). `uv` has room for n corners. */
+static bool triangulate_polygon(const struct aiVector3D *v, const unsigned *ix, unsigned n, double (*uv)[2],
+                                uint32_t *tri)
+{
+    project_polygon(v, ix, n, uv);
+    if (fan_ok(uv, n)) {
+        for (unsigned i = 1; i + 1 < n; i++) {
+            tri[(i - 1) * 3] = 0;
+            tri[(i - 1) * 3 + 1] = i;
+            tri[(i - 1) * 3 + 2] = i + 1;
+        }
+        return true;
+    }
+    if (n > LOAD_EAR_CORNERS_MAX)
+        return false;
+    /* Ear clipping: a corner whose triangle with its neighbours turns left and holds no other
+     * remaining reflex corner is cut off. A polygon that has no ear left (self-intersecting) has
+     * its current corner cut anyway, so there are always n - 2 triangles. */
+    uint16_t prev[LOAD_EAR_CORNERS_MAX], next[LOAD_EAR_CORNERS_MAX];
+    for (unsigned i = 0; i < n; i++) {
+        prev[i] = (uint16_t)(i == 0 ? n - 1 : i - 1);
+        next[i] = (uint16_t)(i + 1 == n ? 0 : i + 1);
+    }
+    unsigned remaining = n, misses = 0, t = 0, i = 0;
+    while (remaining > 3) {
+        unsigned a = prev[i], c = next[i];
+        bool ear = turn(uv[a], uv[i], uv[c]) > 0.0;
+        for (unsigned j = next[c]; ear && j != a; j = next[j]) {
+            if (turn(uv[prev[j]], uv[j], uv[next[j]]) > 0.0)
+                continue; /* only reflex corners can lie inside an ear */
+            const double *q = uv[j];
+            bool shared = (q[0] == uv[a][0] && q[1] == uv[a][1]) || (q[0] == uv[i][0] && q[1] == uv[i][1]) ||
+                          (q[0] == uv[c][0] && q[1] == uv[c][1]);
+            if (!shared && in_triangle(q, uv[a], uv[i], uv[c]))
+                ear = false;
+        }
+        if (!ear && ++misses <= remaining) {
+            i = c;
+            continue;
+        }
+        tri[t * 3] = a;
+        tri[t * 3 + 1] = i;
+        tri[t * 3 + 2] = c;
+        t++;
+        next[a] = (uint16_t)c;
+        prev[c] = (uint16_t)a;
+        remaining--;
+        misses = 0;
+        i = a;
+    }
+    tri[t * 3] = prev[i];
+    tri[t * 3 + 1] = i;
+    tri[t * 3 + 2] = next[i];
+    return true;
+}
+
+/* Before post-processing: the most corners of any face, and (when that exceeds
+ * LOAD_ASSIMP_CORNERS_MAX, so that triangulate_polygon will run) an error naming the first
+ * non-convex face too long to clip. File face numbers, as in check_faces. */
+static nacre_result check_polygons(nacre_context *ctx, const char *path, const struct aiScene *scene,
+                                   unsigned *max_corners)
+{
+    *max_corners = 0;
+    for (unsigned mi = 0; mi < scene->mNumMeshes; mi++) {
+        const struct aiMesh *mesh = scene->mMeshes[mi];
+        for (unsigned f = 0; mesh && f < mesh->mNumFaces; f++)
+            if (mesh->mFaces[f].mNumIndices > *max_corners)
+                *max_corners = mesh->mFaces[f].mNumIndices;
+    }
+    if (*max_corners <= LOAD_ASSIMP_CORNERS_MAX)
+        return NACRE_OK;
+    double(*uv)[2] = nc_alloc(ctx, (size_t)*max_corners * sizeof(*uv));
+    if (!uv)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    nacre_result r = NACRE_OK;
+    for (unsigned mi = 0; mi < scene->mNumMeshes && r == NACRE_OK; mi++) {
+        const struct aiMesh *mesh = scene->mMeshes[mi];
+        for (unsigned f = 0; mesh && f < mesh->mNumFaces && r == NACRE_OK; f++) {
+            const struct aiFace *face = &mesh->mFaces[f];
+            if (face->mNumIndices <= LOAD_EAR_CORNERS_MAX)
+                continue;
+            project_polygon(mesh->mVertices, face->mIndices, face->mNumIndices, uv);
+            if (fan_ok(uv, face->mNumIndices))
+                continue;
+            char where[32] = "";
+            if (scene->mNumMeshes > 1)
+                snprintf(where, sizeof(where), "mesh %u: ", mi);
+            r = nc_fail(ctx, NACRE_ERROR_UNSUPPORTED,
+                        "%s: %sface %u: a non-convex polygon of %u corners (more than %d corners: it must be convex, "
+                        "or star-shaped around its first corner; triangulate it before export)",
+                        path, where, f, face->mNumIndices, LOAD_EAR_CORNERS_MAX);
+        }
+    }
+    nc_free(ctx, uv);
+    return r;
+}
+
 static nacre_result collect(load_state *s, const struct aiNode *node, nc_mat4 parent, int depth)
 {
     if (depth > LOAD_MAX_NODE_DEPTH)
@@ -94,15 +267,15 @@ static nacre_result collect(load_state *s, const struct aiNode *node, nc_mat4 pa
             return nc_fail(s->ctx, NACRE_ERROR_PARSE, "%s: node references mesh %u of %u",
                            s->path, mi, s->scene->mNumMeshes);
         const struct aiMesh *mesh = s->scene->mMeshes[mi];
-        if (!mesh || !(mesh->mPrimitiveTypes & aiPrimitiveType_TRIANGLE) ||
+        if (!mesh || !(mesh->mPrimitiveTypes & (aiPrimitiveType_TRIANGLE | aiPrimitiveType_POLYGON)) ||
             mesh->mNumVertices == 0 || !mesh->mVertices || !mesh->mFaces)
             continue;
-        uint32_t tris = 0;
+        uint64_t tris = 0; /* polygons are left only when triangulate_polygon is to cut them */
         if (mesh_is_all_triangles(mesh)) {
             tris = mesh->mNumFaces;
         } else {
             for (unsigned f = 0; f < mesh->mNumFaces; f++)
-                tris += mesh->mFaces[f].mNumIndices == 3;
+                tris += mesh->mFaces[f].mNumIndices >= 3 ? mesh->mFaces[f].mNumIndices - 2 : 0;
         }
         if (tris == 0)
             continue;
@@ -126,7 +299,7 @@ static nacre_result collect(load_state *s, const struct aiNode *node, nc_mat4 pa
         in->xf = xf;
         in->first_vertex = (uint32_t)s->vertices;
         in->first_triangle = (uint32_t)s->triangles;
-        in->triangles = tris;
+        in->triangles = (uint32_t)tris;
         s->vertices += mesh->mNumVertices;
         s->triangles += tris;
     }
@@ -275,9 +448,25 @@ static nacre_result fill_indices(const load_state *s, const load_instance *in, n
         size_t t = 0;
         for (unsigned f = 0; f < mesh->mNumFaces; f++) {
             const struct aiFace *face = &mesh->mFaces[f];
-            if (face->mNumIndices != 3 || !face->mIndices)
+            const unsigned n = face->mNumIndices;
+            if (n < 3 || !face->mIndices)
                 continue;
             const unsigned *ix = face->mIndices;
+            if (n > 3) {
+                /* Only when the file had a long polygon (check_polygons vetted it). */
+                bool in_range = s->uv != NULL;
+                for (unsigned k = 0; k < n && in_range; k++)
+                    in_range = ix[k] < nvm;
+                if (!in_range || !triangulate_polygon(mesh->mVertices, ix, n, s->uv, s->tri))
+                    return nc_fail(s->ctx, NACRE_ERROR_PARSE, "%s: polygon of %u corners: cannot triangulate",
+                                   s->path, n);
+                for (unsigned k = 0; k + 2 < n; k++, t++) {
+                    out[t * 3] = v0 + ix[s->tri[k * 3]];
+                    out[t * 3 + 1] = v0 + ix[s->tri[k * 3 + (unsigned)c1]];
+                    out[t * 3 + 2] = v0 + ix[s->tri[k * 3 + (unsigned)c2]];
+                }
+                continue;
+            }
             if ((ix[0] >= nvm || ix[1] >= nvm || ix[2] >= nvm) && bad == UINT64_MAX)
                 bad = t;
             out[t * 3] = v0 + ix[0];
@@ -392,6 +581,9 @@ typedef struct ply_layout {
     uint64_t count[PLY_MAX_ELEMENTS];
     int properties[PLY_MAX_ELEMENTS];
     bool is_list[PLY_MAX_ELEMENTS][PLY_MAX_PROPERTIES];
+    bool is_corners[PLY_MAX_ELEMENTS][PLY_MAX_PROPERTIES]; /* vertex_indices lists */
+    uint64_t short_need; /* ASCII body shorter than its counts need (bytes needed); the body check
+                            runs first, so a face with too few indices is named as such */
 } ply_layout;
 
 /* count <= 2^40 and record <= 4096 keep each term below 2^52; many elements could still add up
@@ -468,11 +660,11 @@ static nacre_result check_ply_header(nacre_context *ctx, const char *path, const
             unsigned size = 0;
             fields++;
             bool list = next_word(&q, eol, &w, &n) && word_is(w, n, "list");
-            int e = layout->elements - 1;
+            int e = layout->elements - 1, pi = -1;
             if (e < 0 || layout->properties[e] >= PLY_MAX_PROPERTIES)
                 layout->known = false;
             else
-                layout->is_list[e][layout->properties[e]++] = list;
+                layout->is_list[e][pi = layout->properties[e]++] = list;
             if (list) {
                 const char *ct, *it, *name;
                 size_t cn, in, nn;
@@ -488,6 +680,8 @@ static nacre_result check_ply_header(nacre_context *ctx, const char *path, const
                                        path, line, (int)(cn < 32 ? cn : 32), ct, (int)(in < 32 ? in : 32), it);
                     size = cs + (corners ? 3u * is : 0u);
                     fields += corners ? 3u : 0u;
+                    if (corners && pi >= 0)
+                        layout->is_corners[e][pi] = true;
                 }
             } else {
                 size = ply_type_size(w, n);
@@ -511,11 +705,7 @@ static nacre_result check_ply_header(nacre_context *ctx, const char *path, const
                 need_text = add_capped(need_text, count * fields);
                 need_text = need_text ? add_capped(header, 2 * need_text - 1) : header;
                 if (file_size < need_text)
-                    return nc_fail(ctx, NACRE_ERROR_PARSE,
-                                   "%s: truncated ASCII PLY: the header's element counts need at "
-                                   "least %llu bytes, the file has %llu",
-                                   path, (unsigned long long)need_text,
-                                   (unsigned long long)file_size);
+                    layout->short_need = need_text; /* reported after the body check */
                 return NACRE_OK;
             }
             if (!sized)
@@ -657,6 +847,11 @@ static nacre_result check_ply_ascii_body(nacre_context *ctx, const char *path, F
                            cur.property < layout->properties[cur.element]) {
                     if (layout->is_list[cur.element][cur.property]) {
                         uint64_t items = ply_leading_uint(tok, n);
+                        if (items < 3 && layout->is_corners[cur.element][cur.property])
+                            return nc_fail(ctx, NACRE_ERROR_PARSE,
+                                           "%s:%d: face %llu has %llu ind%s (need at least 3)", path, line,
+                                           (unsigned long long)cur.instance, (unsigned long long)items,
+                                           items == 1 ? "ex" : "ices");
                         if (items > file_size / 2)
                             return nc_fail(ctx, NACRE_ERROR_PARSE,
                                            "%s:%d: a list of %llu items cannot fit in the file",
@@ -872,6 +1067,11 @@ nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_da
     FILE *f = fopen(path, "rb");
     if (!f)
         return nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot open: %s", path, strerror(errno));
+    struct stat st;
+    if (fstat(fileno(f), &st) == 0 && S_ISDIR(st.st_mode)) {
+        fclose(f); /* fopen opens a folder for reading; every read then fails */
+        return nc_fail(ctx, NACRE_ERROR_IO, "%s: is a directory, not a mesh file", path);
+    }
     char *head = nc_alloc(ctx, LOAD_HEAD_BYTES);
     if (!head) {
         fclose(f);
@@ -888,6 +1088,10 @@ nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_da
                                    : check_ply_header(ctx, path, head, head_len, file_size, &layout);
     if (r == NACRE_OK && layout.body)
         r = check_ply_ascii_body(ctx, path, f, &layout, file_size, head, LOAD_HEAD_BYTES);
+    if (r == NACRE_OK && layout.short_need)
+        r = nc_fail(ctx, NACRE_ERROR_PARSE,
+                    "%s: truncated ASCII PLY: the header's element counts need at least %llu bytes, the file has %llu",
+                    path, (unsigned long long)layout.short_need, (unsigned long long)file_size);
     if (r == NACRE_OK && has_extension(path, ".obj"))
         r = check_obj_indices(ctx, path, f, head, LOAD_HEAD_BYTES);
     fclose(f);
@@ -905,17 +1109,29 @@ nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_da
         return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: %.*s", path, (int)len,
                        len ? msg : "cannot parse");
     }
-    if ((r = check_faces(ctx, path, scene)) != NACRE_OK) {
+    unsigned max_corners = 0;
+    if ((r = check_faces(ctx, path, scene)) != NACRE_OK ||
+        (r = check_polygons(ctx, path, scene, &max_corners)) != NACRE_OK) {
         aiReleaseImport(scene);
         return r;
     }
-    scene = aiApplyPostProcessing(scene, aiProcess_Triangulate | aiProcess_SortByPType);
+    const bool own_triangulation = max_corners > LOAD_ASSIMP_CORNERS_MAX;
+    scene = aiApplyPostProcessing(scene, own_triangulation ? aiProcess_SortByPType
+                                                           : aiProcess_Triangulate | aiProcess_SortByPType);
     if (!scene)
         return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: triangulation failed", path);
 
-    load_state s = {ctx, path, scene, NULL, 0, 0, 0, 0};
+    load_state s = {ctx, path, scene, NULL, 0, 0, 0, 0, NULL, NULL};
     nacre_mesh_data m;
     memset(&m, 0, sizeof(m));
+    if (own_triangulation) {
+        s.uv = nc_alloc(ctx, (size_t)max_corners * sizeof(*s.uv));
+        s.tri = nc_calloc(ctx, (size_t)max_corners, 3 * sizeof(uint32_t));
+        if (!s.uv || !s.tri) {
+            r = NACRE_ERROR_OUT_OF_MEMORY;
+            goto fail;
+        }
+    }
     if (scene->mRootNode)
         r = collect(&s, scene->mRootNode, nc_mat4_identity(), 0);
     if (r != NACRE_OK)
@@ -957,6 +1173,10 @@ nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_da
     scene = NULL;
     nc_free(ctx, s.inst);
     s.inst = NULL;
+    nc_free(ctx, s.uv);
+    nc_free(ctx, s.tri);
+    s.uv = NULL;
+    s.tri = NULL;
 
     /* Indices were checked per instance; this checks finite positions and UVs. */
     r = nc_mesh_check_geometry(ctx, &m, path, NACRE_ERROR_PARSE);
@@ -981,6 +1201,8 @@ fail:
     if (scene)
         aiReleaseImport(scene);
     nc_free(ctx, s.inst);
+    nc_free(ctx, s.uv);
+    nc_free(ctx, s.tri);
     nacre_mesh_data_free(ctx, &m);
     return r;
 }

@@ -43,6 +43,7 @@ static const range R_FINITE = {-INFINITY, INFINITY, true, true};
 static const range R_NONNEG = {0.0, INFINITY, false, true};
 static const range R_POSITIVE = {0.0, INFINITY, true, true};
 static const range R_UNIT = {0.0, 1.0, false, false};
+static const range R_ETA = {NACRE_ETA_MIN, NACRE_ETA_MAX, false, false};
 
 typedef struct material_entry {
     const char *name; /* borrowed from the cJSON tree */
@@ -57,6 +58,7 @@ typedef struct mesh_entry {
 
 typedef struct loader {
     nacre_context *ctx;
+    size_t nul_escapes;   /* \u0000 escapes in the text, turned into byte 1 (mark_nul_escapes) */
     const char *name;     /* shown in messages */
     const char *base_dir; /* relative mesh paths start here; NULL: the working directory */
     nacre_scene *scene;
@@ -536,6 +538,8 @@ static const char *get_string(loader *ld, const cJSON *obj, const char *key)
     const char *s = NULL;
     if (!cJSON_IsString(item) || !item->valuestring)
         fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "expected a string, got %s", type_name(item));
+    else if (ld->nul_escapes && strchr(item->valuestring, '\x01'))
+        fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "contains \\u0000 (a NUL character, which no path or name can hold)");
     else if (item->valuestring[0] == '\0')
         fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "must not be empty");
     else
@@ -960,7 +964,7 @@ static void parse_material(loader *ld, const cJSON *obj, nacre_material *out)
     get_floats(ld, obj, "sigma_a", 3, R_NONNEG, true, d.sigma_a);
     get_floats(ld, obj, "sigma_s", 3, R_NONNEG, true, d.sigma_s);
     get_number(ld, obj, "g", g_range, &d.g);
-    get_number(ld, obj, "eta", R_POSITIVE, &d.eta);
+    get_number(ld, obj, "eta", R_ETA, &d.eta);
     const cJSON *pattern = member(obj, "pattern");
     if (pattern && type == 1 && !ld->err)
         parse_pattern(ld, pattern, &d.pattern);
@@ -1545,6 +1549,55 @@ static void line_column(const char *text, size_t offset, int *line, int *column)
     *column = (int)(offset - start) + 1;
 }
 
+/* cJSON decodes \u0000 into a NUL byte, which ends its C string early: "a.obj\u0000x" would
+ * load a.obj. Each such escape inside a string becomes \u0001 (byte 1 once decoded, which no
+ * file has reason to hold), so get_string can refuse the string and name its field. Returns the
+ * number of escapes changed. */
+static size_t mark_nul_escapes(char *text, size_t length)
+{
+    size_t count = 0;
+    bool in_string = false;
+    for (size_t i = 0; i < length; i++) {
+        if (!in_string) {
+            in_string = text[i] == '"';
+        } else if (text[i] == '"') {
+            in_string = false;
+        } else if (text[i] == '\\' && i + 1 < length) {
+            if (i + 5 < length && text[i + 1] == 'u' && memcmp(text + i + 2, "0000", 4) == 0) {
+                text[i + 5] = '1';
+                count++;
+            }
+            i++; /* the escaped character; the hex digits that may follow are plain text */
+        }
+    }
+    return count;
+}
+
+/* Deepest nesting of arrays and objects in text[0, end] (strings skipped): tells a file cJSON
+ * refused for its nesting limit from a malformed one. */
+static int nesting_depth(const char *text, size_t end)
+{
+    int depth = 0, deepest = 0;
+    bool in_string = false;
+    for (size_t i = 0; i <= end && text[i]; i++) {
+        char c = text[i];
+        if (in_string) {
+            if (c == '\\' && text[i + 1])
+                i++;
+            else if (c == '"')
+                in_string = false;
+        } else if (c == '"') {
+            in_string = true;
+        } else if (c == '[' || c == '{') {
+            if (++depth > deepest)
+                deepest = depth;
+        } else if (c == ']' || c == '}') {
+            depth--;
+        }
+    }
+    return deepest;
+}
+
 static nacre_result load_text(nacre_context *ctx, const char *json, size_t length,
                               const char *name, const char *base_dir, nacre_scene **out,
                               nacre_render_settings *settings)
@@ -1563,10 +1616,20 @@ static nacre_result load_text(nacre_context *ctx, const char *json, size_t lengt
         return NACRE_ERROR_OUT_OF_MEMORY;
     memcpy(text, json, length);
     text[length] = '\0';
+    size_t nul_escapes = mark_nul_escapes(text, length);
     const char *end = NULL;
     cJSON *root = cJSON_ParseWithLengthOpts(text, length + 1, &end, 1);
     if (!root) {
         size_t offset = end && end >= text && end <= text + length ? (size_t)(end - text) : 0;
+        if (nesting_depth(text, offset) > CJSON_NESTING_LIMIT) {
+            int line, column;
+            line_column(text, offset, &line, &column);
+            nacre_result r = nc_fail(ctx, NACRE_ERROR_PARSE,
+                                     "%s:%d:%d: arrays and objects nested deeper than %d levels", name, line,
+                                     column, CJSON_NESTING_LIMIT);
+            nc_free(ctx, text);
+            return r;
+        }
         /* cJSON reports an unterminated string just after its opening quote: point at the
          * quote. */
         bool unterminated = offset > 0 && offset < length && text[offset - 1] == '"' &&
@@ -1584,6 +1647,7 @@ static nacre_result load_text(nacre_context *ctx, const char *json, size_t lengt
 
     loader ld = {0};
     ld.ctx = ctx;
+    ld.nul_escapes = nul_escapes;
     ld.name = name;
     ld.base_dir = base_dir;
     ld.unit_mm = 1.0f;

@@ -338,8 +338,9 @@ static nacre_result check_material(const nacre_scene *s, const nacre_material_de
                                "material: sigma_a + sigma_s: must be positive in every channel");
         if (!(isfinite(d->g) && d->g > -1 && d->g < 1))
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: g: must be in (-1, 1)");
-        if (!(isfinite(d->eta) && d->eta > 0))
-            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: eta: must be positive");
+        if (!(d->eta >= NACRE_ETA_MIN && d->eta <= NACRE_ETA_MAX))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: eta: must be in [%g, %g] (got %g)",
+                           NACRE_ETA_MIN, NACRE_ETA_MAX, d->eta);
         nacre_result r = check_pattern(s, &d->pattern, "material", false);
         if (r == NACRE_OK)
             r = check_layering(s, &d->layering);

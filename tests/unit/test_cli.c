@@ -5,6 +5,8 @@
 #include "test_util.h"
 
 #include <cjson/cJSON.h>
+#include <math.h>
+#include <nacre/nacre.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -247,6 +249,157 @@ static void test_info(void)
     CHECK(run("info", out, sizeof(out), err, sizeof(err)) == 2);
 }
 
+static long file_size(const char *path)
+{
+    struct stat sb;
+    return stat(path, &sb) == 0 ? (long)sb.st_size : -1;
+}
+
+static const char sphere_scene[] =
+    "{\"camera\": {\"position\": [0, 0, 5], \"target\": [0, 0, 0], \"fov\": 40},\n"
+    " \"materials\": {\"m\": %s},\n"
+    " \"lights\": [{\"type\": \"directional\", \"direction\": [0, 0, -1], \"irradiance\": %s}],\n"
+    " \"objects\": [{\"shape\": {\"type\": \"sphere\", \"radius\": 1}, \"material\": \"m\"}]}\n";
+
+/* Issue 29 items 6 and 9: an eta that made diffusion images NaN is refused by name; a half EXR
+ * that cannot hold the image's values says so and suggests --exr-float. */
+static void test_ranges(void)
+{
+    char args[8192], scene[1024], text[2048], outexr[1024];
+    snprintf(scene, sizeof(scene), "%s/eta.json", TMP);
+    snprintf(outexr, sizeof(outexr), "%s/eta.exr", TMP);
+    const char *etas[] = {"1e-6", "1e9"};
+    for (int i = 0; i < 2; i++) {
+        char mat[256];
+        snprintf(mat, sizeof(mat), "{\"preset\": \"marble\", \"eta\": %s}", etas[i]);
+        snprintf(text, sizeof(text), sphere_scene, mat, "1");
+        write_file(scene, text);
+        remove(outexr);
+        snprintf(args, sizeof(args), "render %s --method diffusion --size 24x24 --voxel-res 8 -o %s", scene, outexr);
+        CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+        CHECK(strstr(err, "eta.json: materials.m.eta: must be in [0.3, 3]") != NULL);
+        CHECK(!exists(outexr));
+    }
+    /* Irradiance 1e6 on a white sphere: radiance far beyond 65504. */
+    snprintf(text, sizeof(text), sphere_scene, "{\"type\": \"opaque\"}", "1e6");
+    snprintf(scene, sizeof(scene), "%s/bright.json", TMP);
+    write_file(scene, text);
+    snprintf(outexr, sizeof(outexr), "%s/bright.exr", TMP);
+    snprintf(args, sizeof(args), "render %s --method phong --size 16x16 -o %s", scene, outexr);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    CHECK(strstr(err, "bright.exr:") != NULL && strstr(err, "65504") != NULL && strstr(err, "--exr-float") != NULL);
+    CHECK(strchr(err, '\n') == err + strlen(err) - 1);
+    nacre_context *ctx = NULL;
+    nacre_image img = {0};
+    CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
+    CHECK(nacre_image_read(ctx, outexr, &img) == NACRE_OK);
+    float most = 0;
+    for (size_t i = 0; img.pixels && i < (size_t)img.width * (size_t)img.height * 3; i++) {
+        CHECK(isfinite(img.pixels[i]));
+        most = img.pixels[i] > most ? img.pixels[i] : most;
+    }
+    CHECK(most == 65504.0f);
+    nacre_image_free(ctx, &img);
+    snprintf(args, sizeof(args), "render %s --method phong --size 16x16 --exr-float -o %s", scene, outexr);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    CHECK(err[0] == '\0');
+    CHECK(nacre_image_read(ctx, outexr, &img) == NACRE_OK);
+    most = 0;
+    for (size_t i = 0; img.pixels && i < (size_t)img.width * (size_t)img.height * 3; i++)
+        most = img.pixels[i] > most ? img.pixels[i] : most;
+    CHECK(most > 65504.0f);
+    nacre_image_free(ctx, &img);
+    nacre_context_destroy(ctx);
+}
+
+/* Issue 29 item 10: compare with a NaN pixel used to print max_abs_err 0 and exit 0. nacre no
+ * longer writes such a file, so one is made by writing a float EXR small enough to be stored
+ * uncompressed and overwriting a sentinel value's bytes with a NaN. */
+static void test_compare_nonfinite(void)
+{
+    char nan_exr[1024], ref_exr[1024], args[4096];
+    snprintf(nan_exr, sizeof(nan_exr), "%s/nan.exr", TMP);
+    snprintf(ref_exr, sizeof(ref_exr), "%s/ref.exr", TMP);
+    nacre_context *ctx = NULL;
+    CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
+    float v[6] = {1234.5678f, 0.1234567f, 98.76543f, 3.3333f, 7.654321f, 0.0271828f};
+    nacre_image img = {2, 1, 3, 6, v};
+    CHECK(nacre_image_write_exr(ctx, &img, ref_exr, NACRE_EXR_FLOAT) == NACRE_OK);
+    CHECK(nacre_image_write_exr(ctx, &img, nan_exr, NACRE_EXR_FLOAT) == NACRE_OK);
+    nacre_context_destroy(ctx);
+    FILE *f = fopen(nan_exr, "r+b");
+    CHECK(f != NULL);
+    bool patched = false;
+    if (f) {
+        unsigned char buf[4096];
+        size_t n = fread(buf, 1, sizeof(buf), f);
+        for (size_t i = 0; i + 4 <= n && !patched; i++)
+            if (memcmp(buf + i, &v[0], 4) == 0) {
+                float nan = NAN;
+                memcpy(buf + i, &nan, 4);
+                patched = fseek(f, 0, SEEK_SET) == 0 && fwrite(buf, 1, n, f) == n;
+            }
+        fclose(f);
+    }
+    CHECK(patched);
+    snprintf(args, sizeof(args), "compare %s %s --json", nan_exr, ref_exr);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(out, "\"nonfinite_test\":1,\"nonfinite_reference\":0") != NULL);
+    CHECK(strstr(out, "\"max_abs_err\":0,") != NULL); /* the five finite values agree */
+    CHECK(strstr(err, "nan.exr has 1") != NULL && strstr(err, "NaN") != NULL);
+    CHECK(strchr(err, '\n') == err + strlen(err) - 1);
+    snprintf(args, sizeof(args), "compare %s %s", ref_exr, nan_exr);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(out, "nonfinite") != NULL);
+    snprintf(args, sizeof(args), "compare %s %s --json", ref_exr, ref_exr);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    CHECK(strstr(out, "\"nonfinite_test\":0,\"nonfinite_reference\":0") != NULL);
+}
+
+/* Issue 29 item 11: an output that names an input or another output of the same run is refused
+ * however it is spelled, and nothing is touched. Item 12: a scene without objects is named. */
+static void test_output_collisions(void)
+{
+    char args[8192], mesh[1024], scene[1024], same[1024];
+    snprintf(mesh, sizeof(mesh), "%s/x.ply", TMP);
+    snprintf(args, sizeof(args), "cp %s/examples/meshes/suzanne.ply %s", NACRE_SOURCE_DIR, mesh);
+    CHECK(system(args) == 0);
+    long size = file_size(mesh);
+    const char *spellings[] = {"%s/x.ply", "%s/../cli/x.ply", "%s//./x.ply"};
+    for (int i = 0; i < 3; i++) {
+        char o[1200];
+        snprintf(o, sizeof(o), spellings[i], TMP);
+        snprintf(args, sizeof(args), "voxelize %s --res 8 -o %s", mesh, o);
+        CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+        CHECK(strstr(err, "same file") != NULL && strstr(err, "x.ply") != NULL);
+        CHECK(strchr(err, '\n') == err + strlen(err) - 1);
+        CHECK(file_size(mesh) == size);
+    }
+    /* Two outputs of one render that do not exist yet. */
+    snprintf(same, sizeof(same), "%s/same.exr", TMP);
+    remove(same);
+    snprintf(args, sizeof(args), "render --method pathtrace --size 8x8 --spp 1 --variance %s -o %s/./same.exr", same,
+             TMP);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "variance output") != NULL && strstr(err, "same file") != NULL);
+    CHECK(!exists(same));
+    /* The scene file itself (named like an image). */
+    snprintf(scene, sizeof(scene), "%s/scene.exr", TMP);
+    write_file(scene, "{\"objects\": []}");
+    size = file_size(scene);
+    snprintf(args, sizeof(args), "render %s -o %s", scene, scene);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "same file as the scene") != NULL);
+    CHECK(file_size(scene) == size);
+    /* Distinct files still work. */
+    snprintf(args, sizeof(args), "voxelize %s --res 8 -o %s/x.nrrd", mesh, TMP);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    /* A scene without objects: the message names the file. */
+    snprintf(args, sizeof(args), "render %s -o %s/empty.png", scene, TMP);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "scene.exr: scene has no objects") != NULL);
+}
+
 int main(void)
 {
     mkdir(NACRE_TEST_TMP, 0755);
@@ -255,5 +408,8 @@ int main(void)
     test_render_errors();
     test_render_ok_and_stats();
     test_info();
+    test_ranges();
+    test_compare_nonfinite();
+    test_output_collisions();
     return TEST_MAIN_END();
 }

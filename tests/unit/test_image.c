@@ -1090,6 +1090,108 @@ static void test_allocation_failures(void)
     CHECK(count_temp_files("oom_out") == 0);
 }
 
+/* Issue 29 items 6, 9 and 10: no EXR holds NaN or infinity; a half EXR clamps what it cannot hold
+ * to 65504 and says so through the log callback; compare counts non-finite pixels instead of
+ * letting NaN vanish from its maxima. */
+typedef struct log_capture {
+    int warnings;
+    char last[1024];
+} log_capture;
+
+static void capture_log(void *user, nacre_log_level level, const char *message)
+{
+    log_capture *lc = user;
+    if (level == NACRE_LOG_WARNING) {
+        lc->warnings++;
+        snprintf(lc->last, sizeof(lc->last), "%s", message);
+    }
+}
+
+static void test_nonfinite_and_half_range(void)
+{
+    log_capture lc = {0, ""};
+    nacre_context_desc desc = {0};
+    desc.log_fn = capture_log;
+    desc.log_user = &lc;
+    nacre_context *ctx = NULL;
+    CHECK(nacre_context_create(&desc, &ctx) == NACRE_OK);
+    if (!ctx)
+        return;
+    char path[512];
+    nacre_image img = make_image(ctx, 5, 4, 3, 1);
+    for (int32_t y = 0; y < 4; y++)
+        for (int32_t x = 0; x < 5; x++)
+            for (int c = 0; c < 3; c++)
+                px(&img, x, y)[c] = 0.25f * (float)(x + y + c);
+
+    /* NaN and +-Inf are refused, naming the file and the pixel; nothing is left behind. */
+    const float bad[3] = {NAN, INFINITY, -INFINITY};
+    const char *bad_name[3] = {"NaN", "+Inf", "-Inf"};
+    for (int i = 0; i < 3; i++) {
+        px(&img, 3, 2)[1] = bad[i];
+        for (int t = 0; t < 2; t++) {
+            remove(tpath(path, "nonfinite.exr"));
+            CHECK(nacre_image_write_exr(ctx, &img, path, t ? NACRE_EXR_FLOAT : NACRE_EXR_HALF) ==
+                  NACRE_ERROR_INVALID_ARGUMENT);
+            CHECK(error_names(ctx, path));
+            CHECK(strstr(nacre_context_last_error(ctx), "pixel (3, 2) channel G") != NULL);
+            CHECK(strstr(nacre_context_last_error(ctx), bad_name[i]) != NULL);
+            CHECK(!file_exists(path));
+            CHECK(count_temp_files("nonfinite.exr") == 0);
+        }
+    }
+
+    /* Compare: NaN in the test image is counted and left out of the metrics. */
+    px(&img, 3, 2)[1] = NAN;
+    nacre_image ref = make_image(ctx, 5, 4, 3, 0);
+    for (int32_t y = 0; y < 4; y++)
+        for (int32_t x = 0; x < 5; x++)
+            for (int c = 0; c < 3; c++)
+                px(&ref, x, y)[c] = 0.25f * (float)(x + y + c);
+    px(&ref, 0, 0)[0] = 1.0f; /* one finite difference of 1 */
+    nacre_image_metrics m;
+    CHECK(nacre_image_compare(ctx, &img, &ref, &m) == NACRE_OK);
+    CHECK(m.nonfinite_test == 1 && m.nonfinite_ref == 0);
+    CHECK(m.count == 5 * 4 * 3 - 1);
+    CHECK_NEAR(m.max_abs_err, 1.0, 0.0);
+    CHECK(isfinite(m.rmse) && isfinite(m.rel_mse) && isfinite(m.mean_rel_err) && m.rmse > 0);
+    px(&ref, 1, 1)[2] = -INFINITY;
+    CHECK(nacre_image_compare(ctx, &img, &ref, &m) == NACRE_OK);
+    CHECK(m.nonfinite_test == 1 && m.nonfinite_ref == 1 && m.count == 5 * 4 * 3 - 2);
+    free(ref.pixels);
+
+    /* Half range: values beyond 65504 are written as +-65504 with one warning giving the count;
+     * float keeps them and does not warn. */
+    px(&img, 3, 2)[1] = 1.0f;
+    px(&img, 0, 0)[0] = 1e6f;
+    px(&img, 1, 0)[2] = -70000.0f;
+    px(&img, 2, 0)[1] = 65504.0f; /* the largest half: no clamping */
+    lc.warnings = 0;
+    CHECK(nacre_image_write_exr(ctx, &img, tpath(path, "over.exr"), NACRE_EXR_HALF) == NACRE_OK);
+    CHECK(lc.warnings == 1);
+    CHECK(strstr(lc.last, "over.exr") != NULL && strstr(lc.last, "2 values") != NULL &&
+          strstr(lc.last, "65504") != NULL);
+    nacre_image back = {0};
+    CHECK(nacre_image_read(ctx, path, &back) == NACRE_OK);
+    if (back.pixels) {
+        CHECK(px(&back, 0, 0)[0] == 65504.0f);
+        CHECK(px(&back, 1, 0)[2] == -65504.0f);
+        CHECK(px(&back, 2, 0)[1] == 65504.0f);
+        CHECK(px(&back, 4, 3)[2] == px(&img, 4, 3)[2]);
+        int32_t x, y, c;
+        CHECK(nc_image_count_nonfinite(&back, &x, &y, &c) == 0);
+    }
+    nacre_image_free(ctx, &back);
+    lc.warnings = 0;
+    CHECK(nacre_image_write_exr(ctx, &img, tpath(path, "over_float.exr"), NACRE_EXR_FLOAT) == NACRE_OK);
+    CHECK(lc.warnings == 0);
+    CHECK(nacre_image_read(ctx, path, &back) == NACRE_OK);
+    CHECK(back.pixels && px(&back, 0, 0)[0] == 1e6f);
+    nacre_image_free(ctx, &back);
+    free(img.pixels);
+    nacre_context_destroy(ctx);
+}
+
 int main(void)
 {
     if (mkdir(DIR_, 0755) != 0 && errno != EEXIST) {
@@ -1115,6 +1217,7 @@ int main(void)
     test_header_vs_file_size(ctx);
     test_write_failures(ctx);
     test_compare(ctx);
+    test_nonfinite_and_half_range();
     test_allocation_failures();
     nacre_context_destroy(ctx);
     return TEST_MAIN_END();

@@ -18,9 +18,12 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <time.h>
 #include <unistd.h>
 
 #define TMP NACRE_TEST_TMP
+#define PI 3.14159265358979323846
 #define DATA NACRE_SOURCE_DIR "/tests/data"
 
 static nacre_context *ctx1, *ctx2; /* one thread, two threads */
@@ -876,6 +879,106 @@ static void test_shared_meshes(void)
     }
 }
 
+/* Issue 29 item 12: a folder is not an "empty file"; an ASCII PLY face with one or two indices is
+ * named as such, not called truncated. */
+static void test_load_messages(void)
+{
+    const char *dir = tmp_path("folder.obj");
+    mkdir(dir, 0755);
+    expect_load_error(dir, NACRE_ERROR_IO, "is a directory");
+    static const char *const head = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                                    "property float z\nelement face %d\nproperty list uchar int vertex_indices\n"
+                                    "end_header\n0 0 0\n1 0 0\n0 1 0\n%s";
+    char text[1024];
+    const char *p = tmp_path("short_face.ply");
+    snprintf(text, sizeof(text), head, 2, "3 0 1 2\n1 0\n");
+    write_text(p, text);
+    expect_load_error(p, NACRE_ERROR_PARSE, "short_face.ply:14: face 1 has 1 index (need at least 3)");
+    snprintf(text, sizeof(text), head, 1, "2 0 1\n");
+    write_text(p, text);
+    expect_load_error(p, NACRE_ERROR_PARSE, "short_face.ply:13: face 0 has 2 indices (need at least 3)");
+    /* A real truncation is still called one. */
+    snprintf(text, sizeof(text), head, 3, "3 0 1 2\n");
+    write_text(p, text);
+    expect_load_error(p, NACRE_ERROR_PARSE, "truncated ASCII PLY");
+}
+
+/* Issue 29 item 8: a polygon with many corners loads in time linear in its corners (assimp's
+ * ear clipper took 38.6 s on 200,000 and lost a third of a 20,000-corner disc's area). */
+static double mesh_area(const nacre_mesh_data *m)
+{
+    double area = 0;
+    for (uint32_t t = 0; t < m->triangle_count; t++) {
+        const float *a = m->positions + 3 * m->indices[3 * t];
+        const float *b = m->positions + 3 * m->indices[3 * t + 1];
+        const float *c = m->positions + 3 * m->indices[3 * t + 2];
+        double u[3], v[3];
+        for (int k = 0; k < 3; k++) {
+            u[k] = (double)b[k] - a[k];
+            v[k] = (double)c[k] - a[k];
+        }
+        double x = u[1] * v[2] - u[2] * v[1], y = u[2] * v[0] - u[0] * v[2], z = u[0] * v[1] - u[1] * v[0];
+        area += 0.5 * sqrt(x * x + y * y + z * z);
+    }
+    return area;
+}
+
+static void write_polygon_obj(const char *path, int n, double r_even, double r_odd, const char *extra)
+{
+    FILE *f = fopen(path, "wb");
+    CHECK(f != NULL);
+    if (!f)
+        return;
+    for (int i = 0; i < n; i++) {
+        double a = 2 * PI * i / n, r = i % 2 ? r_odd : r_even;
+        fprintf(f, "v %.6f %.6f 0\n", r * cos(a), r * sin(a));
+    }
+    fputs("f", f);
+    for (int i = 0; i < n; i++)
+        fprintf(f, " %d", i + 1);
+    fprintf(f, "\n%s", extra);
+    fclose(f);
+}
+
+static void test_long_polygons(void)
+{
+    /* A disc of 100,000 corners (coordinates rounded to 6 digits, as exporters write them). */
+    const int n = 100000;
+    const char *p = tmp_path("disc.obj");
+    write_polygon_obj(p, n, 1.0, 1.0, "");
+    nacre_mesh_data m = {0};
+    uint64_t t0 = 0;
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    t0 = (uint64_t)ts.tv_sec * 1000 + (uint64_t)ts.tv_nsec / 1000000;
+    nacre_result r = nacre_mesh_load(ctx2, p, &m);
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    uint64_t ms = (uint64_t)ts.tv_sec * 1000 + (uint64_t)ts.tv_nsec / 1000000 - t0;
+    printf("disc of %d corners: %llu ms\n", n, (unsigned long long)ms);
+    CHECK(r == NACRE_OK);
+    CHECK(m.triangle_count == (uint32_t)n - 2);
+    CHECK_NEAR(mesh_area(&m), PI, 1e-4);
+    CHECK(ms < 15000); /* quadratic: minutes under the sanitizers */
+    /* Counter-clockwise seen from +z: normals point up. */
+    CHECK(m.normals && m.normals[2] > 0.99f);
+    nacre_mesh_data_free(ctx2, &m);
+
+    /* A star (non-convex) of 200 corners is ear-clipped; the quad in the same file is cut too. */
+    p = tmp_path("star.obj");
+    write_polygon_obj(p, 200, 1.0, 0.5, "v 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\nf 201 202 203 204\n");
+    r = nacre_mesh_load(ctx2, p, &m);
+    CHECK(r == NACRE_OK);
+    CHECK(m.triangle_count == 198 + 2);
+    double star = 200 * 0.5 * 1.0 * 0.5 * sin(2 * PI / 200);
+    CHECK_NEAR(mesh_area(&m), star + 1.0, 1e-4);
+    nacre_mesh_data_free(ctx2, &m);
+
+    /* A non-convex polygon too long to clip is refused by name. */
+    p = tmp_path("star_long.obj");
+    write_polygon_obj(p, 2000, 1.0, 0.5, "");
+    expect_load_error(p, NACRE_ERROR_UNSUPPORTED, "face 0: a non-convex polygon of 2000 corners");
+}
+
 int main(void)
 {
     nacre_context_desc d1 = {0}, d2 = {0};
@@ -893,6 +996,8 @@ int main(void)
     test_load_ply();
     test_load_gltf();
     test_load_errors();
+    test_load_messages();
+    test_long_polygons();
     test_shared_meshes();
 
     nacre_context_destroy(ctx1);

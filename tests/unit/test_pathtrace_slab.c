@@ -147,6 +147,16 @@ int main(void)
         d.tau = 1;
         d.samples = 0;
         CHECK(nacre_slab_measure(ctx, &d, &o) == NACRE_ERROR_INVALID_ARGUMENT);
+        /* eta beyond [NACRE_ETA_MIN, NACRE_ETA_MAX]: exact Fresnel, so the path tracer takes it;
+         * the diffusion boundary's fit breaks there (issue 29 item 6) and refuses it. */
+        d.samples = 2000;
+        d.eta = 5;
+        CHECK(nacre_slab_measure(ctx, &d, &o) == NACRE_OK && isfinite(o.R) && isfinite(o.T));
+        d.method = NACRE_METHOD_DIFFUSION;
+        CHECK(nacre_slab_measure(ctx, &d, &o) == NACRE_ERROR_INVALID_ARGUMENT);
+        CHECK(strstr(nacre_context_last_error(ctx), "eta must be in [0.3, 3] for diffusion (got 5)") != NULL);
+        d.eta = 3;
+        CHECK(nacre_slab_measure(ctx, &d, &o) == NACRE_OK && isfinite(o.R) && isfinite(o.T));
     }
 
     nacre_context_destroy(ctx);

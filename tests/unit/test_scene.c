@@ -180,6 +180,21 @@ static void test_scene_commit(void)
     md.type = NACRE_MATERIAL_TRANSLUCENT;
     CHECK(nacre_scene_add_material(scene, &md, &mat) == NACRE_ERROR_INVALID_ARGUMENT);
     CHECK(strstr(nacre_context_last_error(ctx), "sigma_a") != NULL);
+    /* Issue 29 item 6: eta outside [NACRE_ETA_MIN, NACRE_ETA_MAX] made diffusion images NaN. */
+    {
+        nacre_material_desc te = nacre_material_desc_defaults(NACRE_MATERIAL_TRANSLUCENT);
+        const float bad_eta[] = {1e-6f, 0.29f, 3.01f, 1e9f, NAN, INFINITY};
+        for (int i = 0; i < 6; i++) {
+            te.eta = bad_eta[i];
+            CHECK(nacre_scene_add_material(scene, &te, &mat) == NACRE_ERROR_INVALID_ARGUMENT);
+            CHECK(strstr(nacre_context_last_error(ctx), "material: eta: must be in [0.3, 3]") != NULL);
+        }
+        const float good_eta[] = {(float)NACRE_ETA_MIN, 1.0f, (float)NACRE_ETA_MAX};
+        for (int i = 0; i < 3; i++) {
+            te.eta = good_eta[i];
+            CHECK(nacre_scene_add_material(scene, &te, &mat) == NACRE_OK);
+        }
+    }
     nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_SPOT);
     ld.outer_angle = 10;
     ld.inner_angle = 20;

@@ -316,7 +316,12 @@ static const bad_case bad_cases[] = {
     {MAT("{\"type\": \"translucent\", \"sigma_a\": [1, -1, 1]}"), INVALID,
      "t.json: materials.m.sigma_a[1]: must be non-negative and finite (got -1)", NULL},
     {MAT("{\"type\": \"translucent\", \"sigma_s\": -2}"), INVALID, "materials.m.sigma_s: must be non-negative", NULL},
-    {MAT("{\"type\": \"translucent\", \"eta\": 0}"), INVALID, "materials.m.eta: must be positive and finite (got 0)", NULL},
+    {MAT("{\"type\": \"translucent\", \"eta\": 0}"), INVALID, "materials.m.eta: must be in [0.3, 3] (got 0)", NULL},
+    /* Issue 29 item 6: eta far from any material's turned diffusion images to NaN. */
+    {MAT("{\"type\": \"translucent\", \"eta\": 1e-6}"), INVALID, "materials.m.eta: must be in [0.3, 3] (got 1e-06)", NULL},
+    {MAT("{\"type\": \"translucent\", \"eta\": 1e9}"), INVALID, "materials.m.eta: must be in [0.3, 3] (got 1e+09)", NULL},
+    {MAT("{\"preset\": \"marble\", \"eta\": 3.5}"), INVALID, "materials.m.eta: must be in [0.3, 3] (got 3.5)", NULL},
+    {MAT("{\"preset\": \"marble\", \"eta\": 0.29}"), INVALID, "materials.m.eta: must be in [0.3, 3] (got 0.29)", NULL},
     {MAT("{\"type\": \"translucent\", \"g\": 1}"), INVALID, "materials.m.g: must be in (-1, 1) (got 1)", NULL},
     {MAT("{\"type\": \"translucent\", \"g\": -1}"), INVALID, "materials.m.g: must be in (-1, 1) (got -1)", NULL},
     {MAT("{\"type\": \"opaque\", \"diffuse\": [0.5, 1.5, 0.5]}"), INVALID, "materials.m.diffuse[1]: must be in [0, 1]", NULL},
@@ -955,10 +960,60 @@ static void test_out_of_memory(void)
     CHECK(c.live == 0);
 }
 
+/* Issue 29 items 6 and 12: the ends of the eta range load; nesting past cJSON's limit and
+ * \u0000 inside a string are named as such. */
+static void test_limits_and_nul(void)
+{
+    counter c;
+    nacre_context *ctx = make_context(&c);
+    nacre_scene *s = NULL;
+    CHECK(load(ctx, MAT("{\"preset\": \"marble\", \"eta\": 0.3}"), &s, NULL) == NACRE_OK);
+    nacre_scene_destroy(s);
+    s = NULL;
+    CHECK(load(ctx, MAT("{\"preset\": \"marble\", \"eta\": 3}"), &s, NULL) == NACRE_OK);
+    nacre_scene_destroy(s);
+    s = NULL;
+
+    /* 1500 nested arrays: not "malformed JSON". */
+    size_t n = 1500;
+    char *deep = malloc(2 * n + 16);
+    CHECK(deep != NULL);
+    if (deep) {
+        size_t k = 0;
+        k += (size_t)sprintf(deep, "{\"a\": ");
+        for (size_t i = 0; i < n; i++)
+            deep[k++] = '[';
+        for (size_t i = 0; i < n; i++)
+            deep[k++] = ']';
+        deep[k++] = '}';
+        deep[k] = '\0';
+        expect_failure(ctx, &c, deep, k, NACRE_ERROR_PARSE, "t.json:1:", "nested deeper than 1000 levels");
+        CHECK(strstr(nacre_context_last_error(ctx), "malformed") == NULL);
+        free(deep);
+    }
+    /* Brackets inside strings do not count; a shallow error stays "malformed JSON". */
+    const char *text = "{\"a\": \"[[[[[[\", \"b\": [1,, 2]}";
+    expect_failure(ctx, &c, text, strlen(text), NACRE_ERROR_PARSE, "t.json:1:", "malformed JSON");
+
+    /* \u0000 used to end the path early and load "a.obj". */
+    text = OBJ("{\"material\": \"m\", \"mesh\": \"meshes/suzanne.obj\\u0000.png\"}");
+    expect_failure(ctx, &c, text, strlen(text), INVALID, "t.json: objects[0].mesh: contains \\u0000", NULL);
+    text = OBJ("{\"material\": \"m\", " SPHERE ", \"name\": \"\\u0000\"}");
+    expect_failure(ctx, &c, text, strlen(text), INVALID, "objects[0].name: contains \\u0000", NULL);
+    text = MAT("{\"type\": \"translucent\", \"layers\": [{\"preset\": \"skin1\", \"depth\": 1}], \"depth_map\": \"layered_depth.png\\u0000\"}");
+    expect_failure(ctx, &c, text, strlen(text), INVALID, "materials.m.depth_map: contains \\u0000", NULL);
+    /* An escaped backslash followed by "u0000" is no NUL: the file name is looked for as written. */
+    text = OBJ("{\"material\": \"m\", \"mesh\": \"a\\\\u0000.obj\"}");
+    expect_failure(ctx, &c, text, strlen(text), NACRE_ERROR_IO, "cannot open mesh file \"a\\u0000.obj\"", NULL);
+    nacre_context_destroy(ctx);
+    CHECK(c.live == 0);
+}
+
 int main(void)
 {
     test_full_scene();
     test_bad_inputs();
+    test_limits_and_nul();
     test_files();
     test_patterns();
     test_layers();

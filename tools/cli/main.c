@@ -5,13 +5,16 @@
  * Errors are one line on stderr: "nacre: <message>". The library returns errors; this file is
  * the only place that prints them.
  */
+#define _XOPEN_SOURCE 700 /* realpath (XSI); the build asks for POSIX 2008 only */
 #include "cli.h"
 
 #include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "demo_scene.h"
 
@@ -130,17 +133,77 @@ static bool parse_bytes(const char *s, uint64_t *out)
     return true;
 }
 
+/* Library warnings (a half EXR's clamped values) are printed; errors are printed by the command
+ * from nacre_context_last_error instead, once. */
+static const char *cli_warning_hint = ""; /* what the command suggests after a warning */
+
+static void cli_log(void *user, nacre_log_level level, const char *message)
+{
+    (void)user;
+    if (level == NACRE_LOG_WARNING)
+        fprintf(stderr, "nacre: warning: %s%s\n", message, cli_warning_hint);
+}
+
 nacre_context *nc_cli_context(int threads)
 {
     nacre_context_desc desc = {0};
     desc.threads = threads;
     desc.memory_limit = cli_memory_limit;
+    desc.log_fn = cli_log;
     nacre_context *ctx = NULL;
     if (nacre_context_create(&desc, &ctx) != NACRE_OK) {
         cli_error("cannot create a context (out of memory?)");
         return NULL;
     }
     return ctx;
+}
+
+/* `path` made absolute without resolving its last component (which may not exist yet): the
+ * real path of its folder, then the name. Lexical (as given) when the folder does not resolve. */
+static void normalized_path(const char *path, char *out, size_t size)
+{
+    const char *slash = strrchr(path, '/');
+    const char *base = slash ? slash + 1 : path;
+    char dir[PATH_MAX], real[PATH_MAX];
+    size_t n = slash ? (size_t)(slash - path) : 0;
+    if (slash && n == 0)
+        n = 1; /* "/name": the root */
+    if (n >= sizeof(dir))
+        n = sizeof(dir) - 1;
+    memcpy(dir, slash ? path : ".", slash ? n : 1);
+    dir[slash ? n : 1] = '\0';
+    if (strcmp(base, ".") != 0 && strcmp(base, "..") != 0 && base[0] && realpath(dir, real))
+        snprintf(out, size, "%s%s%s", real, strcmp(real, "/") == 0 ? "" : "/", base);
+    else
+        snprintf(out, size, "%s", path);
+}
+
+/* Whether two paths name the same file: device and inode when both exist, the normalized paths
+ * when neither does (an output that does not exist yet cannot be an existing input). */
+static bool same_file(const char *a, const char *b)
+{
+    struct stat sa, sb;
+    bool ea = stat(a, &sa) == 0, eb = stat(b, &sb) == 0;
+    if (ea && eb)
+        return sa.st_dev == sb.st_dev && sa.st_ino == sb.st_ino;
+    if (ea != eb)
+        return false;
+    char na[PATH_MAX + 256], nb[PATH_MAX + 256];
+    normalized_path(a, na, sizeof(na));
+    normalized_path(b, nb, sizeof(nb));
+    return strcmp(na, nb) == 0;
+}
+
+/* Refuse to write an output over one of the run's inputs or over another of its outputs: false
+ * (after one line on stderr) if `out` names the same file as `other`. */
+static bool output_distinct(const char *command, const char *out, const char *out_what, const char *other,
+                            const char *other_what)
+{
+    if (!out || !other || !same_file(out, other))
+        return true;
+    fprintf(stderr, "nacre %s: %s '%s' is the same file as the %s '%s': refusing to overwrite it\n", command, out_what,
+            out, other_what, other);
+    return false;
 }
 
 /* ---------------------------------------------------------------------------------------- */
@@ -158,7 +221,8 @@ static const char render_help[] =
     "  --time T            time in seconds at which deformers are evaluated (default: the scene's, else 0)\n"
     "  --threads N         worker threads (default: all cores)\n"
     "  --memory-limit SIZE most memory nacre may hold (4G, 512M; default half of RAM)\n"
-    "  --exr-float         write 32-bit float EXR instead of half\n"
+    "  --exr-float         write 32-bit float EXR instead of half (half holds up to 65504: larger\n"
+    "                      values are written as 65504, with a warning giving their count)\n"
     "  --stats             print one JSON object with per-stage timings in microseconds\n"
     "diffusion:\n"
     "  --voxel-res N       voxels along each translucent object's longest axis (default 32)\n"
@@ -213,6 +277,31 @@ static bool has_suffix(const char *s, const char *suffix)
         if ((s[n - m + i] | 0x20) != (suffix[i] | 0x20))
             return false;
     return true;
+}
+
+/* A rendered image with NaN or infinite values is the method's failure: say so (one line naming
+ * the method and the first pixel) instead of writing it. */
+static bool image_finite(const nacre_image *img, const nacre_render_settings *rs, const char *what)
+{
+    unsigned long long bad = 0;
+    int32_t fx = 0, fy = 0;
+    for (int32_t y = 0; y < img->height; y++)
+        for (int32_t x = 0; x < img->width; x++) {
+            const float *p = img->pixels + (size_t)y * img->stride + (size_t)x * (size_t)img->channels;
+            bool ok = true;
+            for (int32_t c = 0; c < img->channels; c++)
+                ok = ok && isfinite(p[c]);
+            if (!ok && bad++ == 0) {
+                fx = x;
+                fy = y;
+            }
+        }
+    if (bad == 0)
+        return true;
+    cli_error("render: method '%s' produced %llu pixel%s with NaN or infinite values in its %s (first at x %d, y %d); "
+              "nothing written",
+              nacre_method_name(rs->method), bad, bad == 1 ? "" : "s", what, (int)fx, (int)fy);
+    return false;
 }
 
 static int cmd_render(int argc, char **argv)
@@ -316,6 +405,10 @@ static int cmd_render(int argc, char **argv)
     }
     if (!has_suffix(out_path, ".png") && !has_suffix(out_path, ".exr"))
         return nc_cli_usage("render", "output '%s': use a .png or .exr file name", out_path);
+    if (!output_distinct("render", out_path, "output", scene_path, "scene") ||
+        !output_distinct("render", variance_path, "variance output", scene_path, "scene") ||
+        !output_distinct("render", variance_path, "variance output", out_path, "output"))
+        return EXIT_BAD;
     nacre_method method = NACRE_METHOD_PHONG;
     if (method_name && !nacre_method_from_name(method_name, &method))
         return nc_cli_usage("render", "unknown method '%s' (phong, diffusion, layered, pathtrace)", method_name);
@@ -386,6 +479,12 @@ static int cmd_render(int argc, char **argv)
         cli_error("method '%s' is not implemented yet", nacre_method_name(rs.method));
         goto out;
     }
+    /* The renderer's own message cannot name the file. */
+    if (nacre_scene_object_count(scene) == 0 && !(rs.method == NACRE_METHOD_PATHTRACE && nacre_scene_fog_count(scene) > 0)) {
+        cli_error("%s: scene has no objects (nothing to render with method '%s')",
+                  scene_path ? scene_path : "<built-in demo>", nacre_method_name(rs.method));
+        goto out;
+    }
     uint64_t t0 = nc_cli_now_us();
     if (nacre_scene_commit(scene, rs.time) != NACRE_OK) {
         nc_cli_fail(ctx);
@@ -400,19 +499,26 @@ static int cmd_render(int argc, char **argv)
     if (nacre_scene_fog_count(scene) > 0 && rs.method != NACRE_METHOD_PATHTRACE)
         fprintf(stderr, "nacre: note: the scene's fog is rendered by --method pathtrace only; method '%s' ignores it\n",
                 nacre_method_name(rs.method));
+    if (!image_finite(&img, &rs, "image")) /* nothing is written */
+        goto out;
     if (variance_path) {
         nacre_image var = {0};
         nacre_image_write_options vo = {.exr_type = NACRE_EXR_FLOAT};
-        bool ok = nacre_renderer_variance(renderer, &var) == NACRE_OK && nacre_image_write(ctx, &var, variance_path, &vo) == NACRE_OK;
+        bool got = nacre_renderer_variance(renderer, &var) == NACRE_OK, finite = got && image_finite(&var, &rs, "variance");
+        bool ok = finite && nacre_image_write(ctx, &var, variance_path, &vo) == NACRE_OK;
         nacre_image_free(ctx, &var);
         if (!ok) {
-            nc_cli_fail(ctx);
+            if (!got || finite)
+                nc_cli_fail(ctx);
             goto out;
         }
     }
     t0 = nc_cli_now_us();
     nacre_image_write_options wo = {.exposure = rs.exposure, .exr_type = exr_float ? NACRE_EXR_FLOAT : NACRE_EXR_HALF};
-    if (nacre_image_write(ctx, &img, out_path, &wo) != NACRE_OK) {
+    cli_warning_hint = " (--exr-float)"; /* the one warning an image write gives: half range */
+    nacre_result wr = nacre_image_write(ctx, &img, out_path, &wo);
+    cli_warning_hint = "";
+    if (wr != NACRE_OK) {
         nc_cli_fail(ctx);
         goto out;
     }
@@ -525,6 +631,9 @@ static const char compare_help[] =
     "  psnr           10 log10(peak^2 / mse), peak = max reference value (dB)\n"
     "  mean_rel_err   mean(|t - r| / |r|) over values where the reference is non-zero\n"
     "  max_abs_err    max |t - r|\n"
+    "Pixels holding NaN or infinite values are counted (nonfinite_test, nonfinite_reference) and\n"
+    "left out of the metrics; if either image has any, compare prints the metrics and an error\n"
+    "and exits with status 2.\n"
     "\n"
     "  --json   one JSON object\n"
     "  --help, --version\n";
@@ -578,11 +687,22 @@ static int cmd_compare(int argc, char **argv)
         print_number(m.mean_rel_err);
         printf(",\"max_abs_err\":");
         print_number(m.max_abs_err);
-        printf(",\"values\":%llu,\"nonzero_reference_values\":%llu}\n", (unsigned long long)m.count,
-               (unsigned long long)m.nonzero_ref);
+        printf(",\"values\":%llu,\"nonzero_reference_values\":%llu,\"nonfinite_test\":%llu,"
+               "\"nonfinite_reference\":%llu}\n",
+               (unsigned long long)m.count, (unsigned long long)m.nonzero_ref, (unsigned long long)m.nonfinite_test,
+               (unsigned long long)m.nonfinite_ref);
     } else {
         printf("rmse          %.6g\nrel_mse       %.6g\npsnr          %.3f dB\nmean_rel_err  %.6g\nmax_abs_err   %.6g\n",
                m.rmse, m.rel_mse, m.psnr, m.mean_rel_err, m.max_abs_err);
+        if (m.nonfinite_test || m.nonfinite_ref)
+            printf("nonfinite     %llu test, %llu reference pixels (left out)\n", (unsigned long long)m.nonfinite_test,
+                   (unsigned long long)m.nonfinite_ref);
+    }
+    if (m.nonfinite_test || m.nonfinite_ref) {
+        fflush(stdout);
+        cli_error("compare: %s has %llu and %s has %llu pixels with NaN or infinite values; the metrics leave them out",
+                  paths[0], (unsigned long long)m.nonfinite_test, paths[1], (unsigned long long)m.nonfinite_ref);
+        goto out;
     }
     rc = 0;
 out:
@@ -640,6 +760,8 @@ static int cmd_voxelize(int argc, char **argv)
     }
     if (!path)
         return nc_cli_usage("voxelize", "missing MESH");
+    if (!output_distinct("voxelize", out_path, "output", path, "mesh"))
+        return EXIT_BAD;
     vs.resolution = (uint32_t)res;
     nacre_context *ctx = nc_cli_context(0);
     if (!ctx)
