@@ -1,6 +1,7 @@
 # Top-level entry points. `make run`: install dependencies, build (release), render the demo.
 # `make test`: install dependencies, build with ASan+UBSan, run the whole test suite; then the same
-# for the portable build (no x86-64-v3: the scalar fallbacks of the vector kernels).
+# for the portable build (no x86-64-v3: the scalar fallbacks of the vector kernels); then the
+# memory-limit checks under `ulimit -v` on the release build (sanitizers cannot run under it).
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 RELEASE_DIR ?= build/release
 TEST_DIR ?= build/test
@@ -28,9 +29,10 @@ build-test-generic: deps
 		-DNACRE_NATIVE_V3=OFF
 	cmake --build $(GENERIC_TEST_DIR) -j $(JOBS)
 
-test: build-test build-test-generic
+test: build build-test build-test-generic
 	cd $(TEST_DIR) && ctest --output-on-failure -j $(JOBS)
 	cd $(GENERIC_TEST_DIR) && ctest --output-on-failure -j $(JOBS)
+	bash tests/limits.sh $(RELEASE_DIR)/nacre
 
 bench: build
 	./$(RELEASE_DIR)/nacre bench raster

@@ -400,6 +400,63 @@ static void test_output_collisions(void)
     CHECK(strstr(err, "scene.exr: scene has no objects") != NULL);
 }
 
+/* Issue 29 item 4: sizes inside the documented ranges that used to grow until the kernel killed
+ * the process now end with exit 2 and one line naming what needed how much and the limit. The
+ * same runs under `ulimit -v 4194304` are in tests/limits.sh (a sanitizer build cannot run
+ * under ulimit -v). */
+static void test_memory_limit(void)
+{
+    char args[4096], path[1024], obj[1024], scene[1024];
+    snprintf(obj, sizeof(obj), "%s/tri.obj", TMP);
+    write_file(obj, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    snprintf(path, sizeof(path), "%s/huge.nrrd", TMP);
+    remove(path);
+    /* 34 GiB of voxel sets: over half of this machine's 24 GB and of most machines'. */
+    snprintf(args, sizeof(args), "voxelize %s --res 4096 -o %s", obj, path);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "voxel grid 4096x4096x4096") != NULL && strstr(err, "memory limit") != NULL);
+    CHECK(strchr(err, '\n') == err + strlen(err) - 1);
+    CHECK(!exists(path));
+    snprintf(args, sizeof(args), "voxelize %s --res 256 --memory-limit 1M -o %s", obj, path);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "memory limit of 1.00 MiB") != NULL);
+    snprintf(args, sizeof(args), "voxelize %s --res 64 --memory-limit 64M -o %s", obj, path);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    CHECK(exists(path));
+
+    snprintf(path, sizeof(path), "%s/mem.png", TMP);
+    snprintf(args, sizeof(args), "render --voxel-res 1024 --method diffusion -o %s", path);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "diffusion grid 1024^3") != NULL && strstr(err, "memory limit") != NULL);
+    CHECK(!exists(path));
+
+    /* 50 point lights: 6 faces of 2048^2 floats each, 4.7 GiB of shadow maps. */
+    snprintf(scene, sizeof(scene), "%s/lights50.json", TMP);
+    FILE *f = fopen(scene, "w");
+    CHECK(f != NULL);
+    if (f) {
+        fputs("{\"render\": {\"width\": 32, \"height\": 24},\n \"lights\": [", f);
+        for (int i = 0; i < 50; i++)
+            fprintf(f, "%s{\"type\": \"point\", \"position\": [%d, 3, 0], \"intensity\": 1}", i ? ", " : "", i);
+        fputs("],\n \"materials\": {\"m\": {\"type\": \"opaque\"}},\n"
+              " \"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"}]}\n", f);
+        fclose(f);
+    }
+    snprintf(args, sizeof(args), "render %s --memory-limit 2G -o %s", scene, path);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "50 shadow maps of 2048^2") != NULL && strstr(err, "memory limit of 2.00 GiB") != NULL);
+    CHECK(!exists(path));
+
+    const char *bad[] = {"0", "-5G", "4Q", "G", ""};
+    for (int i = 0; i < 5; i++) {
+        snprintf(args, sizeof(args), "info %s --memory-limit '%s'", obj, bad[i]);
+        CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+        CHECK(strstr(err, "--memory-limit") != NULL);
+    }
+    snprintf(args, sizeof(args), "render --memory-limit");
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+}
+
 int main(void)
 {
     mkdir(NACRE_TEST_TMP, 0755);
@@ -411,5 +468,6 @@ int main(void)
     test_ranges();
     test_compare_nonfinite();
     test_output_collisions();
+    test_memory_limit();
     return TEST_MAIN_END();
 }
