@@ -447,6 +447,34 @@ static void test_memory_limit(void)
     CHECK(strstr(err, "50 shadow maps of 2048^2") != NULL && strstr(err, "memory limit of 2.00 GiB") != NULL);
     CHECK(!exists(path));
 
+    /* A layered material's depth map: decoded and copied into the scene, both counted. */
+    char png[1024];
+    snprintf(png, sizeof(png), "%s/depth2k.png", TMP);
+    nacre_context *ctx = NULL;
+    CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
+    nacre_image img = {0};
+    CHECK(nacre_image_alloc(ctx, 2048, 2048, 4, &img) == NACRE_OK);
+    for (size_t i = 0; img.pixels && i < (size_t)2048 * 2048 * 4; i++)
+        img.pixels[i] = (float)(i % 7) / 7.0f;
+    CHECK(nacre_image_write_png(ctx, &img, png, 0.0f) == NACRE_OK);
+    nacre_image_free(ctx, &img);
+    nacre_context_destroy(ctx);
+    snprintf(scene, sizeof(scene), "%s/layered_big.json", TMP);
+    f = fopen(scene, "w");
+    CHECK(f != NULL);
+    if (f) {
+        fputs("{\"materials\": {\"m\": {\"preset\": \"skin2\", \"depth_map\": \"depth2k.png\",\n"
+              "  \"layers\": [{\"preset\": \"skin1\", \"depth\": 0.5}]}},\n"
+              " \"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"}]}\n", f);
+        fclose(f);
+    }
+    snprintf(args, sizeof(args), "render %s --memory-limit 48M --method phong -o %s", scene, path);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "depth2k.png") != NULL && strstr(err, "memory limit of 48.0 MiB") != NULL);
+    CHECK(!exists(path));
+    snprintf(args, sizeof(args), "render %s --memory-limit 256M --method phong --size 16x16 -o %s", scene, path);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+
     const char *bad[] = {"0", "-5G", "4Q", "G", ""};
     for (int i = 0; i < 5; i++) {
         snprintf(args, sizeof(args), "info %s --memory-limit '%s'", obj, bad[i]);
