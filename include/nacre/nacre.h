@@ -412,7 +412,8 @@ typedef struct nacre_material_desc {
 } nacre_material_desc;
 
 /* Defaults: opaque grey 0.8, specular 0.04, shininess 64; translucent: the "jade" preset
- * (Blanchard 2012, per millimetre), g 0, eta 1.6, no pattern. */
+ * (Blanchard 2012), g 0, eta 1.6, no pattern. Coefficients PER MILLIMETRE: in a scene whose unit
+ * is not the millimetre, convert them with nacre_material_desc_per_unit. */
 NACRE_API nacre_material_desc nacre_material_desc_defaults(nacre_material_type type);
 
 /* Look up a named measured material (Jensen et al. 2001: "marble", "skimmilk", "wholemilk",
@@ -420,6 +421,14 @@ NACRE_API nacre_material_desc nacre_material_desc_defaults(nacre_material_type t
  * "jade", "aquamarine"), coefficients per millimetre, eta 1.3 for Jensen's. The
  * result is a translucent desc. Returns false if the name is unknown. */
 NACRE_API bool nacre_material_preset(const char *name, nacre_material_desc *out);
+
+/* Millimetres per unit of a named length unit: "mm" 1, "cm" 10, "m" 1000. False if unknown. */
+NACRE_API bool nacre_units_mm(const char *name, float *mm_per_unit);
+/* Turn a desc's coefficients (sigma_a, sigma_s of the core and of every layer) from per
+ * millimetre into per scene unit, for a scene of `unit_mm` millimetres per unit (as given to
+ * nacre_scene_set_unit_mm): presets and defaults are per millimetre, scenes are per unit.
+ * Lengths (layer depths) are not touched. */
+NACRE_API void nacre_material_desc_per_unit(nacre_material_desc *desc, float unit_mm);
 
 /* Volumes for NACRE_PATTERN_VOLUME: a scalar density on a regular grid placed in the object's
  * rest-pose space. Sample (i, j, k) sits at origin + (i, j, k) * spacing (the NRRD convention:

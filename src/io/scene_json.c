@@ -574,19 +574,11 @@ static void parse_units(loader *ld, const cJSON *item)
 {
     size_t mark = push_key(ld, "units");
     if (cJSON_IsString(item)) {
-        static const char *const names[] = {"mm", "cm", "m"};
-        static const float mm[] = {1.0f, 10.0f, 1000.0f};
-        int found = -1;
-        for (int i = 0; i < 3; i++)
-            if (strcmp(item->valuestring, names[i]) == 0)
-                found = i;
-        if (found < 0) {
+        if (!nacre_units_mm(item->valuestring, &ld->unit_mm)) {
             char buf[NAME_SHOWN_MAX + 8];
             fail(ld, NACRE_ERROR_INVALID_ARGUMENT,
                  "unknown unit \"%s\" (valid: \"mm\", \"cm\", \"m\" or millimetres per unit)",
                  shown(item->valuestring, buf, sizeof(buf)));
-        } else {
-            ld->unit_mm = mm[found];
         }
     } else if (cJSON_IsNumber(item)) {
         double v;
@@ -753,11 +745,7 @@ static bool preset_per_unit(loader *ld, const char *key, const char *name, nacre
         pop(ld, mark);
         return false;
     }
-    /* Presets are per millimetre; the scene's coefficients are per scene unit. */
-    for (int c = 0; c < 3; c++) {
-        d->sigma_a[c] *= ld->unit_mm;
-        d->sigma_s[c] *= ld->unit_mm;
-    }
+    nacre_material_desc_per_unit(d, ld->unit_mm);
     return true;
 }
 
@@ -952,6 +940,8 @@ static void parse_material(loader *ld, const cJSON *obj, nacre_material *out)
             return;
     } else {
         d = nacre_material_desc_defaults(type == 0 ? NACRE_MATERIAL_OPAQUE : NACRE_MATERIAL_TRANSLUCENT);
+        /* The translucent default (jade) is per millimetre like the presets. */
+        nacre_material_desc_per_unit(&d, ld->unit_mm);
     }
     if (type == 0)
         check_keys(ld, obj, opaque_keys, COUNT_OF(opaque_keys));
