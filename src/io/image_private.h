@@ -7,6 +7,7 @@
 #define NACRE_IMAGE_PRIVATE_H
 
 #include "core/core.h"
+#include "io/tmpfile.h"
 
 #include <math.h>
 #include <string.h>
@@ -70,21 +71,6 @@ static inline uint8_t nc_srgb8_encode(const nc_srgb8_table *tb, float v)
     return (uint8_t)q;
 }
 
-/* A file being written under a temporary name next to its final path. */
-typedef struct nc_tmpfile {
-    const char *path; /* final path (borrowed) */
-    char *tmp_path;   /* path + ".tmpXXXXXX", allocated */
-    int fd;           /* -1 once closed */
-} nc_tmpfile;
-
-/* Create the temporary file in the folder of `path`. */
-nacre_result nc_tmpfile_open(nacre_context *ctx, const char *path, nc_tmpfile *tmp);
-/* Write all of `data` at the current position; errno-style message on failure. */
-nacre_result nc_tmpfile_write(nacre_context *ctx, nc_tmpfile *tmp, const void *data, size_t size);
-/* Close and rename into place. On failure the temporary file is removed. Always releases tmp. */
-nacre_result nc_tmpfile_commit(nacre_context *ctx, nc_tmpfile *tmp);
-/* Close and remove the temporary file (after a failed write). Always releases tmp. */
-void nc_tmpfile_abort(nacre_context *ctx, nc_tmpfile *tmp);
 
 /* Format readers and writers; paths and images are already validated by the callers. */
 /* srgb: decode 8/16-bit samples as sRGB to linear; else value / max (data images). */

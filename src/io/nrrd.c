@@ -1,5 +1,5 @@
 /*
- * nrrd.c: a small reader for NRRD volumes (Teem's "Nearly Raw Raster Data", format versions
+ * nrrd.c: a small reader and writer for NRRD volumes (Teem's "Nearly Raw Raster Data", format versions
  * NRRD0001-0005), used for density volumes of heterogeneous materials (NACRE_PATTERN_VOLUME,
  * issue 4 item 5) and able to read the voxelizer's own exports (nacre_voxel_grid_write_nrrd).
  *
@@ -16,6 +16,7 @@
  * "name: field: problem" for problems that are not on one line).
  */
 #include "io/nrrd.h"
+#include "io/tmpfile.h"
 
 #include <errno.h>
 #include <math.h>
@@ -569,5 +570,63 @@ nacre_result nacre_volume_load_nrrd(nacre_context *ctx, const char *path, uint32
 out:
     nc_free(ctx, buf);
     fclose(f);
+    return r;
+}
+
+/* ------------------------------------------------------------------------------------------ */
+/* Writing                                                                                    */
+/* ------------------------------------------------------------------------------------------ */
+
+nacre_result nc_nrrd_write_u8(nacre_context *ctx, const char *path, const char *comment, uint32_t channels,
+                              const uint32_t dims[3], double spacing, const double origin[3], nc_nrrd_row_fn row_fn,
+                              void *user)
+{
+    if (!path || channels == 0 || !row_fn)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "nrrd: no path, channel or row source");
+    char header[1024];
+    int n;
+    if (channels > 1)
+        n = snprintf(header, sizeof(header),
+                     "NRRD0004\n# %s\ntype: uint8\ndimension: 4\nsizes: %u %u %u %u\n"
+                     "kinds: vector domain domain domain\nencoding: raw\nspace dimension: 3\n"
+                     "space directions: none (%.9g,0,0) (0,%.9g,0) (0,0,%.9g)\nspace origin: (%.9g,%.9g,%.9g)\n\n",
+                     comment, channels, dims[0], dims[1], dims[2], spacing, spacing, spacing, origin[0], origin[1],
+                     origin[2]);
+    else
+        n = snprintf(header, sizeof(header),
+                     "NRRD0004\n# %s\ntype: uint8\ndimension: 3\nsizes: %u %u %u\n"
+                     "kinds: domain domain domain\nencoding: raw\nspace dimension: 3\n"
+                     "space directions: (%.9g,0,0) (0,%.9g,0) (0,0,%.9g)\nspace origin: (%.9g,%.9g,%.9g)\n\n",
+                     comment, dims[0], dims[1], dims[2], spacing, spacing, spacing, origin[0], origin[1], origin[2]);
+    if (n < 0 || (size_t)n >= sizeof(header))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: NRRD header too long", path);
+    /* Rows are gathered into blocks of about 1 MiB, one write each. */
+    const size_t row_bytes = (size_t)channels * dims[0];
+    size_t rows_per_block = row_bytes ? ((size_t)1 << 20) / row_bytes : 1;
+    if (rows_per_block < 1)
+        rows_per_block = 1;
+    uint8_t *block = nc_alloc(ctx, rows_per_block * row_bytes + 1);
+    if (!block)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    nc_tmpfile tmp;
+    nacre_result r = nc_tmpfile_open(ctx, path, &tmp);
+    if (r == NACRE_OK)
+        r = nc_tmpfile_write(ctx, &tmp, header, (size_t)n);
+    size_t filled = 0;
+    for (uint32_t z = 0; z < dims[2] && r == NACRE_OK; z++)
+        for (uint32_t y = 0; y < dims[1] && r == NACRE_OK; y++) {
+            row_fn(user, y, z, block + filled * row_bytes);
+            if (++filled == rows_per_block) {
+                r = nc_tmpfile_write(ctx, &tmp, block, filled * row_bytes);
+                filled = 0;
+            }
+        }
+    if (r == NACRE_OK && filled)
+        r = nc_tmpfile_write(ctx, &tmp, block, filled * row_bytes);
+    nc_free(ctx, block);
+    if (r == NACRE_OK)
+        return nc_tmpfile_commit(ctx, &tmp);
+    if (tmp.tmp_path)
+        nc_tmpfile_abort(ctx, &tmp);
     return r;
 }

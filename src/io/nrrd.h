@@ -1,6 +1,7 @@
 /*
- * nrrd.h: the NRRD volume reader (private). nacre_volume_load_nrrd reads a file and calls
- * nc_nrrd_parse, which works on memory so tests and the fuzzer can feed it bytes directly.
+ * nrrd.h: NRRD volumes (private). The reader: nacre_volume_load_nrrd reads a file and calls
+ * nc_nrrd_parse, which works on memory so tests and the fuzzer can feed it bytes directly. The
+ * writer: nc_nrrd_write_u8, used by the voxelizer's export.
  */
 #ifndef NACRE_NRRD_H
 #define NACRE_NRRD_H
@@ -17,5 +18,16 @@
  * allocator (nacre_volume_data_free). On failure *out is zeroed and one error is recorded. */
 nacre_result nc_nrrd_parse(nacre_context *ctx, const char *name, const uint8_t *bytes, size_t length,
                            uint32_t channel, nacre_volume_data *out);
+
+/* Fills `row` with the `channels` x dims[0] interleaved bytes of row (y, z) of the volume. */
+typedef void (*nc_nrrd_row_fn)(void *user, uint32_t y, uint32_t z, uint8_t *row);
+
+/* Write a raw uint8 NRRD of `channels` interleaved channels (a 4-D file with a vector axis first
+ * when channels > 1) on a dims grid of cubic cells of side `spacing`, the first sample centred at
+ * `origin`. `comment` goes in a "#" line. Written under a temporary name and renamed into place:
+ * a failure leaves nothing at `path`. */
+nacre_result nc_nrrd_write_u8(nacre_context *ctx, const char *path, const char *comment, uint32_t channels,
+                              const uint32_t dims[3], double spacing, const double origin[3], nc_nrrd_row_fn row_fn,
+                              void *user);
 
 #endif /* NACRE_NRRD_H */

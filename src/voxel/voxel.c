@@ -59,6 +59,7 @@
  * write the grid with atomic operations (a private copy would cost more to clear and merge).
  */
 #include "core/core.h"
+#include "io/nrrd.h"
 
 #include <errno.h>
 #include <math.h>
@@ -1783,6 +1784,21 @@ uint64_t nacre_voxel_grid_count(const nacre_voxel_grid *grid, nacre_voxel_set se
     return popcount_set(set == NACRE_VOXEL_SOLID ? b->solid : b->surface, bitset_words(b));
 }
 
+typedef struct nrrd_rows {
+    const bitset *b;
+} nrrd_rows;
+
+/* Channel 0 solid, channel 1 surface. */
+static void nrrd_row(void *user, uint32_t y, uint32_t z, uint8_t *row)
+{
+    const bitset *b = ((const nrrd_rows *)user)->b;
+    for (uint32_t x = 0; x < b->dims[0]; x++) {
+        size_t col = (size_t)y * b->dims[0] + x;
+        row[2 * x] = get_bit(b->solid, col, b->words, z);
+        row[2 * x + 1] = get_bit(b->surface, col, b->words, z);
+    }
+}
+
 nacre_result nacre_voxel_grid_write_nrrd(const nacre_voxel_grid *grid, uint32_t level,
                                          const char *path)
 {
@@ -1792,60 +1808,13 @@ nacre_result nacre_voxel_grid_write_nrrd(const nacre_voxel_grid *grid, uint32_t 
     if (!path || level >= grid->levels)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "voxel nrrd: no path or level %u missing", level);
     const bitset *b = &grid->level[level];
-    size_t plen = strlen(path);
-    char *tmp = nc_alloc(ctx, plen + 8);
-    uint8_t *row = nc_alloc(ctx, 2 * (size_t)b->dims[0]);
-    nacre_result r = NACRE_OK;
-    FILE *f = NULL;
-    if (!tmp || !row) {
-        r = NACRE_ERROR_OUT_OF_MEMORY;
-        goto out;
-    }
-    memcpy(tmp, path, plen);
-    memcpy(tmp + plen, ".tmp", 5);
-    f = fopen(tmp, "wb");
-    if (!f) {
-        r = nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot write: %s", path, strerror(errno));
-        goto out;
-    }
     double h = (double)grid->voxel_size * (double)(1u << level);
     /* NRRD places samples at their centres: "space origin" is the centre of voxel (0, 0, 0). */
-    fprintf(f,
-            "NRRD0004\n# nacre voxelization level %u: channel 0 solid, channel 1 surface\n"
-            "type: uint8\ndimension: 4\nsizes: 2 %u %u %u\nkinds: vector domain domain domain\n"
-            "encoding: raw\nspace dimension: 3\n"
-            "space directions: none (%.9g,0,0) (0,%.9g,0) (0,0,%.9g)\n"
-            "space origin: (%.9g,%.9g,%.9g)\n\n",
-            level, b->dims[0], b->dims[1], b->dims[2], h, h, h, grid->origin[0] + 0.5 * h,
-            grid->origin[1] + 0.5 * h, grid->origin[2] + 0.5 * h);
-    for (uint32_t z = 0; z < b->dims[2]; z++)
-        for (uint32_t y = 0; y < b->dims[1]; y++) {
-            for (uint32_t x = 0; x < b->dims[0]; x++) {
-                size_t col = (size_t)y * b->dims[0] + x;
-                row[2 * x] = get_bit(b->solid, col, b->words, z);
-                row[2 * x + 1] = get_bit(b->surface, col, b->words, z);
-            }
-            fwrite(row, 2, b->dims[0], f);
-        }
-    if (ferror(f) | (fclose(f) != 0)) {
-        f = NULL;
-        remove(tmp);
-        r = nc_fail(ctx, NACRE_ERROR_IO, "%s: write failed", path);
-        goto out;
-    }
-    f = NULL;
-    if (rename(tmp, path) != 0) {
-        remove(tmp);
-        r = nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot rename: %s", path, strerror(errno));
-    }
-out:
-    if (f) {
-        fclose(f);
-        remove(tmp);
-    }
-    nc_free(ctx, tmp);
-    nc_free(ctx, row);
-    return r;
+    const double origin[3] = {grid->origin[0] + 0.5 * h, grid->origin[1] + 0.5 * h, grid->origin[2] + 0.5 * h};
+    char comment[96];
+    snprintf(comment, sizeof(comment), "nacre voxelization level %u: channel 0 solid, channel 1 surface", level);
+    nrrd_rows rows = {b};
+    return nc_nrrd_write_u8(ctx, path, comment, 2, b->dims, h, origin, nrrd_row, &rows);
 }
 
 /* ------------------------------------------------------------------------------------------ */

@@ -425,6 +425,7 @@ static void test_memory_limit(void)
     CHECK(exists(path));
 
     snprintf(path, sizeof(path), "%s/mem.png", TMP);
+    remove(path); /* left by the successful render at the end of a previous run */
     snprintf(args, sizeof(args), "render --voxel-res 1024 --method diffusion -o %s", path);
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
     CHECK(strstr(err, "diffusion grid 1024^3") != NULL && strstr(err, "memory limit") != NULL);

@@ -1,0 +1,27 @@
+/*
+ * tmpfile.h: writing a file under a temporary name next to its final path and renaming it into
+ * place once complete, so that a failed or interrupted write never leaves a partial file at the
+ * path (images, NRRD volumes). Private to the library.
+ */
+#ifndef NACRE_TMPFILE_H
+#define NACRE_TMPFILE_H
+
+#include "core/core.h"
+
+/* A file being written under a temporary name next to its final path. */
+typedef struct nc_tmpfile {
+    const char *path; /* final path (borrowed) */
+    char *tmp_path;   /* path + ".tmpXXXXXX", allocated */
+    int fd;           /* -1 once closed */
+} nc_tmpfile;
+
+/* Create the temporary file in the folder of `path`. */
+nacre_result nc_tmpfile_open(nacre_context *ctx, const char *path, nc_tmpfile *tmp);
+/* Write all of `data` at the current position; errno-style message on failure. */
+nacre_result nc_tmpfile_write(nacre_context *ctx, nc_tmpfile *tmp, const void *data, size_t size);
+/* Close and rename into place. On failure the temporary file is removed. Always releases tmp. */
+nacre_result nc_tmpfile_commit(nacre_context *ctx, nc_tmpfile *tmp);
+/* Close and remove the temporary file (after a failed write). Always releases tmp. */
+void nc_tmpfile_abort(nacre_context *ctx, nc_tmpfile *tmp);
+
+#endif /* NACRE_TMPFILE_H */
