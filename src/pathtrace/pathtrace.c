@@ -2098,13 +2098,17 @@ static nacre_result build_clearance(nc_pathtracer *pt, const pt_scene *ps, pt_ob
     o->dcell = ext / (float)CLEARANCE_RES;
     if (st > 0.0f && 0.5f / st > o->dcell)
         o->dcell = fminf(0.5f / st, ext / (float)CLEARANCE_MIN_RES);
+    /* Cells below the scene's float resolution (a tiny or degenerate object) would bound
+     * nothing, and a zero cell size has no grid at all: no clearance then (Embree is asked). */
+    if (!(o->dcell >= ps->eps) || !isfinite(o->dcell))
+        return NACRE_OK;
     o->dinv = 1.0f / o->dcell;
     o->dmargin = 0.01f * o->dcell + 4.0f * ps->eps;
     size_t n = 1;
     for (int a = 0; a < 3; a++) {
         o->dorigin[a] = rec->bounds_min[a] - o->dcell;
         float cells = ceilf((rec->bounds_max[a] - rec->bounds_min[a]) / o->dcell) + 2.0f;
-        o->ddims[a] = cells < 1.0f ? 1u : cells > (float)(CLEARANCE_RES + 4) ? CLEARANCE_RES + 4 : (uint32_t)cells;
+        o->ddims[a] = !(cells >= 1.0f) ? 1u : cells > (float)(CLEARANCE_RES + 4) ? CLEARANCE_RES + 4 : (uint32_t)cells;
         n *= o->ddims[a];
     }
     o->dist = nc_alloc(pt->ctx, n);
