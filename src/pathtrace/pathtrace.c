@@ -206,6 +206,7 @@ typedef struct pt_fog {
     float half[3];        /* box: half edge lengths */
     float maj;            /* scalar bound of sigma_t where height() = 1 */
     float falloff, base, g;
+    float hexp;           /* cap of height()'s exponent: at most 60, and maj e^hexp <= FOG_MAX_DENSITY */
 } pt_fog;
 
 struct nc_pathtracer {
@@ -523,13 +524,21 @@ static bool maj_next(maj_iter *it, float *s0, float *s1, float *maj)
  * (y steps of ln 2 / falloff) so that null collisions stay below half of the tentative ones. A
  * ray climbing out of height fog would produce ever thinner pieces forever: the walk stops when
  * no fog lies ahead and the optical depth that the majorants of every remaining piece could add
- * is below FOG_TAIL (a transmittance error below 1e-7, under float resolution). */
+ * is below FOG_TAIL (a transmittance error below 1e-7, under float resolution). Where a piece's
+ * majorant optical depth is below FOG_THIN (thin fog, or steep falloff: 1e4 per unit cut a ray
+ * into 1e4 pieces per unit of height), the piece doubles in length while it stays below: it
+ * then costs one tentative collision in a thousand, and thin stretches are crossed in a few
+ * pieces. A fog's density (sigma_t times height()) is capped at FOG_MAX_DENSITY per scene unit,
+ * a free path far below float resolution at any scene scale, so that tracking weights (products
+ * of two densities) stay finite. */
 #define FOG_TAIL 1e-7f
+#define FOG_THIN 1e-3f
+#define FOG_MAX_DENSITY 1e12f
 #define FOG_LN2 0.69314718f
 
 static float fog_height(const pt_fog *f, float y)
 {
-    return f->height ? expf(fminf(60.0f, -f->falloff * (y - f->base))) : 1.0f;
+    return expf(f->height ? fminf(f->hexp, -f->falloff * (y - f->base)) : f->hexp);
 }
 
 typedef struct fog_iter {
@@ -589,7 +598,15 @@ static bool fog_next(fog_iter *it, float *s0, float *s1, float *maj)
             float end = it->b[i], mi = f->maj;
             float y0 = it->org.y + it->dir.y * t;
             if (f->height && fabsf(it->dir.y) > 1e-20f) { /* else: level, constant density */
-                end = fminf(end, t + FOG_LN2 / (f->falloff * fabsf(it->dir.y)));
+                float len = FOG_LN2 / (f->falloff * fabsf(it->dir.y)), stop = fminf(end, it->tmax);
+                if (f->maj * fog_height(f, fminf(y0, y0 + it->dir.y * len)) * len < FOG_THIN)
+                    for (int k = 0; k < 128 && t + len < stop; k++) {
+                        float l2 = 2.0f * len;
+                        if (!(f->maj * fog_height(f, fminf(y0, y0 + it->dir.y * l2)) * l2 < FOG_THIN))
+                            break;
+                        len = l2;
+                    }
+                end = fminf(end, t + len);
                 float y1 = it->org.y + it->dir.y * end;
                 mi *= fog_height(f, fminf(y0, y1));
                 /* Optical depth still ahead, bounded: rising, the integral of the height
@@ -2338,6 +2355,9 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
         max_fn(s, &rec->medium, mx);
         f->maj = fmaxf(mx[0], fmaxf(mx[1], mx[2]));
         f->height = rec->desc.height_falloff > 0;
+        f->hexp = f->height ? 60.0f : 0.0f;
+        if (f->maj > 0)
+            f->hexp = fminf(f->hexp, logf(FOG_MAX_DENSITY / f->maj));
         f->falloff = rec->desc.height_falloff;
         f->base = rec->desc.height_base;
         f->g = rec->desc.g;
