@@ -725,11 +725,15 @@ typedef struct nacre_slab_desc {
     uint64_t samples;               /* incident paths, default 1e6 */
     uint32_t max_scatter;           /* 0 = unlimited */
     uint64_t seed;
+    double time_limit;              /* seconds, 0 = none: stop early, the result from the paths
+                                       completed by then (samples_done) */
 } nacre_slab_desc;
 
 typedef struct nacre_slab_result {
     double R, T;
     double R_stderr, T_stderr;      /* pathtrace: standard errors of the means; diffusion: 0 */
+    uint64_t samples_done;          /* pathtrace: paths completed (samples, or fewer at the time limit) */
+    uint64_t paths_capped;          /* pathtrace: paths ended by the collision cap (README) */
     double R_specular;              /* Fresnel reflection at normal incidence, ((eta-1)/(eta+1))^2 */
     uint32_t iterations;            /* diffusion */
     double residual;                /* diffusion */
