@@ -45,7 +45,7 @@
 
 enum { CHUNK = 1024 };
 #define MAX_COLLISIONS (1u << 20)
-#define FOLD_AFTER 4
+#define FOLD_AFTER 1
 #define DEADLINE_STRIDE 4096u
 #define RR_THRESHOLD 0.05
 #define RR_SURVIVE 0.2
