@@ -33,7 +33,7 @@
  * the Fresnel reflectance, which is the same at every face) or its end point reflected back into
  * the slab; same distribution, constant cost.
  *
- * Time limit: the clock is read before each path and every DEADLINE_STRIDE events; a path in
+ * Time limit: the clock is read before each chunk and every DEADLINE_STRIDE collisions; a path in
  * flight at the deadline is dropped and R, T are means over the completed paths (samples_done).
  */
 #include "core/optics.h"
@@ -113,8 +113,9 @@ static bool fold_flight(const slab_setup *s, nc_rng *rng, double len, double *z,
 
 enum { PATH_DONE = 0, PATH_CAPPED, PATH_EXPIRED };
 
-/* One path from its forced first collision to its exit; adds its score to `sum`. */
-static int trace_path(const slab_setup *s, nc_rng *rng, slab_sums *sum)
+/* One path from its forced first collision to its exit; adds its score to `sum`. *until_check
+ * counts collisions down to the next clock read (shared by the paths of a chunk). */
+static int trace_path(const slab_setup *s, nc_rng *rng, slab_sums *sum, uint32_t *until_check)
 {
     double q = s->f0 * s->ext; /* ratio of collision weight between successive ballistic legs */
     unsigned leg = 0;
@@ -124,13 +125,13 @@ static int trace_path(const slab_setup *s, nc_rng *rng, slab_sums *sum)
     double d = -log(1.0 - nc_rng_double(rng) * (1.0 - s->ext));
     double z = (leg & 1) ? s->tau - d : d;
     double w = s->w_collide;
-    uint32_t scatters = 0, events = 0, until_check = DEADLINE_STRIDE;
+    uint32_t scatters = 0, events = 0;
     for (;;) {
         /* At a collision. */
         if (++events > MAX_COLLISIONS)
             return PATH_CAPPED;
-        if (s->deadline_us && --until_check == 0) {
-            until_check = DEADLINE_STRIDE;
+        if (s->deadline_us && --*until_check == 0) {
+            *until_check = DEADLINE_STRIDE;
             if (nc_now_us() >= s->deadline_us)
                 return PATH_EXPIRED;
         }
@@ -232,11 +233,11 @@ nacre_result nc_slab_pathtrace(nacre_context *ctx, const nacre_slab_desc *desc, 
             nc_rng rng = nc_rng_make(desc->seed, (uint64_t)c);
             uint64_t begin = (uint64_t)c * CHUNK, end = begin + CHUNK < n ? begin + CHUNK : n;
             slab_sums acc = {0, 0, 0, 0, 0, 0};
-            for (uint64_t i = begin; i < end; i++) {
-                if (s.deadline_us && nc_now_us() >= s.deadline_us)
-                    break;
+            uint32_t until_check = DEADLINE_STRIDE;
+            bool late = s.deadline_us && nc_now_us() >= s.deadline_us;
+            for (uint64_t i = begin; i < end && !late; i++) {
                 slab_sums one = {0, 0, 0, 0, 0, 0};
-                int st = trace_path(&s, &rng, &one);
+                int st = trace_path(&s, &rng, &one, &until_check);
                 if (st == PATH_EXPIRED)
                     break; /* dropped: it did not finish */
                 acc.r += one.r;
