@@ -67,6 +67,11 @@
  *
  * Determinism: each pixel of each pass has its own PCG32 stream (seed, pass, pixel); per-pixel
  * mean and M2 (Welford) are updated in pass order, so images do not depend on threads.
+ * Time limit and caps (README, "Caps and the time limit"): the deadline is checked before each
+ * sample and within paths (pt_budget); a sample in flight at the deadline is dropped, so each
+ * pixel is the mean of the samples it completed - the pixel an unlimited render with that many
+ * samples would give, bit for bit. Paths end at MAX_VERTICES vertices or MAX_PATH_COLLISIONS
+ * units of tracking work, keeping what they gathered (counted in stats->paths_capped).
  * Fog (nacre_fog_desc) fills the air: a path outside every object tracks the sum of the fogs'
  * coefficients by the same spectral tracking and ratio tracking, over majorant pieces cut where
  * a fog begins or ends and where height fog changes by a factor of 2 (see "fog" below); shadow
