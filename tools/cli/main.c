@@ -135,7 +135,8 @@ static const char render_help[] =
     "  --spp N             samples per pixel (default: the scene's, else 64)\n"
     "  --seed N            random seed (same seed, same image)\n"
     "  --time-limit S      end the command after about S seconds (loading included): passes stop\n"
-    "                      mid-way, each pixel keeps the samples it completed (see README)\n"
+    "                      mid-way, each pixel keeps the samples it completed (see README);\n"
+    "                      paths end at 65536 vertices or 2^20 collisions (paths_capped in --stats)\n"
     "  --max-scatter K     scattering events per path in media (K = 1: single scattering)\n"
     "  --variance FILE     also write the per-pixel variance of the estimate (.exr)\n"
     "  --help, --version\n";
