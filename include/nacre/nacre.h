@@ -673,7 +673,8 @@ typedef struct nacre_render_settings {
     float tolerance;                 /* MULTIGRID: relative residual, default 1e-4 */
     uint32_t seed_iterations;        /* SEED: Jacobi sweeps per level, 0 = the seed's table 5.6 count */
     /* pathtrace */
-    double time_limit;               /* seconds; 0 = none (stops early, at a whole pass) */
+    double time_limit;               /* seconds from the start of the render call; 0 = none.
+                                        Stops within a pass, see nacre_render_stats */
     uint32_t max_scatter;            /* scattering events per path in media; 0 = unlimited */
     /* Raster methods (phong, diffusion): true promises that `out` holds, unchanged, the image this
      * renderer wrote in its previous frame (same pixels, size and stride), as in a viewer that
@@ -722,8 +723,13 @@ typedef struct nacre_render_stats {
     uint32_t iterations;         /* MULTIGRID: PCG iterations (max over objects and channels); SEED: sweeps */
     double residual;             /* final relative residual (max over objects and channels) */
     /* pathtrace */
-    uint32_t spp_done;           /* samples per pixel completed */
+    uint32_t spp_done;           /* samples per pixel completed by every pixel (the minimum) */
     double samples_per_second;   /* camera paths per second */
+    uint64_t samples_done;       /* camera paths completed, over all pixels (with a time limit,
+                                    pixel counts may differ; each pixel is the mean of its own) */
+    uint64_t paths_capped;       /* paths ended by the path-length or collision cap (README) */
+    uint32_t pixels_unsampled;   /* time limit reached within the first pass: pixels without a
+                                    sample, filled with their 8x8 block's mean (0 if none) */
 } nacre_render_stats;
 
 /* A renderer keeps the buffers and results of previous frames (G-buffer, shadow maps) and
@@ -771,11 +777,15 @@ typedef struct nacre_slab_desc {
     uint64_t samples;               /* incident paths, default 1e6 */
     uint32_t max_scatter;           /* 0 = unlimited */
     uint64_t seed;
+    double time_limit;              /* seconds, 0 = none: stop early, the result from the paths
+                                       completed by then (samples_done) */
 } nacre_slab_desc;
 
 typedef struct nacre_slab_result {
     double R, T;
     double R_stderr, T_stderr;      /* pathtrace: standard errors of the means; diffusion: 0 */
+    uint64_t samples_done;          /* pathtrace: paths completed (samples, or fewer at the time limit) */
+    uint64_t paths_capped;          /* pathtrace: paths ended by the collision cap (README) */
     double R_specular;              /* Fresnel reflection at normal incidence, ((eta-1)/(eta+1))^2 */
     uint32_t iterations;            /* diffusion */
     double residual;                /* diffusion */

@@ -67,6 +67,11 @@
  *
  * Determinism: each pixel of each pass has its own PCG32 stream (seed, pass, pixel); per-pixel
  * mean and M2 (Welford) are updated in pass order, so images do not depend on threads.
+ * Time limit and caps (README, "Caps and the time limit"): the deadline is checked before each
+ * sample and within paths (pt_budget); a sample in flight at the deadline is dropped, so each
+ * pixel is the mean of the samples it completed - the pixel an unlimited render with that many
+ * samples would give, bit for bit. Paths end at MAX_VERTICES vertices or MAX_PATH_COLLISIONS
+ * units of tracking work, keeping what they gathered (counted in stats->paths_capped).
  * Fog (nacre_fog_desc) fills the air: a path outside every object tracks the sum of the fogs'
  * coefficients by the same spectral tracking and ratio tracking, over majorant pieces cut where
  * a fog begins or ends and where height fog changes by a factor of 2 (see "fog" below); shadow
@@ -146,6 +151,11 @@ void nc_pathtracer_destroy(nacre_context *ctx, nc_pathtracer *state) { (void)ctx
 #define MAX_VERTICES 65536 /* real vertices per path; walks this long carry ~0 weight */
 #define RR_START 8 /* vertices before Russian roulette (see the top of the file) */
 #define MAX_CROSSINGS 256 /* index-matched boundaries a shadow ray may pass */
+/* Caps that end pathological paths (see "Caps and the time limit" in README.md): tentative
+ * collisions of every tracking walk of a path (free flights and shadow rays, majorant pieces
+ * included), and the clock is read every DEADLINE_STRIDE units of work. */
+#define MAX_PATH_COLLISIONS (1u << 20)
+#define DEADLINE_STRIDE 1024u
 
 enum { PT_OPAQUE = 0, PT_DIELECTRIC, PT_MATCHED };
 
@@ -206,6 +216,7 @@ typedef struct pt_fog {
     float half[3];        /* box: half edge lengths */
     float maj;            /* scalar bound of sigma_t where height() = 1 */
     float falloff, base, g;
+    float hexp;           /* cap of height()'s exponent: at most 60, and maj e^hexp <= FOG_MAX_DENSITY */
 } pt_fog;
 
 struct nc_pathtracer {
@@ -225,12 +236,57 @@ struct nc_pathtracer {
     bool nee_only;         /* shadow rays see another world than paths: no MIS (see top) */
     int32_t width, height;
     double *mean, *m2;     /* per pixel and channel */
+    uint32_t *count;       /* per pixel: samples in mean and m2 */
     size_t pixel_capacity;
-    uint32_t passes;
     bool valid;            /* a frame was rendered into mean/m2 */
 };
 
-/* Everything a path needs, read-only during a pass. */
+/* Per-path work (see MAX_PATH_COLLISIONS): a path stops when it reaches a cap (its estimate so
+ * far is kept: later events contribute zero) or when the render's deadline passes (the caller
+ * drops the sample). */
+typedef struct pt_budget {
+    uint64_t deadline_us; /* 0: none */
+    uint32_t collisions;  /* tentative collisions and majorant pieces of the current path */
+    uint32_t until_check; /* work units before the next clock read */
+    bool stop, capped, expired;
+} pt_budget;
+
+static void budget_reset(pt_budget *b, uint64_t deadline_us)
+{
+    b->deadline_us = deadline_us;
+    b->collisions = 0;
+    b->until_check = DEADLINE_STRIDE;
+    b->stop = b->capped = b->expired = false;
+}
+
+/* One unit of work that is not a collision (a path vertex); false: the path must stop. */
+static bool budget_tick(pt_budget *b)
+{
+    if (b->stop)
+        return false;
+    if (b->deadline_us && --b->until_check == 0) {
+        b->until_check = DEADLINE_STRIDE;
+        if (nc_now_us() >= b->deadline_us) {
+            b->stop = b->expired = true;
+            return false;
+        }
+    }
+    return true;
+}
+
+/* One tentative collision or majorant piece; false: the path must stop. */
+static bool budget_collision(pt_budget *b)
+{
+    if (!budget_tick(b))
+        return false;
+    if (++b->collisions > MAX_PATH_COLLISIONS) {
+        b->stop = b->capped = true;
+        return false;
+    }
+    return true;
+}
+
+/* Everything a path needs, read-only during a pass (but for the budget of the path in flight). */
 typedef struct pt_scene {
     const nacre_scene *scene;
     const nc_pathtracer *pt;
@@ -239,6 +295,7 @@ typedef struct pt_scene {
     bool env_on;
     float eps;
     uint32_t max_scatter;
+    pt_budget *budget;     /* the current path's (each thread has its own) */
 } pt_scene;
 
 typedef struct pt_hit {
@@ -523,13 +580,21 @@ static bool maj_next(maj_iter *it, float *s0, float *s1, float *maj)
  * (y steps of ln 2 / falloff) so that null collisions stay below half of the tentative ones. A
  * ray climbing out of height fog would produce ever thinner pieces forever: the walk stops when
  * no fog lies ahead and the optical depth that the majorants of every remaining piece could add
- * is below FOG_TAIL (a transmittance error below 1e-7, under float resolution). */
+ * is below FOG_TAIL (a transmittance error below 1e-7, under float resolution). Where a piece's
+ * majorant optical depth is below FOG_THIN (thin fog, or steep falloff: 1e4 per unit cut a ray
+ * into 1e4 pieces per unit of height), the piece doubles in length while it stays below: it
+ * then costs one tentative collision in a thousand, and thin stretches are crossed in a few
+ * pieces. A fog's density (sigma_t times height()) is capped at FOG_MAX_DENSITY per scene unit,
+ * a free path far below float resolution at any scene scale, so that tracking weights (products
+ * of two densities) stay finite. */
 #define FOG_TAIL 1e-7f
+#define FOG_THIN 1e-3f
+#define FOG_MAX_DENSITY 1e12f
 #define FOG_LN2 0.69314718f
 
 static float fog_height(const pt_fog *f, float y)
 {
-    return f->height ? expf(fminf(60.0f, -f->falloff * (y - f->base))) : 1.0f;
+    return expf(f->height ? fminf(f->hexp, -f->falloff * (y - f->base)) : f->hexp);
 }
 
 typedef struct fog_iter {
@@ -589,7 +654,15 @@ static bool fog_next(fog_iter *it, float *s0, float *s1, float *maj)
             float end = it->b[i], mi = f->maj;
             float y0 = it->org.y + it->dir.y * t;
             if (f->height && fabsf(it->dir.y) > 1e-20f) { /* else: level, constant density */
-                end = fminf(end, t + FOG_LN2 / (f->falloff * fabsf(it->dir.y)));
+                float len = FOG_LN2 / (f->falloff * fabsf(it->dir.y)), stop = fminf(end, it->tmax);
+                if (f->maj * fog_height(f, fminf(y0, y0 + it->dir.y * len)) * len < FOG_THIN)
+                    for (int k = 0; k < 128 && t + len < stop; k++) {
+                        float l2 = 2.0f * len;
+                        if (!(f->maj * fog_height(f, fminf(y0, y0 + it->dir.y * l2)) * l2 < FOG_THIN))
+                            break;
+                        len = l2;
+                    }
+                end = fminf(end, t + len);
                 float y1 = it->org.y + it->dir.y * end;
                 mi *= fog_height(f, fminf(y0, y1));
                 /* Optical depth still ahead, bounded: rising, the integral of the height
@@ -701,11 +774,13 @@ typedef struct collision_walk {
     fog_iter fog;
     float t, s1, m;
     bool in_piece;
+    pt_budget *budget;
 } collision_walk;
 
 static void walk_init(collision_walk *w, const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax)
 {
     w->o = o;
+    w->budget = ps->budget;
     if (o)
         maj_init(&w->it, o, org, dir, tmax);
     else
@@ -713,10 +788,13 @@ static void walk_init(collision_walk *w, const pt_scene *ps, const pt_object *o,
     w->in_piece = false;
 }
 
-/* The next tentative collision distance *t and the majorant *m there; false past tmax. */
+/* The next tentative collision distance *t and the majorant *m there; false past tmax, or when
+ * the path's budget runs out (the caller then checks budget->stop). */
 static bool walk_next(collision_walk *w, nc_rng *rng, float *t, float *m)
 {
     for (;;) {
+        if (!budget_collision(w->budget))
+            return false;
         if (!w->in_piece) {
             float s0;
             if (!(w->o ? maj_next(&w->it, &s0, &w->s1, &w->m) : fog_next(&w->fog, &s0, &w->s1, &w->m)))
@@ -868,7 +946,7 @@ static ff_event free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org,
         float k = sum / (m * pn);
         *beta = nc_v3(b[0] * (m - sa[0] - ss[0]) * k, b[1] * (m - sa[1] - ss[1]) * k, b[2] * (m - sa[2] - ss[2]) * k);
     }
-    return FF_PASS;
+    return ps->budget->stop ? FF_ABSORB : FF_PASS;
 }
 
 /* Transmittance along [0, tmax]: exact for homogeneous media, ratio tracking otherwise (and in
@@ -895,7 +973,7 @@ static nc_vec3 transmittance(const pt_scene *ps, const pt_object *o, nc_vec3 org
             tr = nc_scale(tr, 2.0f);
         }
     }
-    return tr;
+    return ps->budget->stop ? nc_v3(0, 0, 0) : tr;
 }
 
 /* Transmittance from p (in medium `medium`, -1 = air) to distance `dist` along wi: blocked by
@@ -1475,7 +1553,13 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
     uint32_t seed = UINT32_MAX, guide_seed = UINT32_MAX; /* see make_guide */
     int seed_obj = -1;
     float clear_here = -1.0f; /* clearance of o when o is a scattering vertex that looked it up */
-    for (int vertex = 0, crossings = 0; vertex < MAX_VERTICES && crossings < 4 * MAX_VERTICES;) {
+    for (int vertex = 0, crossings = 0;;) {
+        if (vertex >= MAX_VERTICES || crossings >= 4 * MAX_VERTICES) {
+            ps->budget->capped = true;
+            break;
+        }
+        if (!budget_tick(ps->budget))
+            break;
         /* In a medium the flight is sampled first: when it ends short of the clearance bound no
          * surface can intervene and the boundary query is skipped. Heterogeneous media track up
          * to the bound, then (memoryless) on from there. */
@@ -1830,6 +1914,7 @@ void nc_pathtracer_destroy(nacre_context *ctx, nc_pathtracer *pt)
         rtcReleaseDevice(pt->device);
     nc_free(ctx, pt->mean);
     nc_free(ctx, pt->m2);
+    nc_free(ctx, pt->count);
     nc_free(ctx, pt);
 }
 
@@ -2098,13 +2183,17 @@ static nacre_result build_clearance(nc_pathtracer *pt, const pt_scene *ps, pt_ob
     o->dcell = ext / (float)CLEARANCE_RES;
     if (st > 0.0f && 0.5f / st > o->dcell)
         o->dcell = fminf(0.5f / st, ext / (float)CLEARANCE_MIN_RES);
+    /* Cells below the scene's float resolution (a tiny or degenerate object) would bound
+     * nothing, and a zero cell size has no grid at all: no clearance then (Embree is asked). */
+    if (!(o->dcell >= ps->eps) || !isfinite(o->dcell))
+        return NACRE_OK;
     o->dinv = 1.0f / o->dcell;
     o->dmargin = 0.01f * o->dcell + 4.0f * ps->eps;
     size_t n = 1;
     for (int a = 0; a < 3; a++) {
         o->dorigin[a] = rec->bounds_min[a] - o->dcell;
         float cells = ceilf((rec->bounds_max[a] - rec->bounds_min[a]) / o->dcell) + 2.0f;
-        o->ddims[a] = cells < 1.0f ? 1u : cells > (float)(CLEARANCE_RES + 4) ? CLEARANCE_RES + 4 : (uint32_t)cells;
+        o->ddims[a] = !(cells >= 1.0f) ? 1u : cells > (float)(CLEARANCE_RES + 4) ? CLEARANCE_RES + 4 : (uint32_t)cells;
         n *= o->ddims[a];
     }
     o->dist = nc_alloc(pt->ctx, n);
@@ -2334,6 +2423,9 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
         max_fn(s, &rec->medium, mx);
         f->maj = fmaxf(mx[0], fmaxf(mx[1], mx[2]));
         f->height = rec->desc.height_falloff > 0;
+        f->hexp = f->height ? 60.0f : 0.0f;
+        if (f->maj > 0)
+            f->hexp = fminf(f->hexp, logf(FOG_MAX_DENSITY / f->maj));
         f->falloff = rec->desc.height_falloff;
         f->base = rec->desc.height_base;
         f->g = rec->desc.g;
@@ -2368,6 +2460,89 @@ static nacre_result build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scen
             return res;
     }
     return NACRE_OK;
+}
+
+/* What the samples of a frame share. */
+typedef struct pt_frame {
+    const pt_scene *ps;
+    nc_pathtracer *pt;
+    pt_camera cam;
+    int32_t w, h;
+    uint32_t seed;
+    uint64_t deadline_us; /* 0: none */
+} pt_frame;
+
+/* Sample pp of pixel (x, y), which must be its next one (pixels see their passes in order), into
+ * the pixel's mean and M2 (Welford). False when the deadline has passed: the sample, if it was
+ * begun, is dropped. */
+static bool sample_pixel(const pt_frame *fr, int32_t x, int32_t y, uint32_t pp, uint64_t *capped)
+{
+    if (fr->deadline_us && nc_now_us() >= fr->deadline_us)
+        return false;
+    pt_budget budget;
+    budget_reset(&budget, fr->deadline_us);
+    pt_scene ps = *fr->ps;
+    ps.budget = &budget;
+    size_t pi = (size_t)y * (size_t)fr->w + (size_t)x;
+    nc_rng rng = nc_rng_make(((uint64_t)fr->seed << 32) | pp, pi);
+    nc_vec3 o, d;
+    camera_ray(&fr->cam, (float)x + nc_rng_float(&rng), (float)y + nc_rng_float(&rng), fr->w, fr->h, &o, &d);
+    nc_vec3 L = trace_path(&ps, o, d, &rng);
+    if (budget.expired)
+        return false;
+    *capped += budget.capped;
+    nc_pathtracer *pt = fr->pt;
+    double inv_n = 1.0 / (double)(++pt->count[pi]);
+    for (int c = 0; c < 3; c++) {
+        double v = comp(L, c);
+        if (!isfinite(v))
+            v = 0; /* a NaN or inf sample would poison the pixel forever */
+        double *mu = &pt->mean[3 * pi + (size_t)c], *m2 = &pt->m2[3 * pi + (size_t)c];
+        double delta = v - *mu;
+        *mu += delta * inv_n;
+        *m2 += delta * (v - *mu);
+    }
+    return true;
+}
+
+/* The 8x8 Bayer (ordered dither) matrix as a visiting order: rank r is cell (bx[r], by[r]). */
+static void bayer_order(uint8_t bx[64], uint8_t by[64])
+{
+    for (uint32_t y = 0; y < 8; y++)
+        for (uint32_t x = 0; x < 8; x++) {
+            uint32_t v = 0, q = x ^ y;
+            for (int k = 0; k < 3; k++)
+                v |= (((q >> k) & 1u) << (5 - 2 * k)) | (((y >> k) & 1u) << (4 - 2 * k));
+            bx[v] = (uint8_t)x;
+            by[v] = (uint8_t)y;
+        }
+}
+
+/* A time limit reached within the first pass leaves pixels without a sample (reported in
+ * stats->pixels_unsampled): each gets the mean of the sampled pixels of its 8x8 block (the Bayer
+ * order spreads them), or 0 if its block has none. */
+static void fill_unsampled(const nc_pathtracer *pt, nacre_image *out)
+{
+    int32_t w = pt->width, h = pt->height;
+    for (int32_t by = 0; by < h; by += 8)
+        for (int32_t bx = 0; bx < w; bx += 8) {
+            double sum[3] = {0, 0, 0};
+            int n = 0;
+            for (int32_t y = by; y < by + 8 && y < h; y++)
+                for (int32_t x = bx; x < bx + 8 && x < w; x++) {
+                    size_t pi = (size_t)y * (size_t)w + (size_t)x;
+                    if (!pt->count[pi])
+                        continue;
+                    n++;
+                    for (int c = 0; c < 3; c++)
+                        sum[c] += pt->mean[3 * pi + (size_t)c];
+                }
+            for (int32_t y = by; y < by + 8 && y < h; y++)
+                for (int32_t x = bx; x < bx + 8 && x < w; x++)
+                    if (!pt->count[(size_t)y * (size_t)w + (size_t)x])
+                        for (int c = 0; c < 3; c++)
+                            out->pixels[(size_t)y * out->stride + 3 * (size_t)x + (size_t)c] = n ? (float)(sum[c] / n) : 0.0f;
+        }
 }
 
 nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, const nacre_scene *scene,
@@ -2409,82 +2584,107 @@ nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, cons
     if (npix * 3 > pt->pixel_capacity) {
         nc_free(ctx, pt->mean);
         nc_free(ctx, pt->m2);
+        nc_free(ctx, pt->count);
         pt->mean = nc_alloc(ctx, npix * 3 * sizeof(double));
         pt->m2 = nc_alloc(ctx, npix * 3 * sizeof(double));
-        pt->pixel_capacity = pt->mean && pt->m2 ? npix * 3 : 0;
+        pt->count = nc_alloc(ctx, npix * sizeof(uint32_t));
+        pt->pixel_capacity = pt->mean && pt->m2 && pt->count ? npix * 3 : 0;
         if (!pt->pixel_capacity)
             return NACRE_ERROR_OUT_OF_MEMORY;
     }
     memset(pt->mean, 0, npix * 3 * sizeof(double));
     memset(pt->m2, 0, npix * 3 * sizeof(double));
+    memset(pt->count, 0, npix * sizeof(uint32_t));
     pt->width = w;
     pt->height = h;
 
-    pt_camera cam;
-    make_camera(scene, w, h, &cam);
+    pt_frame fr;
+    fr.ps = &ps;
+    fr.pt = pt;
+    make_camera(scene, w, h, &fr.cam);
+    fr.w = w;
+    fr.h = h;
+    fr.seed = settings->seed;
+    fr.deadline_us = settings->time_limit > 0 ? t_start + (uint64_t)(settings->time_limit * 1e6) : 0;
+    uint64_t capped = 0;
     enum { TILE = 16 };
     int32_t tiles_x = (w + TILE - 1) / TILE, tiles_y = (h + TILE - 1) / TILE;
     int64_t tiles = (int64_t)tiles_x * tiles_y;
     uint64_t t_trace = nc_now_us();
     uint32_t pass = 0;
     uint32_t max_pass = settings->spp ? settings->spp : UINT32_MAX;
+    bool out_of_time = false;
+    /* With a time limit the first pass visits the pixels in the order of an 8x8 Bayer matrix
+     * over the image (every 64th pixel, then the ones halfway between, ...), so that a limit
+     * reached within it leaves samples spread evenly (see fill_unsampled). */
+    if (fr.deadline_us) {
+        uint8_t bx[64], by[64];
+        bayer_order(bx, by);
+        int64_t blocks_y = (h + 7) / 8, items = 64 * blocks_y;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nc_threads(ctx)) reduction(+ : capped)
+        for (int64_t item = 0; item < items; item++) {
+            int32_t r = (int32_t)(item / blocks_y), y = (int32_t)(item % blocks_y) * 8 + by[r];
+            for (int32_t x = bx[r]; x < w && y < h; x += 8)
+                if (!sample_pixel(&fr, x, y, 0, &capped))
+                    break;
+        }
+        pass = 1;
+        out_of_time = nc_now_us() >= fr.deadline_us;
+    }
     /* Passes run in batches, each thread taking a tile through every pass of the batch: one
      * barrier per batch instead of per pass (long paths make tiles unequal, and threads would
      * idle at every pass end). Pixels still see their passes in order, so the result is the same
-     * as pass by pass. With a time limit, a batch is sized from the measured time per pass to end
-     * near the limit; the limit is checked between batches. */
-    while (pass < max_pass) {
-        double elapsed = (double)(nc_now_us() - t_start) * 1e-6;
+     * as pass by pass. With a time limit, a batch is sized from the measured time per pass to
+     * take about half the time left, and the deadline is checked before every sample and within
+     * paths: a sample still in flight at the deadline is dropped, and pixels keep the samples
+     * they completed (their counts then differ by at most one batch, typically one pass). */
+    while (pass < max_pass && !out_of_time) {
         uint32_t batch = max_pass - pass;
-        if (settings->time_limit > 0) {
-            if (pass > 0 && elapsed >= settings->time_limit)
+        if (fr.deadline_us) {
+            uint64_t now = nc_now_us();
+            if (now >= fr.deadline_us)
                 break;
-            double per_pass = pass > 0 ? (double)(nc_now_us() - t_trace) * 1e-6 / pass : 0;
-            double left = settings->time_limit - elapsed;
-            double fit = per_pass > 0 ? floor(left / per_pass) : 1;
+            double per_pass = (double)(now - t_trace) * 1e-6 / pass;
+            double left = (double)(fr.deadline_us - now) * 1e-6;
+            double fit = per_pass > 0 ? floor(0.5 * left / per_pass) : 1;
             batch = fit < 1 ? 1 : fit < (double)batch ? (uint32_t)fit : batch;
-            if (pass == 0)
-                batch = 1;
         }
         uint32_t first = pass, last = pass + batch;
-#pragma omp parallel for schedule(dynamic, 1) num_threads(nc_threads(ctx))
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nc_threads(ctx)) reduction(+ : capped)
         for (int64_t tile = 0; tile < tiles; tile++) {
             int32_t x0 = (int32_t)(tile % tiles_x) * TILE, y0 = (int32_t)(tile / tiles_x) * TILE;
-            for (uint32_t pp = first; pp < last; pp++) {
-                double inv_n = 1.0 / (double)(pp + 1);
-                for (int32_t y = y0; y < y0 + TILE && y < h; y++)
-                    for (int32_t x = x0; x < x0 + TILE && x < w; x++) {
-                        size_t pi = (size_t)y * (size_t)w + (size_t)x;
-                        nc_rng rng = nc_rng_make(((uint64_t)settings->seed << 32) | pp, pi);
-                        nc_vec3 o, d;
-                        camera_ray(&cam, (float)x + nc_rng_float(&rng), (float)y + nc_rng_float(&rng), w, h, &o, &d);
-                        nc_vec3 L = trace_path(&ps, o, d, &rng);
-                        for (int c = 0; c < 3; c++) {
-                            double v = comp(L, c);
-                            if (!isfinite(v))
-                                v = 0; /* a NaN or inf sample would poison the pixel forever */
-                            double *mu = &pt->mean[3 * pi + (size_t)c], *m2 = &pt->m2[3 * pi + (size_t)c];
-                            double delta = v - *mu;
-                            *mu += delta * inv_n;
-                            *m2 += delta * (v - *mu);
-                        }
-                    }
-            }
+            bool go = true;
+            for (uint32_t pp = first; pp < last && go; pp++)
+                for (int32_t y = y0; y < y0 + TILE && y < h && go; y++)
+                    for (int32_t x = x0; x < x0 + TILE && x < w && go; x++)
+                        go = sample_pixel(&fr, x, y, pp, &capped);
         }
         pass = last;
+        out_of_time = fr.deadline_us && nc_now_us() >= fr.deadline_us;
     }
     double secs = (double)(nc_now_us() - t_trace) * 1e-6;
+    uint32_t spp_min = UINT32_MAX;
+    uint64_t samples = 0, unsampled = 0;
+    for (size_t i = 0; i < npix; i++) {
+        spp_min = pt->count[i] < spp_min ? pt->count[i] : spp_min;
+        samples += pt->count[i];
+        unsampled += pt->count[i] == 0;
+    }
     for (int32_t y = 0; y < h; y++) {
         float *row = out->pixels + (size_t)y * out->stride;
         for (int32_t x = 0; x < w; x++)
             for (int c = 0; c < 3; c++)
                 row[3 * x + c] = (float)pt->mean[3 * ((size_t)y * (size_t)w + (size_t)x) + (size_t)c];
     }
-    pt->passes = pass;
+    if (unsampled)
+        fill_unsampled(pt, out);
     pt->valid = true;
     if (stats) {
-        stats->spp_done = pass;
-        stats->samples_per_second = secs > 0 ? (double)pass * (double)npix / secs : 0;
+        stats->spp_done = npix ? spp_min : 0;
+        stats->samples_done = samples;
+        stats->paths_capped = capped;
+        stats->pixels_unsampled = (uint32_t)unsampled;
+        stats->samples_per_second = secs > 0 ? (double)samples / secs : 0;
         stats->threads = nc_threads(ctx);
     }
     return NACRE_OK;
@@ -2503,13 +2703,13 @@ nacre_result nc_pathtrace_variance(const nc_pathtracer *pt, nacre_context *ctx, 
         if (res != NACRE_OK)
             return res;
     }
-    double n = (double)pt->passes;
     for (int32_t y = 0; y < h; y++) {
         float *row = out->pixels + (size_t)y * out->stride;
         for (int32_t x = 0; x < w; x++)
             for (int c = 0; c < 3; c++) {
+                double n = (double)pt->count[(size_t)y * (size_t)w + (size_t)x];
                 double m2 = pt->m2[3 * ((size_t)y * (size_t)w + (size_t)x) + (size_t)c];
-                /* Variance of the mean: sample variance / n; undefined with one pass (reported 0). */
+                /* Variance of the mean: sample variance / n; undefined with one sample (reported 0). */
                 row[3 * x + c] = n > 1 ? (float)(m2 / ((n - 1) * n)) : 0.0f;
             }
     }

@@ -234,7 +234,9 @@ static const char render_help[] =
     "pathtrace:\n"
     "  --spp N             samples per pixel (default: the scene's, else 64)\n"
     "  --seed N            random seed (same seed, same image)\n"
-    "  --time-limit S      stop after S seconds (at a whole pass)\n"
+    "  --time-limit S      end the command after about S seconds (loading included): passes stop\n"
+    "                      mid-way, each pixel keeps the samples it completed (see README);\n"
+    "                      paths end at 65536 vertices or 2^20 collisions (paths_capped in --stats)\n"
     "  --max-scatter K     scattering events per path in media (K = 1: single scattering)\n"
     "  --variance FILE     also write the per-pixel variance of the estimate (.exr)\n"
     "  --help, --version\n";
@@ -264,7 +266,10 @@ static void print_stats(const char *scene_name, const nacre_render_settings *rs,
                nacre_solver_name(st->solver), st->iterations, st->residual,
                st->voxel_dims[0], st->voxel_dims[1], st->voxel_dims[2]);
     if (rs->method == NACRE_METHOD_PATHTRACE)
-        printf(",\"spp\":%u,\"samples_per_second\":%.6g", st->spp_done, st->samples_per_second);
+        printf(",\"spp\":%u,\"samples\":%llu,\"samples_per_second\":%.6g,\"paths_capped\":%llu,"
+               "\"pixels_unsampled\":%u",
+               st->spp_done, (unsigned long long)st->samples_done, st->samples_per_second,
+               (unsigned long long)st->paths_capped, st->pixels_unsampled);
     printf(",\"memory_peak_bytes\":%llu}\n", (unsigned long long)memory_peak);
 }
 
@@ -491,11 +496,21 @@ static int cmd_render(int argc, char **argv)
         goto out;
     }
     uint64_t commit_us = nc_cli_now_us() - t0;
+    if (rs.time_limit > 0) /* the limit is the whole command's: loading and commit count */
+        rs.time_limit = fmax(rs.time_limit - (double)(nc_cli_now_us() - t_start) * 1e-6, 1e-3);
     nacre_render_stats st;
     if (nacre_renderer_create(ctx, &renderer) != NACRE_OK || nacre_renderer_render(renderer, scene, &rs, &img, &st) != NACRE_OK) {
         nc_cli_fail(ctx);
         goto out;
     }
+    if (rs.method == NACRE_METHOD_PATHTRACE && st.pixels_unsampled > 0)
+        fprintf(stderr, "nacre: warning: the time limit ended the first pass: %u of %d pixels have no sample "
+                        "(each shows the mean of its 8x8 block, black if the block has none)\n",
+                st.pixels_unsampled, rs.width * rs.height);
+    if (rs.method == NACRE_METHOD_PATHTRACE && st.paths_capped > 0)
+        fprintf(stderr, "nacre: note: %llu paths reached the path-length or collision cap and were ended there "
+                        "(see README: the path tracer's caps)\n",
+                (unsigned long long)st.paths_capped);
     if (nacre_scene_fog_count(scene) > 0 && rs.method != NACRE_METHOD_PATHTRACE)
         fprintf(stderr, "nacre: note: the scene's fog is rendered by --method pathtrace only; method '%s' ignores it\n",
                 nacre_method_name(rs.method));

@@ -27,6 +27,8 @@ static const char slab_help[] =
     "pathtrace:\n"
     "  --samples N       incident paths (default 1000000)\n"
     "  --max-scatter K   scattering events per path (K = 1: single scattering; default unlimited)\n"
+    "  --time-limit S    stop after about S seconds: R and T are the means over the paths completed\n"
+    "                    by then (reported as samples); paths past 2^20 collisions end and score 0\n"
     "  --seed N          random seed\n"
     "  --threads N       worker threads (default: all cores)\n"
     "  --help, --version\n";
@@ -97,6 +99,10 @@ int nc_cli_slab(int argc, char **argv)
             if (!has || !nc_cli_parse_int(argv[++i], 1, 1000000, &v))
                 return nc_cli_usage("slab", "--max-scatter needs an integer in 1..1000000");
             d.max_scatter = (uint32_t)v;
+        } else if (strcmp(a, "--time-limit") == 0) {
+            if (!has || !nc_cli_parse_float(argv[++i], &f) || !(f > 0 && isfinite(f)))
+                return nc_cli_usage("slab", "--time-limit needs a positive number of seconds");
+            d.time_limit = f;
         } else if (strcmp(a, "--seed") == 0) {
             if (!has || !nc_cli_parse_int(argv[++i], 0, 4294967295L, &v))
                 return nc_cli_usage("slab", "--seed needs an integer in 0..4294967295");
@@ -127,8 +133,8 @@ int nc_cli_slab(int argc, char **argv)
             printf("%.9g", d.tau);
         printf(",\"g\":%.9g,\"eta\":%.9g,\"R\":%.6f,\"T\":%.6f", d.g, d.eta, r.R, r.T);
         if (d.method == NACRE_METHOD_PATHTRACE)
-            printf(",\"R_stderr\":%.6f,\"T_stderr\":%.6f,\"samples\":%llu", r.R_stderr, r.T_stderr,
-                   (unsigned long long)d.samples);
+            printf(",\"R_stderr\":%.6f,\"T_stderr\":%.6f,\"samples\":%llu,\"paths_capped\":%llu", r.R_stderr,
+                   r.T_stderr, (unsigned long long)r.samples_done, (unsigned long long)r.paths_capped);
         else
             printf(",\"solver\":\"%s\",\"source\":\"%s\",\"iterations\":%u,\"residual\":%.3g",
                    nacre_solver_name(d.solver), nacre_source_name(d.source),
@@ -142,6 +148,10 @@ int nc_cli_slab(int argc, char **argv)
         if (d.method == NACRE_METHOD_PATHTRACE)
             printf(" +- %.6f", r.T_stderr);
         printf("\n%.3f ms\n", r.ms);
+        if (d.method == NACRE_METHOD_PATHTRACE && (r.samples_done < d.samples || r.paths_capped))
+            printf("%llu of %llu paths (time limit); %llu ended by the collision cap\n",
+                   (unsigned long long)r.samples_done, (unsigned long long)d.samples,
+                   (unsigned long long)r.paths_capped);
     }
     nacre_context_destroy(ctx);
     return 0;
