@@ -58,12 +58,15 @@ typedef struct nc_diff_solve_opts {
                                     the domain that a renderer has no use for */
     bool phi_unchanged;          /* phi holds this solver's last output, untouched since: only
                                     the cells that change are written (the rest are 0 already) */
+    uint64_t deadline_us;        /* MULTIGRID: nc_now_us() past which no further PCG iteration
+                                    starts (0: none); the report says whether it was reached */
 } nc_diff_solve_opts;
 
 typedef struct nc_diff_solve_report {
     uint32_t iterations;         /* PCG iterations or Jacobi sweeps (all levels) */
     double residual;             /* final ||S - M phi|| / ||S|| (0 when S = 0) */
     double injected, absorbed, escaped; /* W, from the final phi */
+    bool timed_out;              /* stopped at opts.deadline_us */
 } nc_diff_solve_report;
 
 typedef struct nc_diff_solver nc_diff_solver;

@@ -53,6 +53,8 @@ static nacre_result check_desc(nacre_context *ctx, const nacre_slab_desc *d)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: tau must be > 0 (or infinite)");
     if (!(d->g > -1 && d->g < 1))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: g must be in (-1, 1)");
+    if (!(d->time_limit >= 0) || !isfinite(d->time_limit))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: time_limit: must be finite and >= 0");
     if (!(d->eta > 0) || !isfinite(d->eta))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: eta must be finite and > 0");
     /* The path tracer's Fresnel equations hold for any eta; the diffusion boundary's fit does not. */
@@ -64,6 +66,7 @@ static nacre_result check_desc(nacre_context *ctx, const nacre_slab_desc *d)
 
 static nacre_result slab_diffusion(nacre_context *ctx, const nacre_slab_desc *d, nacre_slab_result *out)
 {
+    const uint64_t t_start = nc_now_us();
     if (d->cells_per_mfp < 1 || d->cells_per_mfp > 1024)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: cells_per_mfp must be in 1..1024");
     if (!(d->tolerance > 0 && d->tolerance < 1))
@@ -89,8 +92,14 @@ static nacre_result slab_diffusion(nacre_context *ctx, const nacre_slab_desc *d,
     double cells_d = ceil(depth / h - 1e-9);
     if (cells_d < 2)
         cells_d = 2;
-    if (cells_d > 1 << 22)
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: %.0f cells: lower cells_per_mfp or tau", cells_d);
+    /* The float solver's column: past 2^14 cells the multigrid cycle's many tiny coarse levels
+     * make each iteration slow and the float residual stops falling (1024 cells per mfp at
+     * albedo 0.999, 224k cells: R = 3.2 after a minute). */
+    if (cells_d > 1 << 14)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                       "slab: the column needs %.0f cells (depth x cells_per_mfp), at most 16384: lower "
+                       "cells_per_mfp or tau",
+                       cells_d);
     const uint32_t nz = (uint32_t)cells_d;
     /* Keep the cell size exact for a finite slab: the last cell absorbs the rounding. */
     const double hz = isinf(d->tau) ? h : depth / nz;
@@ -130,9 +139,26 @@ static nacre_result slab_diffusion(nacre_context *ctx, const nacre_slab_desc *d,
         }
     }
     nc_diff_solve_opts o = {.solver = d->solver, .tolerance = d->tolerance, .max_iterations = 1000};
+    if (d->time_limit > 0)
+        o.deadline_us = t_start + (uint64_t)(d->time_limit * 1e6);
     nc_diff_solve_report rep;
     if ((res = nc_diff_solve(solver, 0, src, phi, &o, &rep)) != NACRE_OK)
         goto done;
+    /* A result the solver did not reach is no measurement: refuse it rather than print it. */
+    if (rep.timed_out) {
+        res = nc_fail(ctx, NACRE_ERROR_CANCELLED,
+                      "slab: time limit of %g s reached before the diffusion solve converged (relative residual "
+                      "%.3g after %u iterations)",
+                      d->time_limit, rep.residual, rep.iterations);
+        goto done;
+    }
+    if (d->solver == NACRE_SOLVER_MULTIGRID && !(rep.residual <= 1e-2)) {
+        res = nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                      "slab: the diffusion solve did not converge (relative residual %.3g after %u iterations): "
+                      "lower cells_per_mfp or tau",
+                      rep.residual, rep.iterations);
+        goto done;
+    }
     double top = c * phi[nz - 1] * area, bottom = c * phi[0] * area;
     if (d->source == NACRE_SOURCE_FACE)
         top += (1.0 - r0) * area - c * face_s * area;

@@ -1673,7 +1673,8 @@ static void solve_pcg(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solve
     /* Three solves in lockstep; a channel that has converged gets step 0 from then on. Restarted
      * from the exact residual whenever the recursively updated one (float) claims a convergence
      * that the exact one does not confirm. */
-    for (int restart = 0; restart < 8 && it < max_it; restart++) {
+    rep[0].timed_out = false;
+    for (int restart = 0; restart < 8 && it < max_it && !rep[0].timed_out; restart++) {
         /* the first pass starts from the residual above, the float one when far from the
          * tolerance */
         if (!exact && restart > 0)
@@ -1686,11 +1687,19 @@ static void solve_pcg(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solve
         }
         if (!any)
             break;
+        if (o->deadline_us && nc_now_us() >= o->deadline_us) {
+            rep[0].timed_out = true;
+            break;
+        }
         v4d rz;
         cycle(s, 0, r, z, START_ZERO, &rz, threads);
         v4 beta = V4_ZERO;
         bool first = true; /* p = z */
         while (it < max_it) {
+            if (o->deadline_us && nc_now_us() >= o->deadline_us) {
+                rep[0].timed_out = true;
+                break;
+            }
             v4d pq = apply_dot_dir(l, z, p, p2, q, beta, first, part, threads);
             v4 *t = p; /* p2 holds the new direction */
             p = p2;
@@ -1733,6 +1742,7 @@ static void solve_pcg(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solve
     for (int c = 0; c < 3; c++) {
         rep[c].iterations = it;
         rep[c].residual = bnorm[c] > 0 ? sqrt(rr[c]) / bnorm[c] : 0.0;
+        rep[c].timed_out = rep[0].timed_out;
     }
 }
 

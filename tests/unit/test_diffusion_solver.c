@@ -736,6 +736,42 @@ static void test_thread_independence(void)
     free(src);
 }
 
+/* The diffusion slab's bounds: a column past 16384 cells is refused at once (albedo 1, tau 1e5
+ * asked for 800k cells and ran for minutes; 1024 cells per mfp at albedo 0.999 returned R = 3.2
+ * after a minute), and a time limit shorter than the solve ends it with an error instead of an
+ * unconverged R and T. */
+static void test_slab_bounds(nacre_context *ctx)
+{
+    nacre_slab_desc d = nacre_slab_desc_defaults();
+    nacre_slab_result r;
+    d.albedo = 1.0;
+    d.tau = 1e5;
+    uint64_t t0 = nc_now_us();
+    CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(nacre_context_last_error(ctx), "at most 16384") != NULL);
+    d.albedo = 0.999;
+    d.tau = INFINITY;
+    d.cells_per_mfp = 1024;
+    CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(nc_now_us() - t0 < 2000000); /* refused before any solve (generous: a hang guard) */
+    d = nacre_slab_desc_defaults();
+    d.albedo = 1.0;
+    d.tau = 2000; /* 16000 cells: seconds of solving */
+    d.time_limit = 0.05;
+    t0 = nc_now_us();
+    CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_ERROR_CANCELLED);
+    CHECK(strstr(nacre_context_last_error(ctx), "time limit") != NULL);
+    d.time_limit = -1;
+    CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_ERROR_INVALID_ARGUMENT);
+    /* A normal slab with a limit it does not reach is unchanged. */
+    d = nacre_slab_desc_defaults();
+    nacre_slab_result plain;
+    CHECK(nacre_slab_measure(ctx, &d, &plain) == NACRE_OK);
+    d.time_limit = 60;
+    CHECK(nacre_slab_measure(ctx, &d, &r) == NACRE_OK);
+    CHECK(r.R == plain.R && r.T == plain.T);
+}
+
 int main(void)
 {
     nacre_context *ctx = make_ctx(2);
@@ -751,6 +787,7 @@ int main(void)
     test_local_change_warm(ctx);
     test_output_reuse(ctx);
     test_thread_independence();
+    test_slab_bounds(ctx);
     nacre_context_destroy(ctx);
     return TEST_MAIN_END();
 }
