@@ -101,8 +101,8 @@ static inline const char *fuzz_image_extension(const uint8_t *data, size_t size)
 }
 
 /* Known problem, not yet fixed in the library (issue 29): the image readers allocate what the
- * header declares, up to 65536 x 65536 pixels, before any pixel data is read, so a 34-byte PNG
- * or EXR asks for gigabytes and libFuzzer stops at its malloc limit. Until the readers bound the
+ * header declares (up to 2^28 pixels, 4 GB of floats) before any pixel data is read, so a 34-byte
+ * PNG or EXR asks for gigabytes and libFuzzer stops at its malloc limit. Until the readers bound the
  * size by what the file can hold, inputs declaring more than FUZZ_MAX_PIXELS are skipped (the
  * header fields are read here the way the decoders read them). NACRE_FUZZ_NO_GUARDS=1 turns the
  * skip off, to check a fix. */
