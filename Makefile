@@ -1,13 +1,18 @@
 # Top-level entry points. `make run`: install dependencies, build (release), render the demo.
 # `make test`: install dependencies, build with ASan+UBSan, run the whole test suite; then the same
 # for the portable build (no x86-64-v3: the scalar fallbacks of the vector kernels); then the
-# memory-limit checks under `ulimit -v` on the release build (sanitizers cannot run under it).
+# memory-limit checks under `ulimit -v` on the release build (sanitizers cannot run under it);
+# then each libFuzzer target of tests/fuzz for FUZZ_SECONDS (clang, ASan+UBSan). `make fuzz-long`:
+# the longer fuzzing run for release checks (tests/fuzz/README.md).
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 RELEASE_DIR ?= build/release
 TEST_DIR ?= build/test
 GENERIC_TEST_DIR ?= build/test-generic
+FUZZ_DIR ?= build/fuzz
+FUZZ_SECONDS ?= 20
+FUZZ_LONG_SECONDS ?= 900
 
-.PHONY: run test deps build build-test build-test-generic bench clean
+.PHONY: run test deps build build-test build-test-generic build-fuzz fuzz fuzz-long bench clean
 
 deps:
 	@bash scripts/install-deps.sh
@@ -29,10 +34,23 @@ build-test-generic: deps
 		-DNACRE_NATIVE_V3=OFF
 	cmake --build $(GENERIC_TEST_DIR) -j $(JOBS)
 
-test: build build-test build-test-generic
+# Only the fuzz targets, not the CLI: the library with coverage instrumentation and the sanitizers.
+build-fuzz: deps
+	cmake -S . -B $(FUZZ_DIR) -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
+		-DCMAKE_BUILD_TYPE=RelWithDebInfo -DNACRE_SANITIZE=ON -DNACRE_FUZZ=ON -DNACRE_BUILD_TESTS=OFF
+	cmake --build $(FUZZ_DIR) -j $(JOBS) --target nacre_fuzz
+
+test: build build-test build-test-generic build-fuzz
 	cd $(TEST_DIR) && ctest --output-on-failure -j $(JOBS)
 	cd $(GENERIC_TEST_DIR) && ctest --output-on-failure -j $(JOBS)
 	bash tests/limits.sh $(RELEASE_DIR)/nacre
+	bash tests/fuzz/run.sh $(FUZZ_DIR) $(FUZZ_SECONDS)
+
+fuzz: build-fuzz
+	bash tests/fuzz/run.sh $(FUZZ_DIR) $(FUZZ_SECONDS)
+
+fuzz-long: build-fuzz
+	bash tests/fuzz/run.sh $(FUZZ_DIR) $(FUZZ_LONG_SECONDS)
 
 bench: build
 	./$(RELEASE_DIR)/nacre bench raster

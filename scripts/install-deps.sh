@@ -4,6 +4,10 @@
 set -euo pipefail
 
 packages=(build-essential cmake pkg-config libcjson-dev libspng-dev libopenexr-dev libassimp-dev zlib1g-dev libembree-dev)
+# The fuzz targets (tests/fuzz): clang with libFuzzer (libclang-rt-dev), clang's OpenMP runtime
+# (libomp-dev), llvm-symbolizer for readable sanitizer stacks (llvm). The unversioned packages
+# follow Debian's default clang, so compiler and runtimes always match.
+packages+=(clang libclang-rt-dev libomp-dev llvm)
 
 missing=()
 for p in "${packages[@]}"; do

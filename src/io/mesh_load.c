@@ -609,8 +609,8 @@ static nacre_result check_ply_header(nacre_context *ctx, const char *path, const
 {
     memset(layout, 0, sizeof(*layout));
     layout->known = true;
-    if (len < 4 || (memcmp(head, "ply", 3) != 0 && memcmp(head, "PLY", 3) != 0) ||
-        (head[3] != '\n' && head[3] != '\r' && head[3] != ' ' && head[3] != '\t'))
+    /* assimp's own test: the first three letters are p, l, y in any case ("pLy=" passes too). */
+    if (len < 3 || (head[0] | 0x20) != 'p' || (head[1] | 0x20) != 'l' || (head[2] | 0x20) != 'y')
         return NACRE_OK; /* not a PLY file */
     const char *p = head, *end = head + len;
     bool binary = false, sized = true; /* sized: every element's record size is known */
