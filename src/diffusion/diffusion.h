@@ -103,4 +103,8 @@ static inline float nc_diff_exitance(float phi, float D, float A, float h)
     return phi * 2.0f * D / (h + 4.0f * A * D);
 }
 
+/* The diffusion method's slab measurement (nacre_slab_measure with method DIFFUSION; the desc is
+ * already checked by src/slab/slab.c). */
+nacre_result nc_slab_diffusion(nacre_context *ctx, const nacre_slab_desc *d, nacre_slab_result *out);
+
 #endif /* NACRE_DIFFUSION_H */

@@ -1,6 +1,7 @@
 /*
- * slab.c: nacre_slab_measure, the validation experiment of issue 4/5: a plane-parallel slab,
- * infinite in x and y, lit by collimated light of unit power per unit area at normal incidence.
+ * slab.c: the diffusion method's measurement of the slab experiment (src/slab/slab.c: a
+ * plane-parallel slab, infinite in x and y, lit by collimated light of unit power per unit area
+ * at normal incidence; the desc is checked there).
  *
  * Diffusion: the same finite-volume solver the renderer uses (solver.c) on a column of cells,
  * periodic in x and y (one cell each, so there is no lateral flux), the top face at z = depth
@@ -15,56 +16,14 @@
  * Robin condition counts as going in); T = net flux through the bottom plus the unscattered
  * reduced intensity that reaches it (transmitted by the bottom boundary once; its internal
  * reflections, at most R0 ~ 2% of an already small term, are left out).
- *
- * Path tracing: src/pathtrace (nc_slab_pathtrace).
  */
 #include "diffusion/diffusion.h"
 #include "core/optics.h"
-#include "pathtrace/pathtrace.h"
 
 #include <math.h>
 #include <string.h>
 
-nacre_slab_desc nacre_slab_desc_defaults(void)
-{
-    nacre_slab_desc d;
-    memset(&d, 0, sizeof(d));
-    d.method = NACRE_METHOD_DIFFUSION;
-    d.albedo = 0.99;
-    d.tau = INFINITY;
-    d.eta = 1.0;
-    d.cells_per_mfp = 8;
-    d.solver = NACRE_SOLVER_MULTIGRID;
-    d.source = NACRE_SOURCE_VOLUME;
-    d.tolerance = 1e-5f;
-    d.samples = 1000000;
-    d.seed = 1;
-    return d;
-}
-
-static nacre_result check_desc(nacre_context *ctx, const nacre_slab_desc *d)
-{
-    if (d->method != NACRE_METHOD_DIFFUSION && d->method != NACRE_METHOD_PATHTRACE)
-        return nc_fail(ctx, NACRE_ERROR_UNSUPPORTED, "slab: method '%s' has no slab measurement (diffusion, pathtrace)",
-                       nacre_method_name(d->method));
-    if (!(d->albedo >= 0 && d->albedo <= 1))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: albedo must be in [0, 1]");
-    if (!(d->tau > 0))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: tau must be > 0 (or infinite)");
-    if (!(d->g > -1 && d->g < 1))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: g must be in (-1, 1)");
-    if (!(d->time_limit >= 0) || !isfinite(d->time_limit))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: time_limit: must be finite and >= 0");
-    if (!(d->eta > 0) || !isfinite(d->eta))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: eta must be finite and > 0");
-    /* The path tracer's Fresnel equations hold for any eta; the diffusion boundary's fit does not. */
-    if (d->method == NACRE_METHOD_DIFFUSION && !(d->eta >= NACRE_ETA_MIN && d->eta <= NACRE_ETA_MAX))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: eta must be in [%g, %g] for diffusion (got %g)",
-                       NACRE_ETA_MIN, NACRE_ETA_MAX, d->eta);
-    return NACRE_OK;
-}
-
-static nacre_result slab_diffusion(nacre_context *ctx, const nacre_slab_desc *d, nacre_slab_result *out)
+nacre_result nc_slab_diffusion(nacre_context *ctx, const nacre_slab_desc *d, nacre_slab_result *out)
 {
     const uint64_t t_start = nc_now_us();
     if (d->cells_per_mfp < 1 || d->cells_per_mfp > 1024)
@@ -174,22 +133,5 @@ done:
     nc_free(ctx, solid);
     nc_free(ctx, src);
     nc_free(ctx, phi);
-    return res;
-}
-
-nacre_result nacre_slab_measure(nacre_context *ctx, const nacre_slab_desc *desc, nacre_slab_result *out)
-{
-    if (!ctx || !desc || !out)
-        return NACRE_ERROR_INVALID_ARGUMENT;
-    memset(out, 0, sizeof(*out));
-    nacre_result res = check_desc(ctx, desc);
-    if (res != NACRE_OK)
-        return res;
-    uint64_t t0 = nc_now_us();
-    if (desc->method == NACRE_METHOD_PATHTRACE)
-        res = nc_slab_pathtrace(ctx, desc, out);
-    else
-        res = slab_diffusion(ctx, desc, out);
-    out->ms = (double)(nc_now_us() - t0) / 1000.0;
     return res;
 }
