@@ -19,7 +19,7 @@
  * almost no cost; we skip the clear where it would change nothing). --repaint writes every pixel
  * of every frame; the JSON rows say which ("reuse_output").
  */
-#include "cli.h"
+#include "bench.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -121,7 +121,7 @@ static int run_case(nacre_context *ctx, nacre_renderer *renderer, nacre_scene *s
         nacre_render_stats st;
         if (nacre_scene_set_object(scene, obj, od) != NACRE_OK || nacre_scene_commit(scene, 0.0) != NACRE_OK ||
             nacre_renderer_render(renderer, scene, &rs, &img, &st) != NACRE_OK) {
-            rc = nc_cli_fail(ctx);
+            rc = nc_tool_fail(ctx);
             break;
         }
         *iterations = st.iterations;
@@ -144,7 +144,7 @@ static int run_case(nacre_context *ctx, nacre_renderer *renderer, nacre_scene *s
     nacre_image_free(ctx, &img);
     if (rc == 0)
         for (int c = 0; c < COL_COUNT; c++)
-            med[c] = nc_cli_median(samples + c * runs, runs);
+            med[c] = nc_tool_median(samples + c * runs, runs);
     return rc;
 }
 
@@ -179,7 +179,7 @@ static void print_row(bool json, const char *file, uint32_t tris, uint32_t res_n
 
 int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filter, bool repaint)
 {
-    nacre_context *ctx = nc_cli_context(0);
+    nacre_context *ctx = nc_tool_context(0);
     if (!ctx)
         return 2;
     if (!nacre_method_available(NACRE_METHOD_DIFFUSION)) {
@@ -206,7 +206,7 @@ int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filt
         char path[4096];
         if (!nc_bench_filter_mesh(filter, meshes[mi].file))
             continue;
-        if (!nc_cli_find_mesh(meshes[mi].file, path, sizeof(path))) {
+        if (!nc_tool_find_mesh(meshes[mi].file, path, sizeof(path))) {
             fprintf(stderr, "nacre bench diffusion: %s not found, skipped\n", meshes[mi].file);
             continue;
         }
@@ -216,7 +216,7 @@ int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filt
         nacre_object_desc od;
         if (nacre_mesh_load(ctx, path, &mesh) != NACRE_OK || make_scene(ctx, &mesh, &scene, &obj, &od) != NACRE_OK) {
             nacre_mesh_data_free(ctx, &mesh);
-            rc = nc_cli_fail(ctx);
+            rc = nc_tool_fail(ctx);
             goto out;
         }
         uint32_t tris = mesh.triangle_count;

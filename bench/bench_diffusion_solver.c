@@ -12,7 +12,7 @@
  *     at 32^3 .. 256^3, median of --runs: one channel (nc_diff_solve) and all three at once
  *     (nc_diff_solve_rgb, what the renderer runs).
  */
-#include "cli.h"
+#include "bench.h"
 #include "diffusion/diffusion.h"
 
 #include <math.h>
@@ -122,7 +122,7 @@ static uint32_t seed_sweeps_to(nc_diff_solver *solver, sphere *s, double tol, bo
 
 int nc_bench_diffusion_solver(bool json, int runs)
 {
-    nacre_context *ctx = nc_cli_context(0);
+    nacre_context *ctx = nc_tool_context(0);
     if (!ctx)
         return 2;
     int rc = 2;
@@ -141,7 +141,7 @@ int nc_bench_diffusion_solver(bool json, int runs)
         sphere s;
         if (!sphere_make(&s, t43[k].n) || setup(solver, &s) != NACRE_OK) {
             sphere_free(&s);
-            rc = nc_cli_fail(ctx);
+            rc = nc_tool_fail(ctx);
             goto out;
         }
         uint32_t single = seed_sweeps_to(solver, &s, 1e-2, true, 1u << 16);
@@ -172,7 +172,7 @@ int nc_bench_diffusion_solver(bool json, int runs)
         sphere s;
         if (!sphere_make(&s, sizes[k]) || setup(solver, &s) != NACRE_OK) {
             sphere_free(&s);
-            rc = nc_cli_fail(ctx);
+            rc = nc_tool_fail(ctx);
             goto out;
         }
         size_t cells = (size_t)s.n * s.n * s.n;
@@ -182,30 +182,30 @@ int nc_bench_diffusion_solver(bool json, int runs)
             nc_diff_solve_report rep;
             nc_diff_solve_opts o = {.solver = NACRE_SOLVER_MULTIGRID, .tolerance = 1e-4f};
             memset(s.phi, 0, cells * sizeof(float));
-            uint64_t t0 = nc_cli_now_us();
+            uint64_t t0 = nc_tool_now_us();
             nc_diff_solve(solver, 0, s.src, s.phi, &o, &rep);
-            uint64_t t1 = nc_cli_now_us();
+            uint64_t t1 = nc_tool_now_us();
             it_cold = rep.iterations;
             res_cold = rep.residual;
             o.warm_start = true;
-            uint64_t t2 = nc_cli_now_us();
+            uint64_t t2 = nc_tool_now_us();
             nc_diff_solve(solver, 0, s.src2, s.phi, &o, &rep);
-            uint64_t t3 = nc_cli_now_us();
+            uint64_t t3 = nc_tool_now_us();
             it_warm = rep.iterations;
-            uint64_t t4 = nc_cli_now_us();
+            uint64_t t4 = nc_tool_now_us();
             o.warm_start = false;
             const float *src3[3] = {s.src, s.src, s.src};
             float *phi3[3] = {s.phi, s.phi2, s.phi3};
             nc_diff_solve_rgb(solver, src3, phi3, &o, NULL);
-            uint64_t t5 = nc_cli_now_us();
+            uint64_t t5 = nc_tool_now_us();
             if (run >= 0) {
                 samples[run] = (t1 - t0) / 1000.0;
                 samples[runs + run] = (t3 - t2) / 1000.0;
                 samples[2 * runs + run] = (t5 - t4) / 1000.0;
             }
         }
-        double cold = nc_cli_median(samples, runs), warm = nc_cli_median(samples + runs, runs),
-               cold3 = nc_cli_median(samples + 2 * runs, runs);
+        double cold = nc_tool_median(samples, runs), warm = nc_tool_median(samples + runs, runs),
+               cold3 = nc_tool_median(samples + 2 * runs, runs);
         if (json)
             printf("{\"bench\":\"diffusion_propagate\",\"res\":%u,\"threads\":%d,\"runs\":%d,\"cold_ms\":%.3f,"
                    "\"cold_iterations\":%u,\"residual\":%.3g,\"warm_ms\":%.3f,\"warm_iterations\":%u,\"cold_3ch_ms\":%.3f}\n",

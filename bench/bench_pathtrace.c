@@ -14,7 +14,7 @@
  * Heavy-tailed pixels (rare bright paths through dielectrics) are under-represented in a short
  * run's variance, so the extrapolation is optimistic for the dielectric scenes.
  */
-#include "cli.h"
+#include "bench.h"
 
 #include <stdio.h>
 #include <stdlib.h>
@@ -24,8 +24,6 @@
 
 #define SIZE 512
 #define TARGET_REL_MSE 1e-3
-
-int nc_bench_pathtrace(bool json, double seconds);
 
 /* Translucent sphere (radius 10 mm, skim-milk-like medium) on a grey floor under sun and sky. */
 static const char sphere_json[] =
@@ -71,7 +69,7 @@ static int run_scene(nacre_context *ctx, const char *json, const char *name, dou
     int rc = 2;
     if (nacre_scene_load_json(ctx, json, strlen(json), name, ".", &scene, &rs) != NACRE_OK ||
         nacre_scene_commit(scene, rs.time) != NACRE_OK || nacre_renderer_create(ctx, &r) != NACRE_OK) {
-        rc = nc_cli_fail(ctx);
+        rc = nc_tool_fail(ctx);
         goto out;
     }
     rs.method = NACRE_METHOD_PATHTRACE;
@@ -81,13 +79,13 @@ static int run_scene(nacre_context *ctx, const char *json, const char *name, dou
     rs.time_limit = seconds;
     rs.max_scatter = 0;
     nacre_render_stats st;
-    uint64_t t0 = nc_cli_now_us();
+    uint64_t t0 = nc_tool_now_us();
     if (nacre_renderer_render(r, scene, &rs, &img, &st) != NACRE_OK ||
         nacre_renderer_variance(r, &var) != NACRE_OK) {
-        rc = nc_cli_fail(ctx);
+        rc = nc_tool_fail(ctx);
         goto out;
     }
-    out->seconds = (nc_cli_now_us() - t0) * 1e-6;
+    out->seconds = (nc_tool_now_us() - t0) * 1e-6;
     out->spp = st.spp_done;
     out->samples_per_second = st.samples_per_second;
     double sum = 0;
@@ -108,7 +106,7 @@ out:
 
 int nc_bench_pathtrace(bool json, double seconds)
 {
-    nacre_context *ctx = nc_cli_context(0);
+    nacre_context *ctx = nc_tool_context(0);
     if (!ctx)
         return 2;
     char matched[2048], dielectric[2048];

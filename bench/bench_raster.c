@@ -8,7 +8,9 @@
  * distance at which the bounds fill 90% of the image height or width, whichever is tighter.
  * Target (2 cores, release build): under 40 ms median for raster + resolve.
  */
-#include "cli.h"
+#include "bench.h"
+
+#include "demo_scene.h"
 #include "raster/raster.h"
 
 #include <stdio.h>
@@ -35,7 +37,7 @@ static stat3 stats(double *v, int n)
         s.min = v[i] < s.min ? v[i] : s.min;
         s.max = v[i] > s.max ? v[i] : s.max;
     }
-    s.median = nc_cli_median(v, n); /* sorts */
+    s.median = nc_tool_median(v, n); /* sorts */
     return s;
 }
 
@@ -48,16 +50,16 @@ int nc_bench_raster(int argc, char **argv)
         if (strcmp(argv[i], "--json") == 0)
             json = true;
         else if (strcmp(argv[i], "--runs") == 0 && i + 1 < argc &&
-                 nc_cli_parse_int(argv[i + 1], 1, 10000, &runs))
+                 nc_tool_parse_int(argv[i + 1], 1, 10000, &runs))
             i++;
         else if (strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
             mesh_path = argv[++i];
         else
-            return nc_cli_usage(usage_cmd, "unknown or incomplete option '%s'", argv[i]);
+            return nc_tool_usage(usage_cmd, "unknown or incomplete option '%s'", argv[i]);
     }
     char found[4096];
     if (!mesh_path) {
-        if (!nc_cli_find_mesh(MESH_NAME, found, sizeof(found))) {
+        if (!nc_tool_find_mesh(MESH_NAME, found, sizeof(found))) {
             fprintf(stderr,
                     "nacre bench raster: %s not found in $NACRE_MESH_DIR, ../shared/meshes "
                     "or /work/shared/meshes (use --mesh PATH)\n",
@@ -67,7 +69,7 @@ int nc_bench_raster(int argc, char **argv)
         mesh_path = found;
     }
 
-    nacre_context *ctx = nc_cli_context(0);
+    nacre_context *ctx = nc_tool_context(0);
     if (!ctx)
         return 2;
     int rc = 2;
@@ -80,16 +82,16 @@ int nc_bench_raster(int argc, char **argv)
         fprintf(stderr, "nacre bench raster: out of memory\n");
         goto out;
     }
-    uint64_t t_load = nc_cli_now_us();
+    uint64_t t_load = nc_tool_now_us();
     if (nacre_mesh_load(ctx, mesh_path, &mesh) != NACRE_OK) {
-        rc = nc_cli_fail(ctx);
+        rc = nc_tool_fail(ctx);
         goto out;
     }
-    double load_ms = (nc_cli_now_us() - t_load) / 1000.0;
+    double load_ms = (nc_tool_now_us() - t_load) / 1000.0;
     if (nc_rasterizer_create(ctx, &rz) != NACRE_OK ||
         nc_vis_buffer_resize(ctx, &vis, WIDTH, HEIGHT) != NACRE_OK ||
         nc_gbuffer_resize(ctx, &gb, WIDTH, HEIGHT) != NACRE_OK) {
-        rc = nc_cli_fail(ctx);
+        rc = nc_tool_fail(ctx);
         goto out;
     }
 
@@ -119,17 +121,17 @@ int nc_bench_raster(int argc, char **argv)
 
     nc_raster_counts counts = {0, 0};
     for (long run = -1; run < runs; run++) {
-        uint64_t t0 = nc_cli_now_us();
+        uint64_t t0 = nc_tool_now_us();
         if (nc_raster_visibility(rz, &view, &rm, 1, &vis, &counts) != NACRE_OK) {
-            rc = nc_cli_fail(ctx);
+            rc = nc_tool_fail(ctx);
             goto out;
         }
-        uint64_t t1 = nc_cli_now_us();
+        uint64_t t1 = nc_tool_now_us();
         if (nc_gbuffer_resolve(ctx, &view, &vis, &src, 1, &gb) != NACRE_OK) {
-            rc = nc_cli_fail(ctx);
+            rc = nc_tool_fail(ctx);
             goto out;
         }
-        uint64_t t2 = nc_cli_now_us();
+        uint64_t t2 = nc_tool_now_us();
         if (run < 0)
             continue;
         samples[run] = (t1 - t0) / 1000.0;
@@ -173,3 +175,59 @@ out:
     nacre_context_destroy(ctx);
     return rc;
 }
+
+/* Demo scene: every stage timed with caches cold (a fresh renderer per run). */
+int nc_bench_demo(bool json, int runs)
+{
+    nacre_context *ctx = nc_tool_context(0);
+    if (!ctx)
+        return 2;
+    nacre_scene *scene = NULL;
+    nacre_render_settings rs;
+    int rc = 2;
+    double *samples = calloc((size_t)(runs * (NACRE_STAGE_COUNT + 1)), sizeof(double));
+    nacre_image img = {0};
+    if (!samples)
+        goto out;
+    if (nacre_scene_load_json(ctx, (const char *)nacre_demo_scene_json, strlen((const char *)nacre_demo_scene_json),
+                              "<built-in demo>", ".", &scene, &rs) != NACRE_OK ||
+        nacre_scene_commit(scene, 0.0) != NACRE_OK) {
+        rc = nc_tool_fail(ctx);
+        goto out;
+    }
+    rs.width = 1280;
+    rs.height = 720;
+    rs.method = NACRE_METHOD_PHONG;
+    for (int run = -1; run < runs; run++) {
+        nacre_render_stats st;
+        if (nacre_render(scene, &rs, &img, &st) != NACRE_OK) {
+            rc = nc_tool_fail(ctx);
+            goto out;
+        }
+        if (run < 0)
+            continue;
+        for (int s = 0; s < NACRE_STAGE_COUNT; s++)
+            samples[s * runs + run] = st.stage_us[s] / 1000.0;
+        samples[NACRE_STAGE_COUNT * runs + run] = st.total_us / 1000.0;
+    }
+    if (json) {
+        printf("{\"bench\":\"raster\",\"scene\":\"demo\",\"method\":\"phong\",\"width\":1280,\"height\":720,"
+               "\"threads\":%d,\"runs\":%d", nacre_context_threads(ctx), runs);
+        for (int s = 0; s < NACRE_STAGE_COUNT; s++)
+            printf(",\"%s_ms\":%.3f", nacre_stage_name((nacre_stage)s), nc_tool_median(samples + s * runs, runs));
+        printf(",\"total_ms\":%.3f}\n", nc_tool_median(samples + NACRE_STAGE_COUNT * runs, runs));
+    } else {
+        printf("demo scene, phong, 1280x720, %d threads, median of %d runs (ms):\n", nacre_context_threads(ctx), runs);
+        for (int s = 0; s < NACRE_STAGE_COUNT; s++)
+            printf("  %-8s %8.3f\n", nacre_stage_name((nacre_stage)s), nc_tool_median(samples + s * runs, runs));
+        printf("  %-8s %8.3f\n", "total", nc_tool_median(samples + NACRE_STAGE_COUNT * runs, runs));
+    }
+    rc = 0;
+out:
+    free(samples);
+    nacre_image_free(ctx, &img);
+    nacre_scene_destroy(scene);
+    nacre_context_destroy(ctx);
+    return rc;
+}
+

@@ -2,8 +2,8 @@
  * main.c: the `nacre` command-line tool. Subcommands: render, info, compare, voxelize, bench.
  *
  * Exit status: 0 on success, 2 on any error (bad arguments, bad input files, failed writes).
- * Errors are one line on stderr: "nacre: <message>". The library returns errors; this file is
- * the only place that prints them.
+ * Errors are one line on stderr: "nacre: <message>". The library returns errors; the tools
+ * print them (tools/common/common.c).
  */
 #define _XOPEN_SOURCE 700 /* realpath (XSI); the build asks for POSIX 2008 only */
 #include "cli.h"
@@ -18,7 +18,7 @@
 
 #include "demo_scene.h"
 
-#define EXIT_BAD 2
+#define EXIT_BAD NC_TOOL_EXIT_BAD
 
 static void print_main_help(FILE *f)
 {
@@ -31,7 +31,7 @@ static void print_main_help(FILE *f)
             "  compare A B           error metrics of image A against reference B\n"
             "  voxelize MESH         surface and solid voxelization, NRRD export\n"
             "  slab                  reflectance and transmittance of a slab (diffusion, pathtrace)\n"
-            "  bench raster|voxelize benchmarks (medians)\n"
+            "  bench NAME            benchmarks (medians): raster, voxelize, diffusion, pathtrace\n"
             "\n"
             "  nacre <command> --help   options of a command\n"
             "  nacre --version          version\n"
@@ -41,122 +41,6 @@ static void print_main_help(FILE *f)
             "                           physical memory, less under ulimit -v); over it: exit 2\n");
 }
 
-static int cli_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
-static int cli_error(const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    fputs("nacre: ", stderr);
-    vfprintf(stderr, fmt, ap);
-    fputc('\n', stderr);
-    va_end(ap);
-    return EXIT_BAD;
-}
-
-int nc_cli_fail(nacre_context *ctx) { return cli_error("%s", nacre_context_last_error(ctx)); }
-
-int nc_cli_usage(const char *command, const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    fprintf(stderr, "nacre %s: ", command);
-    vfprintf(stderr, fmt, ap);
-    fprintf(stderr, " (see nacre %s --help)\n", command);
-    va_end(ap);
-    return EXIT_BAD;
-}
-
-bool nc_cli_parse_int(const char *s, long lo, long hi, long *out)
-{
-    char *end = NULL;
-    errno = 0;
-    long v = strtol(s, &end, 10);
-    if (errno || end == s || *end != '\0' || v < lo || v > hi)
-        return false;
-    *out = v;
-    return true;
-}
-
-bool nc_cli_parse_float(const char *s, double *out)
-{
-    char *end = NULL;
-    errno = 0;
-    double v = strtod(s, &end);
-    if (errno || end == s || *end != '\0' || !isfinite(v))
-        return false;
-    *out = v;
-    return true;
-}
-
-bool nc_cli_common_flag(const char *command, const char *arg, const char *help, int *exit_code)
-{
-    if (strcmp(arg, "--help") == 0 || strcmp(arg, "-h") == 0) {
-        fputs(help, stdout);
-        *exit_code = 0;
-        return true;
-    }
-    if (strcmp(arg, "--version") == 0) {
-        printf("nacre %s %s\n", command, nacre_version());
-        *exit_code = 0;
-        return true;
-    }
-    return false;
-}
-
-/* --memory-limit, read by main() before the command runs; 0 = the library's default. The one
- * piece of state the commands share, set once before any of them starts. */
-static uint64_t cli_memory_limit;
-
-/* "4G", "512M", "1.5g", "300k" or a plain byte count; false if malformed or 0. */
-static bool parse_bytes(const char *s, uint64_t *out)
-{
-    char *end = NULL;
-    errno = 0;
-    double v = strtod(s, &end);
-    if (end == s || errno || !(v > 0))
-        return false;
-    double scale = 1;
-    switch (*end) {
-    case 'k': case 'K': scale = 1024.0; end++; break;
-    case 'm': case 'M': scale = 1048576.0; end++; break;
-    case 'g': case 'G': scale = 1073741824.0; end++; break;
-    case 't': case 'T': scale = 1099511627776.0; end++; break;
-    default: break;
-    }
-    if (*end == 'i' || *end == 'I')
-        end++;
-    if (*end == 'b' || *end == 'B')
-        end++;
-    if (*end != '\0' || !(v * scale >= 1) || !(v * scale < 1.8e19))
-        return false;
-    *out = (uint64_t)(v * scale);
-    return true;
-}
-
-/* Library warnings (a half EXR's clamped values) are printed; errors are printed by the command
- * from nacre_context_last_error instead, once. */
-static const char *cli_warning_hint = ""; /* what the command suggests after a warning */
-
-static void cli_log(void *user, nacre_log_level level, const char *message)
-{
-    (void)user;
-    if (level == NACRE_LOG_WARNING)
-        fprintf(stderr, "nacre: warning: %s%s\n", message, cli_warning_hint);
-}
-
-nacre_context *nc_cli_context(int threads)
-{
-    nacre_context_desc desc = {0};
-    desc.threads = threads;
-    desc.memory_limit = cli_memory_limit;
-    desc.log_fn = cli_log;
-    nacre_context *ctx = NULL;
-    if (nacre_context_create(&desc, &ctx) != NACRE_OK) {
-        cli_error("cannot create a context (out of memory?)");
-        return NULL;
-    }
-    return ctx;
-}
 
 /* `path` made absolute without resolving its last component (which may not exist yet): the
  * real path of its folder, then the name. Lexical (as given) when the folder does not resolve. */
@@ -303,7 +187,7 @@ static bool image_finite(const nacre_image *img, const nacre_render_settings *rs
         }
     if (bad == 0)
         return true;
-    cli_error("render: method '%s' produced %llu pixel%s with NaN or infinite values in its %s (first at x %d, y %d); "
+    nc_tool_error("render: method '%s' produced %llu pixel%s with NaN or infinite values in its %s (first at x %d, y %d); "
               "nothing written",
               nacre_method_name(rs->method), bad, bad == 1 ? "" : "s", what, (int)fx, (int)fy);
     return false;
@@ -322,103 +206,103 @@ static int cmd_render(int argc, char **argv)
     int code;
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
-        if (nc_cli_common_flag("render", a, render_help, &code))
+        if (nc_tool_common_flag("render", a, render_help, &code))
             return code;
         bool has_value = i + 1 < argc;
         if ((strcmp(a, "-o") == 0 || strcmp(a, "--output") == 0)) {
             if (!has_value)
-                return nc_cli_usage("render", "%s needs a file name", a);
+                return nc_tool_usage("render", "%s needs a file name", a);
             out_path = argv[++i];
         } else if (strcmp(a, "--method") == 0) {
             if (!has_value)
-                return nc_cli_usage("render", "--method needs a name");
+                return nc_tool_usage("render", "--method needs a name");
             method_name = argv[++i];
         } else if (strcmp(a, "--size") == 0) {
             if (!has_value)
-                return nc_cli_usage("render", "--size needs WxH");
+                return nc_tool_usage("render", "--size needs WxH");
             const char *v = argv[++i];
             char wbuf[32];
             const char *x = strchr(v, 'x');
             if (!x || (size_t)(x - v) >= sizeof(wbuf))
-                return nc_cli_usage("render", "--size '%s': expected WxH, e.g. 640x480", v);
+                return nc_tool_usage("render", "--size '%s': expected WxH, e.g. 640x480", v);
             memcpy(wbuf, v, (size_t)(x - v));
             wbuf[x - v] = '\0';
-            if (!nc_cli_parse_int(wbuf, 1, 16384, &width) || !nc_cli_parse_int(x + 1, 1, 16384, &height))
-                return nc_cli_usage("render", "--size '%s': width and height must be integers in 1..16384", v);
+            if (!nc_tool_parse_int(wbuf, 1, 16384, &width) || !nc_tool_parse_int(x + 1, 1, 16384, &height))
+                return nc_tool_usage("render", "--size '%s': width and height must be integers in 1..16384", v);
         } else if (strcmp(a, "--exposure") == 0) {
-            if (!has_value || !nc_cli_parse_float(argv[++i], &exposure))
-                return nc_cli_usage("render", "--exposure needs a finite number");
+            if (!has_value || !nc_tool_parse_float(argv[++i], &exposure))
+                return nc_tool_usage("render", "--exposure needs a finite number");
         } else if (strcmp(a, "--time") == 0) {
-            if (!has_value || !nc_cli_parse_float(argv[++i], &time))
-                return nc_cli_usage("render", "--time needs a finite number of seconds");
+            if (!has_value || !nc_tool_parse_float(argv[++i], &time))
+                return nc_tool_usage("render", "--time needs a finite number of seconds");
         } else if (strcmp(a, "--threads") == 0) {
-            if (!has_value || !nc_cli_parse_int(argv[++i], 1, 1024, &threads))
-                return nc_cli_usage("render", "--threads needs an integer in 1..1024");
+            if (!has_value || !nc_tool_parse_int(argv[++i], 1, 1024, &threads))
+                return nc_tool_usage("render", "--threads needs an integer in 1..1024");
         } else if (strcmp(a, "--voxel-res") == 0) {
-            if (!has_value || !nc_cli_parse_int(argv[++i], 1, 1024, &voxel_res))
-                return nc_cli_usage("render", "--voxel-res needs an integer in 1..1024");
+            if (!has_value || !nc_tool_parse_int(argv[++i], 1, 1024, &voxel_res))
+                return nc_tool_usage("render", "--voxel-res needs an integer in 1..1024");
         } else if (strcmp(a, "--tsm-size") == 0) {
-            if (!has_value || !nc_cli_parse_int(argv[++i], 16, 8192, &tsm_size))
-                return nc_cli_usage("render", "--tsm-size needs an integer in 16..8192");
+            if (!has_value || !nc_tool_parse_int(argv[++i], 16, 8192, &tsm_size))
+                return nc_tool_usage("render", "--tsm-size needs an integer in 16..8192");
         } else if (strcmp(a, "--solver") == 0) {
             if (!has_value)
-                return nc_cli_usage("render", "--solver needs multigrid or seed");
+                return nc_tool_usage("render", "--solver needs multigrid or seed");
             solver_name = argv[++i];
             if (!nacre_solver_from_name(solver_name, &solver))
-                return nc_cli_usage("render", "--solver '%s': expected multigrid or seed", solver_name);
+                return nc_tool_usage("render", "--solver '%s': expected multigrid or seed", solver_name);
         } else if (strcmp(a, "--source") == 0) {
             if (!has_value)
-                return nc_cli_usage("render", "--source needs volume or face");
+                return nc_tool_usage("render", "--source needs volume or face");
             source_name = argv[++i];
             if (!nacre_source_from_name(source_name, &source))
-                return nc_cli_usage("render", "--source '%s': expected volume or face", source_name);
+                return nc_tool_usage("render", "--source '%s': expected volume or face", source_name);
         } else if (strcmp(a, "--tolerance") == 0) {
-            if (!has_value || !nc_cli_parse_float(argv[++i], &tolerance) || !(tolerance > 0 && tolerance < 1))
-                return nc_cli_usage("render", "--tolerance needs a number in (0, 1)");
+            if (!has_value || !nc_tool_parse_float(argv[++i], &tolerance) || !(tolerance > 0 && tolerance < 1))
+                return nc_tool_usage("render", "--tolerance needs a number in (0, 1)");
         } else if (strcmp(a, "--seed-iterations") == 0) {
-            if (!has_value || !nc_cli_parse_int(argv[++i], 1, 100000, &seed_iters))
-                return nc_cli_usage("render", "--seed-iterations needs an integer in 1..100000");
+            if (!has_value || !nc_tool_parse_int(argv[++i], 1, 100000, &seed_iters))
+                return nc_tool_usage("render", "--seed-iterations needs an integer in 1..100000");
         } else if (strcmp(a, "--spp") == 0) {
-            if (!has_value || !nc_cli_parse_int(argv[++i], 1, 1 << 24, &spp))
-                return nc_cli_usage("render", "--spp needs an integer in 1..16777216");
+            if (!has_value || !nc_tool_parse_int(argv[++i], 1, 1 << 24, &spp))
+                return nc_tool_usage("render", "--spp needs an integer in 1..16777216");
         } else if (strcmp(a, "--seed") == 0) {
-            if (!has_value || !nc_cli_parse_int(argv[++i], 0, 4294967295L, &seed))
-                return nc_cli_usage("render", "--seed needs an integer in 0..4294967295");
+            if (!has_value || !nc_tool_parse_int(argv[++i], 0, 4294967295L, &seed))
+                return nc_tool_usage("render", "--seed needs an integer in 0..4294967295");
         } else if (strcmp(a, "--time-limit") == 0) {
-            if (!has_value || !nc_cli_parse_float(argv[++i], &time_limit) || !(time_limit > 0))
-                return nc_cli_usage("render", "--time-limit needs a positive number of seconds");
+            if (!has_value || !nc_tool_parse_float(argv[++i], &time_limit) || !(time_limit > 0))
+                return nc_tool_usage("render", "--time-limit needs a positive number of seconds");
         } else if (strcmp(a, "--max-scatter") == 0) {
-            if (!has_value || !nc_cli_parse_int(argv[++i], 1, 1000000, &max_scatter))
-                return nc_cli_usage("render", "--max-scatter needs an integer in 1..1000000");
+            if (!has_value || !nc_tool_parse_int(argv[++i], 1, 1000000, &max_scatter))
+                return nc_tool_usage("render", "--max-scatter needs an integer in 1..1000000");
         } else if (strcmp(a, "--variance") == 0) {
             if (!has_value)
-                return nc_cli_usage("render", "--variance needs a file name");
+                return nc_tool_usage("render", "--variance needs a file name");
             variance_path = argv[++i];
             if (!has_suffix(variance_path, ".exr"))
-                return nc_cli_usage("render", "--variance '%s': use a .exr file name", variance_path);
+                return nc_tool_usage("render", "--variance '%s': use a .exr file name", variance_path);
         } else if (strcmp(a, "--stats") == 0) {
             stats = true;
         } else if (strcmp(a, "--exr-float") == 0) {
             exr_float = true;
         } else if (a[0] == '-' && a[1] != '\0') {
-            return nc_cli_usage("render", "unknown option '%s'", a);
+            return nc_tool_usage("render", "unknown option '%s'", a);
         } else if (!scene_path) {
             scene_path = a;
         } else {
-            return nc_cli_usage("render", "unexpected argument '%s'", a);
+            return nc_tool_usage("render", "unexpected argument '%s'", a);
         }
     }
     if (!has_suffix(out_path, ".png") && !has_suffix(out_path, ".exr"))
-        return nc_cli_usage("render", "output '%s': use a .png or .exr file name", out_path);
+        return nc_tool_usage("render", "output '%s': use a .png or .exr file name", out_path);
     if (!output_distinct("render", out_path, "output", scene_path, "scene") ||
         !output_distinct("render", variance_path, "variance output", scene_path, "scene") ||
         !output_distinct("render", variance_path, "variance output", out_path, "output"))
         return EXIT_BAD;
     nacre_method method = NACRE_METHOD_PHONG;
     if (method_name && !nacre_method_from_name(method_name, &method))
-        return nc_cli_usage("render", "unknown method '%s' (phong, diffusion, layered, pathtrace)", method_name);
+        return nc_tool_usage("render", "unknown method '%s' (phong, diffusion, layered, pathtrace)", method_name);
 
-    nacre_context *ctx = nc_cli_context((int)threads);
+    nacre_context *ctx = nc_tool_context((int)threads);
     if (!ctx)
         return EXIT_BAD;
     int rc = EXIT_BAD;
@@ -426,7 +310,7 @@ static int cmd_render(int argc, char **argv)
     nacre_renderer *renderer = NULL;
     nacre_image img = {0};
     nacre_render_settings rs = nacre_render_settings_defaults();
-    uint64_t t_start = nc_cli_now_us();
+    uint64_t t_start = nc_tool_now_us();
     nacre_result res;
     if (scene_path)
         res = nacre_scene_load_file(ctx, scene_path, &scene, &rs);
@@ -434,10 +318,10 @@ static int cmd_render(int argc, char **argv)
         res = nacre_scene_load_json(ctx, (const char *)nacre_demo_scene_json, strlen((const char *)nacre_demo_scene_json),
                                     "<built-in demo>", ".", &scene, &rs);
     if (res != NACRE_OK) {
-        nc_cli_fail(ctx);
+        nc_tool_fail(ctx);
         goto out;
     }
-    uint64_t load_us = nc_cli_now_us() - t_start;
+    uint64_t load_us = nc_tool_now_us() - t_start;
     if (method_name)
         rs.method = method;
     if (!method_name && scene_path == NULL) {
@@ -477,30 +361,30 @@ static int cmd_render(int argc, char **argv)
     if (max_scatter > 0)
         rs.max_scatter = (uint32_t)max_scatter;
     if (variance_path && rs.method != NACRE_METHOD_PATHTRACE) {
-        cli_error("--variance needs --method pathtrace");
+        nc_tool_error("--variance needs --method pathtrace");
         goto out;
     }
     if (!nacre_method_available(rs.method)) {
-        cli_error("method '%s' is not implemented yet", nacre_method_name(rs.method));
+        nc_tool_error("method '%s' is not implemented yet", nacre_method_name(rs.method));
         goto out;
     }
     /* The renderer's own message cannot name the file. */
     if (nacre_scene_object_count(scene) == 0 && !(rs.method == NACRE_METHOD_PATHTRACE && nacre_scene_fog_count(scene) > 0)) {
-        cli_error("%s: scene has no objects (nothing to render with method '%s')",
+        nc_tool_error("%s: scene has no objects (nothing to render with method '%s')",
                   scene_path ? scene_path : "<built-in demo>", nacre_method_name(rs.method));
         goto out;
     }
-    uint64_t t0 = nc_cli_now_us();
+    uint64_t t0 = nc_tool_now_us();
     if (nacre_scene_commit(scene, rs.time) != NACRE_OK) {
-        nc_cli_fail(ctx);
+        nc_tool_fail(ctx);
         goto out;
     }
-    uint64_t commit_us = nc_cli_now_us() - t0;
+    uint64_t commit_us = nc_tool_now_us() - t0;
     if (rs.time_limit > 0) /* the limit is the whole command's: loading and commit count */
-        rs.time_limit = fmax(rs.time_limit - (double)(nc_cli_now_us() - t_start) * 1e-6, 1e-3);
+        rs.time_limit = fmax(rs.time_limit - (double)(nc_tool_now_us() - t_start) * 1e-6, 1e-3);
     nacre_render_stats st;
     if (nacre_renderer_create(ctx, &renderer) != NACRE_OK || nacre_renderer_render(renderer, scene, &rs, &img, &st) != NACRE_OK) {
-        nc_cli_fail(ctx);
+        nc_tool_fail(ctx);
         goto out;
     }
     if (rs.method == NACRE_METHOD_PATHTRACE && st.pixels_unsampled > 0)
@@ -524,23 +408,23 @@ static int cmd_render(int argc, char **argv)
         nacre_image_free(ctx, &var);
         if (!ok) {
             if (!got || finite)
-                nc_cli_fail(ctx);
+                nc_tool_fail(ctx);
             goto out;
         }
     }
-    t0 = nc_cli_now_us();
+    t0 = nc_tool_now_us();
     nacre_image_write_options wo = {.exposure = rs.exposure, .exr_type = exr_float ? NACRE_EXR_FLOAT : NACRE_EXR_HALF};
-    cli_warning_hint = " (--exr-float)"; /* the one warning an image write gives: half range */
+    nc_tool_set_warning_hint(" (--exr-float)"); /* the one warning an image write gives: half range */
     nacre_result wr = nacre_image_write(ctx, &img, out_path, &wo);
-    cli_warning_hint = "";
+    nc_tool_set_warning_hint(NULL);
     if (wr != NACRE_OK) {
-        nc_cli_fail(ctx);
+        nc_tool_fail(ctx);
         goto out;
     }
-    uint64_t write_us = nc_cli_now_us() - t0;
+    uint64_t write_us = nc_tool_now_us() - t0;
     if (stats)
         print_stats(scene_path ? scene_path : "<built-in demo>", &rs, &st, load_us, commit_us, write_us,
-                    nc_cli_now_us() - t_start, nacre_context_memory_peak(ctx));
+                    nc_tool_now_us() - t_start, nacre_context_memory_peak(ctx));
     rc = 0;
 out:
     nacre_image_free(ctx, &img);
@@ -569,33 +453,33 @@ static int cmd_info(int argc, char **argv)
     bool json = false;
     int code;
     for (int i = 0; i < argc; i++) {
-        if (nc_cli_common_flag("info", argv[i], info_help, &code))
+        if (nc_tool_common_flag("info", argv[i], info_help, &code))
             return code;
         if (strcmp(argv[i], "--json") == 0)
             json = true;
         else if (argv[i][0] == '-')
-            return nc_cli_usage("info", "unknown option '%s'", argv[i]);
+            return nc_tool_usage("info", "unknown option '%s'", argv[i]);
         else if (!path)
             path = argv[i];
         else
-            return nc_cli_usage("info", "unexpected argument '%s'", argv[i]);
+            return nc_tool_usage("info", "unexpected argument '%s'", argv[i]);
     }
     if (!path)
-        return nc_cli_usage("info", "missing MESH");
-    nacre_context *ctx = nc_cli_context(0);
+        return nc_tool_usage("info", "missing MESH");
+    nacre_context *ctx = nc_tool_context(0);
     if (!ctx)
         return EXIT_BAD;
     nacre_mesh_data mesh = {0};
     nacre_mesh_info info;
     int rc = EXIT_BAD;
-    uint64_t t0 = nc_cli_now_us();
+    uint64_t t0 = nc_tool_now_us();
     if (nacre_mesh_load(ctx, path, &mesh) != NACRE_OK) {
-        nc_cli_fail(ctx);
+        nc_tool_fail(ctx);
         goto out;
     }
-    uint64_t load_us = nc_cli_now_us() - t0;
+    uint64_t load_us = nc_tool_now_us() - t0;
     if (nacre_mesh_analyze(ctx, &mesh, &info) != NACRE_OK) {
-        nc_cli_fail(ctx);
+        nc_tool_fail(ctx);
         goto out;
     }
     if (json) {
@@ -667,20 +551,20 @@ static int cmd_compare(int argc, char **argv)
     int npaths = 0, code;
     bool json = false;
     for (int i = 0; i < argc; i++) {
-        if (nc_cli_common_flag("compare", argv[i], compare_help, &code))
+        if (nc_tool_common_flag("compare", argv[i], compare_help, &code))
             return code;
         if (strcmp(argv[i], "--json") == 0)
             json = true;
         else if (argv[i][0] == '-')
-            return nc_cli_usage("compare", "unknown option '%s'", argv[i]);
+            return nc_tool_usage("compare", "unknown option '%s'", argv[i]);
         else if (npaths < 2)
             paths[npaths++] = argv[i];
         else
-            return nc_cli_usage("compare", "unexpected argument '%s'", argv[i]);
+            return nc_tool_usage("compare", "unexpected argument '%s'", argv[i]);
     }
     if (npaths != 2)
-        return nc_cli_usage("compare", "needs two images");
-    nacre_context *ctx = nc_cli_context(0);
+        return nc_tool_usage("compare", "needs two images");
+    nacre_context *ctx = nc_tool_context(0);
     if (!ctx)
         return EXIT_BAD;
     nacre_image a = {0}, b = {0};
@@ -688,7 +572,7 @@ static int cmd_compare(int argc, char **argv)
     int rc = EXIT_BAD;
     if (nacre_image_read(ctx, paths[0], &a) != NACRE_OK || nacre_image_read(ctx, paths[1], &b) != NACRE_OK ||
         nacre_image_compare(ctx, &a, &b, &m) != NACRE_OK) {
-        nc_cli_fail(ctx);
+        nc_tool_fail(ctx);
         goto out;
     }
     if (json) {
@@ -715,7 +599,7 @@ static int cmd_compare(int argc, char **argv)
     }
     if (m.nonfinite_test || m.nonfinite_ref) {
         fflush(stdout);
-        cli_error("compare: %s has %llu and %s has %llu pixels with NaN or infinite values; the metrics leave them out",
+        nc_tool_error("compare: %s has %llu and %s has %llu pixels with NaN or infinite values; the metrics leave them out",
                   paths[0], (unsigned long long)m.nonfinite_test, paths[1], (unsigned long long)m.nonfinite_ref);
         goto out;
     }
@@ -752,33 +636,33 @@ static int cmd_voxelize(int argc, char **argv)
     nacre_voxel_settings vs = nacre_voxel_settings_defaults();
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
-        if (nc_cli_common_flag("voxelize", a, voxelize_help, &code))
+        if (nc_tool_common_flag("voxelize", a, voxelize_help, &code))
             return code;
         if (strcmp(a, "--json") == 0) {
             json = true;
         } else if (strcmp(a, "--aniso") == 0) {
             vs.anisotropic = true;
         } else if (strcmp(a, "--res") == 0) {
-            if (i + 1 >= argc || !nc_cli_parse_int(argv[++i], 1, 4096, &res))
-                return nc_cli_usage("voxelize", "--res needs an integer in 1..4096");
+            if (i + 1 >= argc || !nc_tool_parse_int(argv[++i], 1, 4096, &res))
+                return nc_tool_usage("voxelize", "--res needs an integer in 1..4096");
         } else if (strcmp(a, "-o") == 0 || strcmp(a, "--output") == 0) {
             if (i + 1 >= argc)
-                return nc_cli_usage("voxelize", "%s needs a file name", a);
+                return nc_tool_usage("voxelize", "%s needs a file name", a);
             out_path = argv[++i];
         } else if (a[0] == '-') {
-            return nc_cli_usage("voxelize", "unknown option '%s'", a);
+            return nc_tool_usage("voxelize", "unknown option '%s'", a);
         } else if (!path) {
             path = a;
         } else {
-            return nc_cli_usage("voxelize", "unexpected argument '%s'", a);
+            return nc_tool_usage("voxelize", "unexpected argument '%s'", a);
         }
     }
     if (!path)
-        return nc_cli_usage("voxelize", "missing MESH");
+        return nc_tool_usage("voxelize", "missing MESH");
     if (!output_distinct("voxelize", out_path, "output", path, "mesh"))
         return EXIT_BAD;
     vs.resolution = (uint32_t)res;
-    nacre_context *ctx = nc_cli_context(0);
+    nacre_context *ctx = nc_tool_context(0);
     if (!ctx)
         return EXIT_BAD;
     nacre_mesh_data mesh = {0};
@@ -787,7 +671,7 @@ static int cmd_voxelize(int argc, char **argv)
     int rc = EXIT_BAD;
     if (nacre_mesh_load(ctx, path, &mesh) != NACRE_OK || nacre_voxelize(ctx, &mesh, &vs, &grid, &rep) != NACRE_OK ||
         (out_path && nacre_voxel_grid_write_nrrd(grid, 0, out_path) != NACRE_OK)) {
-        nc_cli_fail(ctx);
+        nc_tool_fail(ctx);
         goto out;
     }
     if (json) {
@@ -836,8 +720,10 @@ int main(int argc, char **argv)
     int kept = 2;
     for (int i = 2; i < argc; i++) {
         if (strcmp(argv[i], "--memory-limit") == 0) {
-            if (i + 1 >= argc || !parse_bytes(argv[i + 1], &cli_memory_limit))
-                return nc_cli_usage(cmd, "--memory-limit needs a size such as 4G, 512M or a byte count");
+            uint64_t limit = 0;
+            if (i + 1 >= argc || !nc_tool_parse_bytes(argv[i + 1], &limit))
+                return nc_tool_usage(cmd, "--memory-limit needs a size such as 4G, 512M or a byte count");
+            nc_tool_set_memory_limit(limit);
             i++;
             continue;
         }

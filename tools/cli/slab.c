@@ -45,86 +45,86 @@ int nc_cli_slab(int argc, char **argv)
     int code;
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
-        if (nc_cli_common_flag("slab", a, slab_help, &code))
+        if (nc_tool_common_flag("slab", a, slab_help, &code))
             return code;
         bool has = i + 1 < argc;
         if (strcmp(a, "--albedo") == 0) {
-            if (!has || !nc_cli_parse_float(argv[++i], &f) || !(f >= 0 && f <= 1))
-                return nc_cli_usage("slab", "--albedo needs a number in [0, 1]");
+            if (!has || !nc_tool_parse_float(argv[++i], &f) || !(f >= 0 && f <= 1))
+                return nc_tool_usage("slab", "--albedo needs a number in [0, 1]");
             d.albedo = f;
         } else if (strcmp(a, "--tau") == 0) {
             if (!has)
-                return nc_cli_usage("slab", "--tau needs a positive number or inf");
+                return nc_tool_usage("slab", "--tau needs a positive number or inf");
             const char *t = argv[++i];
             if (strcmp(t, "inf") == 0)
                 d.tau = INFINITY;
-            else if (nc_cli_parse_float(t, &f) && f > 0)
+            else if (nc_tool_parse_float(t, &f) && f > 0)
                 d.tau = f;
             else
-                return nc_cli_usage("slab", "--tau '%s': expected a positive number or inf", t);
+                return nc_tool_usage("slab", "--tau '%s': expected a positive number or inf", t);
         } else if (strcmp(a, "--g") == 0) {
-            if (!has || !nc_cli_parse_float(argv[++i], &f) || !(f > -1 && f < 1))
-                return nc_cli_usage("slab", "--g needs a number in (-1, 1)");
+            if (!has || !nc_tool_parse_float(argv[++i], &f) || !(f > -1 && f < 1))
+                return nc_tool_usage("slab", "--g needs a number in (-1, 1)");
             d.g = f;
         } else if (strcmp(a, "--eta") == 0) {
-            if (!has || !nc_cli_parse_float(argv[++i], &f) || !(f > 0 && f <= 10))
-                return nc_cli_usage("slab", "--eta needs a number in (0, 10]");
+            if (!has || !nc_tool_parse_float(argv[++i], &f) || !(f > 0 && f <= 10))
+                return nc_tool_usage("slab", "--eta needs a number in (0, 10]");
             d.eta = f;
         } else if (strcmp(a, "--method") == 0) {
             if (!has)
-                return nc_cli_usage("slab", "--method needs diffusion or pathtrace");
+                return nc_tool_usage("slab", "--method needs diffusion or pathtrace");
             const char *m = argv[++i];
             if (strcmp(m, "diffusion") == 0)
                 d.method = NACRE_METHOD_DIFFUSION;
             else if (strcmp(m, "pathtrace") == 0)
                 d.method = NACRE_METHOD_PATHTRACE;
             else
-                return nc_cli_usage("slab", "--method '%s': expected diffusion or pathtrace", m);
+                return nc_tool_usage("slab", "--method '%s': expected diffusion or pathtrace", m);
         } else if (strcmp(a, "--cells-per-mfp") == 0) {
-            if (!has || !nc_cli_parse_int(argv[++i], 1, 1024, &v))
-                return nc_cli_usage("slab", "--cells-per-mfp needs an integer in 1..1024");
+            if (!has || !nc_tool_parse_int(argv[++i], 1, 1024, &v))
+                return nc_tool_usage("slab", "--cells-per-mfp needs an integer in 1..1024");
             d.cells_per_mfp = (uint32_t)v;
         } else if (strcmp(a, "--solver") == 0) {
             if (!has || !nacre_solver_from_name(argv[++i], &d.solver))
-                return nc_cli_usage("slab", "--solver needs multigrid or seed");
+                return nc_tool_usage("slab", "--solver needs multigrid or seed");
         } else if (strcmp(a, "--source") == 0) {
             if (!has || !nacre_source_from_name(argv[++i], &d.source))
-                return nc_cli_usage("slab", "--source needs volume or face");
+                return nc_tool_usage("slab", "--source needs volume or face");
         } else if (strcmp(a, "--tolerance") == 0) {
-            if (!has || !nc_cli_parse_float(argv[++i], &f) || !(f > 0 && f < 1))
-                return nc_cli_usage("slab", "--tolerance needs a number in (0, 1)");
+            if (!has || !nc_tool_parse_float(argv[++i], &f) || !(f > 0 && f < 1))
+                return nc_tool_usage("slab", "--tolerance needs a number in (0, 1)");
             d.tolerance = (float)f;
         } else if (strcmp(a, "--samples") == 0) {
-            if (!has || !nc_cli_parse_int(argv[++i], 1, 4000000000L, &v))
-                return nc_cli_usage("slab", "--samples needs an integer in 1..4000000000");
+            if (!has || !nc_tool_parse_int(argv[++i], 1, 4000000000L, &v))
+                return nc_tool_usage("slab", "--samples needs an integer in 1..4000000000");
             d.samples = (uint64_t)v;
         } else if (strcmp(a, "--max-scatter") == 0) {
-            if (!has || !nc_cli_parse_int(argv[++i], 1, 1000000, &v))
-                return nc_cli_usage("slab", "--max-scatter needs an integer in 1..1000000");
+            if (!has || !nc_tool_parse_int(argv[++i], 1, 1000000, &v))
+                return nc_tool_usage("slab", "--max-scatter needs an integer in 1..1000000");
             d.max_scatter = (uint32_t)v;
         } else if (strcmp(a, "--time-limit") == 0) {
-            if (!has || !nc_cli_parse_float(argv[++i], &f) || !(f > 0 && isfinite(f)))
-                return nc_cli_usage("slab", "--time-limit needs a positive number of seconds");
+            if (!has || !nc_tool_parse_float(argv[++i], &f) || !(f > 0 && isfinite(f)))
+                return nc_tool_usage("slab", "--time-limit needs a positive number of seconds");
             d.time_limit = f;
         } else if (strcmp(a, "--seed") == 0) {
-            if (!has || !nc_cli_parse_int(argv[++i], 0, 4294967295L, &v))
-                return nc_cli_usage("slab", "--seed needs an integer in 0..4294967295");
+            if (!has || !nc_tool_parse_int(argv[++i], 0, 4294967295L, &v))
+                return nc_tool_usage("slab", "--seed needs an integer in 0..4294967295");
             d.seed = (uint64_t)v;
         } else if (strcmp(a, "--threads") == 0) {
-            if (!has || !nc_cli_parse_int(argv[++i], 1, 1024, &threads))
-                return nc_cli_usage("slab", "--threads needs an integer in 1..1024");
+            if (!has || !nc_tool_parse_int(argv[++i], 1, 1024, &threads))
+                return nc_tool_usage("slab", "--threads needs an integer in 1..1024");
         } else if (strcmp(a, "--json") == 0) {
             json = true;
         } else {
-            return nc_cli_usage("slab", "unknown argument '%s'", a);
+            return nc_tool_usage("slab", "unknown argument '%s'", a);
         }
     }
-    nacre_context *ctx = nc_cli_context((int)threads);
+    nacre_context *ctx = nc_tool_context((int)threads);
     if (!ctx)
         return 2;
     nacre_slab_result r;
     if (nacre_slab_measure(ctx, &d, &r) != NACRE_OK) {
-        int rc = nc_cli_fail(ctx);
+        int rc = nc_tool_fail(ctx);
         nacre_context_destroy(ctx);
         return rc;
     }

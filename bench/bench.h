@@ -1,0 +1,39 @@
+/*
+ * bench.h: the benchmarks' entry points, called by `nacre bench` (tools/cli/bench.c). Each prints
+ * medians as a text table or, with json, one JSON object per line, and returns the exit status.
+ * Speed targets are checked here, never in unit tests.
+ */
+#ifndef NACRE_BENCH_H
+#define NACRE_BENCH_H
+
+#include "common.h"
+
+#include <string.h>
+
+/* Optional row filter of `nacre bench voxelize|diffusion`: mesh file names containing `only`
+ * (NULL: all) and one resolution (0: all). */
+typedef struct nc_bench_filter {
+    const char *only;
+    uint32_t res;
+} nc_bench_filter;
+
+static inline bool nc_bench_filter_mesh(const nc_bench_filter *f, const char *file)
+{
+    return !f->only || strstr(file, f->only) != NULL;
+}
+
+/* lucy_1600k G-buffer (bench/bench_raster.c); reads --mesh PATH from argv. */
+int nc_bench_raster(int argc, char **argv);
+/* The built-in demo with phong at 1280x720, every stage cold (bench/bench_raster.c). */
+int nc_bench_demo(bool json, int runs);
+/* Per-frame voxelization beside the seed's tables 5.1-5.3 (bench/bench_voxelize.c). */
+int nc_bench_voxelize(bool json, int runs, const nc_bench_filter *filter);
+/* The seed's tables 5.1-5.3 layout for the diffusion pipeline (bench/bench_diffusion.c); repaint:
+ * every frame writes every pixel (no reuse_output). */
+int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filter, bool repaint);
+/* Iterations to converge (table 4.3) and converged propagation (bench/bench_diffusion_solver.c). */
+int nc_bench_diffusion_solver(bool json, int runs);
+/* Samples/s and time to relative MSE 1e-3 (bench/bench_pathtrace.c). */
+int nc_bench_pathtrace(bool json, double seconds);
+
+#endif /* NACRE_BENCH_H */
