@@ -71,6 +71,7 @@ for t in "${targets[@]}"; do
 done
 rm -rf "$work/tmp"
 
+echo "fuzz: $((${#targets[@]} - ${#failed[@]})) passed, ${#failed[@]} failed"
 if [ ${#failed[@]} -ne 0 ]; then
     echo "fuzz: FAILED: ${failed[*]} (inputs in $work/<target>/artifacts/; see tests/fuzz/README.md)" >&2
     exit 1
