@@ -576,6 +576,11 @@ NACRE_API nacre_fog_desc nacre_fog_desc_defaults(nacre_fog_shape shape);
 NACRE_API nacre_result nacre_scene_add_fog(nacre_scene *scene, const nacre_fog_desc *desc, nacre_fog *out);
 NACRE_API nacre_result nacre_scene_set_fog(nacre_scene *scene, nacre_fog fog, const nacre_fog_desc *desc);
 NACRE_API uint32_t nacre_scene_fog_count(const nacre_scene *scene);
+/* The files a scene loaded from a scene file was built from (meshes, depth maps, volumes), as
+ * resolved against the scene file's folder; NULL past the count. A tool writing outputs can
+ * check that it does not overwrite one of them. */
+NACRE_API uint32_t nacre_scene_input_count(const nacre_scene *scene);
+NACRE_API const char *nacre_scene_input_path(const nacre_scene *scene, uint32_t index);
 
 /* Create an empty scene (units: millimetres). */
 NACRE_API nacre_result nacre_scene_create(nacre_context *ctx, nacre_scene **out);

@@ -16,6 +16,7 @@
  * through the context's allocator.
  */
 #include "core/core.h"
+#include "scene/scene.h"
 
 #include <cjson/cJSON.h>
 
@@ -1134,6 +1135,10 @@ static char *resolve_path(loader *ld, const char *rel)
     if (slash)
         p[base_len++] = '/';
     memcpy(p + base_len, rel, rel_len + 1);
+    if (nc_scene_note_input(ld->scene, p) != NACRE_OK) {
+        nc_free(ld->ctx, p);
+        return NULL;
+    }
     return p;
 }
 

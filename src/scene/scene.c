@@ -486,7 +486,37 @@ void nacre_scene_destroy(nacre_scene *s)
     for (uint32_t i = 0; i < s->texture_count; i++)
         nc_free(ctx, s->textures[i].data);
     nc_free(ctx, s->textures);
+    for (uint32_t i = 0; i < s->input_count; i++)
+        nc_free(ctx, s->inputs[i]);
+    nc_free(ctx, s->inputs);
     nc_free(ctx, s);
+}
+
+nacre_result nc_scene_note_input(nacre_scene *s, const char *path)
+{
+    for (uint32_t i = 0; i < s->input_count; i++)
+        if (strcmp(s->inputs[i], path) == 0)
+            return NACRE_OK;
+    if (s->input_count == s->input_capacity) {
+        uint32_t cap = s->input_capacity ? 2 * s->input_capacity : 8;
+        char **grown = nc_realloc(s->ctx, s->inputs, s->input_capacity * sizeof(char *), cap * sizeof(char *));
+        if (!grown)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        s->inputs = grown;
+        s->input_capacity = cap;
+    }
+    char *copy = nc_strdup(s->ctx, path);
+    if (!copy)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    s->inputs[s->input_count++] = copy;
+    return NACRE_OK;
+}
+
+uint32_t nacre_scene_input_count(const nacre_scene *s) { return s ? s->input_count : 0; }
+
+const char *nacre_scene_input_path(const nacre_scene *s, uint32_t index)
+{
+    return s && index < s->input_count ? s->inputs[index] : NULL;
 }
 
 nacre_context *nacre_scene_context(const nacre_scene *s) { return s ? s->ctx : NULL; }

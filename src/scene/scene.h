@@ -89,7 +89,12 @@ struct nacre_scene {
     bool committed_valid;       /* commit done and nothing edited since */
     double time;                /* time of the last commit */
     float bounds_min[3], bounds_max[3]; /* world, committed */
+    char **inputs;              /* files the scene was built from (nacre_scene_input_path) */
+    uint32_t input_count, input_capacity;
 };
+
+/* Record a file the scene was built from (a scene file's meshes, depth maps, volumes); copied. */
+nacre_result nc_scene_note_input(nacre_scene *scene, const char *path);
 
 /* Lookup helpers: NULL when the handle is invalid. */
 const nc_mesh_rec *nc_scene_mesh(const nacre_scene *scene, nacre_mesh mesh);

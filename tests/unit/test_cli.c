@@ -391,7 +391,23 @@ static void test_output_collisions(void)
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
     CHECK(strstr(err, "same file as the scene") != NULL);
     CHECK(file_size(scene) == size);
+    /* A file the scene reads (its layered material's depth map, a PNG) named as the output. */
+    char map[1024], lscene[1024];
+    snprintf(map, sizeof(map), "%s/map.png", TMP);
+    snprintf(args, sizeof(args), "cp %s/examples/layered_depth.png %s", NACRE_SOURCE_DIR, map);
+    CHECK(system(args) == 0);
+    size = file_size(map);
+    snprintf(lscene, sizeof(lscene), "%s/layered_in.json", TMP);
+    write_file(lscene, "{\"materials\": {\"m\": {\"preset\": \"skin2\", \"depth_map\": \"map.png\",\n"
+                       "  \"layers\": [{\"preset\": \"skin1\", \"depth\": 0.5}]}},\n"
+                       " \"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"}]}\n");
+    snprintf(args, sizeof(args), "render %s --method phong --size 8x8 -o %s/./map.png", lscene, TMP);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "same file as the scene's input") != NULL && strstr(err, "map.png") != NULL);
+    CHECK(file_size(map) == size);
     /* Distinct files still work. */
+    snprintf(args, sizeof(args), "render %s --method phong --size 8x8 -o %s/map_render.png", lscene, TMP);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
     snprintf(args, sizeof(args), "voxelize %s --res 8 -o %s/x.nrrd", mesh, TMP);
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
     /* A scene without objects: the message names the file. */

@@ -321,6 +321,13 @@ static int cmd_render(int argc, char **argv)
         nc_tool_fail(ctx);
         goto out;
     }
+    /* The files the scene was built from are inputs too (its meshes, depth maps, volumes). */
+    for (uint32_t i = 0; i < nacre_scene_input_count(scene); i++) {
+        const char *input = nacre_scene_input_path(scene, i);
+        if (!output_distinct("render", out_path, "output", input, "scene's input") ||
+            !output_distinct("render", variance_path, "variance output", input, "scene's input"))
+            goto out;
+    }
     uint64_t load_us = nc_tool_now_us() - t_start;
     if (method_name)
         rs.method = method;
