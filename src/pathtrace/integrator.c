@@ -23,7 +23,7 @@
  * ~20 of their hundreds of vertices and the survivors' 1/0.95^k weights reached ~100, a heavy
  * tail that dominated the demo's error (2.5x the variance per sample, growing with spp).
  * Paths run longer instead, and the per-vertex cost is kept down by:
- * - clearance grids (see nc_pt_clearance() in pt_internal.h): a free flight shorter than a
+ * - clearance grids (see nc_pt_clearance() in scene_setup.c): a free flight shorter than a
  *   conservative bound on the distance to any surface skips the Embree query (same result bit
  *   for bit); the bound is extended by the clearance at the point it reaches, a few times,
  *   before asking;

@@ -11,7 +11,8 @@
  * points in cells that only one layer (or the core) reaches skip the query, and the majorant
  * grid takes its bounds from it.
  *
- * Homogeneous free flights by spectral MIS over the RGB channels (flight_sample_homogeneous);
+ * Homogeneous free flights by spectral MIS over the RGB channels (flight_sample_homogeneous,
+ * inline in pt_internal.h, and nc_pt_flight_resolve_homogeneous);
  * heterogeneous ones by spectral tracking (Kutz, Habel, Li, Novak 2017, "Spectral and
  * decomposition tracking", with history-aware probabilities): one scalar majorant bounds every
  * channel; at each tentative collision the event (absorb, scatter, null) is chosen with

@@ -1,9 +1,10 @@
 /*
  * scene_setup.c: what the path tracer builds from a committed scene before a frame: the Embree
- * scene, its objects (kind, medium, eta) and lights, and the per-object grids that the path
- * loop reads: majorant grids of heterogeneous media, layer grids of layered materials, rest-pose
- * grids of deformed objects, clearance grids of media (see nc_pt_clearance() in pt_internal.h), the
- * triangle adjacency and refracted-sun table of dielectric objects (sun_guide.c).
+ * scene, its objects (kind, medium, eta), lights and fogs, and the per-object grids that the
+ * path loop reads: majorant grids of heterogeneous media, layer grids of layered materials,
+ * rest-pose grids of deformed objects, clearance grids of media (with their lookup,
+ * nc_pt_clearance, below), the triangle adjacency and refracted-sun table of dielectric objects
+ * (sun_guide.c). Also the geometry of a hit on that scene (nc_pt_surface_at).
  *
  * Rest pose: an object's rest-pose point is the inverse object transform of the world point,
  * exact for objects without deformers. A deformed heterogeneous object gets a 64-voxel (longest
