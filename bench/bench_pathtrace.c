@@ -2,7 +2,7 @@
  * bench_pathtrace.c: `nacre bench pathtrace`: speed of the reference path tracer on three
  * scenes at 512x512 — a translucent sphere index matched (eta 1: NEE reaches the lights from
  * inside), the same sphere as a smooth dielectric (eta 1.3: no NEE inside; the sun is sampled
- * through the boundary, see guided_sun in src/pathtrace/pathtrace.c), the built-in demo, and the
+ * through the boundary, see src/pathtrace/sun_guide.c), the built-in demo, and the
  * sphere with a layered skin material (two layers over a skin core, index matched: the cost of
  * locating collisions in layers).
  *

@@ -1,6 +1,6 @@
 /*
  * pathtrace.h: the reference volumetric path tracer (private interface used by render.c and the
- * slab measurement). See pathtrace.c for the method and its conventions.
+ * slab measurement). See integrator.c for the method and its conventions, and the list of files.
  */
 #ifndef NACRE_PATHTRACE_H
 #define NACRE_PATHTRACE_H
