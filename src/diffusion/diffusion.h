@@ -1,6 +1,6 @@
 /*
  * diffusion.h: the voxel diffusion solver of Blanchard 2012 (chapters 2.4, 4.5) as nacre does
- * it (private interface). See solver.c for the discretization.
+ * it (private interface). See solver_setup.c for the discretization, solver.c for the rest.
  *
  * UNITS AND CONVENTIONS
  *   - A medium lives on a dense grid of dims[0] x dims[1] x dims[2] cubic cells of side h (scene
@@ -53,7 +53,7 @@ typedef struct nc_diff_solve_opts {
     bool seed_single_grid;       /* SEED: no cascade, sweeps on the finest grid only (table 4.3) */
     bool warm_start;             /* phi holds the previous solution on entry */
     bool no_local_relax;         /* warm start: skip the relaxation of the residual's hot spots
-                                    (solver.c, hot_relax), for comparisons */
+                                    (multigrid.c, hot_relax), for comparisons */
     bool no_energy;              /* skip the energy sums of the report (they stay 0): a pass over
                                     the domain that a renderer has no use for */
     bool phi_unchanged;          /* phi holds this solver's last output, untouched since: only

@@ -1,5 +1,5 @@
 /*
- * test_diffusion_solver.c: the finite-volume diffusion solver (src/diffusion/solver.c) and the
+ * test_diffusion_solver.c: the finite-volume diffusion solver (src/diffusion/solver*.c) and the
  * slab measurement built on it, against analytic solutions and published numbers.
  */
 #include "diffusion/diffusion.h"

@@ -1,5 +1,5 @@
 /*
- * test_voxel.c: voxelization (src/voxel/voxel.c): solid counts against mesh volumes, exact
+ * test_voxel.c: voxelization (src/voxel/): solid counts against mesh volumes, exact
  * grid-aligned cubes, conservativeness against a brute-force separating-axis test (random
  * triangles, and random closed star-shaped meshes whose solid set is checked against an exact
  * inside test), shared edges (few vs many triangles), broken meshes, degenerate input, the level
