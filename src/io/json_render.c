@@ -1,0 +1,106 @@
+/*
+ * json_render.c: the "units" and "render" sections of a JSON scene (docs/scene-format.md,
+ * "units" and "render"). "units" sets the scene's millimetres per unit, which the material
+ * presets are later scaled by; "render" fills nacre_render_settings (sizes in pixels, times in
+ * seconds, lengths in scene units).
+ */
+#include "io/scene_json_internal.h"
+
+#define IMAGE_SIZE_MAX 16384
+
+/* ------------------------------------------------------------------------------------------ */
+/* Sections                                                                                   */
+/* ------------------------------------------------------------------------------------------ */
+
+void nc_json_parse_units(loader *ld, const cJSON *item)
+{
+    size_t mark = nc_json_push_key(ld, "units");
+    if (cJSON_IsString(item)) {
+        if (!nacre_units_mm(item->valuestring, &ld->unit_mm)) {
+            char buf[NAME_SHOWN_MAX + 8];
+            nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT,
+                         "unknown unit \"%s\" (valid: \"mm\", \"cm\", \"m\" or millimetres per unit)",
+                         nc_json_shown(item->valuestring, buf, sizeof(buf)));
+        }
+    } else if (cJSON_IsNumber(item)) {
+        double v;
+        if (nc_json_read_number(ld, item, R_POSITIVE, &v))
+            ld->unit_mm = (float)v;
+    } else {
+        nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT,
+                     "expected \"mm\", \"cm\", \"m\" or a number of millimetres, got %s",
+                     nc_json_type_name(item));
+    }
+    nc_json_pop(ld, mark);
+    if (ld->err)
+        return;
+    nacre_result r = nacre_scene_set_unit_mm(ld->scene, ld->unit_mm);
+    if (r != NACRE_OK) {
+        mark = nc_json_push_key(ld, "units");
+        nc_json_fail_inner(ld, r);
+        nc_json_pop(ld, mark);
+    }
+}
+
+void nc_json_parse_render(loader *ld, const cJSON *obj)
+{
+    static const char *const keys[] = {"method", "width", "height", "exposure", "shadow_map_size",
+                                       "pcf_radius", "shadow_bias", "spp", "seed", "time",
+                                       "voxel_resolution", "tsm_size", "solver", "source",
+                                       "tolerance", "seed_iterations", "time_limit", "max_scatter"};
+    /* indexed by the enums' values */
+    const char *const solvers[] = {nacre_solver_name(NACRE_SOLVER_MULTIGRID), nacre_solver_name(NACRE_SOLVER_SEED)};
+    const char *const sources[] = {nacre_source_name(NACRE_SOURCE_VOLUME), nacre_source_name(NACRE_SOURCE_FACE)};
+    size_t mark = nc_json_push_key(ld, "render");
+    if (!nc_json_expect_object(ld, obj) || !nc_json_check_keys(ld, obj, keys, COUNT_OF(keys))) {
+        nc_json_pop(ld, mark);
+        return;
+    }
+    nacre_render_settings *s = &ld->settings;
+    const char *method = nc_json_get_string(ld, obj, "method");
+    if (method && !nacre_method_from_name(method, &s->method)) {
+        const char *names[NACRE_METHOD_COUNT];
+        for (int i = 0; i < NACRE_METHOD_COUNT; i++)
+            names[i] = nacre_method_name((nacre_method)i);
+        char buf[NAME_SHOWN_MAX + 8], list[256];
+        size_t m2 = nc_json_push_key(ld, "method");
+        nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "unknown render method \"%s\" (valid: %s)",
+                     nc_json_shown(method, buf, sizeof(buf)), nc_json_join_names(names, NACRE_METHOD_COUNT, list, sizeof(list)));
+        nc_json_pop(ld, m2);
+    }
+    int64_t v;
+    if (nc_json_get_integer(ld, obj, "width", 1, IMAGE_SIZE_MAX, &v))
+        s->width = (int32_t)v;
+    if (nc_json_get_integer(ld, obj, "height", 1, IMAGE_SIZE_MAX, &v))
+        s->height = (int32_t)v;
+    nc_json_get_number(ld, obj, "exposure", R_FINITE, &s->exposure);
+    if (nc_json_get_integer(ld, obj, "shadow_map_size", 0, IMAGE_SIZE_MAX, &v))
+        s->shadow_map_size = (int32_t)v;
+    nc_json_get_number(ld, obj, "pcf_radius", R_NONNEG, &s->pcf_radius);
+    nc_json_get_number(ld, obj, "shadow_bias", R_NONNEG, &s->shadow_bias);
+    if (nc_json_get_integer(ld, obj, "spp", 1, 1 << 24, &v))
+        s->spp = (uint32_t)v;
+    if (nc_json_get_integer(ld, obj, "seed", 0, UINT32_MAX, &v))
+        s->seed = (uint32_t)v;
+    nc_json_get_double(ld, obj, "time", R_FINITE, &s->time);
+    /* Diffusion and path-tracer settings (nacre_render_settings); ranges match what the
+     * renderers accept, so a file cannot ask for a grid or map the library would refuse. */
+    if (nc_json_get_integer(ld, obj, "voxel_resolution", 1, 1024, &v))
+        s->voxel_resolution = (uint32_t)v;
+    if (nc_json_get_integer(ld, obj, "tsm_size", 16, 8192, &v))
+        s->tsm_size = (int32_t)v;
+    int choice = nc_json_get_choice(ld, obj, "solver", "solver", solvers, COUNT_OF(solvers));
+    if (choice >= 0)
+        s->solver = (nacre_diffusion_solver)choice;
+    choice = nc_json_get_choice(ld, obj, "source", "source", sources, COUNT_OF(sources));
+    if (choice >= 0)
+        s->source = (nacre_diffusion_source)choice;
+    static const range tolerance_range = {0.0, 1.0, true, true};
+    nc_json_get_number(ld, obj, "tolerance", tolerance_range, &s->tolerance);
+    if (nc_json_get_integer(ld, obj, "seed_iterations", 0, 1000000, &v))
+        s->seed_iterations = (uint32_t)v;
+    nc_json_get_double(ld, obj, "time_limit", R_NONNEG, &s->time_limit);
+    if (nc_json_get_integer(ld, obj, "max_scatter", 0, UINT32_MAX, &v))
+        s->max_scatter = (uint32_t)v;
+    nc_json_pop(ld, mark);
+}
