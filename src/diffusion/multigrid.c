@@ -530,6 +530,9 @@ static bool hot_relax(nc_diff_solver *s, const v4 *b, v4 *x, v4 *r, v4d *rr, int
     return true;
 }
 
+/* Whether the solve's deadline (opts.deadline_us, 0: none) has passed. */
+static bool past_deadline(const nc_diff_solve_opts *o) { return o->deadline_us && nc_now_us() >= o->deadline_us; }
+
 void nc_diff_solve_pcg(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solve_opts *o, nc_diff_solve_report rep[3])
 {
     level *l = &s->lv[0];
@@ -571,21 +574,13 @@ void nc_diff_solve_pcg(nc_diff_solver *s, const v4 *b, v4 *x, const nc_diff_solv
             active[c] = sqrt(rr[c]) > tol * bnorm[c];
             any |= active[c];
         }
-        if (!any)
+        if (!any || (rep[0].timed_out = past_deadline(o)))
             break;
-        if (o->deadline_us && nc_now_us() >= o->deadline_us) {
-            rep[0].timed_out = true;
-            break;
-        }
         v4d rz;
         cycle(s, 0, r, z, START_ZERO, &rz, threads);
         v4 beta = V4_ZERO;
         bool first = true; /* p = z */
-        while (it < max_it) {
-            if (o->deadline_us && nc_now_us() >= o->deadline_us) {
-                rep[0].timed_out = true;
-                break;
-            }
+        while (it < max_it && !(rep[0].timed_out = past_deadline(o))) {
             v4d pq = apply_dot_dir(l, z, p, p2, q, beta, first, part, threads);
             v4 *t = p; /* p2 holds the new direction */
             p = p2;

@@ -92,8 +92,10 @@ nacre_result nc_image_check(nacre_context *ctx, const nacre_image *image, const 
     return NACRE_OK;
 }
 
-uint64_t nc_image_count_nonfinite(const nacre_image *image, int32_t *x, int32_t *y, int32_t *c)
+uint64_t nacre_image_count_nonfinite(const nacre_image *image, int32_t *x, int32_t *y, int32_t *c)
 {
+    if (!image || !image->pixels)
+        return 0;
     uint64_t count = 0;
     const int32_t nc = image->channels;
     for (int32_t j = 0; j < image->height; j++) {
@@ -106,9 +108,12 @@ uint64_t nc_image_count_nonfinite(const nacre_image *image, int32_t *x, int32_t 
             if (bad < 0)
                 continue;
             if (count++ == 0) {
-                *x = i;
-                *y = j;
-                *c = bad;
+                if (x)
+                    *x = i;
+                if (y)
+                    *y = j;
+                if (c)
+                    *c = bad;
             }
         }
     }
@@ -256,8 +261,8 @@ nacre_result nacre_image_compare(nacre_context *ctx, const nacre_image *test,
     double peak = -INFINITY;
     uint64_t nonzero = 0, skipped = 0;
     int32_t fx, fy, fc;
-    out->nonfinite_test = nc_image_count_nonfinite(test, &fx, &fy, &fc);
-    out->nonfinite_ref = nc_image_count_nonfinite(reference, &fx, &fy, &fc);
+    out->nonfinite_test = nacre_image_count_nonfinite(test, &fx, &fy, &fc);
+    out->nonfinite_ref = nacre_image_count_nonfinite(reference, &fx, &fy, &fc);
     for (int32_t y = 0; y < test->height; y++) {
         const float *a = test->pixels + (size_t)y * test->stride;
         const float *b = reference->pixels + (size_t)y * reference->stride;

@@ -242,7 +242,7 @@ nacre_result nacre_image_write_exr(nacre_context *ctx, const nacre_image *image,
 
     /* No file ever holds NaN or infinity: they are a renderer's failure, not an image. */
     int32_t bx = 0, by = 0, bc = 0;
-    uint64_t nonfinite = nc_image_count_nonfinite(image, &bx, &by, &bc);
+    uint64_t nonfinite = nacre_image_count_nonfinite(image, &bx, &by, &bc);
     if (nonfinite > 0) {
         float v = image->pixels[(size_t)by * image->stride + (size_t)bx * (size_t)image->channels + (size_t)bc];
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,

@@ -23,9 +23,6 @@ nacre_result nc_image_check(nacre_context *ctx, const nacre_image *image, const 
 /* Argument checks every writer starts with: context, path and image. */
 nacre_result nc_image_write_check(nacre_context *ctx, const nacre_image *image, const char *path);
 
-/* Number of pixels of `image` (already checked) with a NaN or infinite channel; the first one
- * (row-major) in *x, *y, *c when there is one. */
-uint64_t nc_image_count_nonfinite(const nacre_image *image, int32_t *x, int32_t *y, int32_t *c);
 
 /* Check sizes read from a file header against the limits above and against the file's size:
  * width x height pixels of at least `min_bits` bits each cannot come from `file_size` bytes of a

@@ -140,6 +140,8 @@ nacre_result nc_shadow_render(nc_rasterizer *r, nacre_context *ctx, const nacre_
                               const nc_raster_mesh *casters, uint32_t caster_count,
                               nc_shadow_map *sm);
 void nc_shadow_free(nacre_context *ctx, nc_shadow_map *sm);
+/* Depth maps a light's shadow needs: 6 (a cube) for a point light, else 1. */
+static inline int nc_shadow_face_count(nacre_light_type type) { return type == NACRE_LIGHT_POINT ? 6 : 1; }
 /* Fraction of light reaching world point p (1 = lit) with PCF over a disc of `pcf_radius`
  * texels; `bias` in texels, scaled by the slope between the normal n and the light.
  * Implementation notes (shadow.c): the PCF kernel is a box of half-width pcf_radius (clamped to

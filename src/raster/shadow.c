@@ -111,7 +111,7 @@ nacre_result nc_shadow_render(nc_rasterizer *r, nacre_context *ctx, const nacre_
                            "shadow map: light direction is zero");
         dir = nc_scale(dir, 1.0f / len);
     }
-    int faces = kind == NC_SHADOW_CUBE ? 6 : 1;
+    int faces = nc_shadow_face_count(light->type);
     size_t texels = (size_t)size * (size_t)size * (size_t)faces;
     if (!sm->depth || sm->size != size || sm->face_count != faces) {
         nc_free(ctx, sm->depth);

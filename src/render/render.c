@@ -321,7 +321,7 @@ nacre_result nacre_renderer_render(nacre_renderer *r, const nacre_scene *s, cons
         uint32_t maps = 0;
         for (uint32_t li = 0; li < s->light_count; li++) {
             const nacre_light_desc *ld = &s->lights[li].desc;
-            uint64_t faces = ld->type == NACRE_LIGHT_POINT ? 6 : 1;
+            uint64_t faces = (uint64_t)nc_shadow_face_count(ld->type);
             const nc_shadow_map *m = &r->shadows[li].map;
             if (!ld->cast_shadows || (m->depth && m->size == settings->shadow_map_size && (uint64_t)m->face_count == faces))
                 continue;

@@ -1164,7 +1164,7 @@ static void test_nonfinite_and_half_range(void)
         CHECK(px(&back, 2, 0)[1] == 65504.0f);
         CHECK(px(&back, 4, 3)[2] == px(&img, 4, 3)[2]);
         int32_t x, y, c;
-        CHECK(nc_image_count_nonfinite(&back, &x, &y, &c) == 0);
+        CHECK(nacre_image_count_nonfinite(&back, &x, &y, &c) == 0);
     }
     nacre_image_free(ctx, &back);
     lc.warnings = 0;

@@ -172,24 +172,13 @@ static bool has_suffix(const char *s, const char *suffix)
  * the method and the first pixel) instead of writing it. */
 static bool image_finite(const nacre_image *img, const nacre_render_settings *rs, const char *what)
 {
-    unsigned long long bad = 0;
     int32_t fx = 0, fy = 0;
-    for (int32_t y = 0; y < img->height; y++)
-        for (int32_t x = 0; x < img->width; x++) {
-            const float *p = img->pixels + (size_t)y * img->stride + (size_t)x * (size_t)img->channels;
-            bool ok = true;
-            for (int32_t c = 0; c < img->channels; c++)
-                ok = ok && isfinite(p[c]);
-            if (!ok && bad++ == 0) {
-                fx = x;
-                fy = y;
-            }
-        }
+    unsigned long long bad = nacre_image_count_nonfinite(img, &fx, &fy, NULL);
     if (bad == 0)
         return true;
     nc_tool_error("render: method '%s' produced %llu pixel%s with NaN or infinite values in its %s (first at x %d, y %d); "
-              "nothing written",
-              nacre_method_name(rs->method), bad, bad == 1 ? "" : "s", what, (int)fx, (int)fy);
+                  "nothing written",
+                  nacre_method_name(rs->method), bad, bad == 1 ? "" : "s", what, (int)fx, (int)fy);
     return false;
 }
 
