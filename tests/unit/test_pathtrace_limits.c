@@ -172,6 +172,12 @@ static void pathological_fog(const char *what, const char *fog, double limit, bo
     CHECK(st.samples_done + st.pixels_unsampled >= 32 * 24 || st.samples_done >= 1);
     CHECK(st.samples_done >= (uint64_t)st.spp_done * 32 * 24);
     CHECK((st.pixels_unsampled > 0) == (st.spp_done == 0));
+    if (expect_capped && st.samples_done == 0 && limit < 8.0) {
+        /* A loaded machine (parallel test jobs, a build) may finish no path at all within the
+         * limit, which says nothing about the cap: try again with more time. */
+        pathological_fog(what, fog, 2.0 * limit, expect_capped);
+        return;
+    }
     if (expect_capped)
         CHECK(st.paths_capped > 0);
 }

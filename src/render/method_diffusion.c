@@ -1,0 +1,79 @@
+/*
+ * method_diffusion.c: `--method diffusion`, Blanchard 2012 (seed 000) over the shared raster
+ * frame: after the shadow maps, per translucent object voxelize, translucent shadow maps,
+ * inject and propagate (src/diffusion/pipeline.c, with its own per-object caches), then the
+ * phong pass with the subsurface hook reading the fluence (seed 4.6).
+ */
+#include "diffusion/pipeline.h"
+#include "render/method.h"
+
+static nacre_result diffusion_check(nacre_context *ctx, const nacre_render_settings *s)
+{
+    if (s->voxel_resolution < 1 || s->voxel_resolution > 1024)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: voxel_resolution: %u is not in 1..1024",
+                       s->voxel_resolution);
+    if (s->tsm_size < 16 || s->tsm_size > 8192)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: tsm_size: %d is not in 16..8192", (int)s->tsm_size);
+    if (!(s->tolerance > 0.0f && s->tolerance < 1.0f))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: tolerance: %g is not in (0, 1)",
+                       (double)s->tolerance);
+    if (s->solver != NACRE_SOLVER_MULTIGRID && s->solver != NACRE_SOLVER_SEED)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: solver: unknown (%d)", (int)s->solver);
+    if (s->source != NACRE_SOURCE_VOLUME && s->source != NACRE_SOURCE_FACE)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: source: unknown (%d)", (int)s->source);
+    if (s->seed_iterations > 100000)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: seed_iterations: %u is not in 0..100000",
+                       s->seed_iterations);
+    return NACRE_OK;
+}
+
+static nacre_result diffusion_create(nacre_context *ctx, void **state)
+{
+    nc_diff_state *st = NULL;
+    nacre_result res = nc_diff_state_create(ctx, &st);
+    *state = st;
+    return res;
+}
+
+static nacre_result diffusion_render(void *state, nc_frame *f)
+{
+    const nacre_scene *s = f->scene;
+    for (uint32_t i = 0; i < s->object_count; i++) {
+        const nacre_material_desc *m = nc_scene_material(s, s->objects[i].desc.material);
+        if (m && m->type == NACRE_MATERIAL_TRANSLUCENT && m->layering.count > 0)
+            return nc_fail(f->ctx, NACRE_ERROR_UNSUPPORTED,
+                           "render: object '%s' has a layered material: layers are not implemented in the "
+                           "diffusion method (use --method pathtrace)",
+                           s->objects[i].name ? s->objects[i].name : "(unnamed)");
+    }
+    nacre_result res = nc_raster_frame_prepare(f->raster, s, f->settings, f->stats);
+    if (res != NACRE_OK)
+        return res;
+    if ((res = nc_diffusion_frame(state, s, f->settings, f->raster->shade_lights, s->light_count, f->stats)) !=
+        NACRE_OK)
+        return res;
+    nc_shade_params params;
+    nc_raster_frame_shade_params(f->raster, f->settings, &params);
+    nc_diffusion_shade_params(state, s, &params);
+    if ((res = nc_raster_frame_shade(f->raster, s, &params, f->out, f->reuse, f->stats)) != NACRE_OK)
+        return res;
+    f->depth = f->raster->gbuffer.view_depth;
+    return NACRE_OK;
+}
+
+static void diffusion_destroy(nacre_context *ctx, void *state)
+{
+    (void)ctx;
+    nc_diff_state_destroy(state);
+}
+
+const nc_method nc_method_diffusion = {
+    .name = "diffusion",
+    .id = NACRE_METHOD_DIFFUSION,
+    .needs_objects = true,
+    .uses_raster = true,
+    .check = diffusion_check,
+    .create = diffusion_create,
+    .render = diffusion_render,
+    .destroy = diffusion_destroy,
+};

@@ -1,0 +1,60 @@
+/*
+ * methods.c: the table of render methods, looked up by id or by name. A new method is one row
+ * here and one file implementing nc_method (method.h); nothing else in the library, the CLI or
+ * the bench names methods.
+ */
+#include "render/method.h"
+
+#include <string.h>
+
+static bool not_implemented(void) { return false; }
+
+/* Seed 001's real-time method: a row with no implementation yet, so that its name parses and
+ * asking for it says "not implemented" instead of "unknown method". */
+const nc_method nc_method_layered = {
+    .name = "layered",
+    .id = NACRE_METHOD_LAYERED,
+    .available = not_implemented,
+    .needs_objects = true,
+    .uses_raster = true,
+};
+
+static const nc_method *const methods[NACRE_METHOD_COUNT] = {
+    [NACRE_METHOD_PHONG] = &nc_method_phong,
+    [NACRE_METHOD_DIFFUSION] = &nc_method_diffusion,
+    [NACRE_METHOD_LAYERED] = &nc_method_layered,
+    [NACRE_METHOD_PATHTRACE] = &nc_method_pathtrace,
+};
+
+const nc_method *nc_method_get(nacre_method id)
+{
+    return (unsigned)id < NACRE_METHOD_COUNT ? methods[id] : NULL;
+}
+
+const nc_method *nc_method_find(const char *name)
+{
+    for (int i = 0; name && i < NACRE_METHOD_COUNT; i++)
+        if (strcmp(name, methods[i]->name) == 0)
+            return methods[i];
+    return NULL;
+}
+
+const char *nacre_method_name(nacre_method method)
+{
+    const nc_method *m = nc_method_get(method);
+    return m ? m->name : "unknown";
+}
+
+bool nacre_method_from_name(const char *name, nacre_method *out)
+{
+    const nc_method *m = nc_method_find(name);
+    if (m)
+        *out = m->id;
+    return m != NULL;
+}
+
+bool nacre_method_available(nacre_method method)
+{
+    const nc_method *m = nc_method_get(method);
+    return m && m->render && (!m->available || m->available());
+}

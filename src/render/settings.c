@@ -1,0 +1,76 @@
+/*
+ * settings.c: render settings defaults and the names of their enumerations (solver, source,
+ * stage). Method names live with the method table (methods.c).
+ */
+#include "scene/scene.h"
+
+#include <string.h>
+
+nacre_render_settings nacre_render_settings_defaults(void)
+{
+    nacre_render_settings s;
+    memset(&s, 0, sizeof(s));
+    s.method = NACRE_METHOD_PHONG;
+    s.width = 640;
+    s.height = 480;
+    s.shadow_map_size = 2048;
+    s.pcf_radius = 1.5f;
+    s.shadow_bias = 1.5f;
+    s.seed = 1;
+    s.spp = 64;
+    s.voxel_resolution = 32;
+    s.tsm_size = 512;
+    s.solver = NACRE_SOLVER_MULTIGRID;
+    s.source = NACRE_SOURCE_VOLUME;
+    s.tolerance = 1e-4f;
+    return s;
+}
+
+static const char *const solver_names[] = {"multigrid", "seed"};
+static const char *const source_names[] = {"volume", "face"};
+
+const char *nacre_solver_name(nacre_diffusion_solver solver)
+{
+    return (unsigned)solver < 2 ? solver_names[solver] : "unknown";
+}
+
+const char *nacre_source_name(nacre_diffusion_source source)
+{
+    return (unsigned)source < 2 ? source_names[source] : "unknown";
+}
+
+static int name_index(const char *name, const char *const *names, int count)
+{
+    for (int i = 0; name && i < count; i++)
+        if (strcmp(name, names[i]) == 0)
+            return i;
+    return -1;
+}
+
+bool nacre_solver_from_name(const char *name, nacre_diffusion_solver *out)
+{
+    int i = name_index(name, solver_names, 2);
+    if (i >= 0)
+        *out = (nacre_diffusion_solver)i;
+    return i >= 0;
+}
+
+bool nacre_source_from_name(const char *name, nacre_diffusion_source *out)
+{
+    int i = name_index(name, source_names, 2);
+    if (i >= 0)
+        *out = (nacre_diffusion_source)i;
+    return i >= 0;
+}
+
+const char *nacre_stage_name(nacre_stage stage)
+{
+    switch (stage) {
+#define NACRE_STAGE_CASE_(name, text) case name: return text;
+        NACRE_STAGE_LIST(NACRE_STAGE_CASE_)
+#undef NACRE_STAGE_CASE_
+    case NACRE_STAGE_COUNT:
+        break;
+    }
+    return "unknown";
+}
