@@ -1,6 +1,7 @@
 /*
  * voxel.h: voxelization of triangle meshes (part of the nacre public API; included by nacre.h,
- * which it needs for nacre_context, nacre_result and nacre_mesh_data).
+ * whose opening comment has the general conventions). It needs core.h for nacre_context and
+ * nacre_result and mesh.h for nacre_mesh_data, and includes them.
  *
  * UNITS AND CONVENTIONS
  *   - Voxels are cubes of side `voxel_size` in mesh units. Voxel (x, y, z) of level 0 covers
@@ -33,10 +34,14 @@
  * nacre_voxelize_update, freed with the grid). A finished grid may be queried from several
  * threads at once.
  */
-#ifndef NACRE_VOXEL_H
-#define NACRE_VOXEL_H
+#ifndef NACRE_PUBLIC_VOXEL_H
+#define NACRE_PUBLIC_VOXEL_H
 
-#include <nacre/nacre.h>
+#include <nacre/core.h>
+#include <nacre/mesh.h>
+
+#include <stdbool.h>
+#include <stdint.h>
 
 #ifdef __cplusplus
 extern "C" {
@@ -131,4 +136,4 @@ NACRE_API nacre_result nacre_voxel_grid_rest_positions(const nacre_voxel_grid *g
 }
 #endif
 
-#endif /* NACRE_VOXEL_H */
+#endif /* NACRE_PUBLIC_VOXEL_H */

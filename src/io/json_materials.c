@@ -10,7 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Names accepted by nacre_material_preset (listed in nacre.h); used for the error message. */
+/* Names accepted by nacre_material_preset (listed in nacre/scene.h); used for the error message. */
 static const char *const preset_names[] = {"apple", "chicken1", "chicken2", "cream", "ketchup",
                                            "marble", "potato", "skimmilk", "skin1", "skin2",
                                            "wholemilk", "jade", "aquamarine"};
