@@ -112,7 +112,7 @@ static int run_case(nacre_context *ctx, nacre_renderer *renderer, nacre_scene *s
     rs.method = NACRE_METHOD_DIFFUSION;
     rs.width = width;
     rs.height = height;
-    rs.voxel_resolution = res_n;
+    rs.diffusion.voxel_resolution = res_n;
     rs.reuse_output = !repaint;
     nacre_image img = {0};
     int rc = 0;
@@ -129,7 +129,8 @@ static int run_case(nacre_context *ctx, nacre_renderer *renderer, nacre_scene *s
         if (run < 0)
             continue;
         double v[COL_COUNT];
-        v[COL_VOX] = (double)st.stage_us[NACRE_STAGE_VOXELIZE];
+        /* The seed's voxelization writes each voxel's material: our voxelize and medium stages. */
+        v[COL_VOX] = (double)(st.stage_us[NACRE_STAGE_VOXELIZE] + st.stage_us[NACRE_STAGE_MEDIUM]);
         v[COL_TSM] = (double)st.stage_us[NACRE_STAGE_TSM];
         v[COL_INJ] = (double)st.stage_us[NACRE_STAGE_INJECT];
         v[COL_PROP] = (double)st.stage_us[NACRE_STAGE_PROPAGATE];

@@ -63,21 +63,23 @@ typedef struct bench_result {
 static int run_scene(nacre_context *ctx, const char *json, const char *name, double seconds, bench_result *out)
 {
     nacre_scene *scene = NULL;
+    nacre_scene_file_settings fs;
     nacre_render_settings rs;
     nacre_renderer *r = NULL;
     nacre_image img = {0}, var = {0};
     int rc = 2;
-    if (nacre_scene_load_json(ctx, json, strlen(json), name, ".", &scene, &rs) != NACRE_OK ||
-        nacre_scene_commit(scene, rs.time) != NACRE_OK || nacre_renderer_create(ctx, &r) != NACRE_OK) {
+    if (nacre_scene_load_json(ctx, json, strlen(json), name, ".", &scene, &fs) != NACRE_OK ||
+        nacre_scene_commit(scene, fs.time) != NACRE_OK || nacre_renderer_create(ctx, &r) != NACRE_OK) {
         rc = nc_tool_fail(ctx);
         goto out;
     }
+    rs = fs.render;
     rs.method = NACRE_METHOD_PATHTRACE;
     rs.width = SIZE;
     rs.height = SIZE;
-    rs.spp = 0;
-    rs.time_limit = seconds;
-    rs.max_scatter = 0;
+    rs.pathtrace.spp = 0;
+    rs.pathtrace.time_limit = seconds;
+    rs.pathtrace.max_scatter = 0;
     nacre_render_stats st;
     uint64_t t0 = nc_tool_now_us();
     if (nacre_renderer_render(r, scene, &rs, &img, &st) != NACRE_OK ||

@@ -183,6 +183,7 @@ int nc_bench_demo(bool json, int runs)
     if (!ctx)
         return 2;
     nacre_scene *scene = NULL;
+    nacre_scene_file_settings fs;
     nacre_render_settings rs;
     int rc = 2;
     double *samples = calloc((size_t)(runs * (NACRE_STAGE_COUNT + 1)), sizeof(double));
@@ -190,11 +191,12 @@ int nc_bench_demo(bool json, int runs)
     if (!samples)
         goto out;
     if (nacre_scene_load_json(ctx, (const char *)nacre_demo_scene_json, strlen((const char *)nacre_demo_scene_json),
-                              "<built-in demo>", ".", &scene, &rs) != NACRE_OK ||
+                              "<built-in demo>", ".", &scene, &fs) != NACRE_OK ||
         nacre_scene_commit(scene, 0.0) != NACRE_OK) {
         rc = nc_tool_fail(ctx);
         goto out;
     }
+    rs = fs.render;
     rs.width = 1280;
     rs.height = 720;
     rs.method = NACRE_METHOD_PHONG;

@@ -40,6 +40,19 @@ NACRE_API bool nacre_method_from_name(const char *name, nacre_method *out);
 /* Whether this build implements the method. */
 NACRE_API bool nacre_method_available(nacre_method method);
 
+/* What a method is and does, for front ends that list methods or adapt their panels. */
+typedef struct nacre_method_info {
+    const char *name;       /* as nacre_method_name */
+    bool available;         /* as nacre_method_available */
+    bool needs_objects;     /* false: a scene of fog alone renders (the path tracer) */
+    bool stochastic;        /* reads nacre_render_settings.pathtrace (samples, seed, variance) */
+    bool renders_fog;       /* the scene's fog is part of its image; other methods ignore fog */
+    uint32_t stages;        /* bit (1u << stage) for each nacre_stage the method may run */
+} nacre_method_info;
+
+/* Fill *out for a method; false (and *out untouched) for an unknown one. */
+NACRE_API bool nacre_method_info_get(nacre_method method, nacre_method_info *out);
+
 /* Diffusion solver (Blanchard 2012 section 4.5 and our default). */
 typedef enum nacre_diffusion_solver {
     NACRE_SOLVER_MULTIGRID = 0, /* multigrid-preconditioned conjugate gradients to `tolerance` */
@@ -58,18 +71,15 @@ NACRE_API bool nacre_solver_from_name(const char *name, nacre_diffusion_solver *
 NACRE_API const char *nacre_source_name(nacre_diffusion_source source);
 NACRE_API bool nacre_source_from_name(const char *name, nacre_diffusion_source *out);
 
-typedef struct nacre_render_settings {
-    nacre_method method;
-    int32_t width, height;    /* default 640 x 480; 1..16384 each, at most 2^26 pixels */
-    float exposure;           /* EV stops applied when writing PNG (informational here) */
-    int32_t shadow_map_size;  /* texels per side, default 2048; 0 disables shadows */
+/* Shadow maps of the rasterizing methods (phong, diffusion). */
+typedef struct nacre_shadow_settings {
+    int32_t map_size;         /* texels per side, default 2048; 0 disables shadows */
     float pcf_radius;         /* PCF kernel radius in shadow texels, default 1.5 */
-    float shadow_bias;        /* depth bias in shadow texels, default 1.5 */
-    uint32_t seed;            /* stochastic methods */
-    uint32_t spp;             /* stochastic methods: samples per pixel */
-    double time;              /* seconds: when the caller should commit the scene (deformers); the
-                                 scene file's "render.time". The renderer itself does not read it. */
-    /* diffusion */
+    float bias;               /* depth bias in shadow texels, default 1.5 */
+} nacre_shadow_settings;
+
+/* The diffusion method (Blanchard 2012). */
+typedef struct nacre_diffusion_settings {
     uint32_t voxel_resolution;       /* voxels along the longest axis of each translucent object, default 32 */
     int32_t tsm_size;                /* translucent shadow map: most texels per side, default 512; each map
                                         uses 4 texels per voxel side of the object's voxels (fewer on
@@ -78,10 +88,29 @@ typedef struct nacre_render_settings {
     nacre_diffusion_source source;   /* default VOLUME */
     float tolerance;                 /* MULTIGRID: relative residual, default 1e-4 */
     uint32_t seed_iterations;        /* SEED: Jacobi sweeps per level, 0 = the seed's table 5.6 count */
-    /* pathtrace */
+} nacre_diffusion_settings;
+
+/* The path tracer. */
+typedef struct nacre_pathtrace_settings {
+    uint32_t spp;                    /* samples per pixel this frame adds, default 64 */
+    uint32_t seed;                   /* same seed, same image; default 1 */
     double time_limit;               /* seconds from the start of the render call; 0 = none.
                                         Stops within a pass, see nacre_render_stats */
     uint32_t max_scatter;            /* scattering events per path in media; 0 = unlimited */
+    /* Progressive rendering (a viewer): true adds this frame's spp samples to those of the
+     * renderer's previous path-traced frames, as long as nothing changed since: the same scene,
+     * no edit committed, the same size, seed and max_scatter. Anything else starts again from
+     * zero. N frames of k spp give exactly the image of one frame of N k spp. Default false:
+     * every frame starts from zero. */
+    bool accumulate;
+} nacre_pathtrace_settings;
+
+typedef struct nacre_render_settings {
+    nacre_method method;
+    int32_t width, height;    /* default 640 x 480; 1..16384 each, at most 2^26 pixels */
+    nacre_shadow_settings shadow;       /* phong, diffusion */
+    nacre_diffusion_settings diffusion; /* diffusion */
+    nacre_pathtrace_settings pathtrace; /* pathtrace */
     /* Raster methods (phong, diffusion): true promises that `out` holds, unchanged, the image this
      * renderer wrote in its previous frame (same pixels, size and stride), as in a viewer that
      * shows each frame and passes the buffer back. Pixels that were background then and still are
@@ -94,13 +123,25 @@ typedef struct nacre_render_settings {
 
 NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
 
-/* Timed stages. A stage that did not run (cached or not used) reports 0 and ran = false. */
+/* Stages of a frame, in the order they run. A stage that did not run (its inputs unchanged
+ * since the renderer's previous frame, or not part of the method) reports 0 us, ran = false and
+ * 0 runs. What invalidates what:
+ *   setup      every frame (draw lists of the committed scene)
+ *   raster, gbuffer   camera, geometry (meshes, objects, transforms, deformer time), image size
+ *   shadow     per light: that light, geometry, shadow settings
+ *   voxelize   per translucent object: geometry, voxel_resolution
+ *   medium     per translucent object: voxelize, materials (coefficients per voxel)
+ *   tsm, inject   per translucent object: medium, lights, diffusion and shadow settings
+ *   propagate  per translucent object: inject (the solve; also its setup after medium)
+ *   shade      every frame
+ * The path tracer runs none of these; its frames restart or accumulate (pathtrace.accumulate). */
 #define NACRE_STAGE_LIST(X)                                                                    \
     X(NACRE_STAGE_SETUP, "setup")                                                              \
     X(NACRE_STAGE_RASTER, "raster")                                                            \
     X(NACRE_STAGE_GBUFFER, "gbuffer")                                                          \
     X(NACRE_STAGE_SHADOW, "shadow")                                                            \
     X(NACRE_STAGE_VOXELIZE, "voxelize")                                                        \
+    X(NACRE_STAGE_MEDIUM, "medium")                                                            \
     X(NACRE_STAGE_TSM, "tsm")                                                                  \
     X(NACRE_STAGE_INJECT, "inject")                                                            \
     X(NACRE_STAGE_PROPAGATE, "propagate")                                                      \
@@ -118,6 +159,9 @@ NACRE_API const char *nacre_stage_name(nacre_stage stage);
 typedef struct nacre_render_stats {
     uint64_t stage_us[NACRE_STAGE_COUNT];
     bool stage_ran[NACRE_STAGE_COUNT];
+    /* How many times each stage ran this frame: shadow maps drawn, objects voxelized, ... (1 for
+     * the per-frame stages that ran). */
+    uint32_t stage_runs[NACRE_STAGE_COUNT];
     uint64_t total_us;
     uint64_t triangles;          /* submitted to the camera rasterizer */
     uint64_t triangles_drawn;    /* after culling (back faces, off-screen, no pixel centre) */
@@ -129,19 +173,24 @@ typedef struct nacre_render_stats {
     uint32_t iterations;         /* MULTIGRID: PCG iterations (max over objects and channels); SEED: sweeps */
     double residual;             /* final relative residual (max over objects and channels) */
     /* pathtrace */
-    uint32_t spp_done;           /* samples per pixel completed by every pixel (the minimum) */
-    double samples_per_second;   /* camera paths per second */
-    uint64_t samples_done;       /* camera paths completed, over all pixels (with a time limit,
-                                    pixel counts may differ; each pixel is the mean of its own) */
+    uint32_t spp_done;           /* samples per pixel in the image, every pixel (the minimum);
+                                    with accumulate, over the frames accumulated */
+    double samples_per_second;   /* camera paths per second this frame */
+    uint64_t samples_done;       /* camera paths completed this frame, over all pixels (with a time
+                                    limit, pixel counts may differ; each pixel is the mean of its own) */
     uint64_t paths_capped;       /* paths ended by the path-length or collision cap (README) */
     uint32_t pixels_unsampled;   /* time limit reached within the first pass: pixels without a
                                     sample, filled with their 8x8 block's mean (0 if none) */
+    bool accumulated;            /* this frame added to the previous frames' samples */
 } nacre_render_stats;
 
-/* A renderer keeps the buffers and results of previous frames (G-buffer, shadow maps) and
- * recomputes only the stages whose inputs changed since its last render of the same scene:
- * changing only a material re-shades; moving only a light redraws its shadow map and re-shades;
- * moving the camera redraws the G-buffer. One renderer per thread. */
+/* A renderer lives across frames: it keeps each stage's results and recomputes only the stages
+ * whose inputs changed since its last frame of the same scene (see NACRE_STAGE_LIST): a camera
+ * move re-rasterizes and re-shades; a light edit redraws that light's shadow map and reruns the
+ * diffusion's translucent shadow maps, injection and propagation; a material edit reruns the
+ * diffusion from its medium stage; geometry or a new commit time reruns everything. The stats
+ * say which stages ran. One renderer per thread; the scene is the caller's and may change
+ * between frames (commit before each frame). */
 typedef struct nacre_renderer nacre_renderer;
 
 NACRE_API nacre_result nacre_renderer_create(nacre_context *ctx, nacre_renderer **out);
@@ -161,19 +210,34 @@ NACRE_API nacre_result nacre_render(const nacre_scene *scene, const nacre_render
  * nacre_renderer_render. */
 NACRE_API nacre_result nacre_renderer_variance(const nacre_renderer *renderer, nacre_image *out);
 
+/* The depth of the last frame (1 channel): per pixel, the distance from the camera along its
+ * viewing axis to the nearest surface at the pixel's centre, in scene units; +infinity where no
+ * surface is. This is the depth the post passes compose with. Rasterizing methods always have
+ * it; after a path-traced frame it exists only when a post pass asked for it (else
+ * INVALID_OPERATION, as before any frame). Same allocation rule as nacre_renderer_render. */
+NACRE_API nacre_result nacre_renderer_depth(const nacre_renderer *renderer, nacre_image *out);
+
 /* ------------------------------------------------------------------------------------------ */
 /* Scene files (JSON; format in docs/scene-format.md)                                         */
 /* ------------------------------------------------------------------------------------------ */
+
+/* What a scene file's "render" block says besides the scene: the render settings, and two
+ * values for the caller, who commits the scene and writes the image. */
+typedef struct nacre_scene_file_settings {
+    nacre_render_settings render;
+    double time;              /* "time": seconds to commit the scene at (deformers), default 0 */
+    float exposure;           /* "exposure": EV stops for PNG output (nacre_image_write_options) */
+} nacre_scene_file_settings;
 
 /* Load a scene file: builds the scene (not yet committed) and fills `settings` from its "render"
  * block (defaults otherwise); settings may be NULL. Paths inside are relative to the file.
  * Errors name the file and the field path, or line and column for malformed JSON. */
 NACRE_API nacre_result nacre_scene_load_file(nacre_context *ctx, const char *path,
-                                             nacre_scene **out, nacre_render_settings *settings);
+                                             nacre_scene **out, nacre_scene_file_settings *settings);
 /* Same, from a string; `name` is used in messages and `base_dir` resolves relative paths. */
 NACRE_API nacre_result nacre_scene_load_json(nacre_context *ctx, const char *json, size_t length,
                                              const char *name, const char *base_dir,
-                                             nacre_scene **out, nacre_render_settings *settings);
+                                             nacre_scene **out, nacre_scene_file_settings *settings);
 
 #ifdef __cplusplus
 }

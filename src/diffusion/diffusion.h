@@ -24,9 +24,6 @@
 
 #include "core/core.h"
 
-/* Whether `--method diffusion` is wired into the renderer. */
-bool nc_diffusion_available(void);
-
 typedef struct nc_diff_medium {
     uint32_t dims[3];
     float h;                     /* cell side, scene units */

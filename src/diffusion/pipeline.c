@@ -17,8 +17,9 @@
  * too (a camera move only re-shades). The fluence of the previous frame warm-starts the solver
  * whenever the grid has the same dims.
  *
- * Units: world space, scene units (pipeline.h). Timings go to the VOXELIZE (voxelization and
- * medium evaluation), TSM, INJECT and PROPAGATE (solver setup and solves, exitance) stages.
+ * Units: world space, scene units (pipeline.h). Timings go to the VOXELIZE, MEDIUM (coefficients
+ * per voxel), TSM, INJECT and PROPAGATE (solver setup and solves, exitance) stages; each counts
+ * the objects it ran for in stage_runs.
  */
 #include "diffusion/pipeline.h"
 #include "core/optics.h"
@@ -27,8 +28,6 @@
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
-
-bool nc_diffusion_available(void) { return true; }
 
 /* ------------------------------------------------------------------------------------------ */
 /* Object state                                                                               */
@@ -304,9 +303,9 @@ static nacre_result object_solve(nc_diff_object *o, const nacre_render_settings 
     bool warm = o->phi_valid && memcmp(o->phi_dims, o->dims, sizeof(o->dims)) == 0;
     nc_diff_solve_opts opts;
     memset(&opts, 0, sizeof(opts));
-    opts.solver = settings->solver;
-    opts.tolerance = settings->tolerance;
-    opts.seed_iterations = settings->seed_iterations;
+    opts.solver = settings->diffusion.solver;
+    opts.tolerance = settings->diffusion.tolerance;
+    opts.seed_iterations = settings->diffusion.seed_iterations;
     opts.warm_start = warm;
     opts.phi_unchanged = warm; /* phi is written by the solver only */
     opts.no_energy = true;
@@ -334,9 +333,9 @@ static nacre_result object_solve(nc_diff_object *o, const nacre_render_settings 
     }
     o->phi_valid = true;
     memcpy(o->phi_dims, o->dims, sizeof(o->dims));
-    if ((res = nc_diff_compute_exitance(o, D, d_uniform, settings->source, threads)) != NACRE_OK)
+    if ((res = nc_diff_compute_exitance(o, D, d_uniform, settings->diffusion.source, threads)) != NACRE_OK)
         return res;
-    o->face_mode = settings->source == NACRE_SOURCE_FACE;
+    o->face_mode = settings->diffusion.source == NACRE_SOURCE_FACE;
     o->lit = true;
     return NACRE_OK;
 }
@@ -390,10 +389,10 @@ static nacre_result ensure_objects(nc_diff_state *st, uint32_t count)
 /* Whether the light-dependent settings are those the cached solution was computed with. */
 static bool same_light_settings(const nacre_render_settings *a, const nacre_render_settings *b)
 {
-    return a->tsm_size == b->tsm_size && a->solver == b->solver && a->source == b->source &&
-           a->tolerance == b->tolerance && a->seed_iterations == b->seed_iterations &&
-           a->shadow_map_size == b->shadow_map_size && a->pcf_radius == b->pcf_radius &&
-           a->shadow_bias == b->shadow_bias;
+    return a->diffusion.tsm_size == b->diffusion.tsm_size && a->diffusion.solver == b->diffusion.solver && a->diffusion.source == b->diffusion.source &&
+           a->diffusion.tolerance == b->diffusion.tolerance && a->diffusion.seed_iterations == b->diffusion.seed_iterations &&
+           a->shadow.map_size == b->shadow.map_size && a->shadow.pcf_radius == b->shadow.pcf_radius &&
+           a->shadow.bias == b->shadow.bias;
 }
 
 nacre_result nc_diffusion_frame(nc_diff_state *st, const nacre_scene *s, const nacre_render_settings *settings,
@@ -412,7 +411,7 @@ nacre_result nc_diffusion_frame(nc_diff_state *st, const nacre_scene *s, const n
         st->scene_uid = s->uid;
     }
     memset(st->subsurface, 0, st->object_capacity);
-    stats->solver = settings->solver;
+    stats->solver = settings->diffusion.solver;
     uint32_t casters = 0;
     for (uint32_t i = 0; i < s->object_count; i++)
         casters += s->objects[i].desc.cast_shadows ? 1 : 0;
@@ -424,31 +423,34 @@ nacre_result nc_diffusion_frame(nc_diff_state *st, const nacre_scene *s, const n
             continue;
         nc_diff_object *o = &st->objects[i];
         o->ctx = st->ctx;
-        bool face_mode = settings->source == NACRE_SOURCE_FACE;
+        bool face_mode = settings->diffusion.source == NACRE_SOURCE_FACE;
         if (!o->vox_valid || o->key_uid != s->uid || o->key_geometry != s->versions.geometry ||
-            o->key_res != settings->voxel_resolution) {
+            o->key_res != settings->diffusion.voxel_resolution) {
             uint64_t t0 = nc_now_us();
-            if ((res = nc_diff_object_voxelize(o, s, i, settings->voxel_resolution)) != NACRE_OK)
+            if ((res = nc_diff_object_voxelize(o, s, i, settings->diffusion.voxel_resolution)) != NACRE_OK)
                 return res;
             stats->stage_us[NACRE_STAGE_VOXELIZE] += nc_now_us() - t0;
             stats->stage_ran[NACRE_STAGE_VOXELIZE] = true;
+            stats->stage_runs[NACRE_STAGE_VOXELIZE]++;
             o->key_uid = s->uid;
             o->key_geometry = s->versions.geometry;
-            o->key_res = settings->voxel_resolution;
+            o->key_res = settings->diffusion.voxel_resolution;
         }
         if (!o->medium_valid || o->key_materials != s->versions.materials) {
             uint64_t t0 = nc_now_us();
             if ((res = nc_diff_object_medium(o, s, i, face_mode)) != NACRE_OK)
                 return res;
             uint64_t t1 = nc_now_us();
-            stats->stage_us[NACRE_STAGE_VOXELIZE] += t1 - t0;
-            stats->stage_ran[NACRE_STAGE_VOXELIZE] = true;
+            stats->stage_us[NACRE_STAGE_MEDIUM] += t1 - t0;
+            stats->stage_ran[NACRE_STAGE_MEDIUM] = true;
+            stats->stage_runs[NACRE_STAGE_MEDIUM]++;
+            /* The solver's setup depends on the medium only; it is timed with the solve that
+             * always follows it (the medium invalidates the light-dependent state). */
             if (o->solid_count > 0 && (res = object_setup(o)) != NACRE_OK) {
                 o->medium_valid = false;
                 return res;
             }
             stats->stage_us[NACRE_STAGE_PROPAGATE] += nc_now_us() - t1;
-            stats->stage_ran[NACRE_STAGE_PROPAGATE] = true;
             o->key_materials = s->versions.materials;
         }
         if (!o->light_valid || o->key_lights != s->versions.lights ||
@@ -464,12 +466,15 @@ nacre_result nc_diffusion_frame(nc_diff_state *st, const nacre_scene *s, const n
             stats->stage_us[NACRE_STAGE_TSM] += tsm_us;
             stats->stage_us[NACRE_STAGE_INJECT] += inject_us;
             stats->stage_ran[NACRE_STAGE_TSM] = stats->stage_ran[NACRE_STAGE_INJECT] = true;
+            stats->stage_runs[NACRE_STAGE_TSM]++;
+            stats->stage_runs[NACRE_STAGE_INJECT]++;
             if (o->solid_count > 0) {
                 uint64_t t0 = nc_now_us();
                 if ((res = object_solve(o, settings)) != NACRE_OK)
                     return res;
                 stats->stage_us[NACRE_STAGE_PROPAGATE] += nc_now_us() - t0;
                 stats->stage_ran[NACRE_STAGE_PROPAGATE] = true;
+                stats->stage_runs[NACRE_STAGE_PROPAGATE]++;
             }
             o->light_valid = true;
             o->key_lights = s->versions.lights;

@@ -24,7 +24,7 @@
  * The map is produced and consumed in bands of rows, so memory stays bounded at 8192^2 texels.
  *
  * Injection (seed 4.4): each hit texel adds its flux to the per-cell source (W per cell) in one
- * of two ways (settings->source):
+ * of two ways (settings->diffusion.source):
  *   - FACE (the seed): the flux enters through the Robin condition of the lit face, see
  *     inject_face() for the derivation of S_i += flux 8 D / ((h + 4 A D) (1 - Fdr)).
  *   - VOLUME (default): the refracted ray (Snell at the voxel face) is marched through the solid
@@ -62,7 +62,7 @@
 /* A perspective map is used while every corner of the box is within this tangent of its axis. */
 #define MAX_FRUSTUM_TAN 3.0f
 /* Texels per voxel side the map needs (see adapt_size): the map only has to resolve the exposed
- * voxel faces, so its resolution follows the grid, with settings->tsm_size as the maximum. */
+ * voxel faces, so its resolution follows the grid, with settings->diffusion.tsm_size as the maximum. */
 #define TEXELS_PER_CELL 4.0f
 /* Smallest adapted map side. */
 #define MIN_TSM_SIZE 16
@@ -341,7 +341,7 @@ static int light_views(const nc_diff_object *o, const nacre_light_desc *l, int32
 /* The side of view w's map: TEXELS_PER_CELL texels per voxel side where the voxels are
  * largest on the map (ortho: everywhere; perspective: at the box corner farthest along the
  * axis, since a texel's footprint grows with distance), at least MIN_TSM_SIZE, at most max_size
- * (settings->tsm_size). The seed renders a fixed-size map; what the flux estimate needs is
+ * (settings->diffusion.tsm_size). The seed renders a fixed-size map; what the flux estimate needs is
  * enough texels on each exposed face (16 per face here), and a 28^3 grid seen whole needs ~40
  * cells x 4 texels, not 512. Measured against tests/unit/test_diffusion_pipeline.c's references
  * (brute-force rays, quadrature): the transmitted flux is within 0.07% (sphere, directional),
@@ -862,10 +862,10 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
         *inject_us += nc_now_us() - t_clear;
         return NACRE_OK;
     }
-    const bool face_mode = settings->source == NACRE_SOURCE_FACE;
+    const bool face_mode = settings->diffusion.source == NACRE_SOURCE_FACE;
     if (face_mode && !o->q[0])
         return nc_fail(ctx, NACRE_ERROR_INVALID_OPERATION, "diffusion: face injection without its buffers");
-    const int32_t max_size = settings->tsm_size;
+    const int32_t max_size = settings->diffusion.tsm_size;
     const int threads = nc_threads(ctx);
     const int64_t cells = (int64_t)o->cells;
 
@@ -938,7 +938,7 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
     for (uint32_t li = 0; li < nl; li++) {
         const nacre_light_desc *ld = lights[li].desc;
         tsm_light tl = {.desc = ld, .shadow = lights[li].shadow, .pcf_radius = TSM_PCF_RADIUS,
-                        .bias = settings->shadow_bias};
+                        .bias = settings->shadow.bias};
         bool shadowed = others_cast && tl.shadow != NULL;
         const float strength[3] = {ld->strength[0], ld->strength[1], ld->strength[2]};
         for (int vi = 0; vi < nviews[li]; vi++) {

@@ -1,7 +1,7 @@
 /*
  * json_render.c: the "units" and "render" sections of a JSON scene (docs/scene-format.md,
  * "units" and "render"). "units" sets the scene's millimetres per unit, which the material
- * presets are later scaled by; "render" fills nacre_render_settings (sizes in pixels, times in
+ * presets are later scaled by; "render" fills nacre_scene_file_settings (sizes in pixels, times in
  * seconds, lengths in scene units).
  */
 #include "io/scene_json_internal.h"
@@ -56,7 +56,7 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
         nc_json_pop(ld, mark);
         return;
     }
-    nacre_render_settings *s = &ld->settings;
+    nacre_render_settings *s = &ld->settings.render;
     const char *method = nc_json_get_string(ld, obj, "method");
     if (method && !nacre_method_from_name(method, &s->method)) {
         const char *names[NACRE_METHOD_COUNT];
@@ -73,34 +73,34 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
         s->width = (int32_t)v;
     if (nc_json_get_integer(ld, obj, "height", 1, IMAGE_SIZE_MAX, &v))
         s->height = (int32_t)v;
-    nc_json_get_number(ld, obj, "exposure", R_FINITE, &s->exposure);
+    nc_json_get_number(ld, obj, "exposure", R_FINITE, &ld->settings.exposure);
     if (nc_json_get_integer(ld, obj, "shadow_map_size", 0, IMAGE_SIZE_MAX, &v))
-        s->shadow_map_size = (int32_t)v;
-    nc_json_get_number(ld, obj, "pcf_radius", R_NONNEG, &s->pcf_radius);
-    nc_json_get_number(ld, obj, "shadow_bias", R_NONNEG, &s->shadow_bias);
+        s->shadow.map_size = (int32_t)v;
+    nc_json_get_number(ld, obj, "pcf_radius", R_NONNEG, &s->shadow.pcf_radius);
+    nc_json_get_number(ld, obj, "shadow_bias", R_NONNEG, &s->shadow.bias);
     if (nc_json_get_integer(ld, obj, "spp", 1, 1 << 24, &v))
-        s->spp = (uint32_t)v;
+        s->pathtrace.spp = (uint32_t)v;
     if (nc_json_get_integer(ld, obj, "seed", 0, UINT32_MAX, &v))
-        s->seed = (uint32_t)v;
-    nc_json_get_double(ld, obj, "time", R_FINITE, &s->time);
+        s->pathtrace.seed = (uint32_t)v;
+    nc_json_get_double(ld, obj, "time", R_FINITE, &ld->settings.time);
     /* Diffusion and path-tracer settings (nacre_render_settings); ranges match what the
      * renderers accept, so a file cannot ask for a grid or map the library would refuse. */
     if (nc_json_get_integer(ld, obj, "voxel_resolution", 1, 1024, &v))
-        s->voxel_resolution = (uint32_t)v;
+        s->diffusion.voxel_resolution = (uint32_t)v;
     if (nc_json_get_integer(ld, obj, "tsm_size", 16, 8192, &v))
-        s->tsm_size = (int32_t)v;
+        s->diffusion.tsm_size = (int32_t)v;
     int choice = nc_json_get_choice(ld, obj, "solver", "solver", solvers, COUNT_OF(solvers));
     if (choice >= 0)
-        s->solver = (nacre_diffusion_solver)choice;
+        s->diffusion.solver = (nacre_diffusion_solver)choice;
     choice = nc_json_get_choice(ld, obj, "source", "source", sources, COUNT_OF(sources));
     if (choice >= 0)
-        s->source = (nacre_diffusion_source)choice;
+        s->diffusion.source = (nacre_diffusion_source)choice;
     static const range tolerance_range = {0.0, 1.0, true, true};
-    nc_json_get_number(ld, obj, "tolerance", tolerance_range, &s->tolerance);
+    nc_json_get_number(ld, obj, "tolerance", tolerance_range, &s->diffusion.tolerance);
     if (nc_json_get_integer(ld, obj, "seed_iterations", 0, 1000000, &v))
-        s->seed_iterations = (uint32_t)v;
-    nc_json_get_double(ld, obj, "time_limit", R_NONNEG, &s->time_limit);
+        s->diffusion.seed_iterations = (uint32_t)v;
+    nc_json_get_double(ld, obj, "time_limit", R_NONNEG, &s->pathtrace.time_limit);
     if (nc_json_get_integer(ld, obj, "max_scatter", 0, UINT32_MAX, &v))
-        s->max_scatter = (uint32_t)v;
+        s->pathtrace.max_scatter = (uint32_t)v;
     nc_json_pop(ld, mark);
 }

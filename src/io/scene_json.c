@@ -129,7 +129,7 @@ static int nesting_depth(const char *text, size_t end)
 
 static nacre_result load_text(nacre_context *ctx, const char *json, size_t length,
                               const char *name, const char *base_dir, nacre_scene **out,
-                              nacre_render_settings *settings)
+                              nacre_scene_file_settings *settings)
 {
     /* cJSON stops at a NUL byte, which would hide whatever follows: refuse it. */
     const char *nul = memchr(json, '\0', length);
@@ -180,7 +180,7 @@ static nacre_result load_text(nacre_context *ctx, const char *json, size_t lengt
     ld.name = name;
     ld.base_dir = base_dir;
     ld.unit_mm = 1.0f;
-    ld.settings = nacre_render_settings_defaults();
+    ld.settings = (nacre_scene_file_settings){.render = nacre_render_settings_defaults()};
     nacre_result r = nacre_scene_create(ctx, &ld.scene);
     if (r != NACRE_OK)
         nc_json_fail_inner(&ld, r);
@@ -205,7 +205,7 @@ static nacre_result load_text(nacre_context *ctx, const char *json, size_t lengt
 
 nacre_result nacre_scene_load_json(nacre_context *ctx, const char *json, size_t length,
                                    const char *name, const char *base_dir, nacre_scene **out,
-                                   nacre_render_settings *settings)
+                                   nacre_scene_file_settings *settings)
 {
     if (!ctx)
         return NACRE_ERROR_INVALID_ARGUMENT;
@@ -271,7 +271,7 @@ static nacre_result read_whole_file(nacre_context *ctx, const char *path, char *
 }
 
 nacre_result nacre_scene_load_file(nacre_context *ctx, const char *path, nacre_scene **out,
-                                   nacre_render_settings *settings)
+                                   nacre_scene_file_settings *settings)
 {
     if (!ctx)
         return NACRE_ERROR_INVALID_ARGUMENT;

@@ -54,7 +54,7 @@ typedef struct loader {
     char path[PATH_MAX_CHARS];
     size_t path_len;
     float unit_mm;
-    nacre_render_settings settings;
+    nacre_scene_file_settings settings;
     material_entry *materials; /* sorted by name */
     uint32_t material_count;
     mesh_entry *meshes;

@@ -565,9 +565,9 @@ nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, cons
 {
     if (!state || !scene || !settings || !out || !out->pixels)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "pathtrace: missing argument");
-    if (settings->spp == 0 && !(settings->time_limit > 0))
+    if (settings->pathtrace.spp == 0 && !(settings->pathtrace.time_limit > 0))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: spp: must be >= 1 (or set a time limit)");
-    if (!(settings->time_limit >= 0) || !isfinite(settings->time_limit))
+    if (!(settings->pathtrace.time_limit >= 0) || !isfinite(settings->pathtrace.time_limit))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: time_limit: must be finite and >= 0");
     int32_t w = settings->width, h = settings->height;
     if (out->width != w || out->height != h || out->channels != 3)
@@ -586,7 +586,7 @@ nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, cons
     ps.eval = pt->opt.eval ? pt->opt.eval : nc_medium_eval;
     ps.env = nc_v3a(scene->environment);
     ps.env_on = max3(ps.env) > 0;
-    ps.max_scatter = settings->max_scatter;
+    ps.max_scatter = settings->pathtrace.max_scatter;
     float ext = 0;
     for (int a = 0; a < 3; a++)
         ext = fmaxf(ext, fmaxf(fabsf(scene->bounds_min[a]), fabsf(scene->bounds_max[a])));
@@ -618,15 +618,15 @@ nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, cons
     make_camera(scene, w, h, &fr.cam);
     fr.w = w;
     fr.h = h;
-    fr.seed = settings->seed;
-    fr.deadline_us = settings->time_limit > 0 ? t_start + (uint64_t)(settings->time_limit * 1e6) : 0;
+    fr.seed = settings->pathtrace.seed;
+    fr.deadline_us = settings->pathtrace.time_limit > 0 ? t_start + (uint64_t)(settings->pathtrace.time_limit * 1e6) : 0;
     uint64_t capped = 0;
     enum { TILE = 16 };
     int32_t tiles_x = (w + TILE - 1) / TILE, tiles_y = (h + TILE - 1) / TILE;
     int64_t tiles = (int64_t)tiles_x * tiles_y;
     uint64_t t_trace = nc_now_us();
     uint32_t pass = 0;
-    uint32_t max_pass = settings->spp ? settings->spp : UINT32_MAX;
+    uint32_t max_pass = settings->pathtrace.spp ? settings->pathtrace.spp : UINT32_MAX;
     bool out_of_time = false;
     /* With a time limit the first pass visits the pixels in the order of an 8x8 Bayer matrix
      * over the image (every 64th pixel, then the ones halfway between, ...), so that a limit

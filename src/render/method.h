@@ -40,6 +40,9 @@ typedef struct nc_method {
     bool (*available)(void);   /* NULL: always */
     bool needs_objects;        /* false: a scene of fog alone is something to render */
     bool uses_raster;          /* draws through the shared raster frame */
+    bool stochastic;           /* reads settings->pathtrace */
+    bool renders_fog;          /* the scene's fog is in its image (post passes leave fog alone) */
+    uint32_t stages;           /* bit (1u << stage) for each stage it may run */
     /* Checks of the settings only this method reads (NULL: none); messages name the field. */
     nacre_result (*check)(nacre_context *ctx, const nacre_render_settings *settings);
     nacre_result (*create)(nacre_context *ctx, void **state);

@@ -9,21 +9,21 @@
 
 static nacre_result diffusion_check(nacre_context *ctx, const nacre_render_settings *s)
 {
-    if (s->voxel_resolution < 1 || s->voxel_resolution > 1024)
+    if (s->diffusion.voxel_resolution < 1 || s->diffusion.voxel_resolution > 1024)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: voxel_resolution: %u is not in 1..1024",
-                       s->voxel_resolution);
-    if (s->tsm_size < 16 || s->tsm_size > 8192)
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: tsm_size: %d is not in 16..8192", (int)s->tsm_size);
-    if (!(s->tolerance > 0.0f && s->tolerance < 1.0f))
+                       s->diffusion.voxel_resolution);
+    if (s->diffusion.tsm_size < 16 || s->diffusion.tsm_size > 8192)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: tsm_size: %d is not in 16..8192", (int)s->diffusion.tsm_size);
+    if (!(s->diffusion.tolerance > 0.0f && s->diffusion.tolerance < 1.0f))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: tolerance: %g is not in (0, 1)",
-                       (double)s->tolerance);
-    if (s->solver != NACRE_SOLVER_MULTIGRID && s->solver != NACRE_SOLVER_SEED)
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: solver: unknown (%d)", (int)s->solver);
-    if (s->source != NACRE_SOURCE_VOLUME && s->source != NACRE_SOURCE_FACE)
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: source: unknown (%d)", (int)s->source);
-    if (s->seed_iterations > 100000)
+                       (double)s->diffusion.tolerance);
+    if (s->diffusion.solver != NACRE_SOLVER_MULTIGRID && s->diffusion.solver != NACRE_SOLVER_SEED)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: solver: unknown (%d)", (int)s->diffusion.solver);
+    if (s->diffusion.source != NACRE_SOURCE_VOLUME && s->diffusion.source != NACRE_SOURCE_FACE)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: source: unknown (%d)", (int)s->diffusion.source);
+    if (s->diffusion.seed_iterations > 100000)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: seed_iterations: %u is not in 0..100000",
-                       s->seed_iterations);
+                       s->diffusion.seed_iterations);
     return NACRE_OK;
 }
 
@@ -72,6 +72,8 @@ const nc_method nc_method_diffusion = {
     .id = NACRE_METHOD_DIFFUSION,
     .needs_objects = true,
     .uses_raster = true,
+    .stages = NC_RASTER_STAGES | (1u << NACRE_STAGE_VOXELIZE) | (1u << NACRE_STAGE_MEDIUM) | (1u << NACRE_STAGE_TSM) |
+              (1u << NACRE_STAGE_INJECT) | (1u << NACRE_STAGE_PROPAGATE),
     .check = diffusion_check,
     .create = diffusion_create,
     .render = diffusion_render,

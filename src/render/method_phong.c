@@ -37,6 +37,7 @@ const nc_method nc_method_phong = {
     .id = NACRE_METHOD_PHONG,
     .needs_objects = true,
     .uses_raster = true,
+    .stages = NC_RASTER_STAGES,
     .create = phong_create,
     .render = phong_render,
     .destroy = phong_destroy,

@@ -17,6 +17,7 @@ const nc_method nc_method_layered = {
     .available = not_implemented,
     .needs_objects = true,
     .uses_raster = true,
+    .stages = NC_RASTER_STAGES,
 };
 
 static const nc_method *const methods[NACRE_METHOD_COUNT] = {
@@ -57,4 +58,18 @@ bool nacre_method_available(nacre_method method)
 {
     const nc_method *m = nc_method_get(method);
     return m && m->render && (!m->available || m->available());
+}
+
+bool nacre_method_info_get(nacre_method method, nacre_method_info *out)
+{
+    const nc_method *m = nc_method_get(method);
+    if (!m || !out)
+        return false;
+    *out = (nacre_method_info){.name = m->name,
+                               .available = nacre_method_available(method),
+                               .needs_objects = m->needs_objects,
+                               .stochastic = m->stochastic,
+                               .renders_fog = m->renders_fog,
+                               .stages = m->stages};
+    return true;
 }

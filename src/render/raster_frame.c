@@ -132,6 +132,7 @@ static nacre_result setup_lists(nc_raster_frame *r, const nacre_scene *s, nacre_
     }
     st->stage_us[NACRE_STAGE_SETUP] += nc_now_us() - t0;
     st->stage_ran[NACRE_STAGE_SETUP] = true;
+    st->stage_runs[NACRE_STAGE_SETUP] = 1;
     return NACRE_OK;
 }
 
@@ -154,12 +155,14 @@ static nacre_result camera_gbuffer(nc_raster_frame *r, const nacre_scene *s, int
     st->triangles_drawn = counts.triangles_drawn;
     st->stage_us[NACRE_STAGE_RASTER] += nc_now_us() - t0;
     st->stage_ran[NACRE_STAGE_RASTER] = true;
+    st->stage_runs[NACRE_STAGE_RASTER] = 1;
     t0 = nc_now_us();
     if ((res = nc_gbuffer_resize(ctx, &r->gbuffer, w, h)) != NACRE_OK ||
         (res = nc_gbuffer_resolve(ctx, &r->view, &r->vis, r->sources, s->object_count, &r->gbuffer)) != NACRE_OK)
         return res;
     st->stage_us[NACRE_STAGE_GBUFFER] += nc_now_us() - t0;
     st->stage_ran[NACRE_STAGE_GBUFFER] = true;
+    st->stage_runs[NACRE_STAGE_GBUFFER] = 1;
     r->gbuffer_valid = true;
     r->gb_scene_uid = s->uid;
     r->gb_geometry = s->versions.geometry;
@@ -188,16 +191,16 @@ static nacre_result shadow_maps(nc_raster_frame *r, const nacre_scene *s, const 
     for (uint32_t i = 0; i < s->object_count; i++)
         if (s->objects[i].desc.cast_shadows)
             r->draws[casters++] = r->draws[i];
-    if (settings->shadow_map_size > 0 && casters > 0) {
+    if (settings->shadow.map_size > 0 && casters > 0) {
         /* The estimate before any map is made: every shadowing light's depth map (six faces for
          * a point light) that is not allocated at its size yet. */
-        uint64_t need = 0, texels = (uint64_t)settings->shadow_map_size * (uint64_t)settings->shadow_map_size;
+        uint64_t need = 0, texels = (uint64_t)settings->shadow.map_size * (uint64_t)settings->shadow.map_size;
         uint32_t maps = 0;
         for (uint32_t li = 0; li < s->light_count; li++) {
             const nacre_light_desc *ld = &s->lights[li].desc;
             uint64_t faces = (uint64_t)nc_shadow_face_count(ld->type);
             const nc_shadow_map *m = &r->shadows[li].map;
-            if (!ld->cast_shadows || (m->depth && m->size == settings->shadow_map_size && (uint64_t)m->face_count == faces))
+            if (!ld->cast_shadows || (m->depth && m->size == settings->shadow.map_size && (uint64_t)m->face_count == faces))
                 continue;
             need += faces * texels * sizeof(float);
             maps++;
@@ -205,7 +208,7 @@ static nacre_result shadow_maps(nc_raster_frame *r, const nacre_scene *s, const 
         if (need) {
             char what[96];
             snprintf(what, sizeof(what), "%u shadow map%s of %d^2 texels (lights, shadow_map_size)", maps,
-                     maps == 1 ? "" : "s", settings->shadow_map_size);
+                     maps == 1 ? "" : "s", settings->shadow.map_size);
             if ((res = nc_memory_check(ctx, need, what)) != NACRE_OK)
                 return res;
         }
@@ -215,19 +218,19 @@ static nacre_result shadow_maps(nc_raster_frame *r, const nacre_scene *s, const 
         nc_shadow_slot *slot = &r->shadows[li];
         r->shade_lights[li].desc = ld;
         r->shade_lights[li].shadow = NULL;
-        if (!ld->cast_shadows || settings->shadow_map_size == 0 || casters == 0)
+        if (!ld->cast_shadows || settings->shadow.map_size == 0 || casters == 0)
             continue;
         bool fresh = slot->valid && slot->scene_uid == s->uid && slot->geometry_version == s->versions.geometry &&
-                     slot->size == settings->shadow_map_size && memcmp(&slot->light, ld, sizeof(*ld)) == 0;
+                     slot->size == settings->shadow.map_size && memcmp(&slot->light, ld, sizeof(*ld)) == 0;
         if (!fresh) {
             slot->valid = false;
-            if ((res = nc_shadow_render(r->rasterizer, ctx, ld, s->bounds_min, s->bounds_max, settings->shadow_map_size,
+            if ((res = nc_shadow_render(r->rasterizer, ctx, ld, s->bounds_min, s->bounds_max, settings->shadow.map_size,
                                         r->draws, casters, &slot->map)) != NACRE_OK)
                 return res;
             slot->valid = true;
             slot->scene_uid = s->uid;
             slot->geometry_version = s->versions.geometry;
-            slot->size = settings->shadow_map_size;
+            slot->size = settings->shadow.map_size;
             slot->light = *ld;
             st->shadow_maps++;
         }
@@ -235,6 +238,7 @@ static nacre_result shadow_maps(nc_raster_frame *r, const nacre_scene *s, const 
     }
     st->stage_us[NACRE_STAGE_SHADOW] = nc_now_us() - t0;
     st->stage_ran[NACRE_STAGE_SHADOW] = st->shadow_maps > 0;
+    st->stage_runs[NACRE_STAGE_SHADOW] = st->shadow_maps;
     return NACRE_OK;
 }
 
@@ -254,8 +258,8 @@ void nc_raster_frame_shade_params(const nc_raster_frame *rf, const nacre_render_
         .eye = nc_mat4_point(&inv_view, nc_v3(0, 0, 0)),
         .view_dir = nc_normalize(nc_mat4_dir(&inv_view, nc_v3(0, 0, -1))),
         .orthographic = rf->view.orthographic,
-        .pcf_radius = settings->pcf_radius,
-        .shadow_bias = settings->shadow_bias,
+        .pcf_radius = settings->shadow.pcf_radius,
+        .shadow_bias = settings->shadow.bias,
     };
 }
 
@@ -285,5 +289,6 @@ nacre_result nc_raster_frame_shade(nc_raster_frame *r, const nacre_scene *s, con
     }
     st->stage_us[NACRE_STAGE_SHADE] = nc_now_us() - t0;
     st->stage_ran[NACRE_STAGE_SHADE] = true;
+    st->stage_runs[NACRE_STAGE_SHADE] = 1;
     return NACRE_OK;
 }

@@ -19,6 +19,11 @@
 #include "scene/scene.h"
 #include "shade/shade.h"
 
+/* The stages of the raster frame, for nc_method.stages. */
+#define NC_RASTER_STAGES                                                                                              \
+    ((1u << NACRE_STAGE_SETUP) | (1u << NACRE_STAGE_RASTER) | (1u << NACRE_STAGE_GBUFFER) |                          \
+     (1u << NACRE_STAGE_SHADOW) | (1u << NACRE_STAGE_SHADE))
+
 typedef struct nc_shadow_slot {
     nc_shadow_map map;
     bool valid;

@@ -96,14 +96,12 @@ static nacre_result check_settings(nacre_context *ctx, const nacre_render_settin
     if ((int64_t)s->width * s->height > ((int64_t)1 << 26))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: size %dx%d: at most 67108864 pixels (8192x8192)",
                        s->width, s->height);
-    if (s->shadow_map_size < 0 || s->shadow_map_size > 16384)
+    if (s->shadow.map_size < 0 || s->shadow.map_size > 16384)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: shadow_map_size: must be 0..16384");
-    if (!(isfinite(s->pcf_radius) && s->pcf_radius >= 0 && s->pcf_radius <= 64))
+    if (!(isfinite(s->shadow.pcf_radius) && s->shadow.pcf_radius >= 0 && s->shadow.pcf_radius <= 64))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: pcf_radius: must be in [0, 64]");
-    if (!(isfinite(s->shadow_bias) && s->shadow_bias >= 0))
+    if (!(isfinite(s->shadow.bias) && s->shadow.bias >= 0))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: shadow_bias: must be finite and >= 0");
-    if (!isfinite(s->exposure))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: exposure: must be finite");
     *out = m;
     return m->check ? m->check(ctx, s) : NACRE_OK;
 }
@@ -202,6 +200,27 @@ nacre_result nacre_renderer_variance(const nacre_renderer *r, nacre_image *out)
     if (!r->last_valid || r->last_method != NACRE_METHOD_PATHTRACE)
         return nc_fail(r->ctx, NACRE_ERROR_INVALID_OPERATION, "variance: the last frame was not path traced");
     return nc_pathtrace_variance(r->state[NACRE_METHOD_PATHTRACE], r->ctx, out);
+}
+
+nacre_result nacre_renderer_depth(const nacre_renderer *r, nacre_image *out)
+{
+    if (!r || !out)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    if (!r->last_valid || !r->depth)
+        return nc_fail(r->ctx, NACRE_ERROR_INVALID_OPERATION,
+                       "depth: the renderer's last frame kept no depth (none yet, or path traced without a post pass)");
+    int32_t w = r->depth_width, h = r->depth_height;
+    if (out->pixels) {
+        if (out->width != w || out->height != h || out->channels != 1 || out->stride < (size_t)w)
+            return nc_fail(r->ctx, NACRE_ERROR_INVALID_ARGUMENT, "depth: output image must be %dx%d with 1 channel", w, h);
+    } else {
+        nacre_result res = nacre_image_alloc(r->ctx, w, h, 1, out);
+        if (res != NACRE_OK)
+            return res;
+    }
+    for (int32_t y = 0; y < h; y++)
+        memcpy(out->pixels + (size_t)y * out->stride, r->depth + (size_t)y * (size_t)w, (size_t)w * sizeof(float));
+    return NACRE_OK;
 }
 
 nacre_result nacre_render(const nacre_scene *s, const nacre_render_settings *settings, nacre_image *out,

@@ -13,16 +13,16 @@ nacre_render_settings nacre_render_settings_defaults(void)
     s.method = NACRE_METHOD_PHONG;
     s.width = 640;
     s.height = 480;
-    s.shadow_map_size = 2048;
-    s.pcf_radius = 1.5f;
-    s.shadow_bias = 1.5f;
-    s.seed = 1;
-    s.spp = 64;
-    s.voxel_resolution = 32;
-    s.tsm_size = 512;
-    s.solver = NACRE_SOLVER_MULTIGRID;
-    s.source = NACRE_SOURCE_VOLUME;
-    s.tolerance = 1e-4f;
+    s.shadow.map_size = 2048;
+    s.shadow.pcf_radius = 1.5f;
+    s.shadow.bias = 1.5f;
+    s.pathtrace.seed = 1;
+    s.pathtrace.spp = 64;
+    s.diffusion.voxel_resolution = 32;
+    s.diffusion.tsm_size = 512;
+    s.diffusion.solver = NACRE_SOLVER_MULTIGRID;
+    s.diffusion.source = NACRE_SOURCE_VOLUME;
+    s.diffusion.tolerance = 1e-4f;
     return s;
 }
 

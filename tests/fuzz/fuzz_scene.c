@@ -11,7 +11,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     nacre_context *ctx = fuzz_context();
     nacre_scene *scene = NULL;
-    nacre_render_settings settings;
+    nacre_scene_file_settings settings;
     nacre_result r = nacre_scene_load_json(ctx, (const char *)data, size, "fuzz.json",
                                            NACRE_SOURCE_DIR "/examples", &scene, &settings);
     if (r == NACRE_OK) {

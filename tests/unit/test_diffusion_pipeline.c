@@ -93,8 +93,8 @@ static void run_inject(fixture *f, nc_diff_object *o, uint32_t res, int32_t tsm,
     for (uint32_t i = 0; i < n; i++)
         lights[i] = (nc_shade_light){.desc = &f->scene->lights[i].desc, .shadow = NULL};
     nacre_render_settings rs = nacre_render_settings_defaults();
-    rs.tsm_size = tsm;
-    rs.source = source;
+    rs.diffusion.tsm_size = tsm;
+    rs.diffusion.source = source;
     nc_tsm_band band;
     memset(&band, 0, sizeof(band));
     uint64_t tsm_us = 0, inject_us = 0;
@@ -441,9 +441,9 @@ static nacre_render_settings diffusion_settings(uint32_t res, int32_t size)
     nacre_render_settings rs = nacre_render_settings_defaults();
     rs.method = NACRE_METHOD_DIFFUSION;
     rs.width = rs.height = size;
-    rs.voxel_resolution = res;
-    rs.tsm_size = 128;
-    rs.shadow_map_size = 256;
+    rs.diffusion.voxel_resolution = res;
+    rs.diffusion.tsm_size = 128;
+    rs.shadow.map_size = 256;
     return rs;
 }
 
@@ -504,7 +504,7 @@ static void test_light_types(void)
         if (t == 0) {
             /* The seed's face injection: same picture, up to the model difference. */
             nacre_image face = {0};
-            rs.source = NACRE_SOURCE_FACE;
+            rs.diffusion.source = NACRE_SOURCE_FACE;
             CHECK(nacre_render(f.scene, &rs, &face, NULL) == NACRE_OK);
             double fl, fr;
             bool fok;
@@ -557,8 +557,9 @@ static void test_demo_convergence(void)
     nacre_context *ctx = NULL;
     CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
     nacre_scene *scene = NULL;
-    nacre_render_settings rs;
-    CHECK(nacre_scene_load_file(ctx, NACRE_SOURCE_DIR "/examples/demo.json", &scene, &rs) == NACRE_OK);
+    nacre_scene_file_settings fs = {0};
+    CHECK(nacre_scene_load_file(ctx, NACRE_SOURCE_DIR "/examples/demo.json", &scene, &fs) == NACRE_OK);
+    nacre_render_settings rs = fs.render;
     if (!scene) {
         nacre_context_destroy(ctx);
         return;
@@ -567,13 +568,13 @@ static void test_demo_convergence(void)
     rs.method = NACRE_METHOD_DIFFUSION;
     rs.width = 96;
     rs.height = 54;
-    rs.tsm_size = 256;
-    rs.shadow_map_size = 512;
+    rs.diffusion.tsm_size = 256;
+    rs.shadow.map_size = 512;
     const uint32_t res[3] = {12, 24, 48};
     nacre_image img[3];
     memset(img, 0, sizeof(img));
     for (int k = 0; k < 3; k++) {
-        rs.voxel_resolution = res[k];
+        rs.diffusion.voxel_resolution = res[k];
         CHECK(nacre_render(scene, &rs, &img[k], NULL) == NACRE_OK);
     }
     double diff[2] = {0, 0}, mean = 0;
@@ -713,7 +714,7 @@ static void test_warm_start_and_cache(void)
            s2.iterations, s2.residual);
     CHECK(s2.stage_ran[NACRE_STAGE_TSM] && s2.stage_ran[NACRE_STAGE_PROPAGATE]);
     CHECK(s2.iterations < s1.iterations);
-    CHECK(s2.residual <= rs.tolerance);
+    CHECK(s2.residual <= rs.diffusion.tolerance);
     nacre_image_free(f.ctx, &img);
     nacre_renderer_destroy(r);
     fx_free(&f);
@@ -784,8 +785,8 @@ static void test_bad_settings(void)
                  {16, 128, 0.0f, "tolerance"},        {16, 128, 1.5f, "tolerance"}};
     for (size_t k = 0; k < sizeof(cases) / sizeof(cases[0]); k++) {
         nacre_render_settings rs = diffusion_settings(cases[k].res, 16);
-        rs.tsm_size = cases[k].tsm;
-        rs.tolerance = cases[k].tol;
+        rs.diffusion.tsm_size = cases[k].tsm;
+        rs.diffusion.tolerance = cases[k].tol;
         nacre_image img = {0};
         nacre_result res = nacre_render(f.scene, &rs, &img, NULL);
         CHECK(img.pixels == NULL);

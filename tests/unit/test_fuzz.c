@@ -539,7 +539,7 @@ static void fuzz_scenes(nacre_context *ctx, counter *c, rng *r, int iterations)
             mutate_once(&input, r, seeds, count, false);
         write_file(TMP "/fuzz_scene.json", &input); /* left behind if this input crashes */
         nacre_scene *s = NULL;
-        nacre_render_settings rs;
+        nacre_scene_file_settings rs;
         nacre_result res = nacre_scene_load_json(ctx, input.data, input.len, "fuzz.json", EXAMPLES,
                                                  &s, &rs);
         st.runs++;

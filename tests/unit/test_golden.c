@@ -255,11 +255,11 @@ static void check_variant(nacre_context *ctx, nacre_scene *scene, const char *st
     }
     rs.method = v->method;
     if (v->voxel_resolution)
-        rs.voxel_resolution = v->voxel_resolution;
+        rs.diffusion.voxel_resolution = v->voxel_resolution;
     if (v->method == NACRE_METHOD_PATHTRACE) {
-        rs.seed = g.seed;
-        rs.spp = PT_SPP;
-        rs.time_limit = 0;
+        rs.pathtrace.seed = g.seed;
+        rs.pathtrace.spp = PT_SPP;
+        rs.pathtrace.time_limit = 0;
     }
     nacre_renderer *renderer = NULL;
     nacre_image img = {0}, var = {0}, ref = {0}, ref_sd = {0};
@@ -315,17 +315,18 @@ static void check_scene(nacre_context *ctx, const char *name)
     snprintf(path, sizeof(path), "%s/examples/%s", NACRE_SOURCE_DIR, name);
     snprintf(stem, sizeof(stem), "%.*s", (int)(strlen(name) - 5), name);
     nacre_scene *scene = NULL;
-    nacre_render_settings rs;
-    if (nacre_scene_load_file(ctx, path, &scene, &rs) != NACRE_OK) {
+    nacre_scene_file_settings fs;
+    if (nacre_scene_load_file(ctx, path, &scene, &fs) != NACRE_OK) {
         printf("%s: %s\n", name, nacre_context_last_error(ctx));
         CHECK(!"example scene loads");
         return;
     }
+    nacre_render_settings rs = fs.render;
     rs.height = (int32_t)((WIDTH * (double)rs.height) / rs.width + 0.5);
     rs.width = WIDTH;
     if (rs.height < 1)
         rs.height = 1;
-    rs.shadow_map_size = 1024;
+    rs.shadow.map_size = 1024;
     bool translucent = false, layered = false;
     for (uint32_t i = 0; i < scene->object_count; i++) {
         const nacre_material_desc *m = nc_scene_material(scene, scene->objects[i].desc.material);
@@ -334,7 +335,7 @@ static void check_scene(nacre_context *ctx, const char *name)
             layered = layered || m->layering.count > 0;
         }
     }
-    bool ok = nacre_scene_commit(scene, rs.time) == NACRE_OK;
+    bool ok = nacre_scene_commit(scene, fs.time) == NACRE_OK;
     if (!ok)
         printf("%s: %s\n", name, nacre_context_last_error(ctx));
     CHECK(ok);

@@ -84,8 +84,8 @@ static nacre_render_settings pt_settings(int32_t size, uint32_t spp)
     rs.method = NACRE_METHOD_PATHTRACE;
     rs.width = size;
     rs.height = size;
-    rs.spp = spp;
-    rs.seed = 3;
+    rs.pathtrace.spp = spp;
+    rs.pathtrace.seed = 3;
     return rs;
 }
 
@@ -103,7 +103,7 @@ static nacre_image render_with(nacre_context *c, const nacre_scene *s, const nac
     CHECK(r == NACRE_OK);
     if (r != NACRE_OK)
         printf("  %s\n", nacre_context_last_error(c));
-    CHECK(stats.spp_done == rs->spp);
+    CHECK(stats.spp_done == rs->pathtrace.spp);
     if (variance)
         CHECK(nc_pathtrace_variance(st, c, variance) == NACRE_OK);
     nc_pathtracer_destroy(c, st);
@@ -141,7 +141,7 @@ static void same_within_noise(const char *what, const nacre_scene *s, int32_t si
     nacre_render_settings rs = pt_settings(size, spp);
     nacre_image va = {0}, vb = {0};
     nacre_image ia = render_with(ctx, s, &rs, a, &va);
-    rs.seed = seed_b;
+    rs.pathtrace.seed = seed_b;
     nacre_image ib = render_with(ctx, s, &rs, b, &vb);
     double ma[3], sa[3], mb[3], sb[3];
     disk_mean(&ia, &va, 0.8f, ma, sa);
@@ -282,7 +282,7 @@ static void render_mean(const nacre_scene *s, int32_t size, uint32_t spp, uint64
                         double m[3], double se[3])
 {
     nacre_render_settings rs = pt_settings(size, spp);
-    rs.seed = seed;
+    rs.pathtrace.seed = seed;
     nacre_image var = {0};
     nacre_image img = render_with(ctx, s, &rs, opt, &var);
     disk_mean(&img, &var, 0.8f, m, se);
@@ -511,8 +511,8 @@ int main(void)
         nacre_render_settings rs = pt_settings(16, 64);
         nacre_image vg = {0}, vp = {0};
         nacre_image ig = render_with(ctx, s, &rs, &def, &vg);
-        rs.seed = 77;
-        rs.spp = 256;
+        rs.pathtrace.seed = 77;
+        rs.pathtrace.spp = 256;
         nacre_image ip = render_with(ctx, s, &rs, &plain, &vp);
         double mg[3], sg[3], mp[3], sp[3];
         disk_mean(&ig, &vg, 0.8f, mg, sg);
@@ -629,7 +629,7 @@ int main(void)
         /* Same scene through the public API: phong sees the same value (no ambient, no spec). */
         nacre_render_settings ph = nacre_render_settings_defaults();
         ph.width = ph.height = 8;
-        ph.shadow_map_size = 0;
+        ph.shadow.map_size = 0;
         nacre_image pimg = {0};
         CHECK(nacre_render(s, &ph, &pimg, NULL) == NACRE_OK);
         CHECK_NEAR(pimg.pixels[3 * (4 * 8 + 4)], img.pixels[3 * (4 * 8 + 4)], 2e-3 * expect);
@@ -671,7 +671,7 @@ int main(void)
         ld.radius = 0.3f;
         CHECK(nacre_scene_set_light(s, l, &ld) == NACRE_OK);
         CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
-        rs.spp = 64;
+        rs.pathtrace.spp = 64;
         img = render_with(ctx, s, &rs, &def, NULL);
         printf("  sphere light r=0.3: pathtrace %.5f (point %.5f)\n", img.pixels[mid], centre);
         CHECK_NEAR(img.pixels[mid], centre, 0.01 * centre);
@@ -763,7 +763,7 @@ int main(void)
             CHECK(nacre_scene_set_object(s, obj, &od) == NACRE_OK);
             CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
             nacre_render_settings rs = pt_settings(24, 32);
-            rs.seed = 11 + 100 * (uint32_t)variant; /* independent noise in the two images */
+            rs.pathtrace.seed = 11 + 100 * (uint32_t)variant; /* independent noise in the two images */
             var[variant] = (nacre_image){0};
             img[variant] = render_with(ctx, s, &rs, &def, &var[variant]);
             nacre_scene_destroy(s);
@@ -834,7 +834,7 @@ int main(void)
         CHECK(nacre_scene_add_light(s, &ld, &l) == NACRE_OK);
         CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
         nacre_render_settings rs = pt_settings(12, 256);
-        rs.seed = 99;
+        rs.pathtrace.seed = 99;
         nacre_image ref = render_with(ctx, s, &rs, &def, NULL);
         double err[3];
         const uint32_t spps[3] = {4, 16, 64};
@@ -843,7 +843,7 @@ int main(void)
             /* Average the error over a few seeds: one render's error is itself noisy. */
             for (uint32_t seed = 1; seed <= 3; seed++) {
                 nacre_render_settings r2 = pt_settings(12, spps[i]);
-                r2.seed = seed;
+                r2.pathtrace.seed = seed;
                 nacre_image img = render_with(ctx, s, &r2, &def, NULL);
                 e += rms_diff(&img, &ref) / 3;
                 nacre_image_free(ctx, &img);
@@ -888,13 +888,13 @@ int main(void)
         nacre_image img = {0};
         CHECK(nacre_render(s, &bad, &img, NULL) == NACRE_ERROR_INVALID_ARGUMENT);
         CHECK(img.pixels == NULL);
-        bad.time_limit = -1;
-        bad.spp = 1;
+        bad.pathtrace.time_limit = -1;
+        bad.pathtrace.spp = 1;
         CHECK(nacre_render(s, &bad, &img, NULL) == NACRE_ERROR_INVALID_ARGUMENT);
-        bad.time_limit = NAN;
+        bad.pathtrace.time_limit = NAN;
         CHECK(nacre_render(s, &bad, &img, NULL) == NACRE_ERROR_INVALID_ARGUMENT);
         nacre_render_settings tl = pt_settings(12, 0);
-        tl.time_limit = 0.05;
+        tl.pathtrace.time_limit = 0.05;
         CHECK(nacre_render(s, &tl, &img, &st) == NACRE_OK);
         CHECK(st.spp_done >= 1);
         nacre_image_free(ctx, &img);

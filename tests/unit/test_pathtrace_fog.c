@@ -27,7 +27,10 @@ static nacre_context *ctx;
 static nacre_scene *load(const char *json, nacre_render_settings *rs)
 {
     nacre_scene *s = NULL;
-    nacre_result r = nacre_scene_load_json(ctx, json, strlen(json), "fog.json", ".", &s, rs);
+    nacre_scene_file_settings fs;
+    nacre_result r = nacre_scene_load_json(ctx, json, strlen(json), "fog.json", ".", &s, &fs);
+    if (r == NACRE_OK && rs)
+        *rs = fs.render;
     CHECK(r == NACRE_OK);
     if (r != NACRE_OK) {
         printf("  %s\n", nacre_context_last_error(ctx));
@@ -48,9 +51,9 @@ static bool render(const char *json, int32_t w, int32_t h, uint32_t spp, uint32_
     rs.method = NACRE_METHOD_PATHTRACE;
     rs.width = w;
     rs.height = h;
-    rs.spp = spp;
-    rs.seed = 11;
-    rs.max_scatter = max_scatter;
+    rs.pathtrace.spp = spp;
+    rs.pathtrace.seed = 11;
+    rs.pathtrace.max_scatter = max_scatter;
     nacre_renderer *r = NULL;
     CHECK(nacre_renderer_create(ctx, &r) == NACRE_OK);
     CHECK(nacre_image_alloc(ctx, w, h, 3, img) == NACRE_OK);

@@ -48,9 +48,10 @@ static double render_json_img(const char *json, int32_t w, int32_t h, uint32_t s
 {
     memset(st, 0, sizeof(*st));
     *finite = false;
-    nacre_render_settings rs = nacre_render_settings_defaults();
+    nacre_scene_file_settings fs = {.render = nacre_render_settings_defaults()};
     nacre_scene *s = NULL;
-    nacre_result r = nacre_scene_load_json(ctx, json, strlen(json), "limits.json", ".", &s, &rs);
+    nacre_result r = nacre_scene_load_json(ctx, json, strlen(json), "limits.json", ".", &s, &fs);
+    nacre_render_settings rs = fs.render;
     CHECK(r == NACRE_OK);
     if (r != NACRE_OK) {
         printf("  %s\n", nacre_context_last_error(ctx));
@@ -60,9 +61,9 @@ static double render_json_img(const char *json, int32_t w, int32_t h, uint32_t s
     rs.method = NACRE_METHOD_PATHTRACE;
     rs.width = w;
     rs.height = h;
-    rs.spp = spp;
-    rs.seed = 5;
-    rs.time_limit = limit;
+    rs.pathtrace.spp = spp;
+    rs.pathtrace.seed = 5;
+    rs.pathtrace.time_limit = limit;
     nacre_image img = {0};
     memset(st, 0, sizeof(*st));
     double t0 = now_s();
@@ -144,7 +145,7 @@ static void tiny_triangle(void)
     rs.method = NACRE_METHOD_PATHTRACE;
     rs.width = 64;
     rs.height = 48;
-    rs.spp = 1;
+    rs.pathtrace.spp = 1;
     nacre_image img = {0};
     nacre_render_stats st;
     nacre_result r = nacre_render(s, &rs, &img, &st);

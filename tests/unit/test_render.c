@@ -287,7 +287,7 @@ static void test_reuse_output(nacre_method method, int threads)
     rs.method = method;
     rs.width = 96;
     rs.height = 64;
-    rs.voxel_resolution = 8;
+    rs.diffusion.voxel_resolution = 8;
     nacre_render_settings full = rs;
     rs.reuse_output = true;
     nacre_renderer *r = NULL, *ref = NULL;
@@ -382,8 +382,9 @@ static void test_units(void)
                  names[u], 5 * k, 40 * k, 0.02 * mm[u], 0.05 * mm[u], 0.1 * mm[u], 1.0 * mm[u], 1.2 * mm[u],
                  1.5 * mm[u], 4 * k, -9 * k, 4 * k, 4 * k, 9 * k);
         nacre_scene *scene = NULL;
-        nacre_render_settings rs;
-        nacre_result r = nacre_scene_load_json(ctx, json, strlen(json), "units.json", ".", &scene, &rs);
+        nacre_scene_file_settings fs;
+        nacre_result r = nacre_scene_load_json(ctx, json, strlen(json), "units.json", ".", &scene, &fs);
+        nacre_render_settings rs = fs.render;
         CHECK(r == NACRE_OK);
         if (r != NACRE_OK) {
             printf("units %s: %s\n", names[u], nacre_context_last_error(ctx));

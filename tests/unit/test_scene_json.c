@@ -57,7 +57,7 @@ static nacre_context *make_context(counter *c)
 }
 
 static nacre_result load(nacre_context *ctx, const char *json, nacre_scene **scene,
-                         nacre_render_settings *rs)
+                         nacre_scene_file_settings *rs)
 {
     return nacre_scene_load_json(ctx, json, strlen(json), "t.json", EXAMPLES, scene, rs);
 }
@@ -122,7 +122,7 @@ static void test_full_scene(void)
     nacre_context *ctx = make_context(&c);
     long baseline = c.live;
     nacre_scene *s = NULL;
-    nacre_render_settings rs;
+    nacre_scene_file_settings rs;
     memset(&rs, 0xff, sizeof(rs));
     nacre_result r = load(ctx, full_scene, &s, &rs);
     CHECK(r == NACRE_OK);
@@ -131,13 +131,13 @@ static void test_full_scene(void)
         nacre_context_destroy(ctx);
         return;
     }
-    CHECK(rs.method == NACRE_METHOD_PHONG);
-    CHECK(rs.width == 64 && rs.height == 48);
+    CHECK(rs.render.method == NACRE_METHOD_PHONG);
+    CHECK(rs.render.width == 64 && rs.render.height == 48);
     CHECK_NEAR(rs.exposure, 0.5, 0);
-    CHECK(rs.shadow_map_size == 256);
-    CHECK_NEAR(rs.pcf_radius, 2, 0);
-    CHECK_NEAR(rs.shadow_bias, 0.5, 0);
-    CHECK(rs.spp == 16 && rs.seed == 7);
+    CHECK(rs.render.shadow.map_size == 256);
+    CHECK_NEAR(rs.render.shadow.pcf_radius, 2, 0);
+    CHECK_NEAR(rs.render.shadow.bias, 0.5, 0);
+    CHECK(rs.render.pathtrace.spp == 16 && rs.render.pathtrace.seed == 7);
 
     CHECK_NEAR(s->unit_mm, 10, 0);
     CHECK_NEAR(s->environment[0], 0.1, 1e-7);
@@ -263,7 +263,7 @@ static void test_full_scene(void)
     r = load(ctx, "{}", &s, &rs);
     CHECK(r == NACRE_OK && nacre_scene_object_count(s) == 0);
     nacre_render_settings def = nacre_render_settings_defaults();
-    CHECK(rs.width == def.width && rs.height == def.height && rs.spp == def.spp);
+    CHECK(rs.render.width == def.width && rs.render.height == def.height && rs.render.pathtrace.spp == def.pathtrace.spp);
     nacre_scene_destroy(s);
     CHECK(c.live == baseline);
     nacre_context_destroy(ctx);
@@ -537,13 +537,13 @@ static void expect_failure(nacre_context *ctx, counter *c, const char *json, siz
     long baseline = c->live;
     int sentinel = 0;
     nacre_scene *s = (nacre_scene *)(void *)&sentinel;
-    nacre_render_settings rs = nacre_render_settings_defaults();
-    rs.width = 12345;
+    nacre_scene_file_settings rs = {.render = nacre_render_settings_defaults()};
+    rs.render.width = 12345;
     nacre_result r = nacre_scene_load_json(ctx, json, length, "t.json", EXAMPLES, &s, &rs);
     const char *msg = nacre_context_last_error(ctx);
     bool ok = r == code && s == NULL && strncmp(msg, "t.json", 6) == 0 && strstr(msg, needle) &&
               (!needle2 || strstr(msg, needle2)) && one_line(msg) && c->live == baseline &&
-              rs.width == 12345;
+              rs.render.width == 12345;
     CHECK(ok);
     if (!ok)
         printf("  input: %s\n  got %d (%s), message: %s\n  expected %d with \"%s\"%s%s\n", json, (int)r,
@@ -622,7 +622,7 @@ static void test_files(void)
 
     /* Relative mesh paths start at the scene file's folder, not the working directory. */
     nacre_scene *s = NULL;
-    nacre_render_settings rs;
+    nacre_scene_file_settings rs;
     nacre_result r = nacre_scene_load_file(ctx, TMP "/sub/scene.json", &s, &rs);
     CHECK(r == NACRE_OK);
     if (r != NACRE_OK)
@@ -739,7 +739,7 @@ static void test_patterns(void)
     mkdir(TMP, 0755);
     write_density(TMP "/dens.nrrd");
     nacre_scene *s = NULL;
-    nacre_render_settings rs;
+    nacre_scene_file_settings rs;
     nacre_result r = nacre_scene_load_json(ctx, pattern_scene, strlen(pattern_scene), "p.json", TMP, &s, &rs);
     CHECK(r == NACRE_OK);
     if (r != NACRE_OK) {
@@ -747,11 +747,11 @@ static void test_patterns(void)
         nacre_context_destroy(ctx);
         return;
     }
-    CHECK(rs.voxel_resolution == 48 && rs.tsm_size == 1024);
-    CHECK(rs.solver == NACRE_SOLVER_SEED && rs.source == NACRE_SOURCE_FACE);
-    CHECK_NEAR(rs.tolerance, 1e-5, 1e-12);
-    CHECK(rs.seed_iterations == 20 && rs.max_scatter == 100);
-    CHECK_NEAR(rs.time_limit, 2.5, 0);
+    CHECK(rs.render.diffusion.voxel_resolution == 48 && rs.render.diffusion.tsm_size == 1024);
+    CHECK(rs.render.diffusion.solver == NACRE_SOLVER_SEED && rs.render.diffusion.source == NACRE_SOURCE_FACE);
+    CHECK_NEAR(rs.render.diffusion.tolerance, 1e-5, 1e-12);
+    CHECK(rs.render.diffusion.seed_iterations == 20 && rs.render.pathtrace.max_scatter == 100);
+    CHECK_NEAR(rs.render.pathtrace.time_limit, 2.5, 0);
 
     CHECK(s->material_count == 5);
     nacre_material_desc marble, ketchup, skin2;
@@ -905,7 +905,7 @@ static void test_examples(void)
         char path[1024];
         snprintf(path, sizeof(path), "%s/%s", EXAMPLES, names[i]);
         nacre_scene *s = NULL;
-        nacre_render_settings rs;
+        nacre_scene_file_settings rs;
         nacre_result r = nacre_scene_load_file(ctx, path, &s, &rs);
         CHECK(r == NACRE_OK);
         if (r != NACRE_OK) {
@@ -915,7 +915,7 @@ static void test_examples(void)
             CHECK(s->has_camera);
             /* Small enough to render quickly in tests (the demo is the showcase). */
             if (strcmp(names[i], "demo.json") != 0)
-                CHECK((int64_t)rs.width * rs.height <= 480 * 360);
+                CHECK((int64_t)rs.render.width * rs.render.height <= 480 * 360);
             CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
         }
         nacre_scene_destroy(s);

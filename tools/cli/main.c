@@ -139,17 +139,25 @@ static void print_stats(const char *scene_name, const nacre_render_settings *rs,
     printf("\",\"method\":\"%s\",\"width\":%d,\"height\":%d,\"threads\":%d,\"load_us\":%llu,\"commit_us\":%llu",
            nacre_method_name(rs->method), rs->width, rs->height, st->threads, (unsigned long long)load_us,
            (unsigned long long)commit_us);
+    nacre_method_info info;
+    nacre_method_info_get(rs->method, &info);
     for (int i = 0; i < NACRE_STAGE_COUNT; i++)
         printf(",\"%s_us\":%llu", nacre_stage_name((nacre_stage)i), (unsigned long long)st->stage_us[i]);
+    /* Which stages ran, and how often (maps drawn, objects voxelized): the rest were cached. */
+    printf(",\"stage_runs\":{");
+    for (int i = 0, n = 0; i < NACRE_STAGE_COUNT; i++)
+        if (st->stage_runs[i])
+            printf("%s\"%s\":%u", n++ ? "," : "", nacre_stage_name((nacre_stage)i), st->stage_runs[i]);
+    printf("}");
     printf(",\"render_us\":%llu,\"write_us\":%llu,\"total_us\":%llu,\"triangles\":%llu,\"triangles_drawn\":%llu,"
            "\"shadow_maps\":%u",
            (unsigned long long)st->total_us, (unsigned long long)write_us, (unsigned long long)total_us,
            (unsigned long long)st->triangles, (unsigned long long)st->triangles_drawn, st->shadow_maps);
-    if (rs->method == NACRE_METHOD_DIFFUSION)
+    if (info.stages & (1u << NACRE_STAGE_PROPAGATE))
         printf(",\"solver\":\"%s\",\"iterations\":%u,\"residual\":%.3g,\"voxel_dims\":[%u,%u,%u]",
                nacre_solver_name(st->solver), st->iterations, st->residual,
                st->voxel_dims[0], st->voxel_dims[1], st->voxel_dims[2]);
-    if (rs->method == NACRE_METHOD_PATHTRACE)
+    if (info.stochastic)
         printf(",\"spp\":%u,\"samples\":%llu,\"samples_per_second\":%.6g,\"paths_capped\":%llu,"
                "\"pixels_unsampled\":%u",
                st->spp_done, (unsigned long long)st->samples_done, st->samples_per_second,
@@ -298,18 +306,21 @@ static int cmd_render(int argc, char **argv)
     nacre_scene *scene = NULL;
     nacre_renderer *renderer = NULL;
     nacre_image img = {0};
-    nacre_render_settings rs = nacre_render_settings_defaults();
+    nacre_scene_file_settings fs = {.render = nacre_render_settings_defaults()};
+    nacre_render_settings rs;
+    nacre_method_info info;
     uint64_t t_start = nc_tool_now_us();
     nacre_result res;
     if (scene_path)
-        res = nacre_scene_load_file(ctx, scene_path, &scene, &rs);
+        res = nacre_scene_load_file(ctx, scene_path, &scene, &fs);
     else
         res = nacre_scene_load_json(ctx, (const char *)nacre_demo_scene_json, strlen((const char *)nacre_demo_scene_json),
-                                    "<built-in demo>", ".", &scene, &rs);
+                                    "<built-in demo>", ".", &scene, &fs);
     if (res != NACRE_OK) {
         nc_tool_fail(ctx);
         goto out;
     }
+    rs = fs.render;
     /* The files the scene was built from are inputs too (its meshes, depth maps, volumes). */
     for (uint32_t i = 0; i < nacre_scene_input_count(scene); i++) {
         const char *input = nacre_scene_input_path(scene, i);
@@ -323,7 +334,7 @@ static int cmd_render(int argc, char **argv)
     if (!method_name && scene_path == NULL) {
         /* The demo shows the best method this build has. */
         for (int m = NACRE_METHOD_COUNT - 1; m >= 0; m--)
-            if (m != NACRE_METHOD_PATHTRACE && nacre_method_available((nacre_method)m)) {
+            if (nacre_method_info_get((nacre_method)m, &info) && info.available && !info.stochastic) {
                 rs.method = (nacre_method)m;
                 break;
             }
@@ -333,30 +344,31 @@ static int cmd_render(int argc, char **argv)
         rs.height = (int32_t)height;
     }
     if (!isnan(exposure))
-        rs.exposure = (float)exposure;
+        fs.exposure = (float)exposure;
     if (!isnan(time))
-        rs.time = time;
+        fs.time = time;
     if (voxel_res > 0)
-        rs.voxel_resolution = (uint32_t)voxel_res;
+        rs.diffusion.voxel_resolution = (uint32_t)voxel_res;
     if (tsm_size > 0)
-        rs.tsm_size = (int32_t)tsm_size;
+        rs.diffusion.tsm_size = (int32_t)tsm_size;
     if (solver_name)
-        rs.solver = solver;
+        rs.diffusion.solver = solver;
     if (source_name)
-        rs.source = source;
+        rs.diffusion.source = source;
     if (!isnan(tolerance))
-        rs.tolerance = (float)tolerance;
+        rs.diffusion.tolerance = (float)tolerance;
     if (seed_iters > 0)
-        rs.seed_iterations = (uint32_t)seed_iters;
+        rs.diffusion.seed_iterations = (uint32_t)seed_iters;
     if (spp > 0)
-        rs.spp = (uint32_t)spp;
+        rs.pathtrace.spp = (uint32_t)spp;
     if (seed >= 0)
-        rs.seed = (uint32_t)seed;
+        rs.pathtrace.seed = (uint32_t)seed;
     if (!isnan(time_limit))
-        rs.time_limit = time_limit;
+        rs.pathtrace.time_limit = time_limit;
     if (max_scatter > 0)
-        rs.max_scatter = (uint32_t)max_scatter;
-    if (variance_path && rs.method != NACRE_METHOD_PATHTRACE) {
+        rs.pathtrace.max_scatter = (uint32_t)max_scatter;
+    nacre_method_info_get(rs.method, &info);
+    if (variance_path && !info.stochastic) {
         nc_tool_error("--variance needs --method pathtrace");
         goto out;
     }
@@ -365,33 +377,33 @@ static int cmd_render(int argc, char **argv)
         goto out;
     }
     /* The renderer's own message cannot name the file. */
-    if (nacre_scene_object_count(scene) == 0 && !(rs.method == NACRE_METHOD_PATHTRACE && nacre_scene_fog_count(scene) > 0)) {
+    if (nacre_scene_object_count(scene) == 0 && (info.needs_objects || nacre_scene_fog_count(scene) == 0)) {
         nc_tool_error("%s: scene has no objects (nothing to render with method '%s')",
                   scene_path ? scene_path : "<built-in demo>", nacre_method_name(rs.method));
         goto out;
     }
     uint64_t t0 = nc_tool_now_us();
-    if (nacre_scene_commit(scene, rs.time) != NACRE_OK) {
+    if (nacre_scene_commit(scene, fs.time) != NACRE_OK) {
         nc_tool_fail(ctx);
         goto out;
     }
     uint64_t commit_us = nc_tool_now_us() - t0;
-    if (rs.time_limit > 0) /* the limit is the whole command's: loading and commit count */
-        rs.time_limit = fmax(rs.time_limit - (double)(nc_tool_now_us() - t_start) * 1e-6, 1e-3);
+    if (rs.pathtrace.time_limit > 0) /* the limit is the whole command's: loading and commit count */
+        rs.pathtrace.time_limit = fmax(rs.pathtrace.time_limit - (double)(nc_tool_now_us() - t_start) * 1e-6, 1e-3);
     nacre_render_stats st;
     if (nacre_renderer_create(ctx, &renderer) != NACRE_OK || nacre_renderer_render(renderer, scene, &rs, &img, &st) != NACRE_OK) {
         nc_tool_fail(ctx);
         goto out;
     }
-    if (rs.method == NACRE_METHOD_PATHTRACE && st.pixels_unsampled > 0)
+    if (st.pixels_unsampled > 0)
         fprintf(stderr, "nacre: warning: the time limit ended the first pass: %u of %d pixels have no sample "
                         "(each shows the mean of its 8x8 block, black if the block has none)\n",
                 st.pixels_unsampled, rs.width * rs.height);
-    if (rs.method == NACRE_METHOD_PATHTRACE && st.paths_capped > 0)
+    if (st.paths_capped > 0)
         fprintf(stderr, "nacre: note: %llu paths reached the path-length or collision cap and were ended there "
                         "(see README: the path tracer's caps)\n",
                 (unsigned long long)st.paths_capped);
-    if (nacre_scene_fog_count(scene) > 0 && rs.method != NACRE_METHOD_PATHTRACE)
+    if (nacre_scene_fog_count(scene) > 0 && !info.renders_fog)
         fprintf(stderr, "nacre: note: the scene's fog is rendered by --method pathtrace only; method '%s' ignores it\n",
                 nacre_method_name(rs.method));
     if (!image_finite(&img, &rs, "image")) /* nothing is written */
@@ -409,7 +421,7 @@ static int cmd_render(int argc, char **argv)
         }
     }
     t0 = nc_tool_now_us();
-    nacre_image_write_options wo = {.exposure = rs.exposure, .exr_type = exr_float ? NACRE_EXR_FLOAT : NACRE_EXR_HALF};
+    nacre_image_write_options wo = {.exposure = fs.exposure, .exr_type = exr_float ? NACRE_EXR_FLOAT : NACRE_EXR_HALF};
     nc_tool_set_warning_hint(" (--exr-float)"); /* the one warning an image write gives: half range */
     nacre_result wr = nacre_image_write(ctx, &img, out_path, &wo);
     nc_tool_set_warning_hint(NULL);
