@@ -85,11 +85,14 @@ typedef struct nacre_context_desc {
 NACRE_API nacre_result nacre_context_create(const nacre_context_desc *desc, nacre_context **out);
 /* Destroy a context; every scene and renderer made from it must be destroyed first. */
 NACRE_API void nacre_context_destroy(nacre_context *ctx);
-/* Message of the latest failure on this context ("" if none). Valid until the next failure. */
+/* Message of the calling thread's latest failure on this context ("" if none): a failure on
+ * another thread (another renderer sharing the context) does not replace it. Valid until this
+ * thread's next failure on the context; the context remembers the last failure of the 32 threads
+ * that failed most recently. */
 NACRE_API const char *nacre_context_last_error(const nacre_context *ctx);
-/* Result code of the latest failure on this context (NACRE_OK if none). */
+/* Result code of the calling thread's latest failure on this context (NACRE_OK if none). */
 NACRE_API nacre_result nacre_context_last_result(const nacre_context *ctx);
-/* Forget the latest failure. */
+/* Forget the calling thread's latest failure. */
 NACRE_API void nacre_context_clear_error(nacre_context *ctx);
 /* Number of threads renders use (resolved from the desc). */
 NACRE_API int nacre_context_threads(const nacre_context *ctx);

@@ -60,15 +60,11 @@ NACRE_API void nacre_image_free(nacre_context *ctx, nacre_image *image);
  * are written as +-65504 and a warning with their count goes to the context's log callback. */
 NACRE_API nacre_result nacre_image_write(nacre_context *ctx, const nacre_image *image,
                                          const char *path, const nacre_image_write_options *options);
-NACRE_API nacre_result nacre_image_write_png(nacre_context *ctx, const nacre_image *image,
-                                             const char *path, float exposure);
-NACRE_API nacre_result nacre_image_write_exr(nacre_context *ctx, const nacre_image *image,
-                                             const char *path, nacre_exr_pixel type);
-/* Read .png (sRGB decoded to linear, 8 or 16 bit) or .exr (R, G, B and A if present). The
- * result has 3 or 4 channels. */
 /* Pixels with a NaN or infinite channel; the first one (row-major) in *x, *y and its channel in
  * *c when there is one (any pointer may be NULL). 0 for a NULL image. */
 NACRE_API uint64_t nacre_image_count_nonfinite(const nacre_image *image, int32_t *x, int32_t *y, int32_t *c);
+/* Read .png (sRGB decoded to linear, 8 or 16 bit) or .exr (R, G, B and A if present). The
+ * result has 3 or 4 channels. */
 NACRE_API nacre_result nacre_image_read(nacre_context *ctx, const char *path, nacre_image *out);
 /* As nacre_image_read, but PNG samples are read as data (value / 255 or / 65535, no sRGB
  * decoding): for depth maps and other non-colour images. */

@@ -74,9 +74,10 @@
  *
  * ERRORS
  *   Functions that act return nacre_result (NACRE_OK = 0). On failure the context keeps a one-line
- *   message, "file:line:col: field: problem" where those are known, readable with
- *   nacre_context_last_error() until the next failure on that context. The library never prints;
- *   an optional log callback in the context desc receives the same messages.
+ *   message, "file:line:col: field: problem" where those are known, for the thread that called:
+ *   nacre_context_last_error() on that thread reads it until that thread's next failure on the
+ *   context, whatever other threads do meanwhile. The library never prints; an optional log
+ *   callback in the context desc receives the same messages (from any thread).
  *
  * nacre DOES NOT (yet)
  *   - run on a GPU: everything is CPU code (OpenMP + AVX2 where the compiler targets it);

@@ -137,14 +137,35 @@ void nacre_context_destroy(nacre_context *ctx)
     ctx->allocator.free_fn(ctx, ctx->allocator.user);
 }
 
+/* The calling thread's slot, or NULL. Called with the lock held. */
+static nc_error_slot *thread_slot(const nacre_context *ctx)
+{
+    pthread_t self = pthread_self();
+    for (int i = 0; i < NC_ERROR_SLOTS; i++)
+        if (ctx->errors[i].used && pthread_equal(ctx->errors[i].thread, self))
+            return (nc_error_slot *)&ctx->errors[i];
+    return NULL;
+}
+
 const char *nacre_context_last_error(const nacre_context *ctx)
 {
-    return ctx ? ctx->last_error : "no context";
+    if (!ctx)
+        return "no context";
+    pthread_mutex_lock((pthread_mutex_t *)&ctx->lock);
+    const nc_error_slot *slot = thread_slot(ctx);
+    pthread_mutex_unlock((pthread_mutex_t *)&ctx->lock);
+    return slot ? slot->message : "";
 }
 
 nacre_result nacre_context_last_result(const nacre_context *ctx)
 {
-    return ctx ? ctx->last_result : NACRE_ERROR_INVALID_ARGUMENT;
+    if (!ctx)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    pthread_mutex_lock((pthread_mutex_t *)&ctx->lock);
+    const nc_error_slot *slot = thread_slot(ctx);
+    nacre_result r = slot ? slot->result : NACRE_OK;
+    pthread_mutex_unlock((pthread_mutex_t *)&ctx->lock);
+    return r;
 }
 
 void nacre_context_clear_error(nacre_context *ctx)
@@ -152,8 +173,11 @@ void nacre_context_clear_error(nacre_context *ctx)
     if (!ctx)
         return;
     pthread_mutex_lock(&ctx->lock);
-    ctx->last_result = NACRE_OK;
-    ctx->last_error[0] = '\0';
+    nc_error_slot *slot = thread_slot(ctx);
+    if (slot) {
+        slot->result = NACRE_OK;
+        slot->message[0] = '\0';
+    }
     pthread_mutex_unlock(&ctx->lock);
 }
 
@@ -192,8 +216,18 @@ nacre_result nc_failv(nacre_context *ctx, nacre_result code, const char *fmt, va
     char msg[NC_ERROR_MAX];
     vsnprintf(msg, sizeof(msg), fmt, ap);
     pthread_mutex_lock(&ctx->lock);
-    ctx->last_result = code;
-    memcpy(ctx->last_error, msg, sizeof(msg));
+    nc_error_slot *slot = thread_slot(ctx);
+    if (!slot) { /* a free slot, else the least recently written */
+        slot = &ctx->errors[0];
+        for (int i = 0; i < NC_ERROR_SLOTS && slot->used; i++)
+            if (!ctx->errors[i].used || ctx->errors[i].seq < slot->seq)
+                slot = &ctx->errors[i];
+        slot->used = true;
+        slot->thread = pthread_self();
+    }
+    slot->seq = ++ctx->error_seq;
+    slot->result = code;
+    memcpy(slot->message, msg, sizeof(msg));
     pthread_mutex_unlock(&ctx->lock);
     if (ctx->log_fn)
         ctx->log_fn(ctx->log_user, NACRE_LOG_ERROR, msg);

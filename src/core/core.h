@@ -17,15 +17,26 @@
 #include <string.h>
 
 #define NC_ERROR_MAX 1024
+/* Threads whose last failure a context remembers at once (the least recent is forgotten). */
+#define NC_ERROR_SLOTS 32
+
+/* The last failure of one thread on a context. */
+typedef struct nc_error_slot {
+    pthread_t thread;
+    bool used;
+    uint64_t seq; /* when it was written, for forgetting the least recent */
+    nacre_result result;
+    char message[NC_ERROR_MAX];
+} nc_error_slot;
 
 struct nacre_context {
     nacre_allocator allocator;
     int threads;
     nacre_log_fn log_fn;
     void *log_user;
-    pthread_mutex_t lock; /* guards the error fields when several threads fail at once */
-    nacre_result last_result;
-    char last_error[NC_ERROR_MAX];
+    pthread_mutex_t lock; /* guards the error slots when several threads fail at once */
+    nc_error_slot errors[NC_ERROR_SLOTS];
+    uint64_t error_seq;
     uint64_t scene_serial; /* identifies scenes for renderer caches (addresses get reused) */
     uint64_t memory_limit; /* resolved: never 0 */
     _Atomic uint64_t memory_used, memory_peak; /* bytes held through nc_alloc (headers included) */

@@ -186,9 +186,9 @@ nacre_result nacre_image_write(nacre_context *ctx, const nacre_image *image, con
         opt = *options;
     switch (format_of(path)) {
     case FORMAT_PNG:
-        return nacre_image_write_png(ctx, image, path, opt.exposure);
+        return nc_image_write_png(ctx, image, path, opt.exposure);
     case FORMAT_EXR:
-        return nacre_image_write_exr(ctx, image, path, opt.exr_type);
+        return nc_image_write_exr(ctx, image, path, opt.exr_type);
     case FORMAT_UNKNOWN:
         break;
     }

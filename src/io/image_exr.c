@@ -225,7 +225,7 @@ static exr_result_t write_pixels(exr_context_t exr, const nacre_image *image)
     return rv;
 }
 
-nacre_result nacre_image_write_exr(nacre_context *ctx, const nacre_image *image,
+nacre_result nc_image_write_exr(nacre_context *ctx, const nacre_image *image,
                                    const char *path, nacre_exr_pixel type)
 {
     nacre_result r = nc_image_write_check(ctx, image, path);

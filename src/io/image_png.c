@@ -106,7 +106,7 @@ static void encode_row(const nc_srgb8_table *tb, const float *src, int32_t width
     }
 }
 
-nacre_result nacre_image_write_png(nacre_context *ctx, const nacre_image *image,
+nacre_result nc_image_write_png(nacre_context *ctx, const nacre_image *image,
                                    const char *path, float exposure)
 {
     nacre_result r = nc_image_write_check(ctx, image, path);

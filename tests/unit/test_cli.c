@@ -2,6 +2,7 @@
  * test_cli.c: the `nacre` command end to end: exit statuses, one-line errors naming the file,
  * no output left behind on failure, --stats / --json output that parses, help and version.
  */
+#include "io/image_private.h"
 #include "test_util.h"
 
 #include <cjson/cJSON.h>
@@ -324,8 +325,8 @@ static void test_compare_nonfinite(void)
     CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
     float v[6] = {1234.5678f, 0.1234567f, 98.76543f, 3.3333f, 7.654321f, 0.0271828f};
     nacre_image img = {2, 1, 3, 6, v};
-    CHECK(nacre_image_write_exr(ctx, &img, ref_exr, NACRE_EXR_FLOAT) == NACRE_OK);
-    CHECK(nacre_image_write_exr(ctx, &img, nan_exr, NACRE_EXR_FLOAT) == NACRE_OK);
+    CHECK(nc_image_write_exr(ctx, &img, ref_exr, NACRE_EXR_FLOAT) == NACRE_OK);
+    CHECK(nc_image_write_exr(ctx, &img, nan_exr, NACRE_EXR_FLOAT) == NACRE_OK);
     nacre_context_destroy(ctx);
     FILE *f = fopen(nan_exr, "r+b");
     CHECK(f != NULL);
@@ -473,7 +474,7 @@ static void test_memory_limit(void)
     CHECK(nacre_image_alloc(ctx, 2048, 2048, 4, &img) == NACRE_OK);
     for (size_t i = 0; img.pixels && i < (size_t)2048 * 2048 * 4; i++)
         img.pixels[i] = (float)(i % 7) / 7.0f;
-    CHECK(nacre_image_write_png(ctx, &img, png, 0.0f) == NACRE_OK);
+    CHECK(nc_image_write_png(ctx, &img, png, 0.0f) == NACRE_OK);
     nacre_image_free(ctx, &img);
     nacre_context_destroy(ctx);
     snprintf(scene, sizeof(scene), "%s/layered_big.json", TMP);

@@ -50,6 +50,7 @@
  */
 #include "test_util.h"
 
+#include "io/image_private.h"
 #include "scene/scene.h"
 
 #include <nacre/nacre.h>
@@ -226,7 +227,7 @@ static bool read_reference(nacre_context *ctx, const char *label, const char *pa
 
 static bool write_reference(nacre_context *ctx, const nacre_image *img, const char *path, nacre_exr_pixel type)
 {
-    bool ok = nacre_image_write_exr(ctx, img, path, type) == NACRE_OK;
+    bool ok = nc_image_write_exr(ctx, img, path, type) == NACRE_OK;
     if (!ok)
         printf("%s: %s\n", path, nacre_context_last_error(ctx));
     CHECK(ok);

@@ -173,7 +173,7 @@ static void test_exr_half_roundtrip(nacre_context *ctx)
     px(&img, 2, 0)[0] = ldexpf(1.0f, -24); /* smallest half denormal */
     /* Not representable: must round to the nearest half. */
     px(&img, 3, 0)[0] = 0.1f;
-    CHECK(nacre_image_write_exr(ctx, &img, tpath(path, "half.exr"), NACRE_EXR_HALF) == NACRE_OK);
+    CHECK(nc_image_write_exr(ctx, &img, tpath(path, "half.exr"), NACRE_EXR_HALF) == NACRE_OK);
     nacre_image back = {0};
     CHECK(nacre_image_read(ctx, path, &back) == NACRE_OK);
     CHECK(back.width == 23 && back.height == 17 && back.channels == 3);
@@ -216,7 +216,7 @@ static void test_exr_small_sizes(nacre_context *ctx)
                             for (int32_t c = 0; c < ch; c++)
                                 px(&img, x, y)[c] = (float)((x * 7 + y * 13 + c * 3) % 64) * 0.25f;
                     nacre_image back = {0};
-                    if (nacre_image_write_exr(ctx, &img, tpath(path, "small.exr"),
+                    if (nc_image_write_exr(ctx, &img, tpath(path, "small.exr"),
                                               t ? NACRE_EXR_FLOAT : NACRE_EXR_HALF) != NACRE_OK ||
                         nacre_image_read(ctx, path, &back) != NACRE_OK) {
                         failed++;
@@ -252,7 +252,7 @@ static void test_exr_channels(nacre_context *ctx)
         for (int32_t x = 0; x < 5; x++)
             for (int c = 0; c < 4; c++)
                 px(&img, x, y)[c] = (float)(x + 10 * y) + 0.25f * (float)c;
-    CHECK(nacre_image_write_exr(ctx, &img, tpath(path, "rgba.exr"), NACRE_EXR_FLOAT) == NACRE_OK);
+    CHECK(nc_image_write_exr(ctx, &img, tpath(path, "rgba.exr"), NACRE_EXR_FLOAT) == NACRE_OK);
     nacre_image back = {0};
     CHECK(nacre_image_read(ctx, path, &back) == NACRE_OK);
     CHECK(back.channels == 4);
@@ -269,7 +269,7 @@ static void test_exr_channels(nacre_context *ctx)
     for (int32_t y = 0; y < 2; y++)
         for (int32_t x = 0; x < 3; x++)
             px(&img, x, y)[0] = (float)(x + 3 * y) * 0.5f;
-    CHECK(nacre_image_write_exr(ctx, &img, tpath(path, "grey.exr"), NACRE_EXR_HALF) == NACRE_OK);
+    CHECK(nc_image_write_exr(ctx, &img, tpath(path, "grey.exr"), NACRE_EXR_HALF) == NACRE_OK);
     CHECK(nacre_image_read(ctx, path, &back) == NACRE_OK);
     CHECK(back.channels == 3);
     bad = 0;
@@ -285,7 +285,7 @@ static void test_exr_channels(nacre_context *ctx)
     img = make_image(ctx, 2, 2, 2, 0);
     for (int i = 0; i < 8; i++)
         img.pixels[i] = (float)i * 0.125f;
-    CHECK(nacre_image_write_exr(ctx, &img, tpath(path, "ya.exr"), NACRE_EXR_FLOAT) == NACRE_OK);
+    CHECK(nc_image_write_exr(ctx, &img, tpath(path, "ya.exr"), NACRE_EXR_FLOAT) == NACRE_OK);
     CHECK(nacre_image_read(ctx, path, &back) == NACRE_OK);
     CHECK(back.channels == 4);
     if (back.pixels) {
@@ -504,7 +504,7 @@ static void test_png_roundtrip(nacre_context *ctx)
     px(&img, 0, 0)[0] = 0.002f; /* the linear segment of the sRGB curve */
     px(&img, 1, 0)[0] = 1.0f;
     px(&img, 2, 0)[0] = 0.0f;
-    CHECK(nacre_image_write_png(ctx, &img, tpath(path, "rgb.png"), 0.0f) == NACRE_OK);
+    CHECK(nc_image_write_png(ctx, &img, tpath(path, "rgb.png"), 0.0f) == NACRE_OK);
     nacre_image back = {0};
     CHECK(nacre_image_read(ctx, path, &back) == NACRE_OK);
     CHECK(back.width == 31 && back.height == 7 && back.channels == 3);
@@ -548,7 +548,7 @@ static void test_png_exposure(nacre_context *ctx)
     nacre_image_free(ctx, &back);
 
     /* +1 EV: 0.6 -> 1.2 clamps to white, 0.5 -> exactly 1.0. */
-    CHECK(nacre_image_write_png(ctx, &img, tpath(path, "exposure_plus1.png"), 1.0f) == NACRE_OK);
+    CHECK(nc_image_write_png(ctx, &img, tpath(path, "exposure_plus1.png"), 1.0f) == NACRE_OK);
     CHECK(nacre_image_read(ctx, path, &back) == NACRE_OK);
     if (back.pixels) {
         CHECK(back.pixels[0] == 1.0f);
@@ -556,7 +556,7 @@ static void test_png_exposure(nacre_context *ctx)
     }
     nacre_image_free(ctx, &back);
 
-    CHECK(nacre_image_write_png(ctx, &img, tpath(path, "exposure_nan.png"), NAN) ==
+    CHECK(nc_image_write_png(ctx, &img, tpath(path, "exposure_nan.png"), NAN) ==
           NACRE_ERROR_INVALID_ARGUMENT);
     CHECK(!file_exists(path));
     free(img.pixels);
@@ -575,7 +575,7 @@ static void test_png_alpha_and_grey(nacre_context *ctx)
             p[3] = (float)(x + 3 * y) / 5.0f;
         }
     /* Exposure scales colour but never alpha. */
-    CHECK(nacre_image_write_png(ctx, &img, tpath(path, "rgba.png"), 2.0f) == NACRE_OK);
+    CHECK(nc_image_write_png(ctx, &img, tpath(path, "rgba.png"), 2.0f) == NACRE_OK);
     nacre_image back = {0};
     CHECK(nacre_image_read(ctx, path, &back) == NACRE_OK);
     CHECK(back.channels == 4);
@@ -713,8 +713,8 @@ static void test_bad_files(nacre_context *ctx)
     uint32_t s = 11;
     for (size_t i = 0; i < 64 * 64 * 3; i++)
         img.pixels[i] = rng_float(&s);
-    CHECK(nacre_image_write_png(ctx, &img, tpath(src, "noise.png"), 0.0f) == NACRE_OK);
-    CHECK(nacre_image_write_exr(ctx, &img, tpath(path, "noise.exr"), NACRE_EXR_HALF) == NACRE_OK);
+    CHECK(nc_image_write_png(ctx, &img, tpath(src, "noise.png"), 0.0f) == NACRE_OK);
+    CHECK(nc_image_write_exr(ctx, &img, tpath(path, "noise.exr"), NACRE_EXR_HALF) == NACRE_OK);
     free(img.pixels);
 
     CHECK(copy_prefix(src, tpath(path, "truncated.png"), -1));
@@ -853,7 +853,7 @@ static void test_header_vs_file_size(nacre_context *ctx)
     nacre_image img = make_image(ctx, 512, 512, 3, 0);
     for (size_t i = 0; i < 512 * 512 * 3; i++)
         img.pixels[i] = 0.5f;
-    CHECK(nacre_image_write_png(ctx, &img, tpath(path, "big_for_limit.png"), 0.0f) == NACRE_OK);
+    CHECK(nc_image_write_png(ctx, &img, tpath(path, "big_for_limit.png"), 0.0f) == NACRE_OK);
     free(img.pixels);
     expect_read_error(small, path, NACRE_ERROR_OUT_OF_MEMORY);
     CHECK(strstr(nacre_context_last_error(small), "memory limit of 2.00 MiB") != NULL);
@@ -945,7 +945,7 @@ static void test_write_failures(nacre_context *ctx)
           NACRE_ERROR_INVALID_ARGUMENT);
     CHECK(nacre_image_write(ctx, NULL, tpath(path, "null.png"), NULL) ==
           NACRE_ERROR_INVALID_ARGUMENT);
-    CHECK(nacre_image_write_exr(ctx, &img, tpath(path, "badtype.exr"), (nacre_exr_pixel)7) ==
+    CHECK(nc_image_write_exr(ctx, &img, tpath(path, "badtype.exr"), (nacre_exr_pixel)7) ==
           NACRE_ERROR_INVALID_ARGUMENT);
     CHECK(!file_exists(path));
     CHECK(count_temp_files("") == 0);
@@ -1116,7 +1116,7 @@ static void test_nonfinite_and_half_range(void)
         px(&img, 3, 2)[1] = bad[i];
         for (int t = 0; t < 2; t++) {
             remove(tpath(path, "nonfinite.exr"));
-            CHECK(nacre_image_write_exr(ctx, &img, path, t ? NACRE_EXR_FLOAT : NACRE_EXR_HALF) ==
+            CHECK(nc_image_write_exr(ctx, &img, path, t ? NACRE_EXR_FLOAT : NACRE_EXR_HALF) ==
                   NACRE_ERROR_INVALID_ARGUMENT);
             CHECK(error_names(ctx, path));
             CHECK(strstr(nacre_context_last_error(ctx), "pixel (3, 2) channel G") != NULL);
@@ -1152,7 +1152,7 @@ static void test_nonfinite_and_half_range(void)
     px(&img, 1, 0)[2] = -70000.0f;
     px(&img, 2, 0)[1] = 65504.0f; /* the largest half: no clamping */
     lc.warnings = 0;
-    CHECK(nacre_image_write_exr(ctx, &img, tpath(path, "over.exr"), NACRE_EXR_HALF) == NACRE_OK);
+    CHECK(nc_image_write_exr(ctx, &img, tpath(path, "over.exr"), NACRE_EXR_HALF) == NACRE_OK);
     CHECK(lc.warnings == 1);
     CHECK(strstr(lc.last, "over.exr") != NULL && strstr(lc.last, "2 values") != NULL &&
           strstr(lc.last, "65504") != NULL);
@@ -1168,7 +1168,7 @@ static void test_nonfinite_and_half_range(void)
     }
     nacre_image_free(ctx, &back);
     lc.warnings = 0;
-    CHECK(nacre_image_write_exr(ctx, &img, tpath(path, "over_float.exr"), NACRE_EXR_FLOAT) == NACRE_OK);
+    CHECK(nc_image_write_exr(ctx, &img, tpath(path, "over_float.exr"), NACRE_EXR_FLOAT) == NACRE_OK);
     CHECK(lc.warnings == 0);
     CHECK(nacre_image_read(ctx, path, &back) == NACRE_OK);
     CHECK(back.pixels && px(&back, 0, 0)[0] == 1e6f);

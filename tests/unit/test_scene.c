@@ -1,11 +1,12 @@
 /*
  * test_scene.c: math helpers, object transforms, deformers (against closed forms), scene
- * validation messages and change tracking.
+ * validation messages and change tracking, and the last error kept per thread.
  */
 #include "core/math.h"
 #include "scene/scene.h"
 #include "test_util.h"
 
+#include <pthread.h>
 #include <string.h>
 
 static void test_math(void)
@@ -256,8 +257,68 @@ static void test_names(void)
     CHECK(!nacre_method_from_name("raytrace", &me));
 }
 
+/* One thread's failure on a shared context, read back after the other threads failed too. */
+typedef struct error_job {
+    nacre_context *ctx;
+    pthread_barrier_t *barrier;
+    int index;
+    bool own_message;
+} error_job;
+
+static void *fail_then_read(void *arg)
+{
+    error_job *job = arg;
+    nacre_material_desc md = nacre_material_desc_defaults(NACRE_MATERIAL_TRANSLUCENT);
+    md.eta = 10.0f + (float)job->index; /* out of range: the message names the value */
+    nacre_scene *s = NULL;
+    nacre_material m;
+    bool failed = nacre_scene_create(job->ctx, &s) == NACRE_OK && nacre_scene_add_material(s, &md, &m) != NACRE_OK;
+    pthread_barrier_wait(job->barrier); /* every thread has failed before any reads */
+    char want[32];
+    snprintf(want, sizeof(want), "%d", 10 + job->index);
+    job->own_message = failed && strstr(nacre_context_last_error(job->ctx), want) != NULL &&
+                       nacre_context_last_result(job->ctx) == NACRE_ERROR_INVALID_ARGUMENT;
+    pthread_barrier_wait(job->barrier);
+    nacre_scene_destroy(s);
+    return NULL;
+}
+
+static void test_errors_per_thread(void)
+{
+    nacre_context *ctx = NULL;
+    CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
+    enum { N = 8 };
+    pthread_t threads[N];
+    error_job jobs[N];
+    pthread_barrier_t barrier;
+    pthread_barrier_init(&barrier, NULL, N);
+    for (int i = 0; i < N; i++) {
+        jobs[i] = (error_job){ctx, &barrier, i, false};
+        CHECK(pthread_create(&threads[i], NULL, fail_then_read, &jobs[i]) == 0);
+    }
+    for (int i = 0; i < N; i++) {
+        pthread_join(threads[i], NULL);
+        CHECK(jobs[i].own_message);
+    }
+    pthread_barrier_destroy(&barrier);
+    /* This thread has not failed: its message is empty whatever the others did. */
+    CHECK(strcmp(nacre_context_last_error(ctx), "") == 0 && nacre_context_last_result(ctx) == NACRE_OK);
+    nacre_scene *s = NULL;
+    CHECK(nacre_scene_create(ctx, &s) == NACRE_OK);
+    nacre_material_desc md = nacre_material_desc_defaults(NACRE_MATERIAL_TRANSLUCENT);
+    md.eta = 7.5f;
+    nacre_material m;
+    CHECK(nacre_scene_add_material(s, &md, &m) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(nacre_context_last_error(ctx), "7.5") != NULL);
+    nacre_context_clear_error(ctx);
+    CHECK(strcmp(nacre_context_last_error(ctx), "") == 0 && nacre_context_last_result(ctx) == NACRE_OK);
+    nacre_scene_destroy(s);
+    nacre_context_destroy(ctx);
+}
+
 int main(void)
 {
+    test_errors_per_thread();
     test_math();
     test_names();
     test_deformers();

@@ -6,6 +6,7 @@
  * step are survived; mesh paths are relative to the scene file; every example scene loads.
  */
 #include "scene/scene.h"
+#include "io/image_private.h"
 #include "test_util.h"
 
 #include <dirent.h>
@@ -833,7 +834,7 @@ static void test_layers(void)
     mkdir(TMP, 0755);
     float px[2 * 4] = {0.0f, 1.0f, 0.5f, 1.0f, 1.0f, 0.0f, 0.5f, 1.0f};
     nacre_image img = {2, 1, 4, 8, px};
-    CHECK(nacre_image_write_png(ctx, &img, TMP "/depth.png", 0.0f) == NACRE_OK);
+    CHECK(nc_image_write_png(ctx, &img, TMP "/depth.png", 0.0f) == NACRE_OK);
     static const char scene[] =
         "{\"units\": \"cm\", \"materials\": {\"m\": {\"preset\": \"skin2\", \"depth_map\": \"depth.png\", \"layers\": ["
         "{\"sigma_a\": [1, 2, 3], \"sigma_s\": 4, \"g\": 0.5, \"depth\": 0.02},"
@@ -868,7 +869,7 @@ static void test_layers(void)
 
     /* Three channels (greyscale PNG) for four layers. */
     nacre_image grey = {2, 1, 3, 6, px};
-    CHECK(nacre_image_write_png(ctx, &grey, TMP "/grey.png", 0.0f) == NACRE_OK);
+    CHECK(nc_image_write_png(ctx, &grey, TMP "/grey.png", 0.0f) == NACRE_OK);
     static const char four[] =
         "{\"materials\": {\"m\": {\"preset\": \"skin2\", \"depth_map\": \"grey.png\", \"layers\": ["
         "{\"preset\": \"skin1\", \"depth\": 1}, {\"preset\": \"skin1\", \"depth\": 1},"
