@@ -256,7 +256,7 @@ nacre_result nacre_renderer_render(nacre_renderer *r, const nacre_scene *s, cons
     }
     if (settings->method == NACRE_METHOD_PATHTRACE) {
         /* The path tracer shares nothing with the raster pipeline. */
-        if ((res = nc_pathtrace_render(&r->pathtracer, ctx, s, settings, out, &st)) != NACRE_OK)
+        if ((res = nc_pathtrace_render(&r->pathtracer, ctx, s, settings, false, out, &st)) != NACRE_OK)
             goto fail;
         st.total_us = nc_now_us() - t_start;
         if (stats)
