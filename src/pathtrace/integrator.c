@@ -43,6 +43,17 @@
  * samples would give, bit for bit. Paths end at MAX_VERTICES vertices or MAX_PATH_COLLISIONS
  * units of tracking work, keeping what they gathered (counted in stats->paths_capped).
  *
+ * Accumulation (progressive rendering for a viewer): the state keeps the per-pixel mean, M2 and
+ * count between frames. An accumulating frame whose scene (uid), committed versions, size, seed
+ * and max_scatter equal those of the state's last completed frame adds spp more samples to each
+ * pixel instead of starting over; anything else (an edit of any kind, including the camera)
+ * restarts from zero. A pixel's next sample is always pass count[pixel] of its stream, so the
+ * random sequence continues rather than repeats and the update order is the one of a single
+ * longer frame: frames of 4 + 4 spp give the image and variance of one frame of 8, bit for bit,
+ * and pixels a time limit left behind catch up from their own count. What the scene setup builds
+ * (Embree scene, grids) does not depend on the camera and is kept while only the camera changes
+ * (nc_pt_prepare_scene), accumulating or not.
+ *
  * Not handled: nested or overlapping translucent objects (a path is in air or in one object), the phong specular lobe on translucent
  * objects (their specular is the Fresnel reflection), double_sided (surfaces are shaded from the
  * side the path arrives on either way; there is no culling), cast_shadows = false on translucent
@@ -84,12 +95,16 @@ nacre_result nc_pathtracer_create(nacre_context *ctx, const nc_pathtrace_options
 }
 
 nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, const nacre_scene *scene,
-                                 const nacre_render_settings *settings, nacre_image *out,
+                                 const nacre_render_settings *settings, bool accumulate, nacre_image *out,
                                  nacre_render_stats *stats)
 {
-    (void)state, (void)scene, (void)settings, (void)out, (void)stats;
+    (void)state, (void)scene, (void)settings, (void)accumulate, (void)out, (void)stats;
     return nc_fail(ctx, NACRE_ERROR_UNSUPPORTED, "render: method 'pathtrace' needs Embree (libembree-dev)");
 }
+
+uint32_t nc_pathtrace_passes(const nc_pathtracer *state) { return (void)state, 0; }
+uint64_t nc_pathtrace_samples(const nc_pathtracer *state) { return (void)state, 0; }
+uint32_t nc_pathtrace_frames(const nc_pathtracer *state) { return (void)state, 0; }
 
 nacre_result nc_pathtrace_variance(const nc_pathtracer *state, nacre_context *ctx, nacre_image *out)
 {
@@ -486,10 +501,11 @@ typedef struct pt_frame {
     uint64_t deadline_us; /* 0: none */
 } pt_frame;
 
-/* Sample pp of pixel (x, y), which must be its next one (pixels see their passes in order), into
- * the pixel's mean and M2 (Welford). False when the deadline has passed: the sample, if it was
- * begun, is dropped. */
-static bool sample_pixel(const pt_frame *fr, int32_t x, int32_t y, uint32_t pp, uint64_t *capped)
+/* The next sample of pixel (x, y) into its mean and M2 (Welford). The pass of a sample is the
+ * pixel's own count, not the frame's pass: a pixel continued over frames, or cut short by a
+ * deadline, draws the samples one longer frame would. False when the deadline has passed: the
+ * sample, if it was begun, is dropped. */
+static bool sample_pixel(const pt_frame *fr, int32_t x, int32_t y, uint64_t *capped)
 {
     if (fr->deadline_us && nc_now_us() >= fr->deadline_us)
         return false;
@@ -498,6 +514,8 @@ static bool sample_pixel(const pt_frame *fr, int32_t x, int32_t y, uint32_t pp, 
     pt_scene ps = *fr->ps;
     ps.budget = &budget;
     size_t pi = (size_t)y * (size_t)fr->w + (size_t)x;
+    nc_pathtracer *pt = fr->pt;
+    uint32_t pp = pt->count[pi];
     nc_rng rng = nc_rng_make(((uint64_t)fr->seed << 32) | pp, pi);
     nc_vec3 o, d;
     camera_ray(&fr->cam, (float)x + nc_rng_float(&rng), (float)y + nc_rng_float(&rng), fr->w, fr->h, &o, &d);
@@ -505,7 +523,6 @@ static bool sample_pixel(const pt_frame *fr, int32_t x, int32_t y, uint32_t pp, 
     if (budget.expired)
         return false;
     *capped += budget.capped;
-    nc_pathtracer *pt = fr->pt;
     double inv_n = 1.0 / (double)(++pt->count[pi]);
     for (int c = 0; c < 3; c++) {
         double v = comp(L, c);
@@ -559,42 +576,22 @@ static void fill_unsampled(const nc_pathtracer *pt, nacre_image *out)
         }
 }
 
-nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, const nacre_scene *scene,
-                                 const nacre_render_settings *settings, nacre_image *out,
-                                 nacre_render_stats *stats)
+/* Whether a frame may add to the accumulators of the state's last frame (see "Accumulation"
+ * above): the same scene (context and uid) with the same committed versions, the same size and
+ * the same settings that decide the samples. spp and time_limit only say how many to add. */
+static bool continues(const nc_pathtracer *pt, const nacre_scene *s, const nacre_render_settings *rs)
 {
-    if (!state || !scene || !settings || !out || !out->pixels)
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "pathtrace: missing argument");
-    if (settings->pathtrace.spp == 0 && !(settings->pathtrace.time_limit > 0))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: spp: must be >= 1 (or set a time limit)");
-    if (!(settings->pathtrace.time_limit >= 0) || !isfinite(settings->pathtrace.time_limit))
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: time_limit: must be finite and >= 0");
-    int32_t w = settings->width, h = settings->height;
-    if (out->width != w || out->height != h || out->channels != 3)
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "pathtrace: output image must be %dx%d with 3 channels", w, h);
-    nacre_result res;
-    if (!*state && (res = nc_pathtracer_create(ctx, NULL, state)) != NACRE_OK)
-        return res;
-    nc_pathtracer *pt = *state;
-    pt->valid = false;
-    uint64_t t_start = nc_now_us();
+    return pt->valid && s->ctx == pt->ctx && s->uid == pt->acc_uid && nc_pt_scene_settled(s) &&
+           memcmp(&s->committed, &pt->acc_versions, sizeof(s->committed)) == 0 && rs->width == pt->width &&
+           rs->height == pt->height && rs->pathtrace.seed == pt->acc_seed && rs->pathtrace.max_scatter == pt->acc_max_scatter;
+}
 
-    pt_scene ps;
-    memset(&ps, 0, sizeof(ps));
-    ps.scene = scene;
-    ps.pt = pt;
-    ps.eval = pt->opt.eval ? pt->opt.eval : nc_medium_eval;
-    ps.env = nc_v3a(scene->environment);
-    ps.env_on = max3(ps.env) > 0;
-    ps.max_scatter = settings->pathtrace.max_scatter;
-    float ext = 0;
-    for (int a = 0; a < 3; a++)
-        ext = fmaxf(ext, fmaxf(fabsf(scene->bounds_min[a]), fabsf(scene->bounds_max[a])));
-    ps.eps = isfinite(ext) ? fmaxf(1e-5f * ext, 1e-7f) : 1e-5f; /* no objects: only fog */
-    if ((res = nc_pt_build_scene(pt, scene, &ps)) != NACRE_OK)
-        return res;
-
-    size_t npix = (size_t)w * (size_t)h;
+/* Empty accumulators for a w x h frame of scene s (grown if needed), labelled with what they
+ * will hold so that the next frame can tell whether it continues them. */
+static nacre_result restart_pixels(nc_pathtracer *pt, nacre_context *ctx, const nacre_scene *s,
+                                   const nacre_render_settings *rs)
+{
+    size_t npix = (size_t)rs->width * (size_t)rs->height;
     if (npix * 3 > pt->pixel_capacity) {
         nc_free(ctx, pt->mean);
         nc_free(ctx, pt->m2);
@@ -609,29 +606,33 @@ nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, cons
     memset(pt->mean, 0, npix * 3 * sizeof(double));
     memset(pt->m2, 0, npix * 3 * sizeof(double));
     memset(pt->count, 0, npix * sizeof(uint32_t));
-    pt->width = w;
-    pt->height = h;
+    pt->width = rs->width;
+    pt->height = rs->height;
+    pt->acc_uid = s->uid;
+    pt->acc_versions = s->committed;
+    pt->acc_seed = rs->pathtrace.seed;
+    pt->acc_max_scatter = rs->pathtrace.max_scatter;
+    pt->acc_frames = 0;
+    pt->acc_samples = 0;
+    return NACRE_OK;
+}
 
-    pt_frame fr;
-    fr.ps = &ps;
-    fr.pt = pt;
-    make_camera(scene, w, h, &fr.cam);
-    fr.w = w;
-    fr.h = h;
-    fr.seed = settings->pathtrace.seed;
-    fr.deadline_us = settings->pathtrace.time_limit > 0 ? t_start + (uint64_t)(settings->pathtrace.time_limit * 1e6) : 0;
+/* Up to max_pass more samples for every pixel (fewer where the deadline cuts them); returns
+ * the number of paths that hit a cap. */
+static uint64_t run_passes(const pt_frame *fr, nacre_context *ctx, uint32_t max_pass)
+{
+    int32_t w = fr->w, h = fr->h;
     uint64_t capped = 0;
     enum { TILE = 16 };
     int32_t tiles_x = (w + TILE - 1) / TILE, tiles_y = (h + TILE - 1) / TILE;
     int64_t tiles = (int64_t)tiles_x * tiles_y;
     uint64_t t_trace = nc_now_us();
     uint32_t pass = 0;
-    uint32_t max_pass = settings->pathtrace.spp ? settings->pathtrace.spp : UINT32_MAX;
     bool out_of_time = false;
     /* With a time limit the first pass visits the pixels in the order of an 8x8 Bayer matrix
      * over the image (every 64th pixel, then the ones halfway between, ...), so that a limit
      * reached within it leaves samples spread evenly (see fill_unsampled). */
-    if (fr.deadline_us) {
+    if (fr->deadline_us) {
         uint8_t bx[64], by[64];
         bayer_order(bx, by);
         int64_t blocks_y = (h + 7) / 8, items = 64 * blocks_y;
@@ -639,11 +640,11 @@ nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, cons
         for (int64_t item = 0; item < items; item++) {
             int32_t r = (int32_t)(item / blocks_y), y = (int32_t)(item % blocks_y) * 8 + by[r];
             for (int32_t x = bx[r]; x < w && y < h; x += 8)
-                if (!sample_pixel(&fr, x, y, 0, &capped))
+                if (!sample_pixel(fr, x, y, &capped))
                     break;
         }
         pass = 1;
-        out_of_time = nc_now_us() >= fr.deadline_us;
+        out_of_time = nc_now_us() >= fr->deadline_us;
     }
     /* Passes run in batches, each thread taking a tile through every pass of the batch: one
      * barrier per batch instead of per pass (long paths make tiles unequal, and threads would
@@ -654,36 +655,47 @@ nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, cons
      * they completed (their counts then differ by at most one batch, typically one pass). */
     while (pass < max_pass && !out_of_time) {
         uint32_t batch = max_pass - pass;
-        if (fr.deadline_us) {
+        if (fr->deadline_us) {
             uint64_t now = nc_now_us();
-            if (now >= fr.deadline_us)
+            if (now >= fr->deadline_us)
                 break;
             double per_pass = (double)(now - t_trace) * 1e-6 / pass;
-            double left = (double)(fr.deadline_us - now) * 1e-6;
+            double left = (double)(fr->deadline_us - now) * 1e-6;
             double fit = per_pass > 0 ? floor(0.5 * left / per_pass) : 1;
             batch = fit < 1 ? 1 : fit < (double)batch ? (uint32_t)fit : batch;
         }
-        uint32_t first = pass, last = pass + batch;
 #pragma omp parallel for schedule(dynamic, 1) num_threads(nc_threads(ctx)) reduction(+ : capped)
         for (int64_t tile = 0; tile < tiles; tile++) {
             int32_t x0 = (int32_t)(tile % tiles_x) * TILE, y0 = (int32_t)(tile / tiles_x) * TILE;
             bool go = true;
-            for (uint32_t pp = first; pp < last && go; pp++)
+            for (uint32_t k = 0; k < batch && go; k++)
                 for (int32_t y = y0; y < y0 + TILE && y < h && go; y++)
                     for (int32_t x = x0; x < x0 + TILE && x < w && go; x++)
-                        go = sample_pixel(&fr, x, y, pp, &capped);
+                        go = sample_pixel(fr, x, y, &capped);
         }
-        pass = last;
-        out_of_time = fr.deadline_us && nc_now_us() >= fr.deadline_us;
+        pass += batch;
+        out_of_time = fr->deadline_us && nc_now_us() >= fr->deadline_us;
     }
-    double secs = (double)(nc_now_us() - t_trace) * 1e-6;
+    return capped;
+}
+
+/* The accumulated means into `out` and the frame's stats: spp_done is what every pixel holds
+ * (accumulated), samples_done and samples_per_second count this frame's paths only. */
+static void finish_frame(nc_pathtracer *pt, nacre_context *ctx, nacre_image *out, nacre_render_stats *stats,
+                         uint64_t capped, double secs)
+{
+    int32_t w = pt->width, h = pt->height;
+    size_t npix = (size_t)w * (size_t)h;
     uint32_t spp_min = UINT32_MAX;
-    uint64_t samples = 0, unsampled = 0;
+    uint64_t total = 0, unsampled = 0;
     for (size_t i = 0; i < npix; i++) {
         spp_min = pt->count[i] < spp_min ? pt->count[i] : spp_min;
-        samples += pt->count[i];
+        total += pt->count[i];
         unsampled += pt->count[i] == 0;
     }
+    uint64_t samples = total - pt->acc_samples;
+    pt->acc_samples = total;
+    pt->acc_frames++;
     for (int32_t y = 0; y < h; y++) {
         float *row = out->pixels + (size_t)y * out->stride;
         for (int32_t x = 0; x < w; x++)
@@ -701,8 +713,73 @@ nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, cons
         stats->samples_per_second = secs > 0 ? (double)samples / secs : 0;
         stats->threads = nc_threads(ctx);
     }
+}
+
+nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, const nacre_scene *scene,
+                                 const nacre_render_settings *settings, bool accumulate, nacre_image *out,
+                                 nacre_render_stats *stats)
+{
+    if (!state || !scene || !settings || !out || !out->pixels)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "pathtrace: missing argument");
+    if (settings->pathtrace.spp == 0 && !(settings->pathtrace.time_limit > 0))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: spp: must be >= 1 (or set a time limit)");
+    if (!(settings->pathtrace.time_limit >= 0) || !isfinite(settings->pathtrace.time_limit))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: time_limit: must be finite and >= 0");
+    int32_t w = settings->width, h = settings->height;
+    if (out->width != w || out->height != h || out->channels != 3)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "pathtrace: output image must be %dx%d with 3 channels", w, h);
+    nacre_result res;
+    if (!*state && (res = nc_pathtracer_create(ctx, NULL, state)) != NACRE_OK)
+        return res;
+    nc_pathtracer *pt = *state;
+    const bool cont = accumulate && continues(pt, scene, settings);
+    pt->valid = false; /* until this frame completes: a failed frame restarts the next */
+    uint64_t t_start = nc_now_us();
+
+    pt_scene ps;
+    memset(&ps, 0, sizeof(ps));
+    ps.scene = scene;
+    ps.pt = pt;
+    ps.eval = pt->opt.eval ? pt->opt.eval : nc_medium_eval;
+    ps.env = nc_v3a(scene->environment);
+    ps.env_on = max3(ps.env) > 0;
+    ps.max_scatter = settings->pathtrace.max_scatter;
+    float ext = 0;
+    for (int a = 0; a < 3; a++)
+        ext = fmaxf(ext, fmaxf(fabsf(scene->bounds_min[a]), fabsf(scene->bounds_max[a])));
+    ps.eps = isfinite(ext) ? fmaxf(1e-5f * ext, 1e-7f) : 1e-5f; /* no objects: only fog */
+    if ((res = nc_pt_prepare_scene(pt, scene, &ps)) != NACRE_OK)
+        return res;
+    if (!cont && (res = restart_pixels(pt, ctx, scene, settings)) != NACRE_OK)
+        return res;
+
+    pt_frame fr;
+    fr.ps = &ps;
+    fr.pt = pt;
+    make_camera(scene, w, h, &fr.cam);
+    fr.w = w;
+    fr.h = h;
+    fr.seed = settings->pathtrace.seed;
+    fr.deadline_us = settings->pathtrace.time_limit > 0 ? t_start + (uint64_t)(settings->pathtrace.time_limit * 1e6) : 0;
+    uint64_t t_trace = nc_now_us();
+    uint64_t capped = run_passes(&fr, ctx, settings->pathtrace.spp ? settings->pathtrace.spp : UINT32_MAX);
+    finish_frame(pt, ctx, out, stats, capped, (double)(nc_now_us() - t_trace) * 1e-6);
     return NACRE_OK;
 }
+
+uint32_t nc_pathtrace_passes(const nc_pathtracer *pt)
+{
+    if (!pt || !pt->valid)
+        return 0;
+    uint32_t n = UINT32_MAX;
+    for (size_t i = 0, npix = (size_t)pt->width * (size_t)pt->height; i < npix; i++)
+        n = pt->count[i] < n ? pt->count[i] : n;
+    return n == UINT32_MAX ? 0 : n;
+}
+
+uint64_t nc_pathtrace_samples(const nc_pathtracer *pt) { return pt && pt->valid ? pt->acc_samples : 0; }
+
+uint32_t nc_pathtrace_frames(const nc_pathtracer *pt) { return pt && pt->valid ? pt->acc_frames : 0; }
 
 nacre_result nc_pathtrace_variance(const nc_pathtracer *pt, nacre_context *ctx, nacre_image *out)
 {

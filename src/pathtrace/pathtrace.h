@@ -38,11 +38,24 @@ nacre_result nc_pathtracer_create(nacre_context *ctx, const nc_pathtrace_options
 /* Whether this build has the path tracer. */
 bool nc_pathtrace_available(void);
 /* Render a committed scene into `out` (already width x height x 3); fills the pathtrace fields
- * of `stats` (spp_done, samples_per_second). *state is created on first use. */
+ * of `stats` (spp_done, samples_per_second). *state is created on first use.
+ * accumulate: when the state's last frame was of the same scene (uid) with the same committed
+ * versions, size, seed and max_scatter, add settings->spp more samples per pixel (or as many as
+ * the time limit allows) to it and output the mean of everything accumulated: two frames of 4
+ * spp give the image of one frame of 8, bit for bit. Otherwise, or when false, start from zero.
+ * spp_done is then the accumulated samples of the pixel with fewest; samples_done and
+ * samples_per_second count this frame's paths. */
 nacre_result nc_pathtrace_render(nc_pathtracer **state, nacre_context *ctx, const nacre_scene *scene,
-                                 const nacre_render_settings *settings, nacre_image *out,
+                                 const nacre_render_settings *settings, bool accumulate, nacre_image *out,
                                  nacre_render_stats *stats);
-/* The variance image of the last render (see nacre_renderer_variance). */
+/* What the last completed frame's accumulators hold (0 when none): the samples of the pixel with
+ * fewest (= spp_done), the camera paths over all pixels, and the frames since the last restart
+ * (1: the last frame restarted). */
+uint32_t nc_pathtrace_passes(const nc_pathtracer *state);
+uint64_t nc_pathtrace_samples(const nc_pathtracer *state);
+uint32_t nc_pathtrace_frames(const nc_pathtracer *state);
+/* The variance image of the last render, of the mean of everything it accumulated (see
+ * nacre_renderer_variance). */
 nacre_result nc_pathtrace_variance(const nc_pathtracer *state, nacre_context *ctx, nacre_image *out);
 void nc_pathtracer_destroy(nacre_context *ctx, nc_pathtracer *state);
 

@@ -114,11 +114,23 @@ struct nc_pathtracer {
     bool any_matched;      /* some object is index matched (shadow rays may pass surfaces) */
     bool any_noncaster;    /* some opaque object has cast_shadows = false */
     bool nee_only;         /* shadow rays see another world than paths: no MIS (see integrator.c)  */
+    /* What the fields above were built from (nc_pt_prepare_scene): a frame of the same scene
+     * whose committed versions differ at most in the camera reuses them. */
+    bool built_valid;
+    uint64_t built_uid;
+    nc_versions built_versions; /* camera not compared */
     int32_t width, height;
     double *mean, *m2;     /* per pixel and channel */
     uint32_t *count;       /* per pixel: samples in mean and m2 */
     size_t pixel_capacity;
     bool valid;            /* a frame was rendered into mean/m2 */
+    /* What mean/m2/count accumulate (see "Accumulation" in integrator.c): an accumulating frame
+     * with all of these unchanged adds to them, anything else restarts. */
+    uint64_t acc_uid;
+    nc_versions acc_versions;
+    uint32_t acc_seed, acc_max_scatter;
+    uint32_t acc_frames;   /* frames in the accumulators since the last restart */
+    uint64_t acc_samples;  /* camera paths in the accumulators (sum of count) */
 };
 
 /* Per-path work (see MAX_PATH_COLLISIONS): a path stops when it reaches a cap (its estimate so
@@ -249,6 +261,8 @@ void nc_pt_surface_at(const pt_object *o, const pt_hit *h, nc_vec3 *p, nc_vec3 *
 float nc_pt_clearance(const pt_object *o, nc_vec3 p);
 void nc_pt_release_scene(nc_pathtracer *pt);
 nacre_result nc_pt_build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scene *ps);
+bool nc_pt_scene_settled(const nacre_scene *s);
+nacre_result nc_pt_prepare_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scene *ps);
 
 /* ---- inline helpers ----------------------------------------------------------------------
  *

@@ -14,6 +14,14 @@
  *
  * Grids are in world space (scene units), cut into cubic or res^3 cells over the object's
  * padded world bounds.
+ *
+ * Reuse (nc_pt_prepare_scene): nothing here depends on the camera, so a frame whose scene
+ * differs from the built one only in the camera (an interactive viewer orbiting) keeps it. The
+ * objects, lights and fogs point into the scene's arrays (materials, world positions, mesh
+ * indices, light and fog records); only the edits that bump geometry, materials, lights or
+ * environment versions reallocate or rewrite those (nacre_scene_set_camera writes the camera
+ * alone, and a commit without a geometry change recomputes nothing), so the pointers stay valid
+ * exactly as long as those versions do.
  */
 #include "pathtrace/pt_internal.h"
 
@@ -85,6 +93,7 @@ void nc_pt_release_scene(nc_pathtracer *pt)
     pt->objects = NULL;
     pt->lights = NULL;
     pt->object_count = pt->light_count = 0;
+    pt->built_valid = false;
 }
 
 /* Deformed heterogeneous objects: voxelize the deformed mesh in object space (the committed world
@@ -643,6 +652,34 @@ nacre_result nc_pt_build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scene
         if (res != NACRE_OK)
             return res;
     }
+    return NACRE_OK;
+}
+
+/* Whether s holds what its last commit saw: an uncommitted edit may already have reallocated
+ * arrays without the committed versions saying so, so such a scene is never matched to a
+ * cache by them. */
+bool nc_pt_scene_settled(const nacre_scene *s)
+{
+    return s->committed_valid && memcmp(&s->committed, &s->versions, sizeof(s->versions)) == 0;
+}
+
+/* nc_pt_build_scene unless the built scene is already a copy of s: the same scene (uid, within
+ * its context, as uids are per context) with the same committed versions but for the camera. */
+nacre_result nc_pt_prepare_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scene *ps)
+{
+    nc_versions v = s->committed, b = pt->built_versions;
+    v.camera = b.camera = 0;
+    if (pt->built_valid && s->ctx == pt->ctx && s->uid == pt->built_uid && nc_pt_scene_settled(s) &&
+        memcmp(&v, &b, sizeof(v)) == 0)
+        return NACRE_OK;
+    nacre_result res = nc_pt_build_scene(pt, s, ps);
+    if (res != NACRE_OK) {
+        nc_pt_release_scene(pt); /* a half-built scene must not be mistaken for a copy */
+        return res;
+    }
+    pt->built_valid = true;
+    pt->built_uid = s->uid;
+    pt->built_versions = s->committed;
     return NACRE_OK;
 }
 

@@ -1,7 +1,8 @@
 /*
  * method_pathtrace.c: `--method pathtrace`, the reference volumetric path tracer
  * (src/pathtrace). It shares nothing with the raster pipeline; its state holds the Embree scene
- * and the per-pixel accumulators (and the variance image, nacre_renderer_variance).
+ * (rebuilt only when something but the camera changed) and the per-pixel accumulators, which
+ * progressive frames (settings.pathtrace.accumulate) add to while nothing changes.
  */
 #include "pathtrace/pathtrace.h"
 #include "render/method.h"
@@ -17,7 +18,11 @@ static nacre_result pathtrace_create(nacre_context *ctx, void **state)
 static nacre_result pathtrace_render(void *state, nc_frame *f)
 {
     nc_pathtracer *pt = state;
-    return nc_pathtrace_render(&pt, f->ctx, f->scene, f->settings, f->out, f->stats);
+    nacre_result res = nc_pathtrace_render(&pt, f->ctx, f->scene, f->settings, f->settings->pathtrace.accumulate, f->out,
+                                           f->stats);
+    if (res == NACRE_OK)
+        f->stats->accumulated = nc_pathtrace_frames(pt) > 1;
+    return res;
 }
 
 static void pathtrace_destroy(nacre_context *ctx, void *state)

@@ -410,8 +410,48 @@ static void test_depth_and_post_pass(void)
     nacre_context_destroy(ctx);
 }
 
+/* Progressive path tracing through the public API: two accumulating frames of 4 spp are one
+ * frame of 8; a camera edit starts again. */
+static void test_progressive(void)
+{
+    if (!nacre_method_available(NACRE_METHOD_PATHTRACE))
+        return;
+    fixture f;
+    make_scene(&f);
+    nacre_render_settings rs = nacre_render_settings_defaults();
+    rs.method = NACRE_METHOD_PATHTRACE;
+    rs.width = 24;
+    rs.height = 16;
+    rs.pathtrace.spp = 4;
+    rs.pathtrace.accumulate = true;
+    nacre_renderer *r = NULL;
+    CHECK(nacre_renderer_create(f.ctx, &r) == NACRE_OK);
+    nacre_image img = {0}, once = {0};
+    nacre_render_stats st;
+    CHECK(nacre_renderer_render(r, f.scene, &rs, &img, &st) == NACRE_OK);
+    CHECK(!st.accumulated && st.spp_done == 4);
+    CHECK(nacre_renderer_render(r, f.scene, &rs, &img, &st) == NACRE_OK);
+    CHECK(st.accumulated && st.spp_done == 8 && st.samples_done == 4u * 24 * 16);
+    nacre_render_settings eight = rs;
+    eight.pathtrace.spp = 8;
+    eight.pathtrace.accumulate = false;
+    CHECK(nacre_render(f.scene, &eight, &once, NULL) == NACRE_OK);
+    CHECK(img.pixels && once.pixels && memcmp(img.pixels, once.pixels, 24 * 16 * 3 * sizeof(float)) == 0);
+    f.cam.position[0] = 5;
+    CHECK(nacre_scene_set_camera(f.scene, &f.cam) == NACRE_OK);
+    CHECK(nacre_scene_commit(f.scene, 0.0) == NACRE_OK);
+    CHECK(nacre_renderer_render(r, f.scene, &rs, &img, &st) == NACRE_OK);
+    CHECK(!st.accumulated && st.spp_done == 4);
+    nacre_image_free(f.ctx, &img);
+    nacre_image_free(f.ctx, &once);
+    nacre_renderer_destroy(r);
+    nacre_scene_destroy(f.scene);
+    nacre_context_destroy(f.ctx);
+}
+
 int main(void)
 {
+    test_progressive();
     test_method_table();
     test_diffusion_edits();
     test_depth_and_post_pass();

@@ -99,7 +99,7 @@ static nacre_image render_with(nacre_context *c, const nacre_scene *s, const nac
     CHECK(nc_pathtracer_create(c, opt, &st) == NACRE_OK);
     nacre_render_stats stats;
     memset(&stats, 0, sizeof(stats));
-    nacre_result r = nc_pathtrace_render(&st, c, s, rs, &img, &stats);
+    nacre_result r = nc_pathtrace_render(&st, c, s, rs, false, &img, &stats);
     CHECK(r == NACRE_OK);
     if (r != NACRE_OK)
         printf("  %s\n", nacre_context_last_error(c));
