@@ -1094,3 +1094,21 @@ nacre_result nacre_scene_bounds(const nacre_scene *s, float min[3], float max[3]
     memcpy(max, s->bounds_max, sizeof(s->bounds_max));
     return NACRE_OK;
 }
+
+void nc_scene_view_depth_range(const nacre_scene *s, const nc_mat4 *view, float *dmin_out, float *dmax_out)
+{
+    float dmin = INFINITY, dmax = -INFINITY;
+    for (int k = 0; k < 8; k++) {
+        nc_vec3 p = nc_v3((k & 1) ? s->bounds_max[0] : s->bounds_min[0], (k & 2) ? s->bounds_max[1] : s->bounds_min[1],
+                          (k & 4) ? s->bounds_max[2] : s->bounds_min[2]);
+        float d = -nc_mat4_point(view, p).z;
+        dmin = fminf(dmin, d);
+        dmax = fmaxf(dmax, d);
+    }
+    if (!isfinite(dmin) || !isfinite(dmax)) {
+        dmin = 0.01f;
+        dmax = 100.0f;
+    }
+    *dmin_out = dmin;
+    *dmax_out = dmax;
+}

@@ -99,6 +99,9 @@ nacre_result nc_scene_note_input(nacre_scene *scene, const char *path);
 /* Lookup helpers: NULL when the handle is invalid. */
 const nc_mesh_rec *nc_scene_mesh(const nacre_scene *scene, nacre_mesh mesh);
 const nacre_material_desc *nc_scene_material(const nacre_scene *scene, nacre_material material);
+/* Depth range along a view's -z axis of the committed bounds' corners, where both raster and
+ * path-traced cameras fit their automatic near/far planes; (0.01, 100) for empty bounds. */
+void nc_scene_view_depth_range(const nacre_scene *scene, const nc_mat4 *view, float *dmin, float *dmax);
 const nc_volume_rec *nc_scene_volume(const nacre_scene *scene, nacre_volume volume);
 const nc_texture_rec *nc_scene_texture(const nacre_scene *scene, nacre_texture texture);
 
