@@ -5,15 +5,16 @@
  *
  * Conventions. The JSON is built with cJSON, numbers inserted as raw text: each float with the
  * fewest digits (6 to 9, as "%.9g" at most) and each double with 15 to 17 ("%.17g") that read
- * back (strtod, then the loader's cast to float) as the same value. Every value is written explicitly (no presets, no
- * defaults left to the loader), except fields that the element's type ignores and the format has
- * no key for. Elements keep their order, so handles keep their ids on reload: materials in id
- * order (all of them), lights, objects, fogs. Meshes, textures and volumes are referred to where
- * they came from (nc_mesh_rec's source: a file, relative to the scene file's folder when it lies
- * in it or below, else absolute; or a shape desc); those made from raw arrays are written beside
- * the scene file as <stem>_mesh<id>.ply (binary, assimp's exporter), <stem>_depth<id>.exr (float)
- * and <stem>_volume<id>.nrrd (float), all lossless. Values the C API accepts but the format does
- * not (a mirroring scale, a colour above 1) are refused with one message naming the field.
+ * back (strtod, then the loader's cast to float) as the same value. Every value is written
+ * explicitly (no presets, no defaults left to the loader), except fields that the element's type
+ * ignores and the format has no key for. Elements keep their order, so handles keep their ids on
+ * reload: materials in id order (all of them), lights, objects, fogs. Meshes, textures and volumes
+ * are referred to where they came from (nc_mesh_rec's source: a file, relative to the scene file's
+ * folder when it lies in it or below, else absolute; or a shape desc); those made from raw arrays
+ * are written beside the scene file as <stem>_mesh<id>.ply (binary, assimp's exporter),
+ * <stem>_depth<id>.exr (float) and <stem>_volume<id>.nrrd (float), all lossless. Values the C API
+ * accepts but the format does not (a mirroring scale, a colour above 1) are refused with one
+ * message naming the field.
  *
  * Every file is written under a temporary name and renamed; a failed save removes the files it
  * generated and leaves nothing at the scene path. No file is written over one the scene reads
@@ -42,21 +43,22 @@
 typedef struct writer {
     nacre_context *ctx;
     const nacre_scene *scene;
-    const char *label;     /* in messages: the scene file's path, or "<json>" */
-    char *dir;             /* absolute folder of the scene file; generated files go there */
-    const char *stem;      /* generated files are <stem>_<kind><id>.<ext> */
-    char **names;          /* one per material: unique, non-empty */
+    const char *label; /* in messages: the scene file's path, or "<json>" */
+    char *dir;         /* absolute folder of the scene file; generated files go there */
+    const char *stem;  /* generated files are <stem>_<kind><id>.<ext> */
+    char **names;      /* one per material: unique, non-empty */
     char **mesh_refs, **texture_refs, **volume_refs; /* per handle, once written or resolved */
-    char **written;        /* generated files, removed if the save fails */
+    char **written; /* generated files, removed if the save fails */
     uint32_t written_count;
-    nacre_result err;      /* first failure (sticky) */
+    nacre_result err; /* first failure (sticky) */
 } writer;
 
 /* ------------------------------------------------------------------------------------------ */
 /* Failures and values                                                                        */
 /* ------------------------------------------------------------------------------------------ */
 
-static void fail(writer *w, nacre_result code, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+static void fail(writer *w, nacre_result code, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
 
 static void fail(writer *w, nacre_result code, const char *fmt, ...)
 {
@@ -79,7 +81,8 @@ static void fail_inner(writer *w, nacre_result code)
 
 static void add(writer *w, cJSON *obj, const char *key, cJSON *item)
 {
-    if (w->err == NACRE_OK && item && (key ? cJSON_AddItemToObject(obj, key, item) : cJSON_AddItemToArray(obj, item)))
+    if (w->err == NACRE_OK && item &&
+        (key ? cJSON_AddItemToObject(obj, key, item) : cJSON_AddItemToArray(obj, item)))
         return;
     cJSON_Delete(item);
     if (w->err == NACRE_OK)
@@ -162,7 +165,8 @@ static bool in_unit(const float *v, int n)
 static bool same_existing_file(const char *a, const char *b)
 {
     struct stat sa, sb;
-    return stat(a, &sa) == 0 && stat(b, &sb) == 0 && sa.st_dev == sb.st_dev && sa.st_ino == sb.st_ino;
+    return stat(a, &sa) == 0 && stat(b, &sb) == 0 && sa.st_dev == sb.st_dev &&
+           sa.st_ino == sb.st_ino;
 }
 
 /* Refuse to write `path` over a file the scene reads (its inputs and the sources it refers to):
@@ -184,8 +188,9 @@ static bool check_not_input(writer *w, const char *path)
         if (s->volumes[i].source_path && same_existing_file(path, s->volumes[i].source_path))
             hit = s->volumes[i].source_path;
     if (hit)
-        fail(w, NACRE_ERROR_INVALID_ARGUMENT, "refusing to write '%s': it is the same file as '%s', which the scene reads",
-             path, hit);
+        fail(w, NACRE_ERROR_INVALID_ARGUMENT,
+             "refusing to write '%s': it is the same file as '%s', which the scene reads", path,
+             hit);
     return !hit;
 }
 
@@ -292,7 +297,8 @@ static nacre_result write_ply(writer *w, const nacre_mesh_data *m, const char *p
     mesh.mNumUVComponents[0] = uvs ? 2 : 0;
     mesh.mFaces = faces;
     unsigned int mesh_index = 0;
-    root.mTransformation.a1 = root.mTransformation.b2 = root.mTransformation.c3 = root.mTransformation.d4 = 1.0f;
+    root.mTransformation.a1 = root.mTransformation.b2 = root.mTransformation.c3 =
+        root.mTransformation.d4 = 1.0f;
     root.mNumMeshes = 1;
     root.mMeshes = &mesh_index;
     struct aiMesh *meshes[1] = {&mesh};
@@ -365,7 +371,8 @@ static const char *texture_reference(writer *w, nacre_texture handle)
         size_t pixels = (size_t)t->width * (size_t)t->height;
         for (size_t i = 0; i < pixels; i++)
             for (int32_t c = 0; c < t->channels; c++)
-                img.pixels[i * (size_t)channels + (size_t)c] = t->data[i * (size_t)t->channels + (size_t)c];
+                img.pixels[i * (size_t)channels + (size_t)c] =
+                    t->data[i * (size_t)t->channels + (size_t)c];
         nacre_image_write_options opt = {.exr_type = NACRE_EXR_FLOAT};
         r = nacre_image_write(w->ctx, &img, path, &opt);
     }
@@ -386,8 +393,9 @@ static void add_volume_reference(writer *w, cJSON *obj, nacre_volume handle)
         } else {
             char *path = generated_path(w, "volume", handle.id, "nrrd", ref);
             if (path)
-                generated_done(w, path, nc_nrrd_write_f32(w->ctx, path, "written by nacre_scene_save_file",
-                                                          v->dims, v->spacing, v->origin, v->data));
+                generated_done(w, path,
+                               nc_nrrd_write_f32(w->ctx, path, "written by nacre_scene_save_file",
+                                                 v->dims, v->spacing, v->origin, v->data));
         }
     }
     if (w->err != NACRE_OK)
@@ -407,28 +415,38 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
 {
     const nacre_render_settings *s = &fs->render;
     /* The loader's ranges (json_render.c): a setting outside them would make an unloadable file. */
-    const char *bad = !((int)s->method >= 0 && s->method < NACRE_METHOD_COUNT)    ? "method"
-                      : !(s->width >= 1 && s->width <= IMAGE_SIZE_MAX)      ? "width"
-                      : !(s->height >= 1 && s->height <= IMAGE_SIZE_MAX)    ? "height"
-                      : !isfinite(fs->exposure)                             ? "exposure"
-                      : !isfinite(fs->time)                                 ? "time"
-                      : !(s->shadow.map_size >= 0 && s->shadow.map_size <= IMAGE_SIZE_MAX) ? "shadow_map_size"
-                      : !(s->shadow.pcf_radius >= 0 && s->shadow.pcf_radius <= FLT_MAX) ? "pcf_radius"
-                      : !(s->shadow.bias >= 0 && s->shadow.bias <= FLT_MAX) ? "shadow_bias"
-                      : !(s->pathtrace.spp >= 1 && s->pathtrace.spp <= (1u << 24)) ? "spp"
-                      : !(s->diffusion.voxel_resolution >= 1 && s->diffusion.voxel_resolution <= 1024) ? "voxel_resolution"
-                      : !(s->diffusion.tsm_size >= 16 && s->diffusion.tsm_size <= 8192) ? "tsm_size"
-                      : !(s->diffusion.solver == NACRE_SOLVER_MULTIGRID || s->diffusion.solver == NACRE_SOLVER_SEED) ? "solver"
-                      : !(s->diffusion.source == NACRE_SOURCE_VOLUME || s->diffusion.source == NACRE_SOURCE_FACE) ? "source"
-                      : !(s->diffusion.tolerance > 0 && s->diffusion.tolerance < 1) ? "tolerance"
-                      : !(s->diffusion.seed_iterations <= 1000000)          ? "seed_iterations"
-                      : !(s->pathtrace.time_limit >= 0 && s->pathtrace.time_limit <= FLT_MAX) ? "time_limit"
-                                                                            : NULL;
-    if (bad) {
-        fail(w, NACRE_ERROR_INVALID_ARGUMENT,
-             "render.%s: outside the range scene files accept (docs/scene-format.md, \"render\")", bad);
-        return NULL;
-    }
+    const struct {
+        bool ok;
+        const char *key;
+    } checks[] = {
+        {(int)s->method >= 0 && s->method < NACRE_METHOD_COUNT, "method"},
+        {s->width >= 1 && s->width <= IMAGE_SIZE_MAX, "width"},
+        {s->height >= 1 && s->height <= IMAGE_SIZE_MAX, "height"},
+        {isfinite(fs->exposure), "exposure"},
+        {isfinite(fs->time), "time"},
+        {s->shadow.map_size >= 0 && s->shadow.map_size <= IMAGE_SIZE_MAX, "shadow_map_size"},
+        {s->shadow.pcf_radius >= 0 && s->shadow.pcf_radius <= FLT_MAX, "pcf_radius"},
+        {s->shadow.bias >= 0 && s->shadow.bias <= FLT_MAX, "shadow_bias"},
+        {s->pathtrace.spp >= 1 && s->pathtrace.spp <= (1u << 24), "spp"},
+        {s->diffusion.voxel_resolution >= 1 && s->diffusion.voxel_resolution <= 1024,
+         "voxel_resolution"},
+        {s->diffusion.tsm_size >= 16 && s->diffusion.tsm_size <= 8192, "tsm_size"},
+        {s->diffusion.solver == NACRE_SOLVER_MULTIGRID || s->diffusion.solver == NACRE_SOLVER_SEED,
+         "solver"},
+        {s->diffusion.source == NACRE_SOURCE_VOLUME || s->diffusion.source == NACRE_SOURCE_FACE,
+         "source"},
+        {s->diffusion.tolerance > 0 && s->diffusion.tolerance < 1, "tolerance"},
+        {s->diffusion.seed_iterations <= 1000000, "seed_iterations"},
+        {s->pathtrace.time_limit >= 0 && s->pathtrace.time_limit <= FLT_MAX, "time_limit"},
+    };
+    for (size_t i = 0; i < COUNT_OF(checks); i++)
+        if (!checks[i].ok) {
+            fail(w, NACRE_ERROR_INVALID_ARGUMENT,
+                 "render.%s: outside the range scene files accept (docs/scene-format.md, "
+                 "\"render\")",
+                 checks[i].key);
+            return NULL;
+        }
     cJSON *o = cJSON_CreateObject();
     if (!o)
         return NULL;
@@ -456,10 +474,13 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
 static cJSON *camera_section(writer *w)
 {
     const nacre_camera_desc *c = &w->scene->camera;
-    float view[3] = {c->target[0] - c->position[0], c->target[1] - c->position[1], c->target[2] - c->position[2]};
-    if (!nc_json_nonzero3(view) || !nc_json_nonzero3(c->up) || nc_json_sin_between(view, c->up) < 1e-6) {
+    float view[3] = {c->target[0] - c->position[0], c->target[1] - c->position[1],
+                     c->target[2] - c->position[2]};
+    if (!nc_json_nonzero3(view) || !nc_json_nonzero3(c->up) ||
+        nc_json_sin_between(view, c->up) < 1e-6) {
         fail(w, NACRE_ERROR_INVALID_ARGUMENT,
-             "camera: up is parallel to the view direction (or a vector is zero), which scene files refuse");
+             "camera: up is parallel to the view direction (or a vector is zero), which scene "
+             "files refuse");
         return NULL;
     }
     cJSON *o = cJSON_CreateObject();
@@ -533,7 +554,8 @@ static cJSON *material_object(writer *w, uint32_t i, const nacre_material_desc *
 {
     bool opaque = d->type == NACRE_MATERIAL_OPAQUE;
     if ((opaque && !in_unit(d->diffuse, 3)) || !in_unit(d->specular, 3)) {
-        fail(w, NACRE_ERROR_INVALID_ARGUMENT, "materials[\"%s\"].%s: above 1, which scene files refuse", w->names[i],
+        fail(w, NACRE_ERROR_INVALID_ARGUMENT,
+             "materials[\"%s\"].%s: above 1, which scene files refuse", w->names[i],
              opaque && !in_unit(d->diffuse, 3) ? "diffuse" : "specular");
         return NULL;
     }
@@ -571,7 +593,8 @@ static cJSON *light_object(writer *w, const nc_light_rec *rec)
         add_floats(w, o, "direction", direction, 3);
     if (d->type != NACRE_LIGHT_DIRECTIONAL)
         add_floats(w, o, "position", d->position, 3);
-    add_floats(w, o, d->type == NACRE_LIGHT_DIRECTIONAL ? "irradiance" : "intensity", d->strength, 3);
+    add_floats(w, o, d->type == NACRE_LIGHT_DIRECTIONAL ? "irradiance" : "intensity", d->strength,
+               3);
     if (d->type == NACRE_LIGHT_DIRECTIONAL)
         add_float(w, o, "angular_radius", d->angular_radius);
     if (d->type == NACRE_LIGHT_SPOT) {
@@ -614,14 +637,21 @@ static void add_deformers(writer *w, cJSON *o, uint32_t index, const nacre_objec
         const nacre_deformer *f = &d->deformers[i];
         if (f->type == NACRE_DEFORM_NONE)
             continue;
-        bool bad_scale = f->type == NACRE_DEFORM_SCALE && !(f->scale[0] > 0 && f->scale[1] > 0 && f->scale[2] > 0);
+        bool bad_scale = f->type == NACRE_DEFORM_SCALE &&
+                         !(f->scale[0] > 0 && f->scale[1] > 0 && f->scale[2] > 0);
         bool bad_axis = f->type != NACRE_DEFORM_SCALE && !nc_json_nonzero3(f->axis);
-        bool bad_bend = f->type == NACRE_DEFORM_BEND && !bad_axis &&
-                        (!nc_json_nonzero3(f->direction) || nc_json_sin_between(f->axis, f->direction) < 1e-3);
+        bool bad_bend =
+            f->type == NACRE_DEFORM_BEND && !bad_axis &&
+            (!nc_json_nonzero3(f->direction) || nc_json_sin_between(f->axis, f->direction) < 1e-3);
         if (bad_scale || bad_axis || bad_bend) {
-            fail(w, NACRE_ERROR_INVALID_ARGUMENT, "objects[%u].deformers[%u].%s: %s, which scene files refuse", index, i,
-                 bad_scale ? "scale" : bad_axis ? "axis" : "direction",
-                 bad_scale ? "not positive" : bad_axis ? "nearly zero" : "nearly parallel to the axis");
+            fail(w, NACRE_ERROR_INVALID_ARGUMENT,
+                 "objects[%u].deformers[%u].%s: %s, which scene files refuse", index, i,
+                 bad_scale  ? "scale"
+                 : bad_axis ? "axis"
+                            : "direction",
+                 bad_scale  ? "not positive"
+                 : bad_axis ? "nearly zero"
+                            : "nearly parallel to the axis");
             return;
         }
         if (!arr) {
@@ -656,7 +686,8 @@ static cJSON *object_object(writer *w, uint32_t index, const nc_object_rec *rec)
     const nacre_transform *t = &d->transform;
     if (!(t->scale[0] > 0 && t->scale[1] > 0 && t->scale[2] > 0)) {
         fail(w, NACRE_ERROR_INVALID_ARGUMENT,
-             "objects[%u].transform.scale: a negative (mirroring) scale, which scene files refuse", index);
+             "objects[%u].transform.scale: a negative (mirroring) scale, which scene files refuse",
+             index);
         return NULL;
     }
     cJSON *o = cJSON_CreateObject();
@@ -835,11 +866,12 @@ static nacre_result check_args(const nacre_scene *scene, const char *what, bool 
 {
     if (!scene)
         return NACRE_ERROR_INVALID_ARGUMENT;
-    return ok ? NACRE_OK : nc_fail(scene->ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: an argument is NULL", what);
+    return ok ? NACRE_OK
+              : nc_fail(scene->ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: an argument is NULL", what);
 }
 
-nacre_result nacre_scene_save_file(const nacre_scene *scene, const nacre_scene_file_settings *settings,
-                                   const char *path)
+nacre_result nacre_scene_save_file(const nacre_scene *scene,
+                                   const nacre_scene_file_settings *settings, const char *path)
 {
     nacre_result r = check_args(scene, "nacre_scene_save_file", path && path[0]);
     if (r != NACRE_OK)
@@ -886,8 +918,9 @@ nacre_result nacre_scene_save_file(const nacre_scene *scene, const nacre_scene_f
     return r;
 }
 
-nacre_result nacre_scene_save_json(const nacre_scene *scene, const nacre_scene_file_settings *settings,
-                                   const char *base_dir, char **json_out, size_t *length_out)
+nacre_result nacre_scene_save_json(const nacre_scene *scene,
+                                   const nacre_scene_file_settings *settings, const char *base_dir,
+                                   char **json_out, size_t *length_out)
 {
     nacre_result r = check_args(scene, "nacre_scene_save_json", json_out != NULL);
     if (r != NACRE_OK)

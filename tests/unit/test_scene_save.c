@@ -26,14 +26,16 @@ static bool exists(const char *path)
 /* Field-by-field where a struct has padding or pointers, memcmp where it has neither. */
 static bool same_light(const nacre_light_desc *a, const nacre_light_desc *b)
 {
-    return memcmp(a, b, offsetof(nacre_light_desc, cast_shadows)) == 0 && a->cast_shadows == b->cast_shadows;
+    return memcmp(a, b, offsetof(nacre_light_desc, cast_shadows)) == 0 &&
+           a->cast_shadows == b->cast_shadows;
 }
 
 static bool same_object(const nacre_object_desc *a, const nacre_object_desc *b)
 {
     bool names = (!a->name && !b->name) || (a->name && b->name && strcmp(a->name, b->name) == 0);
     return names && a->mesh.id == b->mesh.id && a->material.id == b->material.id &&
-           memcmp(&a->transform, &b->transform, sizeof(a->transform)) == 0 && a->deformer_count == b->deformer_count &&
+           memcmp(&a->transform, &b->transform, sizeof(a->transform)) == 0 &&
+           a->deformer_count == b->deformer_count &&
            memcmp(a->deformers, b->deformers, a->deformer_count * sizeof(a->deformers[0])) == 0 &&
            a->cast_shadows == b->cast_shadows && a->double_sided == b->double_sided;
 }
@@ -47,8 +49,9 @@ static bool same_mesh(const nacre_mesh_data *a, const nacre_mesh_data *b)
 {
     size_t nv = a->vertex_count;
     return a->vertex_count == b->vertex_count && a->triangle_count == b->triangle_count &&
-           same_floats(a->positions, b->positions, nv * 3) && same_floats(a->normals, b->normals, nv * 3) &&
-           same_floats(a->uvs, b->uvs, nv * 2) && same_floats(a->tangents, b->tangents, nv * 4) &&
+           same_floats(a->positions, b->positions, nv * 3) &&
+           same_floats(a->normals, b->normals, nv * 3) && same_floats(a->uvs, b->uvs, nv * 2) &&
+           same_floats(a->tangents, b->tangents, nv * 4) &&
            memcmp(a->indices, b->indices, (size_t)a->triangle_count * 3 * sizeof(uint32_t)) == 0;
 }
 
@@ -57,9 +60,11 @@ static bool same_settings(const nacre_scene_file_settings *a, const nacre_scene_
     const nacre_render_settings *x = &a->render, *y = &b->render;
     return x->method == y->method && x->width == y->width && x->height == y->height &&
            memcmp(&x->shadow, &y->shadow, sizeof(x->shadow)) == 0 &&
-           memcmp(&x->diffusion, &y->diffusion, sizeof(x->diffusion)) == 0 && x->pathtrace.spp == y->pathtrace.spp &&
-           x->pathtrace.seed == y->pathtrace.seed && x->pathtrace.time_limit == y->pathtrace.time_limit &&
-           x->pathtrace.max_scatter == y->pathtrace.max_scatter && a->time == b->time && a->exposure == b->exposure;
+           memcmp(&x->diffusion, &y->diffusion, sizeof(x->diffusion)) == 0 &&
+           x->pathtrace.spp == y->pathtrace.spp && x->pathtrace.seed == y->pathtrace.seed &&
+           x->pathtrace.time_limit == y->pathtrace.time_limit &&
+           x->pathtrace.max_scatter == y->pathtrace.max_scatter && a->time == b->time &&
+           a->exposure == b->exposure;
 }
 
 /* Every desc of the two scenes, the data of every mesh, texture and volume. Returns the number of
@@ -67,12 +72,12 @@ static bool same_settings(const nacre_scene_file_settings *a, const nacre_scene_
 static int compare_scenes(const nacre_scene *a, const nacre_scene *b, const char *what)
 {
     int diffs = 0;
-#define DIFF(cond, kind)                                                                                               \
-    do {                                                                                                               \
-        if (!(cond)) {                                                                                                 \
-            if (diffs++ == 0)                                                                                          \
-                printf("%s: %s differ\n", what, kind);                                                                 \
-        }                                                                                                              \
+#define DIFF(cond, kind)                                                                           \
+    do {                                                                                           \
+        if (!(cond)) {                                                                             \
+            if (diffs++ == 0)                                                                      \
+                printf("%s: %s differ\n", what, kind);                                             \
+        }                                                                                          \
     } while (0)
     DIFF(a->unit_mm == b->unit_mm, "units");
     DIFF(memcmp(a->environment, b->environment, sizeof(a->environment)) == 0, "environments");
@@ -86,7 +91,8 @@ static int compare_scenes(const nacre_scene *a, const nacre_scene *b, const char
     DIFF(a->object_count == b->object_count, "object counts");
     for (uint32_t i = 0; i < a->object_count && i < b->object_count; i++) {
         DIFF(same_object(&a->objects[i].desc, &b->objects[i].desc), "objects");
-        const nc_mesh_rec *ma = nc_scene_mesh(a, a->objects[i].desc.mesh), *mb = nc_scene_mesh(b, b->objects[i].desc.mesh);
+        const nc_mesh_rec *ma = nc_scene_mesh(a, a->objects[i].desc.mesh),
+                          *mb = nc_scene_mesh(b, b->objects[i].desc.mesh);
         DIFF(ma && mb && same_mesh(&ma->data, &mb->data), "meshes");
     }
     DIFF(a->fog_count == b->fog_count, "fog counts");
@@ -105,7 +111,8 @@ static int compare_scenes(const nacre_scene *a, const nacre_scene *b, const char
     DIFF(a->volume_count == b->volume_count, "volume counts");
     for (uint32_t i = 0; i < a->volume_count && i < b->volume_count; i++) {
         const nc_volume_rec *x = &a->volumes[i], *y = &b->volumes[i];
-        bool ok = memcmp(x->dims, y->dims, sizeof(x->dims)) == 0 && memcmp(x->origin, y->origin, sizeof(x->origin)) == 0 &&
+        bool ok = memcmp(x->dims, y->dims, sizeof(x->dims)) == 0 &&
+                  memcmp(x->origin, y->origin, sizeof(x->origin)) == 0 &&
                   memcmp(x->spacing, y->spacing, sizeof(x->spacing)) == 0 &&
                   same_floats(x->data, y->data, (size_t)x->dims[0] * x->dims[1] * x->dims[2]);
         DIFF(ok, "volumes");
@@ -130,8 +137,8 @@ static nacre_result render(nacre_scene *scene, double time, nacre_method method,
 
 /* Phong and diffusion images of the two scenes are bit-identical (or both methods fail alike:
  * diffusion refuses layered materials). */
-static void check_same_images(nacre_context *ctx, nacre_scene *a, double ta, nacre_scene *b, double tb,
-                              const char *what)
+static void check_same_images(nacre_context *ctx, nacre_scene *a, double ta, nacre_scene *b,
+                              double tb, const char *what)
 {
     const nacre_method methods[] = {NACRE_METHOD_PHONG, NACRE_METHOD_DIFFUSION};
     for (int m = 0; m < 2; m++) {
@@ -140,7 +147,8 @@ static void check_same_images(nacre_context *ctx, nacre_scene *a, double ta, nac
         CHECK(ra == rb);
         if (ra == NACRE_OK && rb == NACRE_OK) {
             bool same = ia.width == ib.width && ia.height == ib.height &&
-                        memcmp(ia.pixels, ib.pixels, (size_t)ia.width * (size_t)ia.height * 3 * sizeof(float)) == 0;
+                        memcmp(ia.pixels, ib.pixels,
+                               (size_t)ia.width * (size_t)ia.height * 3 * sizeof(float)) == 0;
             if (!same)
                 printf("%s: %s images differ\n", what, nacre_method_name(methods[m]));
             CHECK(same);
@@ -151,8 +159,8 @@ static void check_same_images(nacre_context *ctx, nacre_scene *a, double ta, nac
 }
 
 /* Save `scene` to `path`, load it back; checks descs and images. Returns the reloaded scene. */
-static nacre_scene *round_trip(nacre_context *ctx, nacre_scene *scene, const nacre_scene_file_settings *fs,
-                               const char *path)
+static nacre_scene *round_trip(nacre_context *ctx, nacre_scene *scene,
+                               const nacre_scene_file_settings *fs, const char *path)
 {
     nacre_result r = nacre_scene_save_file(scene, fs, path);
     if (r != NACRE_OK)
@@ -349,7 +357,8 @@ static nacre_scene *make_raw_scene(nacre_context *ctx)
 static void test_raw_scene(nacre_context *ctx)
 {
     nacre_scene *s = make_raw_scene(ctx);
-    nacre_scene_file_settings fs = {.render = nacre_render_settings_defaults(), .time = 0.25, .exposure = -1.5f};
+    nacre_scene_file_settings fs = {
+        .render = nacre_render_settings_defaults(), .time = 0.25, .exposure = -1.5f};
     char out[1024], ply[1024];
     snprintf(out, sizeof(out), "%s/raw.json", TMP);
     snprintf(ply, sizeof(ply), "%s/raw_mesh1.ply", TMP);
@@ -445,7 +454,8 @@ static void test_failures(nacre_context *ctx)
     CHECK(s && nacre_scene_save_file(s, NULL, spelled) == NACRE_ERROR_INVALID_ARGUMENT);
     msg = nacre_context_last_error(ctx);
     CHECK(strstr(msg, "which the scene reads") != NULL && strstr(msg, "input.ply") != NULL);
-    CHECK(stat(mesh, &after) == 0 && after.st_size == before.st_size && after.st_mtime == before.st_mtime);
+    CHECK(stat(mesh, &after) == 0 && after.st_size == before.st_size &&
+          after.st_mtime == before.st_mtime);
     CHECK(count_files("input") == 2); /* no temporary file either */
     /* Saving over the scene's own file is allowed (File > Save): it refers to its mesh. */
     CHECK(s && nacre_scene_save_file(s, NULL, scene_path) == NACRE_OK);
