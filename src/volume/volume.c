@@ -9,6 +9,9 @@
  */
 #include "volume/volume.h"
 
+/* fmin without the libm call (these run per pixel); no NaNs reach them. */
+static inline double min_d(double a, double b) { return a < b ? a : b; }
+
 double nc_vol_transmittance_steps(size_t n, const float *sigma_t, const float *length)
 {
     double tau = 0.0;
@@ -19,13 +22,7 @@ double nc_vol_transmittance_steps(size_t n, const float *sigma_t, const float *l
 
 double nc_vol_exp_ratio(double x)
 {
-    /* Below 1e-4 the series' next term (x^4 / 120) is under 1e-18: exact in double, where
-     * -expm1(-x) / x would still be fine but 0 / 0 at x = 0 is not. */
-    if (x < 1e-4)
-        return 1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0)));
-    if (isinf(x))
-        return 0.0;
-    return -expm1(-x) / x;
+    return nc_vol_exp_ratio_t(x, x < NC_VOL_SERIES_MAX ? 1.0 : exp(-x));
 }
 
 double nc_vol_segment_weight(double sigma_t, double d)
@@ -67,20 +64,20 @@ double nc_vol_height_integral(const nc_vol_height *h, double y0, double dir_y, d
         return 0.0;
     double len = t1 - t0; /* may be +inf */
     if (!(h->falloff > 0.0))
-        return len * exp(fmin(h->cap, 0.0));
+        return h->cap >= 0.0 ? len : len * exp(h->cap);
     double k = h->falloff, s = fabs(dir_y);
     /* Lengths come from ray parameters and heights from the lower end: a nearly horizontal ray
      * never divides a tiny height difference by a tiny slope. */
     if (isinf(len) && dir_y < 0.0)
         return INFINITY; /* descends into the capped density forever */
     double y_lo = dir_y >= 0.0 ? y0 + dir_y * t0 : y0 + dir_y * t1;
-    double f_lo = exp(fmin(h->cap, -k * (y_lo - h->base)));
+    double f_lo = exp(min_d(h->cap, -k * (y_lo - h->base)));
     if (s == 0.0)
         return f_lo > 0.0 ? len * f_lo : 0.0; /* level: constant density (0 x inf is 0 here) */
     /* Below the cap's height yc the density is the constant e^cap. */
     double yc = h->base - h->cap / k, capped = 0.0;
     if (y_lo < yc) {
-        capped = fmin(len, (yc - y_lo) / s);
+        capped = min_d(len, (yc - y_lo) / s);
         f_lo = exp(h->cap);
     }
     double rest = len - capped, total = capped * f_lo;
