@@ -82,6 +82,8 @@
  * nacre DOES NOT (yet)
  *   - run on a GPU: everything is CPU code (OpenMP + AVX2 where the compiler targets it);
  *   - implement NACRE_METHOD_LAYERED (its issue is open): it returns NACRE_ERROR_UNSUPPORTED;
+ *   - light fog with point or spot lights, or shadow it, outside the path tracer: phong and
+ *     diffusion draw fog by an analytic post pass (directional lights and the environment);
  *   - animate anything but deformers (time-dependent) and edits between commits.
  *
  * HEADERS

@@ -134,6 +134,8 @@ NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
  *   tsm, inject   per translucent object: medium, lights, diffusion and shadow settings
  *   propagate  per translucent object: inject (the solve; also its setup after medium)
  *   shade      every frame
+ *   fog        every frame of a raster method when the scene has fog (the post pass over the
+ *              image and depth: distance and height fog, see docs/scene-format.md "fog")
  * The path tracer runs none of these; its frames restart or accumulate (pathtrace.accumulate). */
 #define NACRE_STAGE_LIST(X)                                                                    \
     X(NACRE_STAGE_SETUP, "setup")                                                              \
@@ -145,7 +147,8 @@ NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
     X(NACRE_STAGE_TSM, "tsm")                                                                  \
     X(NACRE_STAGE_INJECT, "inject")                                                            \
     X(NACRE_STAGE_PROPAGATE, "propagate")                                                      \
-    X(NACRE_STAGE_SHADE, "shade")
+    X(NACRE_STAGE_SHADE, "shade")                                                              \
+    X(NACRE_STAGE_FOG, "fog")
 
 typedef enum nacre_stage {
 #define NACRE_STAGE_ENUM_(name, text) name,
@@ -182,6 +185,9 @@ typedef struct nacre_render_stats {
     uint32_t pixels_unsampled;   /* time limit reached within the first pass: pixels without a
                                     sample, filled with their 8x8 block's mean (0 if none) */
     bool accumulated;            /* this frame added to the previous frames' samples */
+    /* fog post pass (methods that do not render fog themselves; docs/scene-format.md "fog") */
+    uint32_t fog_lights_ignored; /* point and spot lights, which light no fog in the pass */
+    uint32_t fog_patterns_averaged; /* patterned fogs drawn with their mean coefficients */
 } nacre_render_stats;
 
 /* A renderer lives across frames: it keeps each stage's results and recomputes only the stages

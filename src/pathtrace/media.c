@@ -31,6 +31,9 @@
  * rays through air are attenuated by it, scattering vertices in it use NEE and phase sampling.
  * Translucent objects displace fog (inside one, only its medium counts).
  *
+ * The closed forms (Beer-Lambert transmittance, the height factor and its caps) are the shared
+ * ones of volume/volume.h, which the real-time fog pass uses too.
+ *
  * Units: distances along a ray are ray parameters of unit directions (scene units),
  * coefficients are per scene unit, throughputs (beta) are RGB.
  */
@@ -242,7 +245,7 @@ static bool maj_next(maj_iter *it, float *s0, float *s1, float *maj)
  * majorant optical depth is below FOG_THIN (thin fog, or steep falloff: 1e4 per unit cut a ray
  * into 1e4 pieces per unit of height), the piece doubles in length while it stays below: it
  * then costs one tentative collision in a thousand, and thin stretches are crossed in a few
- * pieces. A fog's density (sigma_t times height()) is capped at FOG_MAX_DENSITY per scene unit,
+ * pieces. A fog's density (sigma_t times height()) is capped at NC_VOL_MAX_DENSITY per scene unit,
  * a free path far below float resolution at any scene scale, so that tracking weights (products
  * of two densities) stay finite. */
 #define FOG_TAIL 1e-7f
@@ -251,7 +254,7 @@ static bool maj_next(maj_iter *it, float *s0, float *s1, float *maj)
 
 static float fog_height(const pt_fog *f, float y)
 {
-    return expf(f->height ? fminf(f->hexp, -f->falloff * (y - f->base)) : f->hexp);
+    return nc_vol_height_factor(f->height, f->falloff, f->base, f->hexp, y);
 }
 
 typedef struct fog_iter {
@@ -494,7 +497,7 @@ ff_event nc_pt_flight_resolve_homogeneous(const pt_object *o, float t, float tma
     float tr[3], pdf = 0.0f;
     if (t >= tmax) {
         for (int c = 0; c < 3; c++) {
-            tr[c] = expf(-st[c] * tmax);
+            tr[c] = nc_vol_transmittance(st[c], tmax);
             pdf += b[c] / bsum * tr[c];
         }
         if (!(pdf > 0.0f))
@@ -503,7 +506,7 @@ ff_event nc_pt_flight_resolve_homogeneous(const pt_object *o, float t, float tma
         return FF_PASS;
     }
     for (int c = 0; c < 3; c++) {
-        tr[c] = expf(-st[c] * t);
+        tr[c] = nc_vol_transmittance(st[c], t);
         pdf += b[c] / bsum * st[c] * tr[c];
     }
     if (!(pdf > 0.0f))
@@ -558,8 +561,9 @@ ff_event nc_pt_free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org, 
 nc_vec3 nc_pt_transmittance(const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax, nc_rng *rng)
 {
     if (o && !o->heterogeneous)
-        return nc_v3(expf(-(o->sigma_a[0] + o->sigma_s[0]) * tmax), expf(-(o->sigma_a[1] + o->sigma_s[1]) * tmax),
-                     expf(-(o->sigma_a[2] + o->sigma_s[2]) * tmax));
+        return nc_v3(nc_vol_transmittance(o->sigma_a[0] + o->sigma_s[0], tmax),
+                     nc_vol_transmittance(o->sigma_a[1] + o->sigma_s[1], tmax),
+                     nc_vol_transmittance(o->sigma_a[2] + o->sigma_s[2], tmax));
     nc_vec3 tr = nc_v3(1, 1, 1);
     collision_walk w;
     walk_init(&w, ps, o, org, dir, tmax);

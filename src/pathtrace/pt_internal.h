@@ -19,6 +19,7 @@
 #include "layered/layers.h"
 #include "scene/medium.h"
 #include "scene/scene.h"
+#include "volume/volume.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -96,7 +97,7 @@ typedef struct pt_fog {
     float half[3];        /* box: half edge lengths */
     float maj;            /* scalar bound of sigma_t where height() = 1 */
     float falloff, base, g;
-    float hexp;           /* cap of height()'s exponent: at most 60, and maj e^hexp <= FOG_MAX_DENSITY */
+    float hexp;           /* cap of height()'s exponent: at most 60, and maj e^hexp <= NC_VOL_MAX_DENSITY */
 } pt_fog;
 
 struct nc_pathtracer {
@@ -199,8 +200,6 @@ typedef struct pt_hit {
 
 typedef enum { FF_PASS = 0, FF_SCATTER, FF_ABSORB } ff_event;
 
-/* Fog densities are capped at this (see "fog" in media.c). */
-#define FOG_MAX_DENSITY 1e12f
 /* Clearance grids: see nc_pt_clearance() in scene_setup.c. */
 #ifndef CLEAR_STEPS
 #define CLEAR_STEPS 4        /* further bounds looked up along a flight before asking Embree */

@@ -525,9 +525,7 @@ static void setup_fogs(nc_pathtracer *pt, const nacre_scene *s, nc_pt_medium_max
         max_fn(s, &rec->medium, mx);
         f->maj = fmaxf(mx[0], fmaxf(mx[1], mx[2]));
         f->height = rec->desc.height_falloff > 0;
-        f->hexp = f->height ? 60.0f : 0.0f;
-        if (f->maj > 0)
-            f->hexp = fminf(f->hexp, logf(FOG_MAX_DENSITY / f->maj));
+        f->hexp = nc_vol_height_exp_cap(f->height, f->maj);
         f->falloff = rec->desc.height_falloff;
         f->base = rec->desc.height_base;
         f->g = rec->desc.g;

@@ -78,6 +78,9 @@ typedef struct nc_post_pass {
     void (*destroy)(nacre_context *ctx, void *state);
 } nc_post_pass;
 
+/* Distance and exponential height fog over a finished frame (post_fog.c). */
+extern const nc_post_pass nc_post_fog;
+
 /* The built-in post passes, in the order they apply (post.c). */
 extern const nc_post_pass *const nc_post_passes[];
 extern const uint32_t nc_post_pass_count;

@@ -1,9 +1,11 @@
 /*
  * post.c: the built-in post passes, applied in this order over every method's image with its
- * depth (method.h). The fog and froxel volumetrics of seed 003 go here as they land; until then
- * the list is empty and a frame ends with its method.
+ * depth (method.h). Each pass decides from the scene and the settings whether it runs:
+ *   fog   distance and exponential height fog (post_fog.c), for methods that do not render
+ *         fog themselves (phong, diffusion)
+ * The froxel volumetrics of seed 003 (issue 24) will replace the fog pass where they apply.
  */
 #include "render/method.h"
 
-const nc_post_pass *const nc_post_passes[] = {NULL};
-const uint32_t nc_post_pass_count = 0;
+const nc_post_pass *const nc_post_passes[] = {&nc_post_fog};
+const uint32_t nc_post_pass_count = sizeof(nc_post_passes) / sizeof(nc_post_passes[0]);

@@ -128,6 +128,9 @@ static nacre_result post_passes(nacre_renderer *r, nc_frame *f)
                             .depth = f->depth};
         if ((res = p->apply(r->post_state[i], &in, f->out, f->stats)) != NACRE_OK)
             return res;
+        /* The pass changed background pixels too: the next frame cannot keep them
+         * (reuse_output), or it would apply the pass to them twice. */
+        r->raster.image_valid = false;
     }
     return NACRE_OK;
 }

@@ -426,9 +426,17 @@ static int cmd_render(int argc, char **argv)
         fprintf(stderr, "nacre: note: %llu paths reached the path-length or collision cap and were ended there "
                         "(see README: the path tracer's caps)\n",
                 (unsigned long long)st.paths_capped);
-    if (nacre_scene_fog_count(scene) > 0 && !info.renders_fog)
-        fprintf(stderr, "nacre: note: the scene's fog is rendered by --method pathtrace only; method '%s' ignores it\n",
-                nacre_method_name(rs.method));
+    /* Raster methods draw fog by the fog post pass; say what it leaves out. */
+    if (st.fog_lights_ignored > 0)
+        fprintf(stderr, "nacre: note: method '%s' lights fog with directional lights and the environment only; "
+                        "%u point or spot light%s add%s no light to the fog (--method pathtrace does)\n",
+                nacre_method_name(rs.method), st.fog_lights_ignored, st.fog_lights_ignored == 1 ? "" : "s",
+                st.fog_lights_ignored == 1 ? "s" : "");
+    if (st.fog_patterns_averaged > 0)
+        fprintf(stderr, "nacre: note: method '%s' draws %u patterned fog%s with %s mean coefficients "
+                        "(--method pathtrace renders the pattern)\n",
+                nacre_method_name(rs.method), st.fog_patterns_averaged, st.fog_patterns_averaged == 1 ? "" : "s",
+                st.fog_patterns_averaged == 1 ? "its" : "their");
     if (!image_finite(&img, &rs, "image")) /* nothing is written */
         goto out;
     if (variance_path) {

@@ -1,0 +1,371 @@
+/*
+ * post_fog.c: distance fog and exponential height fog as a post pass (Hubert 2020, seed 003
+ * §2.1: analytic fog from the depth buffer; §2.1.2 height fog; §2.1.4 the fog's colour from a
+ * light at infinity through the phase function plus an ambient term from the environment), over
+ * the image of every method that does not render fog itself (phong, diffusion), background and
+ * translucent objects included.
+ *
+ * Per pixel, the camera ray through the pixel centre (perspective: from the eye; orthographic:
+ * from the near plane, as the path tracer's rays) runs to the depth buffer's surface or, over
+ * the background, to infinity. Each fog i contributes the integral G_i of its height factor over
+ * its part of the ray (global: all of it; box: the ray-box segment), in closed form
+ * (nc_vol_height_integral), so its optical depth per channel is sigma_t,i G_i. The pixel's
+ * colour c becomes c T + L, per channel, with
+ *   T = e^(-tau),  tau = sum_i sigma_t,i G_i,
+ *   L = (1 - T) / tau x sum_i sigma_s,i G_i S_i,
+ *   S_i = sum over directional lights l of E_l p_i(cos theta_l) + L_env,
+ * E_l the light's irradiance, p_i fog i's Henyey-Greenstein phase at the angle between the
+ * light's direction and the way to the eye, L_env the environment radiance taken as isotropic
+ * ambient light (the phase integrates to 1 over directions). For one fog of constant density
+ * this is the exact single scattering of a medium lit without occlusion, sigma_s / sigma_t
+ * (1 - T) S (the segment integral of §1.2.10); for height fog too, since S is constant along the
+ * ray. Several fogs share the scattered light in proportion to their optical depths: exact when
+ * their densities are proportional along the ray, energy-conserving always. Where the optical
+ * depth diverges (the background through a global fog without falloff, or through height fog
+ * along a level or descending ray) T = 0 and L is the diverging fogs' own colour,
+ * sum sigma_s,i S_i / sum sigma_t,i.
+ *
+ * Not modelled here (the froxel pass of issue 24 is where they belong): shadows in the fog and
+ * the fog's attenuation of the light on its way in (every point is lit fully), point and spot
+ * lights (they add no fog light; nacre render notes it), multiple scattering, emission.
+ * Patterned fogs use their mean coefficients over 16^3 points of the box (global fogs: of the
+ * scene's bounds), computed when the fogs or the geometry change.
+ *
+ * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
+ */
+#include "core/core.h"
+#include "render/method.h"
+#include "scene/medium.h"
+#include "volume/volume.h"
+
+#include <math.h>
+#include <string.h>
+
+enum { MEAN_RES = 16, MEAN_POINTS = MEAN_RES * MEAN_RES * MEAN_RES };
+
+/* One fog as the pixels need it. */
+typedef struct fog_const {
+    bool box;
+    double w2l[3][4]; /* box: world -> local rows (rotation and translation) */
+    double half[3];   /* box: half edge lengths */
+    nc_vol_height h;
+    double sigma_t[3], sigma_s[3]; /* where the height factor is 1 (patterns: their mean) */
+    double g;
+} fog_const;
+
+/* A directional light: the way its light travels, and its irradiance. */
+typedef struct sun {
+    double dir[3], e[3];
+} sun;
+
+/* The camera rays of the frame: pixel (x, y) -> view-space point through inv_proj. */
+typedef struct camera_rays {
+    double inv_proj[4][4];
+    double cam_to_world[3][4];
+    double sx, sy; /* pixel -> NDC */
+    bool ortho;
+} camera_rays;
+
+typedef struct fog_state {
+    fog_const fogs[NACRE_MAX_FOGS];
+    uint32_t fog_count;
+    sun *suns;
+    uint32_t sun_capacity, sun_count;
+    double env[3];
+    /* Mean coefficients of the fogs, for the scene, fog and geometry versions they came from. */
+    bool mean_valid;
+    uint64_t mean_uid, mean_env, mean_geo;
+    float mean_sa[NACRE_MAX_FOGS][3], mean_ss[NACRE_MAX_FOGS][3];
+    float *points, *eval_sa, *eval_ss; /* MEAN_POINTS x 3 each */
+} fog_state;
+
+static bool fog_wanted(const nacre_scene *scene, const nacre_render_settings *settings)
+{
+    const nc_method *m = nc_method_get(settings->method);
+    return scene->fog_count > 0 && m && !m->renders_fog;
+}
+
+static void fog_destroy(nacre_context *ctx, void *state)
+{
+    fog_state *st = state;
+    if (!st)
+        return;
+    nc_free(ctx, st->suns);
+    nc_free(ctx, st->points);
+    nc_free(ctx, st->eval_sa);
+    nc_free(ctx, st->eval_ss);
+    nc_free(ctx, st);
+}
+
+static nacre_result fog_create(nacre_context *ctx, void **state)
+{
+    fog_state *st = nc_calloc(ctx, 1, sizeof(*st));
+    if (!st)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    size_t bytes = (size_t)MEAN_POINTS * 3 * sizeof(float);
+    st->points = nc_alloc(ctx, bytes);
+    st->eval_sa = nc_alloc(ctx, bytes);
+    st->eval_ss = nc_alloc(ctx, bytes);
+    if (!st->points || !st->eval_sa || !st->eval_ss) {
+        fog_destroy(ctx, st);
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    }
+    *state = st;
+    return NACRE_OK;
+}
+
+/* Mean sigma_a, sigma_s of a patterned fog over a stratified grid of the region it is seen in:
+ * its box, or for a global fog the scene's bounds (where the camera looks). */
+static void pattern_mean(fog_state *st, const nacre_scene *s, const nc_fog_rec *rec, float sa[3], float ss[3])
+{
+    bool box = rec->desc.shape == NACRE_FOG_BOX;
+    for (int k = 0; k < MEAN_RES; k++)
+        for (int j = 0; j < MEAN_RES; j++)
+            for (int i = 0; i < MEAN_RES; i++) {
+                float u[3] = {(i + 0.5f) / MEAN_RES, (j + 0.5f) / MEAN_RES, (k + 0.5f) / MEAN_RES};
+                float *p = st->points + 3 * ((size_t)i + MEAN_RES * ((size_t)j + MEAN_RES * (size_t)k));
+                nc_vec3 q;
+                if (box)
+                    q = nc_v3((u[0] - 0.5f) * rec->desc.size[0], (u[1] - 0.5f) * rec->desc.size[1],
+                              (u[2] - 0.5f) * rec->desc.size[2]);
+                else
+                    q = nc_mat4_point(&rec->world_to_local,
+                                      nc_v3(s->bounds_min[0] + u[0] * (s->bounds_max[0] - s->bounds_min[0]),
+                                            s->bounds_min[1] + u[1] * (s->bounds_max[1] - s->bounds_min[1]),
+                                            s->bounds_min[2] + u[2] * (s->bounds_max[2] - s->bounds_min[2])));
+                p[0] = q.x, p[1] = q.y, p[2] = q.z;
+            }
+    nc_medium_eval(s, &rec->medium, st->points, MEAN_POINTS, st->eval_sa, st->eval_ss);
+    double a[3] = {0, 0, 0}, b[3] = {0, 0, 0};
+    for (size_t n = 0; n < MEAN_POINTS; n++)
+        for (int c = 0; c < 3; c++) {
+            a[c] += st->eval_sa[3 * n + c];
+            b[c] += st->eval_ss[3 * n + c];
+        }
+    for (int c = 0; c < 3; c++) {
+        sa[c] = (float)(a[c] / MEAN_POINTS);
+        ss[c] = (float)(b[c] / MEAN_POINTS);
+    }
+}
+
+/* The frame's fogs, directional lights and environment. */
+static nacre_result fog_setup(fog_state *st, nacre_context *ctx, const nacre_scene *s)
+{
+    if (!st->mean_valid || st->mean_uid != s->uid || st->mean_env != s->committed.environment ||
+        st->mean_geo != s->committed.geometry) {
+        for (uint32_t i = 0; i < s->fog_count; i++) {
+            const nc_fog_rec *rec = &s->fogs[i];
+            if (nc_medium_heterogeneous(&rec->medium)) {
+                pattern_mean(st, s, rec, st->mean_sa[i], st->mean_ss[i]);
+            } else {
+                memcpy(st->mean_sa[i], rec->desc.sigma_a, sizeof(st->mean_sa[i]));
+                memcpy(st->mean_ss[i], rec->desc.sigma_s, sizeof(st->mean_ss[i]));
+            }
+        }
+        st->mean_valid = true;
+        st->mean_uid = s->uid;
+        st->mean_env = s->committed.environment;
+        st->mean_geo = s->committed.geometry;
+    }
+    st->fog_count = s->fog_count;
+    for (uint32_t i = 0; i < s->fog_count; i++) {
+        const nc_fog_rec *rec = &s->fogs[i];
+        fog_const *f = &st->fogs[i];
+        f->box = rec->desc.shape == NACRE_FOG_BOX;
+        for (int r = 0; r < 3; r++) {
+            for (int c = 0; c < 4; c++)
+                f->w2l[r][c] = rec->world_to_local.m[r][c];
+            f->half[r] = 0.5 * rec->desc.size[r];
+        }
+        /* The density cap exactly as the path tracer applies it (volume.h). */
+        float mx[3];
+        nc_medium_max_sigma_t(s, &rec->medium, mx);
+        bool height = rec->desc.height_falloff > 0;
+        f->h = (nc_vol_height){.falloff = height ? rec->desc.height_falloff : 0.0,
+                               .base = rec->desc.height_base,
+                               .cap = nc_vol_height_exp_cap(height, fmaxf(mx[0], fmaxf(mx[1], mx[2])))};
+        for (int c = 0; c < 3; c++) {
+            f->sigma_s[c] = st->mean_ss[i][c];
+            f->sigma_t[c] = (double)st->mean_sa[i][c] + st->mean_ss[i][c];
+        }
+        f->g = rec->desc.g;
+    }
+    uint32_t suns = 0;
+    for (uint32_t i = 0; i < s->light_count; i++)
+        suns += s->lights[i].desc.type == NACRE_LIGHT_DIRECTIONAL;
+    if (suns > st->sun_capacity) {
+        sun *grown = nc_alloc(ctx, suns * sizeof(*grown));
+        if (!grown)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        nc_free(ctx, st->suns);
+        st->suns = grown;
+        st->sun_capacity = suns;
+    }
+    st->sun_count = 0;
+    for (uint32_t i = 0; i < s->light_count; i++) {
+        const nacre_light_desc *ld = &s->lights[i].desc;
+        if (ld->type != NACRE_LIGHT_DIRECTIONAL)
+            continue;
+        sun *l = &st->suns[st->sun_count++];
+        for (int c = 0; c < 3; c++) {
+            l->dir[c] = ld->direction[c];
+            l->e[c] = ld->strength[c];
+        }
+    }
+    for (int c = 0; c < 3; c++)
+        st->env[c] = s->environment[c];
+    return NACRE_OK;
+}
+
+static void camera_setup(const nc_raster_view *v, camera_rays *cr)
+{
+    nc_mat4 inv_proj, inv_view;
+    nc_mat4_inverse(v->proj, &inv_proj);
+    nc_mat4_inverse(v->view, &inv_view);
+    for (int r = 0; r < 4; r++)
+        for (int c = 0; c < 4; c++) {
+            cr->inv_proj[r][c] = inv_proj.m[r][c];
+            if (r < 3)
+                cr->cam_to_world[r][c] = inv_view.m[r][c];
+        }
+    cr->sx = 2.0 / v->width;
+    cr->sy = 2.0 / v->height;
+    cr->ortho = v->orthographic;
+}
+
+/* The camera ray of pixel (x, y) in world space (unit d) and the distance along it to a
+ * surface at view-axis depth `depth` (+inf stays +inf). */
+static double camera_ray(const camera_rays *cr, int32_t x, int32_t y, float depth, double o[3], double d[3])
+{
+    double nx = (x + 0.5) * cr->sx - 1.0, ny = 1.0 - (y + 0.5) * cr->sy;
+    double ov[3] = {0, 0, 0}, dv[3] = {0, 0, -1}, q[4];
+    double nz = cr->ortho ? 0.0 : 1.0; /* orthographic: the near plane; perspective: any point */
+    for (int r = 0; r < 4; r++)
+        q[r] = cr->inv_proj[r][0] * nx + cr->inv_proj[r][1] * ny + cr->inv_proj[r][2] * nz + cr->inv_proj[r][3];
+    double t;
+    if (cr->ortho) {
+        for (int k = 0; k < 3; k++)
+            ov[k] = q[k] / q[3];
+        t = depth + ov[2]; /* the surface is at view z = -depth, the ray starts at ov[2] */
+    } else {
+        double sg = q[3] < 0 ? -1.0 : 1.0, len = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+        for (int k = 0; k < 3; k++)
+            dv[k] = q[k] * sg / len;
+        t = depth / -dv[2];
+    }
+    for (int r = 0; r < 3; r++) {
+        const double *m = cr->cam_to_world[r];
+        o[r] = m[0] * ov[0] + m[1] * ov[1] + m[2] * ov[2] + m[3];
+        d[r] = m[0] * dv[0] + m[1] * dv[1] + m[2] * dv[2];
+    }
+    return t > 0.0 ? t : 0.0;
+}
+
+/* The part [t0, t1] of [0, tmax] inside a box fog (slab test in its local frame). */
+static bool box_segment(const fog_const *f, const double o[3], const double d[3], double tmax, double *t0, double *t1)
+{
+    double a = 0.0, b = tmax;
+    for (int k = 0; k < 3; k++) {
+        const double *m = f->w2l[k];
+        double ol = m[0] * o[0] + m[1] * o[1] + m[2] * o[2] + m[3];
+        double dl = m[0] * d[0] + m[1] * d[1] + m[2] * d[2];
+        if (dl == 0.0) {
+            if (fabs(ol) > f->half[k])
+                return false;
+            continue;
+        }
+        double ta = (-f->half[k] - ol) / dl, tb = (f->half[k] - ol) / dl;
+        if (ta > tb) { /* ternaries, not fmin/fmax: those are libm calls here */
+            double u = ta;
+            ta = tb;
+            tb = u;
+        }
+        a = ta > a ? ta : a;
+        b = tb < b ? tb : b;
+    }
+    *t0 = a;
+    *t1 = b;
+    return a < b;
+}
+
+/* c T + L along one ray (see the top of the file), into rgb. */
+static void fog_pixel(const fog_state *st, const double o[3], const double d[3], double tmax, float *rgb)
+{
+    double tau[3] = {0, 0, 0}, acc[3] = {0, 0, 0}, tau_inf[3] = {0, 0, 0}, acc_inf[3] = {0, 0, 0};
+    for (uint32_t i = 0; i < st->fog_count; i++) {
+        const fog_const *f = &st->fogs[i];
+        double t0 = 0.0, t1 = tmax;
+        if (f->box && !box_segment(f, o, d, tmax, &t0, &t1))
+            continue;
+        double G = nc_vol_height_integral(&f->h, o[1], d[1], t0, t1);
+        if (!(G > 0.0))
+            continue;
+        double S[3] = {st->env[0], st->env[1], st->env[2]};
+        for (uint32_t l = 0; l < st->sun_count; l++) {
+            const sun *s = &st->suns[l];
+            double p = nc_hg_phase(-(d[0] * s->dir[0] + d[1] * s->dir[1] + d[2] * s->dir[2]), f->g);
+            for (int c = 0; c < 3; c++)
+                S[c] += s->e[c] * p;
+        }
+        bool diverges = isinf(G);
+        for (int c = 0; c < 3; c++) {
+            if (!(f->sigma_t[c] > 0.0))
+                continue; /* clear in this channel (and no 0 x inf) */
+            if (diverges) {
+                tau_inf[c] += f->sigma_t[c];
+                acc_inf[c] += f->sigma_s[c] * S[c];
+            } else {
+                tau[c] += f->sigma_t[c] * G;
+                acc[c] += f->sigma_s[c] * G * S[c];
+            }
+        }
+    }
+    for (int c = 0; c < 3; c++) {
+        if (tau_inf[c] > 0.0) {
+            rgb[c] = (float)(acc_inf[c] / tau_inf[c]);
+            continue;
+        }
+        /* (1 - T) / tau without cancellation in thin fog (nc_vol_exp_ratio_t). */
+        double T = exp(-tau[c]);
+        rgb[c] = (float)(rgb[c] * T + acc[c] * nc_vol_exp_ratio_t(tau[c], T));
+    }
+}
+
+static nacre_result fog_apply(void *state, const nc_post_input *in, nacre_image *image, nacre_render_stats *stats)
+{
+    fog_state *st = state;
+    uint64_t t_start = nc_now_us();
+    nacre_result res = fog_setup(st, in->ctx, in->scene);
+    if (res != NACRE_OK)
+        return res;
+    camera_rays cr;
+    camera_setup(in->view, &cr);
+    int32_t w = image->width, h = image->height;
+    const float *depth = in->depth;
+    /* Rows in parallel; pixels are independent, so the image does not depend on the threads. */
+#pragma omp parallel for schedule(static) num_threads(in->ctx->threads)
+    for (int32_t y = 0; y < h; y++) {
+        float *row = image->pixels + (size_t)y * image->stride;
+        for (int32_t x = 0; x < w; x++) {
+            double o[3], d[3];
+            double tmax = camera_ray(&cr, x, y, depth[(size_t)y * (size_t)w + (size_t)x], o, d);
+            fog_pixel(st, o, d, tmax, row + 3 * (size_t)x);
+        }
+    }
+    stats->fog_lights_ignored = in->scene->light_count - st->sun_count;
+    stats->fog_patterns_averaged = 0;
+    for (uint32_t i = 0; i < in->scene->fog_count; i++)
+        stats->fog_patterns_averaged += nc_medium_heterogeneous(&in->scene->fogs[i].medium);
+    stats->stage_us[NACRE_STAGE_FOG] += nc_now_us() - t_start;
+    stats->stage_ran[NACRE_STAGE_FOG] = true;
+    stats->stage_runs[NACRE_STAGE_FOG] = 1;
+    return NACRE_OK;
+}
+
+const nc_post_pass nc_post_fog = {
+    .name = "fog",
+    .wanted = fog_wanted,
+    .create = fog_create,
+    .apply = fog_apply,
+    .destroy = fog_destroy,
+};

@@ -1,0 +1,137 @@
+/*
+ * volume.h: the physical core of participating media (Hubert 2020, seed 003 §1.2), shared by
+ * the real-time volumetric passes (render/post_fog.c) and the path tracer's fog
+ * (pathtrace/media.c), so that both use one set of formulas:
+ *   - Beer-Lambert transmittance over a homogeneous segment, e^(-sigma_t d) (§1.2.7.1), and over
+ *     a run of homogeneous steps (the product of the steps' transmittances, §1.2.7.1 fig. 1.29);
+ *   - the energy-conserving segment integral (§1.2.10): integral_0^d S e^(-sigma_t t) dt
+ *     = S (1 - e^(-sigma_t d)) / sigma_t for a source S constant on the segment (in-scattered
+ *     light sigma_s L, or emission, §1.2.11), with its sigma_t -> 0 limit S d, and front-to-back
+ *     accumulation of such segments;
+ *   - the exponential height fog of §2.1.2: density factor e^(-k (y - y0)), its exponent capped
+ *     (as the scene format says), and its integral along a ray in closed form, with the
+ *     horizontal-ray limit computed without cancellation.
+ * The Henyey-Greenstein phase function keeps its one home in core/optics.h (nc_hg_phase,
+ * nc_hg_sample_cos), next to the other optics that the diffusion solver also uses; this header
+ * includes it so that volume code needs only this header.
+ *
+ * Units: lengths in scene units along unit directions, coefficients per scene unit, radiance
+ * and emission (radiance per unit length) per channel; world y is up for height fog.
+ */
+#ifndef NACRE_VOLUME_H
+#define NACRE_VOLUME_H
+
+#include "core/optics.h"
+
+#include <math.h>
+#include <stdbool.h>
+#include <stddef.h>
+
+/* Density cap of any fog, per scene unit: a free path far below float resolution at every
+ * scene scale, so that tracking weights (products of two densities) stay finite. */
+#define NC_VOL_MAX_DENSITY 1e12f
+/* Cap of the height factor's exponent (the density stops growing e^60 times above its base
+ * value, far below any scene; nacre_fog_desc). */
+#define NC_VOL_HEIGHT_EXP_MAX 60.0f
+
+/* ---- Beer-Lambert ---------------------------------------------------------------------- */
+
+/* Transmittance of a homogeneous segment of length d. Float, written as the path tracer has
+ * always evaluated it, so that sharing it changes no bit of its images. */
+static inline float nc_vol_transmittance(float sigma_t, float d) { return expf(-sigma_t * d); }
+
+/* Transmittance through n homogeneous steps (sigma_t[i] over length[i]): the product of the
+ * steps' transmittances, evaluated as e^(-sum of optical depths) (one exponential, and no
+ * underflow of partial products before a step of zero density). */
+double nc_vol_transmittance_steps(size_t n, const float *sigma_t, const float *length);
+
+/* ---- segment integral (§1.2.10) -------------------------------------------------------- */
+
+/* (1 - e^(-x)) / x for x >= 0 (1 at 0; 0 at +inf), without cancellation for small x: the
+ * fraction of a segment's optical depth x that is not transmitted, per unit of x. */
+double nc_vol_exp_ratio(double x);
+
+/* Below this x, nc_vol_exp_ratio sums the series sum_n (-x)^n / (n + 1)! through n = 8 (the next
+ * term is under 3e-16 relative); above it, (1 - e^(-x)) / x loses at most ~3e-15 to
+ * cancellation. This costs one exp where expm1 was twice as slow (measured in the fog pass), and
+ * lets a caller that already has e^(-x) skip it. */
+#define NC_VOL_SERIES_MAX 0.1
+
+/* nc_vol_exp_ratio(x) given t = e^(-x) (ignored below NC_VOL_SERIES_MAX). */
+static inline double nc_vol_exp_ratio_t(double x, double t)
+{
+    if (x < NC_VOL_SERIES_MAX) {
+        double r = 1.0 / 362880.0; /* 1 / 9! */
+        const double inv_fact[8] = {1.0 / 40320, 1.0 / 5040, 1.0 / 720, 1.0 / 120, 1.0 / 24, 1.0 / 6, 0.5, 1.0};
+        for (int n = 0; n < 8; n++)
+            r = inv_fact[n] - x * r;
+        return r;
+    }
+    if (isinf(x))
+        return 0.0;
+    return (1.0 - t) / x;
+}
+
+/* integral_0^d e^(-sigma_t t) dt = (1 - e^(-sigma_t d)) / sigma_t, d when sigma_t = 0; d may be
+ * +inf (then 1 / sigma_t, or +inf for sigma_t = 0). */
+double nc_vol_segment_weight(double sigma_t, double d);
+
+/* Radiance that a homogeneous segment of length d in-scatters towards its start:
+ * sigma_s L_s (1 - e^(-sigma_t d)) / sigma_t, where L_s = integral of phase x incident radiance
+ * over directions (seed eq. 1.31 without sigma_s). Energy-conserving for any d: the result never
+ * exceeds what the segment removes from a beam of radiance L_s (albedo x (1 - T) x L_s). */
+double nc_vol_inscatter_segment(double sigma_s, double sigma_t, double l_s, double d);
+
+/* Radiance that a homogeneous segment of length d emits towards its start, emission being
+ * radiance per unit length (§1.2.11: a term added to the source): emission x weight. */
+double nc_vol_emission_segment(double emission, double sigma_t, double d);
+
+/* Front-to-back integration of one channel along a ray made of homogeneous steps: radiance
+ * gathered so far and transmittance from the ray's start to the current step. */
+typedef struct nc_vol_march {
+    double radiance, transmittance;
+} nc_vol_march;
+
+static inline nc_vol_march nc_vol_march_begin(void) { return (nc_vol_march){0.0, 1.0}; }
+
+/* Add a step of length d with extinction sigma_t and source `source` per unit length
+ * (sigma_s L_s + emission): the segment integral, seen through the steps before it. Splitting a
+ * homogeneous run into any number of steps gives the same result (up to rounding). */
+void nc_vol_march_step(nc_vol_march *m, double sigma_t, double source, double d);
+
+/* ---- exponential height fog (§2.1.2) -------------------------------------------------- */
+
+/* The exponent cap of a fog: NC_VOL_HEIGHT_EXP_MAX with a height falloff (0 without), lowered
+ * so that the densest point, maj x e^cap, stays at NC_VOL_MAX_DENSITY; maj bounds the fog's
+ * sigma_t where the height factor is 1 (its largest channel). */
+static inline float nc_vol_height_exp_cap(bool height, float maj)
+{
+    float cap = height ? NC_VOL_HEIGHT_EXP_MAX : 0.0f;
+    if (maj > 0)
+        cap = fminf(cap, logf(NC_VOL_MAX_DENSITY / maj));
+    return cap;
+}
+
+/* The height factor at world height y: e^(min(cap, -falloff (y - base))) with a falloff,
+ * e^cap without (1 unless the density cap lowered it). Float, as the path tracer tracks it. */
+static inline float nc_vol_height_factor(bool height, float falloff, float base, float cap, float y)
+{
+    return expf(height ? fminf(cap, -falloff * (y - base)) : cap);
+}
+
+/* A fog's height profile in double, for the closed-form integrals. */
+typedef struct nc_vol_height {
+    double falloff; /* per scene unit, >= 0; 0: constant factor e^min(cap, 0) */
+    double base;    /* world y where the uncapped factor is 1 */
+    double cap;     /* exponent cap (nc_vol_height_exp_cap) */
+} nc_vol_height;
+
+/* integral_t0^t1 of the height factor along the ray y(t) = y0 + dir_y t (dir_y: the y component
+ * of a unit direction), 0 <= t0 <= t1, t1 may be +inf (then +inf unless the ray rises into
+ * thinning fog). Closed form (§2.1.2): over a piece that climbs dh from its lower end y_lo,
+ * length x e^(-k (y_lo - base)) x (1 - e^(-k dh)) / (k dh), evaluated from the lower end (no
+ * overflow) with nc_vol_exp_ratio (no cancellation as dh -> 0: a horizontal ray gets
+ * length x factor exactly); the part below the cap's height has constant density e^cap. */
+double nc_vol_height_integral(const nc_vol_height *h, double y0, double dir_y, double t0, double t1);
+
+#endif /* NACRE_VOLUME_H */
