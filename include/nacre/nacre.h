@@ -91,7 +91,7 @@
  *     nacre/mesh.h    nacre_mesh_data: shapes, loading, validation, normals, tangents, analysis
  *     nacre/scene.h   the scene: materials, media, layers, volumes, textures, deformers, objects,
  *                     lights, camera, fog, units and material presets
- *     nacre/render.h  methods, render settings, stats, the renderer; scene files (load_file/json)
+ *     nacre/render.h  methods, render settings, stats, the renderer; scene files (load, save)
  *     nacre/slab.h    slab measurement (validation against exact results)
  *     nacre/voxel.h   voxelization of triangle meshes
  *   Their include guards are NACRE_PUBLIC_<NAME>_H: the library's private headers use

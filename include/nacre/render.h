@@ -1,10 +1,10 @@
 /*
  * render.h: rendering: the methods, the diffusion solver and source, nacre_render_settings, the
  * timed stages and nacre_render_stats, the renderer (nacre_renderer_render, nacre_render,
- * nacre_renderer_variance); and the loading of scene files (nacre_scene_load_file,
- * nacre_scene_load_json), here because they fill nacre_render_settings from the file's "render"
- * block. Part of nacre's public API; the conventions (units, ownership, memory, threading,
- * errors) are in the opening comment of nacre.h.
+ * nacre_renderer_variance); and the loading and saving of scene files (nacre_scene_load_file,
+ * nacre_scene_load_json, nacre_scene_save_file, nacre_scene_save_json), here because they read
+ * and write nacre_render_settings as the file's "render" block. Part of nacre's public API; the
+ * conventions (units, ownership, memory, threading, errors) are in the opening comment of nacre.h.
  */
 #ifndef NACRE_PUBLIC_RENDER_H
 #define NACRE_PUBLIC_RENDER_H
@@ -246,6 +246,31 @@ NACRE_API nacre_result nacre_scene_load_file(nacre_context *ctx, const char *pat
 NACRE_API nacre_result nacre_scene_load_json(nacre_context *ctx, const char *json, size_t length,
                                              const char *name, const char *base_dir,
                                              nacre_scene **out, nacre_scene_file_settings *settings);
+
+/* Save a scene's current state (edits included) as a scene file that nacre_scene_load_file reads
+ * back to the same descs, bit for bit: units, the "render" block from `settings` (NULL: the
+ * defaults, time 0, exposure 0; accumulate and reuse_output are not part of the format), camera,
+ * environment, every material, lights, objects and fogs. Meshes, depth maps and volumes loaded
+ * from files are referred to by path (relative to the scene file's folder when they lie in it or
+ * below, else absolute), shapes by their desc; those built from raw arrays through this API are
+ * written beside the scene file as <name>_mesh<id>.ply, <name>_depth<id>.exr and
+ * <name>_volume<id>.nrrd (lossless). Materials keep the names of their scene file; others are
+ * named "material<id>". Every file is written under a temporary name and renamed; on failure no
+ * file of this save is left behind. Refuses to write over a file the scene reads
+ * (nacre_scene_input_path, and the sources above), and values the format cannot express (a
+ * negative object scale, an opaque colour above 1: scene files take [0, 1]) with a message naming
+ * the field. Details: docs/scene-format.md, "Saving a scene". */
+NACRE_API nacre_result nacre_scene_save_file(const nacre_scene *scene,
+                                             const nacre_scene_file_settings *settings,
+                                             const char *path);
+/* Same, into a string: *json_out is allocated through the scene's context (free with nacre_free),
+ * *length_out (may be NULL) is its length without the terminating NUL. Paths are relative to
+ * `base_dir` (NULL: the working directory), where generated files are written, named
+ * scene_mesh<id>.ply and so on. */
+NACRE_API nacre_result nacre_scene_save_json(const nacre_scene *scene,
+                                             const nacre_scene_file_settings *settings,
+                                             const char *base_dir, char **json_out,
+                                             size_t *length_out);
 
 #ifdef __cplusplus
 }

@@ -121,12 +121,14 @@ NACRE_API nacre_result nacre_voxel_grid_write_nrrd(const nacre_voxel_grid *grid,
                                                    const char *path);
 /* Rest-pose coordinates. The grid must come from `deformed`; `rest` has the same vertex count
  * and indices (undeformed positions). Fills out[3 * (x + nx * (y + ny * z))] for every level-0
- * voxel (out holds 3 * nx * ny * nz floats): NaN for voxels in neither set; for a surface voxel,
- * the rest-pose point of the closest point on the closest deformed triangle (same barycentric
- * coordinates; search limited to triangles touching the voxel); for a solid voxel not on the
- * surface, its centre plus the displacement (rest - deformed) of the nearest surface voxel in
- * 6-connected steps (breadth-first, first reached wins, in a fixed order). Exact for rigid
- * translations, first order for smooth deformations. Serial. */
+ * voxel (out holds 3 * nx * ny * nz floats): NaN for voxels in neither set; otherwise the rest
+ * point of the voxel's CENTRE. A surface voxel takes the closest point q on the closest deformed
+ * triangle touching it, and maps its centre c to rest(q) + A (c - q), A the triangle's local
+ * deformed-to-rest map (its edges in the plane; along the normal, the rest normal scaled by
+ * sqrt(rest area / deformed area)). A solid voxel not on the surface follows the nearest
+ * surface voxel in 6-connected steps (breadth-first, first reached wins, in a fixed order) the
+ * same way: rest(c_surface) + A (c - c_surface). Exact for translations, rotations and uniform
+ * scales, first order for smooth deformations. Serial. */
 NACRE_API nacre_result nacre_voxel_grid_rest_positions(const nacre_voxel_grid *grid,
                                                        const nacre_mesh_data *rest,
                                                        const nacre_mesh_data *deformed,

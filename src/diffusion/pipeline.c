@@ -9,8 +9,9 @@
  * cells along the longest axis (the seed's constant, mesh-dependent volume); the domain is the
  * solid set of level 0 (cells whose centre is inside). The solid rule is decided once by AUTO
  * (which welds and analyses the mesh) and reused, since deformation does not change topology.
- * Heterogeneous media are evaluated at each voxel's rest-pose point, so the pattern moves with
- * the surface (seed figure 5.11). sigma_s' = sigma_s (1 - g).
+ * Heterogeneous media are evaluated at each voxel centre's rest-pose point, so the pattern moves
+ * with the surface (seed figure 5.11): the inverse object transform for an undeformed object
+ * (exact), nacre_voxel_grid_rest_positions for a deformed one (first order). sigma_s' = sigma_s (1 - g).
  *
  * Caches, per object: the grid and medium while the scene geometry, the material list and the
  * resolution are unchanged; the solution while the lights and diffusion settings are unchanged
@@ -249,10 +250,25 @@ nacre_result nc_diff_object_medium(nc_diff_object *o, const nacre_scene *s, uint
     if (res != NACRE_OK)
         return res;
     if (o->heterogeneous) {
-        const nacre_mesh_data *rest = &s->meshes[obj->desc.mesh.id - 1].data;
-        nacre_mesh_data dm = world_mesh(s, obj);
-        if ((res = nacre_voxel_grid_rest_positions(o->grid, rest, &dm, o->rest)) != NACRE_OK)
-            return res;
+        if (obj->desc.deformer_count == 0) {
+            /* Undeformed: the rest point of a voxel centre is exactly its inverse transform. */
+            nc_mat4 to_rest;
+            nc_mat4_inverse(obj->object_to_world, &to_rest);
+            for (uint32_t z = 0; z < o->dims[2]; z++)
+                for (uint32_t y = 0; y < o->dims[1]; y++)
+                    for (uint32_t x = 0; x < o->dims[0]; x++) {
+                        size_t i = x + o->dims[0] * (y + (size_t)o->dims[1] * z);
+                        nc_vec3 c = nc_v3(o->origin[0] + ((float)x + 0.5f) * o->h,
+                                          o->origin[1] + ((float)y + 0.5f) * o->h,
+                                          o->origin[2] + ((float)z + 0.5f) * o->h);
+                        nc_v3store(nc_mat4_point(&to_rest, c), o->rest + 3 * i);
+                    }
+        } else {
+            const nacre_mesh_data *rest = &s->meshes[obj->desc.mesh.id - 1].data;
+            nacre_mesh_data dm = world_mesh(s, obj);
+            if ((res = nacre_voxel_grid_rest_positions(o->grid, rest, &dm, o->rest)) != NACRE_OK)
+                return res;
+        }
         /* Evaluate the solid cells only: compact their points in place (the write index never
          * passes the read index), evaluate, then scatter. */
         size_t n = 0;

@@ -59,6 +59,12 @@ static void load_volume(loader *ld, const cJSON *obj, nacre_medium_pattern *p)
             vol.data[i] *= scale;
         r = nacre_scene_add_volume(ld->scene, &vol, &p->volume);
     }
+    if (r == NACRE_OK) {
+        char *absolute = nc_absolute_path(ld->ctx, path);
+        r = absolute ? nc_scene_set_volume_source(ld->scene, p->volume, absolute, (uint32_t)channel, scale)
+                     : NACRE_ERROR_OUT_OF_MEMORY;
+        nc_free(ld->ctx, absolute);
+    }
     if (r != NACRE_OK)
         nc_json_fail_inner(ld, r);
     nacre_volume_data_free(ld->ctx, &vol);
@@ -192,6 +198,12 @@ static void parse_layering(loader *ld, const cJSON *obj, nacre_layering *l)
     nacre_result r = path ? nacre_image_read_data(ld->ctx, path, &img) : NACRE_ERROR_OUT_OF_MEMORY;
     if (r == NACRE_OK)
         r = nacre_scene_add_texture(ld->scene, &img, &l->depth_map);
+    if (r == NACRE_OK) {
+        char *absolute = nc_absolute_path(ld->ctx, path);
+        r = absolute ? nc_scene_set_texture_source(ld->scene, l->depth_map, absolute)
+                     : NACRE_ERROR_OUT_OF_MEMORY;
+        nc_free(ld->ctx, absolute);
+    }
     if (r != NACRE_OK)
         nc_json_fail_inner(ld, r);
     nacre_image_free(ld->ctx, &img);
@@ -282,6 +294,12 @@ void nc_json_parse_materials(loader *ld, const cJSON *obj)
             nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "material names must not be empty");
         material_entry *e = &ld->materials[ld->material_count];
         parse_material(ld, c, &e->handle);
+        /* Kept by the scene so that saving it writes the same names. */
+        if (!ld->err) {
+            nacre_result r = nc_scene_set_material_name(ld->scene, e->handle, c->string);
+            if (r != NACRE_OK)
+                nc_json_fail_inner(ld, r);
+        }
         if (!ld->err) {
             e->name = c->string;
             ld->material_count++;

@@ -92,6 +92,15 @@ static bool load_mesh(loader *ld, const char *rel, nacre_mesh *out)
     }
     if (!add_mesh_data(ld, &data, out))
         goto out_free_path;
+    /* The scene remembers the file so that saving it refers to the file again. */
+    char *absolute = nc_absolute_path(ld->ctx, path);
+    nacre_result rs = absolute ? nc_scene_set_mesh_source(ld->scene, *out, absolute, NULL)
+                               : NACRE_ERROR_OUT_OF_MEMORY;
+    nc_free(ld->ctx, absolute);
+    if (rs != NACRE_OK) {
+        nc_json_fail_inner(ld, rs);
+        goto out_free_path;
+    }
     e->path = path;
     e->handle = *out;
     ld->mesh_count++;
@@ -234,6 +243,10 @@ static bool make_shape(loader *ld, const cJSON *obj, nacre_mesh *out)
     }
     if (!add_mesh_data(ld, &data, out))
         goto out;
+    if ((r = nc_scene_set_mesh_source(ld->scene, *out, NULL, &d)) != NACRE_OK) {
+        nc_json_fail_inner(ld, r);
+        goto out;
+    }
     e->shape = d;
     e->handle = *out;
     ld->mesh_count++;

@@ -7,6 +7,7 @@
  * described in docs/scene-format.md, "Conventions" and "Strictness and error messages". Values
  * pass through unconverted: units are the caller's business.
  */
+#define _XOPEN_SOURCE 700 /* realpath (XSI); the build asks for POSIX 2008 only */
 #include "io/scene_json_internal.h"
 
 #include <float.h>
@@ -553,4 +554,13 @@ char *nc_json_resolve_path(loader *ld, const char *rel)
         return NULL;
     }
     return p;
+}
+
+char *nc_absolute_path(nacre_context *ctx, const char *path)
+{
+    /* realpath allocates with malloc; the copy goes through the context like everything else. */
+    char *real = realpath(path, NULL);
+    char *copy = nc_strdup(ctx, real ? real : path);
+    free(real);
+    return copy;
 }

@@ -42,6 +42,7 @@
 #include <assimp/scene.h>
 
 #include <errno.h>
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -343,10 +344,16 @@ static nc_mat4 normal_matrix(const nc_mat4 *m, float *det_out)
     return c;
 }
 
-/* Unit vector or NaN: NaN marks "compute this one" for the repair pass. */
+/* Unit vector or NaN: NaN marks "compute this one" for the repair pass. A vector already of unit
+ * length to within float rounding is kept bit for bit: dividing it by its computed length would
+ * move it by an ulp, so a mesh that nacre wrote (nacre_scene_save_file writes meshes built from
+ * raw arrays as PLY) would not reload identical. The tolerance is a few ulps of 1, far below
+ * the precision of any authored normal that still needs normalising. */
 static inline nc_vec3 unit_or_nan(nc_vec3 v)
 {
     float len = nc_length(v);
+    if (fabsf(len - 1.0f) <= 4.0f * FLT_EPSILON)
+        return v;
     if (len > 0.0f && isfinite(len))
         return nc_scale(v, 1.0f / len);
     return nc_v3(NAN, NAN, NAN);

@@ -630,3 +630,37 @@ nacre_result nc_nrrd_write_u8(nacre_context *ctx, const char *path, const char *
         nc_tmpfile_abort(ctx, &tmp);
     return r;
 }
+
+nacre_result nc_nrrd_write_f32(nacre_context *ctx, const char *path, const char *comment, const uint32_t dims[3],
+                               const float spacing[3], const float origin[3], const float *data)
+{
+    if (!path || !data)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "nrrd: no path or data");
+    /* The samples are written as they are in memory: little-endian floats. */
+    _Static_assert(sizeof(float) == 4, "NRRD float samples are 4 bytes");
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
+#error "nc_nrrd_write_f32 writes memory as little-endian floats"
+#endif
+    char header[1024];
+    /* %.9g: every float prints to a decimal that reads back as the same float. */
+    int n = snprintf(header, sizeof(header),
+                     "NRRD0004\n# %s\ntype: float\ndimension: 3\nsizes: %u %u %u\n"
+                     "kinds: domain domain domain\nencoding: raw\nendian: little\nspace dimension: 3\n"
+                     "space directions: (%.9g,0,0) (0,%.9g,0) (0,0,%.9g)\nspace origin: (%.9g,%.9g,%.9g)\n\n",
+                     comment, dims[0], dims[1], dims[2], (double)spacing[0], (double)spacing[1],
+                     (double)spacing[2], (double)origin[0], (double)origin[1], (double)origin[2]);
+    if (n < 0 || (size_t)n >= sizeof(header))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: NRRD header too long", path);
+    size_t count = (size_t)dims[0] * dims[1] * dims[2];
+    nc_tmpfile tmp;
+    nacre_result r = nc_tmpfile_open(ctx, path, &tmp);
+    if (r == NACRE_OK)
+        r = nc_tmpfile_write(ctx, &tmp, header, (size_t)n);
+    if (r == NACRE_OK)
+        r = nc_tmpfile_write(ctx, &tmp, data, count * sizeof(float));
+    if (r == NACRE_OK)
+        return nc_tmpfile_commit(ctx, &tmp);
+    if (tmp.tmp_path)
+        nc_tmpfile_abort(ctx, &tmp);
+    return r;
+}

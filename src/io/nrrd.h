@@ -1,7 +1,8 @@
 /*
  * nrrd.h: NRRD volumes (private). The reader: nacre_volume_load_nrrd reads a file and calls
  * nc_nrrd_parse, which works on memory so tests and the fuzzer can feed it bytes directly. The
- * writer: nc_nrrd_write_u8, used by the voxelizer's export.
+ * writers: nc_nrrd_write_u8, used by the voxelizer's export, and nc_nrrd_write_f32, used by the
+ * scene writer for volumes that have no file.
  */
 #ifndef NACRE_NRRD_H
 #define NACRE_NRRD_H
@@ -29,5 +30,11 @@ typedef void (*nc_nrrd_row_fn)(void *user, uint32_t y, uint32_t z, uint8_t *row)
 nacre_result nc_nrrd_write_u8(nacre_context *ctx, const char *path, const char *comment, uint32_t channels,
                               const uint32_t dims[3], double spacing, const double origin[3], nc_nrrd_row_fn row_fn,
                               void *user);
+
+/* Write a raw little-endian float NRRD of one channel: sample (i, j, k) at origin + (i, j, k) *
+ * spacing (nacre_volume_data's placement), values printed so that reading the file back gives
+ * the same floats bit for bit. Temporary name and rename, as nc_nrrd_write_u8. */
+nacre_result nc_nrrd_write_f32(nacre_context *ctx, const char *path, const char *comment, const uint32_t dims[3],
+                               const float spacing[3], const float origin[3], const float *data);
 
 #endif /* NACRE_NRRD_H */

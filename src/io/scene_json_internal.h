@@ -97,6 +97,10 @@ int nc_json_get_choice(loader *ld, const cJSON *obj, const char *key, const char
 void nc_json_parse_array(loader *ld, const cJSON *arr, const char *key,
                          void (*parse_element)(loader *, const cJSON *));
 char *nc_json_resolve_path(loader *ld, const char *rel);
+/* `path` made absolute with symbolic links resolved (realpath), allocated through the context;
+ * the path as given when it does not exist. NULL when out of memory. Shared by the loader (the
+ * sources it records) and the writer (scene_write.c). */
+char *nc_absolute_path(nacre_context *ctx, const char *path);
 
 /* Section parsers, one file per section of the format; scene_json.c calls them in order. */
 void nc_json_parse_units(loader *ld, const cJSON *item);

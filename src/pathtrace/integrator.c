@@ -419,18 +419,8 @@ static void make_camera(const nacre_scene *s, int32_t width, int32_t height, pt_
     if (cam->ortho) {
         /* The raster pipeline's orthographic near plane sits before the nearest bound, possibly
          * behind the eye: rays start there so both see the same objects. */
-        float dmin = INFINITY, dmax = -INFINITY;
-        for (int k = 0; k < 8; k++) {
-            nc_vec3 p = nc_v3((k & 1) ? s->bounds_max[0] : s->bounds_min[0], (k & 2) ? s->bounds_max[1] : s->bounds_min[1],
-                              (k & 4) ? s->bounds_max[2] : s->bounds_min[2]);
-            float d = -nc_mat4_point(&view, p).z;
-            dmin = fminf(dmin, d);
-            dmax = fmaxf(dmax, d);
-        }
-        if (!isfinite(dmin) || !isfinite(dmax)) {
-            dmin = 0.01f;
-            dmax = 100.0f;
-        }
+        float dmin, dmax;
+        nc_scene_view_depth_range(s, &view, &dmin, &dmax);
         float span = fmaxf(dmax - dmin, 1e-6f);
         cam->ortho_near = c->near_clip > 0 ? c->near_clip : dmin - 0.01f * span;
         cam->half_h = 0.5f * c->ortho_height;

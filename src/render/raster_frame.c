@@ -42,19 +42,8 @@ static void camera_view(const nacre_scene *s, int32_t width, int32_t height, nc_
     v->width = width;
     v->height = height;
     v->orthographic = c->projection == NACRE_ORTHOGRAPHIC;
-    /* Depth range of the bounds' corners along the view axis. */
-    float dmin = INFINITY, dmax = -INFINITY;
-    for (int k = 0; k < 8; k++) {
-        nc_vec3 p = nc_v3((k & 1) ? s->bounds_max[0] : s->bounds_min[0], (k & 2) ? s->bounds_max[1] : s->bounds_min[1],
-                          (k & 4) ? s->bounds_max[2] : s->bounds_min[2]);
-        float d = -nc_mat4_point(&v->view, p).z;
-        dmin = fminf(dmin, d);
-        dmax = fmaxf(dmax, d);
-    }
-    if (!isfinite(dmin) || !isfinite(dmax)) {
-        dmin = 0.01f;
-        dmax = 100.0f;
-    }
+    float dmin, dmax;
+    nc_scene_view_depth_range(s, &v->view, &dmin, &dmax);
     float span = fmaxf(dmax - dmin, 1e-6f);
     float zfar = c->far_clip > 0 ? c->far_clip : dmax + 0.01f * span;
     float aspect = (float)width / (float)height;

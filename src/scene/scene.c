@@ -374,8 +374,10 @@ void nacre_scene_destroy(nacre_scene *s)
     if (!s)
         return;
     nacre_context *ctx = s->ctx;
-    for (uint32_t i = 0; i < s->mesh_count; i++)
+    for (uint32_t i = 0; i < s->mesh_count; i++) {
         nacre_mesh_data_free(ctx, &s->meshes[i].data);
+        nc_free(ctx, s->meshes[i].source_path);
+    }
     for (uint32_t i = 0; i < s->object_count; i++) {
         nc_object_rec *o = &s->objects[i];
         nc_free(ctx, o->name);
@@ -385,13 +387,20 @@ void nacre_scene_destroy(nacre_scene *s)
     }
     nc_free(ctx, s->meshes);
     nc_free(ctx, s->materials);
+    for (uint32_t i = 0; i < s->material_name_capacity; i++)
+        nc_free(ctx, s->material_names[i]);
+    nc_free(ctx, s->material_names);
     nc_free(ctx, s->objects);
     nc_free(ctx, s->lights);
-    for (uint32_t i = 0; i < s->volume_count; i++)
+    for (uint32_t i = 0; i < s->volume_count; i++) {
         nc_free(ctx, s->volumes[i].data);
+        nc_free(ctx, s->volumes[i].source_path);
+    }
     nc_free(ctx, s->volumes);
-    for (uint32_t i = 0; i < s->texture_count; i++)
+    for (uint32_t i = 0; i < s->texture_count; i++) {
         nc_free(ctx, s->textures[i].data);
+        nc_free(ctx, s->textures[i].source_path);
+    }
     nc_free(ctx, s->textures);
     for (uint32_t i = 0; i < s->input_count; i++)
         nc_free(ctx, s->inputs[i]);
@@ -417,6 +426,76 @@ nacre_result nc_scene_note_input(nacre_scene *s, const char *path)
         return NACRE_ERROR_OUT_OF_MEMORY;
     s->inputs[s->input_count++] = copy;
     return NACRE_OK;
+}
+
+/* Replace an owned string by a copy of `value` (NULL clears it). */
+static nacre_result set_string(nacre_context *ctx, char **slot, const char *value)
+{
+    char *copy = NULL;
+    if (value && !(copy = nc_strdup(ctx, value)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    nc_free(ctx, *slot);
+    *slot = copy;
+    return NACRE_OK;
+}
+
+nacre_result nc_scene_set_mesh_source(nacre_scene *s, nacre_mesh mesh, const char *path,
+                                      const nacre_shape_desc *shape)
+{
+    if (!nc_scene_mesh(s, mesh))
+        return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "mesh: invalid handle %u", mesh.id);
+    nc_mesh_rec *m = &s->meshes[mesh.id - 1];
+    nacre_result r = set_string(s->ctx, &m->source_path, path);
+    if (r != NACRE_OK)
+        return r;
+    m->from_shape = shape != NULL;
+    if (shape)
+        m->shape = *shape;
+    return NACRE_OK;
+}
+
+nacre_result nc_scene_set_volume_source(nacre_scene *s, nacre_volume volume, const char *path,
+                                        uint32_t channel, float density_scale)
+{
+    if (!nc_scene_volume(s, volume))
+        return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "volume: invalid handle %u", volume.id);
+    nc_volume_rec *v = &s->volumes[volume.id - 1];
+    v->source_channel = channel;
+    v->source_scale = density_scale;
+    return set_string(s->ctx, &v->source_path, path);
+}
+
+nacre_result nc_scene_set_texture_source(nacre_scene *s, nacre_texture texture, const char *path)
+{
+    if (!nc_scene_texture(s, texture))
+        return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "texture: invalid handle %u", texture.id);
+    return set_string(s->ctx, &s->textures[texture.id - 1].source_path, path);
+}
+
+nacre_result nc_scene_set_material_name(nacre_scene *s, nacre_material material, const char *name)
+{
+    if (!nc_scene_material(s, material))
+        return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: invalid handle %u", material.id);
+    /* Names are rare (scene files only): the array is made on first use, as large as the
+     * materials' and zeroed past the count. */
+    if (s->material_name_capacity < s->material_capacity) {
+        char **grown = nc_realloc(s->ctx, s->material_names, s->material_name_capacity * sizeof(char *),
+                                  s->material_capacity * sizeof(char *));
+        if (!grown)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        memset(grown + s->material_name_capacity, 0,
+               (s->material_capacity - s->material_name_capacity) * sizeof(char *));
+        s->material_names = grown;
+        s->material_name_capacity = s->material_capacity;
+    }
+    return set_string(s->ctx, &s->material_names[material.id - 1], name);
+}
+
+const char *nc_scene_material_name(const nacre_scene *s, nacre_material material)
+{
+    if (!nc_scene_material(s, material) || material.id > s->material_name_capacity)
+        return NULL;
+    return s->material_names[material.id - 1];
 }
 
 uint32_t nacre_scene_input_count(const nacre_scene *s) { return s ? s->input_count : 0; }
@@ -713,6 +792,7 @@ nacre_result nacre_scene_set_object(nacre_scene *s, nacre_object obj, const nacr
 
 static void store_light(nc_light_rec *rec, const nacre_light_desc *d)
 {
+    rec->given = *d;
     rec->desc = *d;
     if (d->type != NACRE_LIGHT_POINT)
         nc_v3store(nc_normalize(nc_v3a(d->direction)), rec->desc.direction);
@@ -1093,4 +1173,22 @@ nacre_result nacre_scene_bounds(const nacre_scene *s, float min[3], float max[3]
     memcpy(min, s->bounds_min, sizeof(s->bounds_min));
     memcpy(max, s->bounds_max, sizeof(s->bounds_max));
     return NACRE_OK;
+}
+
+void nc_scene_view_depth_range(const nacre_scene *s, const nc_mat4 *view, float *dmin_out, float *dmax_out)
+{
+    float dmin = INFINITY, dmax = -INFINITY;
+    for (int k = 0; k < 8; k++) {
+        nc_vec3 p = nc_v3((k & 1) ? s->bounds_max[0] : s->bounds_min[0], (k & 2) ? s->bounds_max[1] : s->bounds_min[1],
+                          (k & 4) ? s->bounds_max[2] : s->bounds_min[2]);
+        float d = -nc_mat4_point(view, p).z;
+        dmin = fminf(dmin, d);
+        dmax = fmaxf(dmax, d);
+    }
+    if (!isfinite(dmin) || !isfinite(dmax)) {
+        dmin = 0.01f;
+        dmax = 100.0f;
+    }
+    *dmin_out = dmin;
+    *dmax_out = dmax;
 }

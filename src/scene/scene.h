@@ -12,8 +12,14 @@
 #include "core/core.h"
 #include "core/math.h"
 
+/* Where an element came from, so that nacre_scene_save_file can refer to it instead of writing
+ * its data again: set by the scene-file loader (nc_scene_set_*_source), absent (NULL path, no
+ * shape) for elements made by the C API from raw arrays, which the writer writes out. */
 typedef struct nc_mesh_rec {
     nacre_mesh_data data; /* rest pose, object space; owned */
+    char *source_path;    /* owned, absolute: the mesh file it was loaded from, or NULL */
+    bool from_shape;      /* made by nacre_mesh_make_shape(&shape) */
+    nacre_shape_desc shape;
 } nc_mesh_rec;
 
 typedef struct nc_object_rec {
@@ -34,6 +40,9 @@ typedef struct nc_volume_rec {
     float origin[3], spacing[3];
     float *data;          /* owned; dims[0] * dims[1] * dims[2] floats, x fastest */
     float min_value, max_value; /* over all samples: trilinear + clamp stays inside */
+    char *source_path;    /* owned, absolute: the NRRD file it was read from, or NULL */
+    uint32_t source_channel; /* the file's channel that was read */
+    float source_scale;   /* density_scale the file's samples were multiplied by */
 } nc_volume_rec;
 
 /* A texture (nacre_scene_add_texture): tightly packed rows, top row first. */
@@ -41,6 +50,7 @@ typedef struct nc_texture_rec {
     int32_t width, height, channels;
     float *data;                        /* owned; width * height * channels floats */
     float min_value[4], max_value[4];   /* per channel: bilinear lookups stay inside */
+    char *source_path;                  /* owned, absolute: the image it was read from, or NULL */
 } nc_texture_rec;
 
 /* A fog (nacre_fog_desc) with what the renderers derive from it once. */
@@ -52,7 +62,9 @@ typedef struct nc_fog_rec {
 } nc_fog_rec;
 
 typedef struct nc_light_rec {
-    nacre_light_desc desc; /* normalised direction */
+    nacre_light_desc desc;  /* normalised direction */
+    nacre_light_desc given; /* as passed: saving it reproduces `desc` bit for bit on reload,
+                               where normalising the normalised direction again might not */
 } nc_light_rec;
 
 typedef struct nc_versions {
@@ -70,6 +82,8 @@ struct nacre_scene {
     uint32_t mesh_count, mesh_capacity;
     nacre_material_desc *materials;
     uint32_t material_count, material_capacity;
+    char **material_names;      /* owned, NULL or one per material (names from a scene file) */
+    uint32_t material_name_capacity;
     nc_object_rec *objects;
     uint32_t object_count, object_capacity;
     nc_light_rec *lights;
@@ -96,9 +110,24 @@ struct nacre_scene {
 /* Record a file the scene was built from (a scene file's meshes, depth maps, volumes); copied. */
 nacre_result nc_scene_note_input(nacre_scene *scene, const char *path);
 
+/* Sources of elements (see nc_mesh_rec), recorded by the scene-file loader; paths are stored
+ * absolute (realpath) so that a later save finds them whatever the working directory. A mesh
+ * gets a file path or a shape (the other NULL). */
+nacre_result nc_scene_set_mesh_source(nacre_scene *scene, nacre_mesh mesh, const char *path,
+                                      const nacre_shape_desc *shape);
+nacre_result nc_scene_set_volume_source(nacre_scene *scene, nacre_volume volume, const char *path,
+                                        uint32_t channel, float density_scale);
+nacre_result nc_scene_set_texture_source(nacre_scene *scene, nacre_texture texture, const char *path);
+/* A material's name in its scene file (copied); nc_scene_material_name is NULL when unnamed. */
+nacre_result nc_scene_set_material_name(nacre_scene *scene, nacre_material material, const char *name);
+const char *nc_scene_material_name(const nacre_scene *scene, nacre_material material);
+
 /* Lookup helpers: NULL when the handle is invalid. */
 const nc_mesh_rec *nc_scene_mesh(const nacre_scene *scene, nacre_mesh mesh);
 const nacre_material_desc *nc_scene_material(const nacre_scene *scene, nacre_material material);
+/* Depth range along a view's -z axis of the committed bounds' corners, where both raster and
+ * path-traced cameras fit their automatic near/far planes; (0.01, 100) for empty bounds. */
+void nc_scene_view_depth_range(const nacre_scene *scene, const nc_mat4 *view, float *dmin, float *dmax);
 const nc_volume_rec *nc_scene_volume(const nacre_scene *scene, nacre_volume volume);
 const nc_texture_rec *nc_scene_texture(const nacre_scene *scene, nacre_texture texture);
 

@@ -517,6 +517,42 @@ static void closest_bary(const double p[3], const double a[3], const double b[3]
     }
 }
 
+/* The local map from deformed to rest space that triangle t defines, applied to the world
+ * vector dv: the in-plane part through the edges (exact for any affine map of the plane), the
+ * normal part along the rest normal scaled by sqrt(rest area / deformed area) (exact for
+ * rotations and uniform scales; first order otherwise). A degenerate triangle maps dv to
+ * itself (a translation). */
+static void rest_vector(const nacre_mesh_data *rest, const nacre_mesh_data *def, size_t t, const double dv[3],
+                        double out[3])
+{
+    const uint32_t *ti = def->indices + 3 * t;
+    double e1[3], e2[3], f1[3], f2[3];
+    for (int a = 0; a < 3; a++) {
+        e1[a] = (double)def->positions[3 * (size_t)ti[1] + (size_t)a] - def->positions[3 * (size_t)ti[0] + (size_t)a];
+        e2[a] = (double)def->positions[3 * (size_t)ti[2] + (size_t)a] - def->positions[3 * (size_t)ti[0] + (size_t)a];
+        f1[a] = (double)rest->positions[3 * (size_t)ti[1] + (size_t)a] - rest->positions[3 * (size_t)ti[0] + (size_t)a];
+        f2[a] = (double)rest->positions[3 * (size_t)ti[2] + (size_t)a] - rest->positions[3 * (size_t)ti[0] + (size_t)a];
+    }
+    double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+    double m[3] = {f1[1] * f2[2] - f1[2] * f2[1], f1[2] * f2[0] - f1[0] * f2[2], f1[0] * f2[1] - f1[1] * f2[0]};
+    double nn = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), mm = sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2]);
+    double g11 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2], g22 = e2[0] * e2[0] + e2[1] * e2[1] + e2[2] * e2[2];
+    double g12 = e1[0] * e2[0] + e1[1] * e2[1] + e1[2] * e2[2], det = g11 * g22 - g12 * g12;
+    if (!(nn > 0) || !(mm > 0) || !(det > 1e-12 * g11 * g22)) {
+        memcpy(out, dv, 3 * sizeof(double));
+        return;
+    }
+    double c = (dv[0] * n[0] + dv[1] * n[1] + dv[2] * n[2]) / nn; /* normal component */
+    double r1 = dv[0] * e1[0] + dv[1] * e1[1] + dv[2] * e1[2], r2 = dv[0] * e2[0] + dv[1] * e2[1] + dv[2] * e2[2];
+    double u = (g22 * r1 - g12 * r2) / det, v = (g11 * r2 - g12 * r1) / det; /* in-plane coordinates */
+    double k = c * sqrt(mm / nn) / mm;
+    for (int a = 0; a < 3; a++)
+        out[a] = u * f1[a] + v * f2[a] + k * m[a];
+}
+
+/* Why one function of ~140 lines: the three passes (nearest triangle per surface voxel,
+ * breadth-first spread, map through the source's triangle) share the grid walk and the scratch
+ * arrays, and read best as one sequence. */
 nacre_result nacre_voxel_grid_rest_positions(const nacre_voxel_grid *grid,
                                              const nacre_mesh_data *rest,
                                              const nacre_mesh_data *deformed, float *out)
@@ -535,27 +571,34 @@ nacre_result nacre_voxel_grid_rest_positions(const nacre_voxel_grid *grid,
         return nc_fail(ctx, NACRE_ERROR_UNSUPPORTED, "voxel rest positions: more than 2^32 voxels");
     float *best = nc_alloc(ctx, nvox * sizeof(float));
     uint32_t *queue = nc_alloc(ctx, nvox * sizeof(uint32_t));
-    if (!best || !queue) {
+    uint32_t *tri = nc_alloc(ctx, nvox * sizeof(uint32_t)); /* surface voxel: its nearest triangle */
+    uint32_t *src = nc_alloc(ctx, nvox * sizeof(uint32_t)); /* solid voxel: the surface voxel it follows */
+    if (!best || !queue || !tri || !src) {
         nc_free(ctx, best);
         nc_free(ctx, queue);
+        nc_free(ctx, tri);
+        nc_free(ctx, src);
         return NACRE_ERROR_OUT_OF_MEMORY;
     }
     for (size_t i = 0; i < nvox; i++) {
         best[i] = INFINITY;
+        src[i] = UINT32_MAX;
         out[3 * i] = out[3 * i + 1] = out[3 * i + 2] = NAN;
     }
-    tri_source src = {deformed->positions, deformed->indices,
-                      {grid->origin[0], grid->origin[1], grid->origin[2]}, 1.0 / (double)grid->voxel_size, false,
-                      0.0f};
+    tri_source ts = {deformed->positions, deformed->indices,
+                     {grid->origin[0], grid->origin[1], grid->origin[2]}, 1.0 / (double)grid->voxel_size, false,
+                     0.0f};
     const double h = grid->voxel_size;
-    /* Surface voxels: closest deformed triangle among those touching the voxel (bounding box). */
+    /* Surface voxels: closest deformed triangle among those touching the voxel (bounding box);
+     * the rest point of the closest point q on it, then the voxel centre c mapped through the
+     * triangle's local map: rest(q) + A (c - q). */
     for (size_t t = 0; t < deformed->triangle_count; t++) {
         const uint32_t *ti = deformed->indices + 3 * t;
         if (ti[0] >= deformed->vertex_count || ti[1] >= deformed->vertex_count ||
             ti[2] >= deformed->vertex_count)
             continue;
         double v[3][3], nrm[3];
-        if (load_triangle(&src, t, v, nrm) != 0)
+        if (load_triangle(&ts, t, v, nrm) != 0)
             continue;
         int lo[3], hi[3];
         bool empty = false;
@@ -573,37 +616,35 @@ nacre_result nacre_voxel_grid_rest_positions(const nacre_voxel_grid *grid,
                     size_t col = (size_t)y * d[0] + (size_t)x;
                     if (!get_bit(b->surface, col, b->words, (uint32_t)z))
                         continue;
-                    double p[3] = {x + 0.5, y + 0.5, z + 0.5}, w[3];
+                    double p[3] = {x + 0.5, y + 0.5, z + 0.5}, w[3], dv[3], rv[3];
                     closest_bary(p, v[0], v[1], v[2], w);
                     double dist = 0;
                     for (int a = 0; a < 3; a++) {
                         double q = w[0] * v[0][a] + w[1] * v[1][a] + w[2] * v[2][a] - p[a];
+                        dv[a] = -q * h; /* c - q, world units */
                         dist += q * q;
                     }
                     size_t vi = col + (size_t)z * d[0] * d[1];
                     if (dist < best[vi]) {
                         best[vi] = (float)dist;
+                        tri[vi] = (uint32_t)t;
+                        rest_vector(rest, deformed, t, dv, rv);
                         for (int a = 0; a < 3; a++)
                             out[3 * vi + (size_t)a] =
                                 (float)(w[0] * rest->positions[3 * (size_t)ti[0] + (size_t)a] +
                                         w[1] * rest->positions[3 * (size_t)ti[1] + (size_t)a] +
-                                        w[2] * rest->positions[3 * (size_t)ti[2] + (size_t)a]);
+                                        w[2] * rest->positions[3 * (size_t)ti[2] + (size_t)a] + rv[a]);
                     }
                 }
     }
-    /* Store displacements (rest - deformed centre) on surface voxels, then spread them
-     * breadth-first through the solid voxels. */
+    /* Spread the surface voxels breadth-first through the solid voxels: each solid voxel
+     * follows the nearest surface voxel in 6-connected steps. */
     size_t head = 0, tail = 0;
-    for (size_t vi = 0; vi < nvox; vi++) {
-        if (!isfinite(out[3 * vi]))
-            continue;
-        size_t x = vi % d[0], y = (vi / d[0]) % d[1], z = vi / ((size_t)d[0] * d[1]);
-        double c[3] = {grid->origin[0] + (x + 0.5) * h, grid->origin[1] + (y + 0.5) * h,
-                       grid->origin[2] + (z + 0.5) * h};
-        for (int a = 0; a < 3; a++)
-            out[3 * vi + (size_t)a] -= (float)c[a];
-        queue[tail++] = (uint32_t)vi;
-    }
+    for (size_t vi = 0; vi < nvox; vi++)
+        if (isfinite(out[3 * vi])) {
+            src[vi] = (uint32_t)vi;
+            queue[tail++] = (uint32_t)vi;
+        }
     while (head < tail) {
         size_t vi = queue[head++];
         long x = (long)(vi % d[0]), y = (long)((vi / d[0]) % d[1]), z = (long)(vi / ((size_t)d[0] * d[1]));
@@ -613,23 +654,29 @@ nacre_result nacre_voxel_grid_rest_positions(const nacre_voxel_grid *grid,
             if (nx < 0 || ny < 0 || nz < 0 || nx >= (long)d[0] || ny >= (long)d[1] || nz >= (long)d[2])
                 continue;
             size_t col = (size_t)ny * d[0] + (size_t)nx, ni = col + (size_t)nz * d[0] * d[1];
-            if (isfinite(out[3 * ni]) || !get_bit(b->solid, col, b->words, (uint32_t)nz))
+            if (src[ni] != UINT32_MAX || !get_bit(b->solid, col, b->words, (uint32_t)nz))
                 continue;
-            for (int a = 0; a < 3; a++)
-                out[3 * ni + (size_t)a] = out[3 * vi + (size_t)a];
+            src[ni] = src[vi];
             queue[tail++] = (uint32_t)ni;
         }
     }
-    /* Displacement back to positions. */
+    /* An interior voxel c' maps through its surface voxel c's triangle: rest(c) + A (c' - c). */
     for (size_t vi = 0; vi < nvox; vi++) {
-        if (!isfinite(out[3 * vi]))
+        size_t si = src[vi];
+        if (si == UINT32_MAX || si == vi)
             continue;
-        size_t x = vi % d[0], y = (vi / d[0]) % d[1], z = vi / ((size_t)d[0] * d[1]);
-        out[3 * vi] += (float)(grid->origin[0] + (x + 0.5) * h);
-        out[3 * vi + 1] += (float)(grid->origin[1] + (y + 0.5) * h);
-        out[3 * vi + 2] += (float)(grid->origin[2] + (z + 0.5) * h);
+        double dv[3], rv[3];
+        long ax = (long)(vi % d[0]) - (long)(si % d[0]);
+        long ay = (long)((vi / d[0]) % d[1]) - (long)((si / d[0]) % d[1]);
+        long az = (long)(vi / ((size_t)d[0] * d[1])) - (long)(si / ((size_t)d[0] * d[1]));
+        dv[0] = (double)ax * h, dv[1] = (double)ay * h, dv[2] = (double)az * h;
+        rest_vector(rest, deformed, tri[si], dv, rv);
+        for (int a = 0; a < 3; a++)
+            out[3 * vi + (size_t)a] = (float)(out[3 * si + (size_t)a] + rv[a]);
     }
     nc_free(ctx, best);
     nc_free(ctx, queue);
+    nc_free(ctx, tri);
+    nc_free(ctx, src);
     return NACRE_OK;
 }

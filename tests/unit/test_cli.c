@@ -417,6 +417,53 @@ static void test_output_collisions(void)
     CHECK(strstr(err, "scene.exr: scene has no objects") != NULL);
 }
 
+static bool same_bytes(const char *a, const char *b)
+{
+    FILE *fa = fopen(a, "rb"), *fb = fopen(b, "rb");
+    bool same = fa && fb;
+    for (int ca = 0, cb = 0; same && ca != EOF; ) {
+        ca = fgetc(fa);
+        cb = fgetc(fb);
+        same = ca == cb;
+    }
+    if (fa)
+        fclose(fa);
+    if (fb)
+        fclose(fb);
+    return same;
+}
+
+/* --save-scene writes the scene with the command line's settings; rendering the saved file alone
+ * gives the same image. */
+static void test_save_scene(void)
+{
+    char args[4096], saved[1024], a[1024], b[1024];
+    snprintf(saved, sizeof(saved), "%s/saved.json", TMP);
+    snprintf(a, sizeof(a), "%s/saved_a.png", TMP);
+    snprintf(b, sizeof(b), "%s/saved_b.png", TMP);
+    remove(saved);
+    snprintf(args, sizeof(args),
+             "render %s/examples/deformers.json --method phong --size 64x48 --exposure 0.75 --time 0.5 -o %s "
+             "--save-scene %s",
+             NACRE_SOURCE_DIR, a, saved);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    CHECK(exists(saved) && exists(a));
+    snprintf(args, sizeof(args), "render %s -o %s", saved, b);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    CHECK(same_bytes(a, b));
+    /* The settings are the command line's, not the example's. */
+    snprintf(args, sizeof(args), "render %s -o %s --stats", saved, b);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    CHECK(strstr(out, "\"method\":\"phong\",\"width\":64,\"height\":48") != NULL);
+    /* Not over the scene itself, nor with another suffix. */
+    snprintf(args, sizeof(args), "render %s --size 8x8 -o %s --save-scene %s", saved, a, saved);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "saved scene") != NULL && strstr(err, "same file as the scene") != NULL);
+    snprintf(args, sizeof(args), "render --size 8x8 -o %s --save-scene %s/saved.png", a, TMP);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    CHECK(strstr(err, "use a .json file name") != NULL);
+}
+
 /* Issue 29 item 4: sizes inside the documented ranges that used to grow until the kernel killed
  * the process now end with exit 2 and one line naming what needed how much and the limit. The
  * same runs under `ulimit -v 4194304` are in tests/limits.sh (a sanitizer build cannot run
@@ -514,6 +561,7 @@ int main(void)
     test_ranges();
     test_compare_nonfinite();
     test_output_collisions();
+    test_save_scene();
     test_memory_limit();
     return TEST_MAIN_END();
 }

@@ -322,6 +322,63 @@ static void test_point_spot_power(void)
         }
 }
 
+/* An undeformed checker cube, moved, turned and scaled non-uniformly by its transform, at 16^3,
+ * 32^3 and 64^3: every solid voxel's medium is the pattern at its own centre (mapped to the
+ * object's coordinates by the analytic inverse transform). Voxels took the rest point of the
+ * nearest surface point before, which put + faces on a cell boundary into the next cell. */
+static void test_checker_at_centres(void)
+{
+    fixture f;
+    fx_init(&f);
+    nacre_material_desc md = nacre_material_desc_defaults(NACRE_MATERIAL_TRANSLUCENT);
+    md.sigma_a[0] = md.sigma_a[1] = md.sigma_a[2] = 0.01f;
+    md.sigma_s[0] = md.sigma_s[1] = md.sigma_s[2] = 1.0f;
+    md.pattern.type = NACRE_PATTERN_CHECKER;
+    md.pattern.cell_size = 2.5f; /* the box's faces (+-10) lie on checker planes */
+    md.pattern.sigma_a2[0] = md.pattern.sigma_a2[1] = md.pattern.sigma_a2[2] = 0.5f;
+    md.pattern.sigma_s2[0] = md.pattern.sigma_s2[1] = md.pattern.sigma_s2[2] = 3.0f;
+    nacre_material mat = add_material(&f, &md);
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_BOX);
+    sd.size[0] = sd.size[1] = sd.size[2] = 20.0f;
+    nacre_object obj = add_shape(&f, sd, mat, NULL);
+    nacre_object_desc od = f.scene->objects[0].desc;
+    od.transform.translate[0] = 3, od.transform.translate[1] = -2, od.transform.translate[2] = 7;
+    od.transform.rotate[1] = 90; /* (x, y, z) -> (z, y, -x) */
+    od.transform.scale[0] = 1.5f, od.transform.scale[1] = 0.5f, od.transform.scale[2] = 1;
+    CHECK(nacre_scene_set_object(f.scene, obj, &od) == NACRE_OK);
+    CHECK(nacre_scene_commit(f.scene, 0.0) == NACRE_OK);
+    const nacre_material_desc *m = &f.scene->materials[0];
+    const uint32_t resolutions[3] = {16, 32, 64};
+    for (int r = 0; r < 3; r++) {
+        nc_diff_object o;
+        memset(&o, 0, sizeof(o));
+        o.ctx = f.ctx;
+        CHECK(nc_diff_object_voxelize(&o, f.scene, 0, resolutions[r]) == NACRE_OK);
+        CHECK(nc_diff_object_medium(&o, f.scene, 0, false) == NACRE_OK);
+        size_t n = 0, match = 0;
+        for (uint32_t z = 0; z < o.dims[2]; z++)
+            for (uint32_t y = 0; y < o.dims[1]; y++)
+                for (uint32_t x = 0; x < o.dims[0]; x++) {
+                    size_t i = x + o.dims[0] * (y + (size_t)o.dims[1] * z);
+                    if (!o.solid[i])
+                        continue;
+                    double w[3] = {o.origin[0] + (x + 0.5) * o.h - 3, o.origin[1] + (y + 0.5) * o.h + 2,
+                                   o.origin[2] + (z + 0.5) * o.h - 7};
+                    /* Undo the rotation (local (x, z) went to world (z, -x)), then the scale. */
+                    float p[3] = {(float)(-w[2] / 1.5), (float)(w[1] / 0.5), (float)(w[0] / 1.0)};
+                    float a[3], sc[3];
+                    nc_medium_eval(f.scene, m, p, 1, a, sc);
+                    n++;
+                    match += fabsf(o.sigma_a[0][i] - a[0]) < 1e-6f;
+                }
+        printf("undeformed checker at %u^3: %zu of %zu solid voxels hold the pattern at their centre\n",
+               resolutions[r], match, n);
+        CHECK(n > 100 && match == n);
+        nc_diff_object_free(&o);
+    }
+    fx_free(&f);
+}
+
 /* The pattern follows deformation: coefficients of a twisted checker cube, per voxel, match the
  * pattern at the exactly untwisted voxel centre, and not the pattern at the twisted one. */
 static void test_twisted_checker(void)
@@ -403,7 +460,7 @@ static void test_twisted_checker(void)
      * the displacement of the nearest surface voxel (first order, voxel.h). */
     CHECK(match_rest[1] > 0.9 * n[1]);
     CHECK(match_rest[0] > 0.75 * n[0]);
-    CHECK(err_rest[1] / n[1] < 0.5 * o.h && err_rest[1] < 0.25 * err_world[1]);
+    CHECK(err_rest[1] / n[1] < 0.2 * o.h && err_rest[1] < 0.1 * err_world[1]);
     CHECK(err_rest[0] / n[0] < 1.0 * o.h && err_rest[0] < 0.6 * err_world[0]);
     if (patterned) {
         CHECK(match_world[1] < 0.75 * n[1]);
@@ -920,6 +977,7 @@ static void test_exitance_ghosts(void)
 
 int main(void)
 {
+    test_checker_at_centres();
     test_cube_power();
     test_sphere_power();
     test_point_spot_power();

@@ -110,6 +110,9 @@ static const char render_help[] =
     "  --exr-float         write 32-bit float EXR instead of half (half holds up to 65504: larger\n"
     "                      values are written as 65504, with a warning giving their count)\n"
     "  --stats             print one JSON object with per-stage timings in microseconds\n"
+    "  --save-scene FILE   also write the scene as a .json scene file, with this run's settings\n"
+    "                      (size, method, time, ...) in its render block, before rendering;\n"
+    "                      `nacre render FILE` then renders the same image\n"
     "diffusion:\n"
     "  --voxel-res N       voxels along each translucent object's longest axis (default 32)\n"
     "  --tsm-size N        translucent shadow map texels per side (default 512)\n"
@@ -194,7 +197,8 @@ static bool image_finite(const nacre_image *img, const nacre_render_settings *rs
 
 static int cmd_render(int argc, char **argv)
 {
-    const char *scene_path = NULL, *out_path = "nacre.png", *method_name = NULL, *variance_path = NULL;
+    const char *scene_path = NULL, *out_path = "nacre.png", *method_name = NULL, *variance_path = NULL,
+               *save_path = NULL;
     const char *solver_name = NULL, *source_name = NULL;
     nacre_diffusion_solver solver = NACRE_SOLVER_MULTIGRID;
     nacre_diffusion_source source = NACRE_SOURCE_VOLUME;
@@ -279,6 +283,12 @@ static int cmd_render(int argc, char **argv)
             variance_path = argv[++i];
             if (!has_suffix(variance_path, ".exr"))
                 return nc_tool_usage("render", "--variance '%s': use a .exr file name", variance_path);
+        } else if (strcmp(a, "--save-scene") == 0) {
+            if (!has_value)
+                return nc_tool_usage("render", "--save-scene needs a file name");
+            save_path = argv[++i];
+            if (!has_suffix(save_path, ".json"))
+                return nc_tool_usage("render", "--save-scene '%s': use a .json file name", save_path);
         } else if (strcmp(a, "--stats") == 0) {
             stats = true;
         } else if (strcmp(a, "--exr-float") == 0) {
@@ -295,7 +305,10 @@ static int cmd_render(int argc, char **argv)
         return nc_tool_usage("render", "output '%s': use a .png or .exr file name", out_path);
     if (!output_distinct("render", out_path, "output", scene_path, "scene") ||
         !output_distinct("render", variance_path, "variance output", scene_path, "scene") ||
-        !output_distinct("render", variance_path, "variance output", out_path, "output"))
+        !output_distinct("render", variance_path, "variance output", out_path, "output") ||
+        !output_distinct("render", save_path, "saved scene", scene_path, "scene") ||
+        !output_distinct("render", save_path, "saved scene", out_path, "output") ||
+        !output_distinct("render", save_path, "saved scene", variance_path, "variance output"))
         return EXIT_BAD;
     nacre_method method = NACRE_METHOD_PHONG;
     if (method_name && !nacre_method_from_name(method_name, &method))
@@ -383,6 +396,16 @@ static int cmd_render(int argc, char **argv)
         nc_tool_error("%s: scene has no objects (nothing to render with method '%s')",
                   scene_path ? scene_path : "<built-in demo>", nacre_method_name(rs.method));
         goto out;
+    }
+    if (save_path) {
+        /* The scene as this run renders it: the command line's settings in its render block. The
+         * library refuses to write over the scene's inputs. */
+        nacre_scene_file_settings saved = fs;
+        saved.render = rs;
+        if (nacre_scene_save_file(scene, &saved, save_path) != NACRE_OK) {
+            nc_tool_fail(ctx);
+            goto out;
+        }
     }
     uint64_t t0 = nc_tool_now_us();
     if (nacre_scene_commit(scene, fs.time) != NACRE_OK) {
