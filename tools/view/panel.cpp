@@ -194,15 +194,8 @@ void settings_controls(nc_view *v)
         if (ImGui::Button("Save image (.png, .exr)"))
             nc_view_save_image(v, g_image_path);
         ImGui::InputText("scene", g_scene_path, sizeof(g_scene_path));
-        bool can = nc_view_can_save_scene();
-        if (!can)
-            ImGui::BeginDisabled();
-        if (ImGui::Button("Save scene"))
+        if (ImGui::Button("Save scene (.json)"))
             nc_view_save_scene(v, g_scene_path);
-        if (!can) {
-            ImGui::EndDisabled();
-            ImGui::TextDisabled("saving scenes: not in this build yet");
-        }
     }
 }
 

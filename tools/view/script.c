@@ -259,6 +259,15 @@ static bool run_event(const nc_script *s, const nc_script_event *ev, nc_view *v,
             v->playing = cmd[1] == 'l';
         return true;
     }
+    static const char *const one_arg[] = {"method", "solver", "voxel_res", "view", "key", "pick", "resize", NULL};
+    bool known = false;
+    for (int i = 0; one_arg[i]; i++)
+        known = known || strcmp(cmd, one_arg[i]) == 0;
+    if (!known)
+        return fail(err, size, s, ev->line,
+                    "unknown command '%s' (orbit, pan, zoom, light, material, method, voxel_res, solver, exposure, "
+                    "time, play, pause, view, wipe, pick, key, resize)",
+                    cmd);
     if (ev->argc != 2 && strcmp(cmd, "pick") && strcmp(cmd, "resize"))
         return fail(err, size, s, ev->line, "%s: expected one argument", cmd);
     bool ok = true;
@@ -299,11 +308,6 @@ static bool run_event(const nc_script *s, const nc_script_event *ev, nc_view *v,
             ok = nc_view_resize(v, (int32_t)a, (int32_t)b, check);
         else if (!check)
             ok = nc_view_pick(v, (int32_t)a, (int32_t)b);
-    } else {
-        return fail(err, size, s, ev->line,
-                    "unknown command '%s' (orbit, pan, zoom, light, material, method, voxel_res, solver, exposure, "
-                    "time, play, pause, view, wipe, pick, key, resize)",
-                    cmd);
     }
     return ok ? true : fail(err, size, s, ev->line, "%s", v->message);
 }

@@ -115,10 +115,9 @@ bool nc_view_frame(nc_view *v, double dt);
 void nc_view_display(nc_view *v, uint8_t *rgba);
 /* Write the current method's last frame (not the panel): PNG with the exposure, or EXR. */
 bool nc_view_save_image(nc_view *v, const char *path);
-/* Write the edited scene as a scene file (needs nacre_scene_save_file). */
+/* Write the edited scene, with the current settings and time, as a scene file that
+ * `nacre render` reproduces (nacre_scene_save_file). */
 bool nc_view_save_scene(nc_view *v, const char *path);
-/* Whether this build can save scenes. */
-bool nc_view_can_save_scene(void);
 
 #ifdef __cplusplus
 }

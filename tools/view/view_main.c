@@ -29,7 +29,7 @@ static const char view_help[] =
     "  --frames N          render N frames, then exit (the timeline steps 1/30 s per frame)\n"
     "  --script FILE       timed events, one per line: FRAME COMMAND ARGS (README, `nacre view`)\n"
     "  --screenshot FILE   write the last frame's image (not the panel): .png (exposure) or .exr\n"
-    "  --save-scene FILE   write the final state as a scene file (when this build can)\n"
+    "  --save-scene FILE   write the final state as a scene file (`nacre render FILE` reproduces it)\n"
     "  With --frames, one JSON line: frames, fps, per-stage microseconds and stage_runs summed\n"
     "  over the frames, the final camera and time.\n"
     "mouse: left drag orbits, middle or shift+left drag pans, wheel zooms, left click picks an object\n"
@@ -94,8 +94,6 @@ static int parse_options(int argc, char **argv, view_options *o, bool *done)
     }
     if ((o->screenshot || o->save_scene) && !o->frames)
         return nc_tool_usage("view", "--screenshot and --save-scene need --frames N (headless run)");
-    if (o->save_scene && !nc_view_can_save_scene())
-        return nc_tool_error("view: --save-scene: this build cannot save scenes yet (nacre_scene_save_file)");
     return 0;
 }
 
@@ -265,8 +263,10 @@ static void print_json(const nc_view *v, double seconds)
     const float *p = v->camera.position, *t = v->camera.target;
     printf("},\"camera\":{\"position\":[%.9g,%.9g,%.9g],\"target\":[%.9g,%.9g,%.9g]}", p[0], p[1], p[2], t[0], t[1],
            t[2]);
+    if (v->object != UINT32_MAX)
+        printf(",\"selected_object\":%u", v->object);
     if (v->mean_rel_err >= 0)
-        printf(",\"mean_rel_err\":%.6g", v->mean_rel_err);
+        printf(",\"mean_rel_err\":%.6g,\"truth_spp\":%u", v->mean_rel_err, v->truth_stats.spp_done);
     printf("}\n");
 }
 

@@ -364,9 +364,9 @@ bool nc_view_pick(nc_view *v, int32_t x, int32_t y)
         return false;
     }
     v->object = index;
-    if (index == UINT32_MAX) {
+    if (index == UINT32_MAX) { /* background: a valid answer, nothing selected */
         note(v, "no object there%s", "");
-        return false;
+        return true;
     }
     nacre_object_desc od;
     if (nacre_scene_get_object(v->scene, (nacre_object){index + 1}, &od) == NACRE_OK && od.material.id >= 1)
@@ -465,6 +465,25 @@ static void account(nc_view *v, const nacre_render_stats *st)
     }
 }
 
+/* Relative error of a value against the path tracer's. The floor keeps the few samples of
+ * the first frames, where dark pixels hold tiny non-zero values, from dividing by them: below
+ * it the error counts as absolute. The false colour uses the same measure. */
+#define REL_FLOOR 0.01f
+
+static inline float rel_err(float a, float t) { return fabsf(a - t) / fmaxf(fabsf(t), REL_FLOOR); }
+
+/* Mean relative error over all pixels and channels (shown in the panel and the JSON line). */
+static double mean_rel_err(const nacre_image *a, const nacre_image *t)
+{
+    double sum = 0.0;
+    for (int32_t y = 0; y < a->height; y++) {
+        const float *pa = a->pixels + (size_t)y * a->stride, *pt = t->pixels + (size_t)y * t->stride;
+        for (int32_t x = 0; x < 3 * a->width; x++)
+            sum += rel_err(pa[x], pt[x]);
+    }
+    return sum / (3.0 * (double)a->width * (double)a->height);
+}
+
 /* The progressive path tracer of the same state, for the wipe and error views: one more pass
  * per frame, accumulated while nothing changes (the renderer restarts on any edit). */
 static bool render_truth(nc_view *v)
@@ -483,9 +502,7 @@ static bool render_truth(nc_view *v)
         return false;
     }
     v->truth_valid = true;
-    nacre_image_metrics m;
-    if (v->frame_valid && nacre_image_compare(v->ctx, &v->frame, &v->truth_frame, &m) == NACRE_OK)
-        v->mean_rel_err = m.mean_rel_err;
+    v->mean_rel_err = v->frame_valid ? mean_rel_err(&v->frame, &v->truth_frame) : -1.0;
     return true;
 }
 
@@ -551,8 +568,8 @@ static inline uint8_t to_srgb(float x, float scale)
     return y >= 1.0f ? 255 : srgb_table[(int)(y * 4096.0f + 0.5f)];
 }
 
-/* Relative error to a colour: black (0) through blue, green, yellow to red (>= 100%), on a log
- * scale from 0.1%, so both a good and a bad method show structure. */
+/* Relative error to a colour: black (below 0.1%) through blue, green, yellow to red (100% and
+ * more), on a log scale, so both a good and a bad method show structure. */
 static void error_colour(float rel, uint8_t *out)
 {
     float t = rel > 1e-3f ? fminf(1.0f, log10f(rel / 1e-3f) / 3.0f) : 0.0f;
@@ -582,7 +599,7 @@ void nc_view_display(nc_view *v, uint8_t *rgba)
             } else if (v->mode == NC_VIEW_ERROR && t) {
                 float e = 0.0f;
                 for (int c = 0; c < 3; c++)
-                    e += fabsf(a[3 * x + c] - t[3 * x + c]) / fmaxf(fabsf(t[3 * x + c]), 1e-3f);
+                    e += rel_err(a[3 * x + c], t[3 * x + c]);
                 error_colour(e / 3.0f, o);
             } else {
                 const float *src = (t && x >= split) ? t : a;
@@ -610,11 +627,13 @@ bool nc_view_save_image(nc_view *v, const char *path)
     return true;
 }
 
-bool nc_view_can_save_scene(void) { return false; }
-
 bool nc_view_save_scene(nc_view *v, const char *path)
 {
-    /* nacre_scene_save_file is not in this library yet (branch scenesave). */
-    note(v, "cannot save %s: saving scenes is not in this build yet", path);
-    return false;
+    /* The committed state is what is on screen; fs holds the current settings and time. */
+    if (nacre_scene_save_file(v->scene, &v->fs, path) != NACRE_OK) {
+        note_error(v);
+        return false;
+    }
+    note(v, "saved %s", path);
+    return true;
 }
