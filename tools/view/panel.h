@@ -23,7 +23,7 @@ void nc_panel_shutdown(void);
  * the keyboard), so the viewer must not also orbit or press keys. */
 bool nc_panel_event(const SDL_Event *event);
 /* Upload the frame (RGBA bytes, width x height) and draw it filling the window, then the panel
- * (unless hidden), then present. `save_path` is the panel's image file name field. */
+ * (unless hidden), then present. */
 void nc_panel_draw(nc_view *v, const uint8_t *rgba, int width, int height, bool show_panel);
 
 #ifdef __cplusplus

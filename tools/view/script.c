@@ -189,7 +189,7 @@ static bool index_arg(const nc_script *s, const nc_script_event *ev, uint32_t *o
 static bool run_element(const nc_script *s, const nc_script_event *ev, nc_view *v, bool check, char *err,
                         size_t size)
 {
-    uint32_t i;
+    uint32_t i = 0;
     float x[3];
     if (!index_arg(s, ev, &i, err, size))
         return false;
