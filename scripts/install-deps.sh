@@ -8,6 +8,10 @@ packages=(build-essential cmake pkg-config libcjson-dev libspng-dev libopenexr-d
 # (libomp-dev), llvm-symbolizer for readable sanitizer stacks (llvm). The unversioned packages
 # follow Debian's default clang, so compiler and runtimes always match.
 packages+=(clang libclang-rt-dev libomp-dev llvm)
+# `nacre view` (tools/view): SDL2 for the window, input and frame texture, Dear ImGui 1.86 with
+# its SDL2 + SDL_Renderer backends for the panel, and Xvfb (with xauth, which xvfb-run needs) so
+# the viewer's test runs without a display. Without SDL2 the build leaves the viewer out.
+packages+=(libsdl2-dev libimgui-dev libgl-dev xvfb xauth)
 
 missing=()
 for p in "${packages[@]}"; do

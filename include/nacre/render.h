@@ -223,6 +223,14 @@ NACRE_API nacre_result nacre_renderer_variance(const nacre_renderer *renderer, n
  * INVALID_OPERATION, as before any frame). Same allocation rule as nacre_renderer_render. */
 NACRE_API nacre_result nacre_renderer_depth(const nacre_renderer *renderer, nacre_image *out);
 
+/* Which object covers pixel (x, y) (0,0 = top left) of the renderer's last frame, from the
+ * rasterizing methods' G-buffer (the object at the pixel's centre): *object_index is the object's
+ * index (its nacre_object id - 1), or UINT32_MAX where no object is (background). INVALID_OPERATION
+ * when the last frame was not rasterized (none yet, or path traced); INVALID_ARGUMENT outside
+ * the frame. For a viewer's click-to-select. */
+NACRE_API nacre_result nacre_renderer_pick(const nacre_renderer *renderer, int32_t x, int32_t y,
+                                           uint32_t *object_index);
+
 /* ------------------------------------------------------------------------------------------ */
 /* Scene files (JSON; format in docs/scene-format.md)                                         */
 /* ------------------------------------------------------------------------------------------ */

@@ -320,6 +320,20 @@ NACRE_API nacre_result nacre_scene_set_unit_mm(nacre_scene *scene, float unit_mm
 
 NACRE_API uint32_t nacre_scene_object_count(const nacre_scene *scene);
 NACRE_API uint32_t nacre_scene_light_count(const nacre_scene *scene);
+NACRE_API uint32_t nacre_scene_material_count(const nacre_scene *scene);
+/* Read back what the scene holds, for editors that change one field and set the desc again
+ * (the viewer). Handles are ids 1..count. INVALID_ARGUMENT for an invalid handle. A light's
+ * direction is the normalised one the scene keeps; an object's name is borrowed until the
+ * object is set again or the scene destroyed. get_camera gives the defaults if none was set. */
+NACRE_API nacre_result nacre_scene_get_camera(const nacre_scene *scene, nacre_camera_desc *out);
+NACRE_API nacre_result nacre_scene_get_light(const nacre_scene *scene, nacre_light light,
+                                             nacre_light_desc *out);
+NACRE_API nacre_result nacre_scene_get_material(const nacre_scene *scene, nacre_material material,
+                                                nacre_material_desc *out);
+NACRE_API nacre_result nacre_scene_get_object(const nacre_scene *scene, nacre_object object,
+                                              nacre_object_desc *out);
+/* Millimetres per scene unit (nacre_scene_set_unit_mm; 1 by default). */
+NACRE_API float nacre_scene_get_unit_mm(const nacre_scene *scene);
 
 /* Evaluate deformers at `time` (seconds) and transforms: world-space geometry for rendering.
  * Needed after any edit and before rendering. */

@@ -239,3 +239,23 @@ nacre_result nacre_render(const nacre_scene *s, const nacre_render_settings *set
     nacre_renderer_destroy(r);
     return res;
 }
+
+nacre_result nacre_renderer_pick(const nacre_renderer *r, int32_t x, int32_t y, uint32_t *object_index)
+{
+    if (!r || !object_index)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    nacre_method_info info;
+    /* Only a rasterized frame's G-buffer is the frame on screen: after a path-traced frame it
+     * may be an older camera's. */
+    if (!r->last_valid || !nacre_method_info_get(r->last_method, &info) || !(info.stages & (1u << NACRE_STAGE_RASTER)) ||
+        !r->raster.gbuffer_valid)
+        return nc_fail(r->ctx, NACRE_ERROR_INVALID_OPERATION,
+                       "pick: the renderer's last frame was not rasterized (none yet, or path traced)");
+    const nc_gbuffer *gb = &r->raster.gbuffer;
+    if (x < 0 || y < 0 || x >= gb->width || y >= gb->height)
+        return nc_fail(r->ctx, NACRE_ERROR_INVALID_ARGUMENT, "pick: pixel (%d, %d) is outside the %dx%d frame",
+                       (int)x, (int)y, (int)gb->width, (int)gb->height);
+    uint32_t id = gb->object[(size_t)y * (size_t)gb->width + (size_t)x];
+    *object_index = id == NC_NO_OBJECT ? UINT32_MAX : id;
+    return NACRE_OK;
+}

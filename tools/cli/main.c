@@ -1,5 +1,6 @@
 /*
- * main.c: the `nacre` command-line tool. Subcommands: render, info, compare, voxelize, bench.
+ * main.c: the `nacre` command-line tool. Subcommands: render, info, compare, voxelize, bench,
+ * and view (the interactive viewer, tools/view/).
  *
  * Exit status: 0 on success, 2 on any error (bad arguments, bad input files, failed writes).
  * Errors are one line on stderr: "nacre: <message>". The library returns errors; the tools
@@ -32,6 +33,7 @@ static void print_main_help(FILE *f)
             "  voxelize MESH         surface and solid voxelization, NRRD export\n"
             "  slab                  reflectance and transmittance of a slab (diffusion, pathtrace)\n"
             "  bench NAME            benchmarks (medians): raster, voxelize, diffusion, pathtrace\n"
+            "  view [SCENE.json]     interactive viewer: edit lights, materials, method; headless runs\n"
             "\n"
             "  nacre <command> --help   options of a command\n"
             "  nacre --version          version\n"
@@ -782,6 +784,8 @@ int main(int argc, char **argv)
         return nc_cli_slab(argc - 2, argv + 2);
     if (strcmp(cmd, "bench") == 0)
         return nc_cli_bench(argc - 2, argv + 2);
+    if (strcmp(cmd, "view") == 0)
+        return nc_cli_view(argc - 2, argv + 2);
     fprintf(stderr, "nacre: unknown command '%s'\n", cmd);
     print_main_help(stderr);
     return EXIT_BAD;

@@ -1,0 +1,285 @@
+/*
+ * panel.cpp: the viewer's panel and frame display, the only C++ in nacre (Dear ImGui is C++).
+ * It draws the rendered frame as one OpenGL texture filling the window and, over it, a panel
+ * whose controls call the same nc_view_* edits as the mouse, the keys and the script
+ * (view.h): method, view mode, lights, materials, diffusion settings, timeline, exposure, files,
+ * and the current method's stage timings as a bar chart. Which backends and why: panel.h.
+ */
+#include "panel.h"
+
+#include <SDL_opengl.h>
+#include <backends/imgui_impl_opengl2.h>
+#include <backends/imgui_impl_sdl.h>
+#include <imgui.h>
+
+#include <stdint.h>
+#include <stdio.h>
+#include <string.h>
+
+namespace {
+
+SDL_Window *g_window = nullptr;
+GLuint g_texture = 0;
+int g_tex_w = 0, g_tex_h = 0;
+char g_image_path[256] = "view.png";
+char g_scene_path[256] = "view.json";
+
+void upload(const uint8_t *rgba, int w, int h)
+{
+    if (!g_texture) {
+        glGenTextures(1, &g_texture);
+        glBindTexture(GL_TEXTURE_2D, g_texture);
+        /* One texel per pixel when the window has the frame's size; linear when resized. */
+        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+    }
+    glBindTexture(GL_TEXTURE_2D, g_texture);
+    glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
+    glPixelStorei(GL_UNPACK_ROW_LENGTH, 0);
+    if (w != g_tex_w || h != g_tex_h) {
+        glTexImage2D(GL_TEXTURE_2D, 0, GL_RGBA, w, h, 0, GL_RGBA, GL_UNSIGNED_BYTE, rgba);
+        g_tex_w = w;
+        g_tex_h = h;
+    } else {
+        glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, w, h, GL_RGBA, GL_UNSIGNED_BYTE, rgba);
+    }
+}
+
+/* The current method's stages as horizontal bars (ms), like the seed's tables 5.1-5.3: a bar
+ * per stage the method has, coloured when the stage ran this frame, grey when it was cached. */
+void stage_chart(const nc_view *v)
+{
+    nacre_method_info info;
+    nacre_method_info_get(v->fs.render.method, &info);
+    uint64_t most = 1;
+    for (int i = 0; i < NACRE_STAGE_COUNT; i++)
+        if (v->stats.stage_us[i] > most)
+            most = v->stats.stage_us[i];
+    if (info.stochastic) {
+        ImGui::Text("path tracer: %u spp accumulated, %.3g Msamples/s", v->stats.spp_done,
+                    v->stats.samples_per_second * 1e-6);
+        return;
+    }
+    for (int i = 0; i < NACRE_STAGE_COUNT; i++) {
+        if (!(info.stages & (1u << i)))
+            continue;
+        char label[64];
+        bool ran = v->stats.stage_ran[i];
+        snprintf(label, sizeof(label), ran ? "%.2f ms x%u" : "cached", v->stats.stage_us[i] * 1e-3,
+                 v->stats.stage_runs[i]);
+        ImGui::Text("%-9s", nacre_stage_name((nacre_stage)i));
+        ImGui::SameLine(80);
+        ImGui::PushStyleColor(ImGuiCol_PlotHistogram, ran ? ImVec4(0.9f, 0.6f, 0.1f, 1) : ImVec4(0.4f, 0.4f, 0.4f, 1));
+        ImGui::ProgressBar(ran ? (float)v->stats.stage_us[i] / (float)most : 0.0f, ImVec2(-1, 0), label);
+        ImGui::PopStyleColor();
+    }
+    ImGui::Text("frame %.2f ms", v->stats.total_us * 1e-3);
+}
+
+void method_controls(nc_view *v)
+{
+    const char *current = nacre_method_name(v->fs.render.method);
+    if (ImGui::BeginCombo("method", current)) {
+        for (int m = 0; m < NACRE_METHOD_COUNT; m++) {
+            bool available = nacre_method_available((nacre_method)m);
+            char label[64];
+            snprintf(label, sizeof(label), "%s%s", nacre_method_name((nacre_method)m),
+                     available ? "" : " (not implemented)");
+            if (!available)
+                ImGui::BeginDisabled();
+            if (ImGui::Selectable(label, m == (int)v->fs.render.method))
+                nc_view_set_method(v, (nacre_method)m, false);
+            if (!available)
+                ImGui::EndDisabled();
+        }
+        ImGui::EndCombo();
+    }
+    int mode = (int)v->mode;
+    ImGui::RadioButton("frame", &mode, NC_VIEW_NORMAL);
+    ImGui::SameLine();
+    ImGui::RadioButton("wipe (t)", &mode, NC_VIEW_WIPE);
+    ImGui::SameLine();
+    ImGui::RadioButton("error (e)", &mode, NC_VIEW_ERROR);
+    if (mode != (int)v->mode)
+        nc_view_set_mode(v, (nc_view_mode)mode);
+    if (v->mode == NC_VIEW_WIPE)
+        ImGui::SliderFloat("wipe", &v->wipe, 0.0f, 1.0f);
+    if (v->mode != NC_VIEW_NORMAL) {
+        ImGui::Text("path tracer: %u spp", v->truth_stats.spp_done);
+        if (v->mean_rel_err >= 0)
+            ImGui::Text("mean relative error %.2f %%", 100.0 * v->mean_rel_err);
+    }
+    if (ImGui::SliderFloat("exposure", &v->fs.exposure, -4.0f, 4.0f, "%.2f EV"))
+        v->need_render = true;
+}
+
+void light_controls(nc_view *v)
+{
+    uint32_t n = nacre_scene_light_count(v->scene);
+    if (n == 0 || !ImGui::CollapsingHeader("light", ImGuiTreeNodeFlags_DefaultOpen))
+        return;
+    int sel = (int)v->light;
+    if (ImGui::SliderInt("light ([ ])", &sel, 0, (int)n - 1))
+        v->light = (uint32_t)sel;
+    nacre_light_desc d;
+    if (nacre_scene_get_light(v->scene, nacre_light{v->light + 1}, &d) != NACRE_OK)
+        return;
+    if (d.type != NACRE_LIGHT_POINT && ImGui::SliderFloat3("direction", d.direction, -1.0f, 1.0f))
+        nc_view_light_direction(v, v->light, d.direction, false);
+    if (d.type != NACRE_LIGHT_DIRECTIONAL && ImGui::DragFloat3("position", d.position, 1.0f))
+        nc_view_light_position(v, v->light, d.position, false);
+    if (ImGui::DragFloat3("strength", d.strength, 0.05f, 0.0f, 1e6f))
+        nc_view_light_strength(v, v->light, d.strength, false);
+    ImGui::TextDisabled("arrow keys turn the light");
+}
+
+void material_controls(nc_view *v)
+{
+    if (v->material_count == 0 || !ImGui::CollapsingHeader("material", ImGuiTreeNodeFlags_DefaultOpen))
+        return;
+    int sel = (int)v->material;
+    if (ImGui::SliderInt("material", &sel, 0, (int)v->material_count - 1))
+        v->material = (uint32_t)sel;
+    nc_view_material *m = &v->materials[v->material];
+    const char *shown = m->preset >= 0 ? nc_view_presets[m->preset]
+                        : m->base.type == NACRE_MATERIAL_OPAQUE ? "(opaque, as loaded)" : "(as loaded)";
+    if (ImGui::BeginCombo("preset", shown)) {
+        for (int i = 0; nc_view_presets[i]; i++)
+            if (ImGui::Selectable(nc_view_presets[i], i == m->preset))
+                nc_view_material_preset(v, v->material, nc_view_presets[i], false);
+        ImGui::EndCombo();
+    }
+    if (m->base.type != NACRE_MATERIAL_TRANSLUCENT)
+        return;
+    float x = m->sigma_a_scale;
+    if (ImGui::SliderFloat("sigma_a x", &x, 0.01f, 100.0f, "%.3g", ImGuiSliderFlags_Logarithmic))
+        nc_view_material_field(v, v->material, "sigma_a_scale", x, false);
+    x = m->sigma_s_scale;
+    if (ImGui::SliderFloat("sigma_s x", &x, 0.01f, 100.0f, "%.3g", ImGuiSliderFlags_Logarithmic))
+        nc_view_material_field(v, v->material, "sigma_s_scale", x, false);
+    x = m->base.g;
+    if (ImGui::SliderFloat("g", &x, -0.95f, 0.95f))
+        nc_view_material_field(v, v->material, "g", x, false);
+    x = m->base.eta;
+    if (ImGui::SliderFloat("eta", &x, 1.0f, 2.5f))
+        nc_view_material_field(v, v->material, "eta", x, false);
+}
+
+void settings_controls(nc_view *v)
+{
+    if (ImGui::CollapsingHeader("diffusion")) {
+        int res = (int)v->fs.render.diffusion.voxel_resolution;
+        /* On release only: every step would re-voxelize. */
+        ImGui::SliderInt("voxels", &res, 8, 128);
+        if (ImGui::IsItemDeactivatedAfterEdit())
+            nc_view_voxel_resolution(v, (uint32_t)res, false);
+        else if (!ImGui::IsItemActive() && res != (int)v->fs.render.diffusion.voxel_resolution)
+            nc_view_voxel_resolution(v, (uint32_t)res, false);
+        int solver = (int)v->fs.render.diffusion.solver;
+        ImGui::RadioButton("multigrid", &solver, NACRE_SOLVER_MULTIGRID);
+        ImGui::SameLine();
+        ImGui::RadioButton("seed (Jacobi)", &solver, NACRE_SOLVER_SEED);
+        nc_view_solver(v, (nacre_diffusion_solver)solver);
+    }
+    if (ImGui::CollapsingHeader("timeline", ImGuiTreeNodeFlags_DefaultOpen)) {
+        if (ImGui::Button(v->playing ? "pause (p)" : "play (p)"))
+            v->playing = !v->playing;
+        ImGui::SameLine();
+        float t = (float)v->fs.time;
+        if (ImGui::SliderFloat("time", &t, 0.0f, (float)v->time_max, "%.2f s"))
+            nc_view_set_time(v, t);
+    }
+    if (ImGui::CollapsingHeader("file")) {
+        ImGui::InputText("image", g_image_path, sizeof(g_image_path));
+        if (ImGui::Button("Save image (.png, .exr)"))
+            nc_view_save_image(v, g_image_path);
+        ImGui::InputText("scene", g_scene_path, sizeof(g_scene_path));
+        if (ImGui::Button("Save scene (.json)"))
+            nc_view_save_scene(v, g_scene_path);
+    }
+}
+
+} // namespace
+
+extern "C" bool nc_panel_init(SDL_Window *window, void *gl_context, char *err, size_t err_size)
+{
+    IMGUI_CHECKVERSION();
+    ImGui::CreateContext();
+    ImGui::GetIO().IniFilename = nullptr; /* no imgui.ini in the working directory */
+    ImGui::StyleColorsDark();
+    if (!ImGui_ImplSDL2_InitForOpenGL(window, gl_context) || !ImGui_ImplOpenGL2_Init()) {
+        snprintf(err, err_size, "cannot set up the panel (Dear ImGui's SDL2 + OpenGL 2 backends)");
+        return false;
+    }
+    g_window = window;
+    return true;
+}
+
+extern "C" void nc_panel_shutdown(void)
+{
+    if (!g_window)
+        return;
+    if (g_texture)
+        glDeleteTextures(1, &g_texture);
+    g_texture = 0;
+    g_tex_w = g_tex_h = 0;
+    ImGui_ImplOpenGL2_Shutdown();
+    ImGui_ImplSDL2_Shutdown();
+    ImGui::DestroyContext();
+    g_window = nullptr;
+}
+
+extern "C" bool nc_panel_event(const SDL_Event *event)
+{
+    ImGui_ImplSDL2_ProcessEvent(event);
+    ImGuiIO &io = ImGui::GetIO();
+    switch (event->type) {
+    case SDL_MOUSEBUTTONDOWN:
+    case SDL_MOUSEBUTTONUP:
+    case SDL_MOUSEMOTION:
+    case SDL_MOUSEWHEEL:
+        return io.WantCaptureMouse;
+    case SDL_KEYDOWN:
+    case SDL_KEYUP:
+    case SDL_TEXTINPUT:
+        return io.WantCaptureKeyboard;
+    default:
+        return false;
+    }
+}
+
+extern "C" void nc_panel_draw(nc_view *v, const uint8_t *rgba, int width, int height, bool show_panel)
+{
+    upload(rgba, width, height);
+    ImGui_ImplOpenGL2_NewFrame();
+    ImGui_ImplSDL2_NewFrame();
+    ImGui::NewFrame();
+    ImGuiIO &io = ImGui::GetIO();
+    ImGui::GetBackgroundDrawList()->AddImage((ImTextureID)(intptr_t)g_texture, ImVec2(0, 0), io.DisplaySize);
+    if (show_panel) {
+        ImGui::SetNextWindowPos(ImVec2(8, 8), ImGuiCond_FirstUseEver);
+        ImGui::SetNextWindowSize(ImVec2(330, 0), ImGuiCond_FirstUseEver);
+        ImGui::SetNextWindowBgAlpha(0.85f);
+        ImGui::Begin("nacre view (h hides)");
+        ImGui::Text("%.1f fps  %dx%d  t %.2f s", v->fps, width, height, v->fs.time);
+        method_controls(v);
+        if (ImGui::CollapsingHeader("stages", ImGuiTreeNodeFlags_DefaultOpen))
+            stage_chart(v);
+        light_controls(v);
+        material_controls(v);
+        settings_controls(v);
+        if (v->object != UINT32_MAX)
+            ImGui::Text("selected object %u", v->object);
+        if (v->message[0])
+            ImGui::TextWrapped("%s", v->message);
+        ImGui::End();
+    }
+    ImGui::Render();
+    int dw = 0, dh = 0;
+    SDL_GL_GetDrawableSize(g_window, &dw, &dh);
+    glViewport(0, 0, dw, dh);
+    glClearColor(0, 0, 0, 1);
+    glClear(GL_COLOR_BUFFER_BIT);
+    ImGui_ImplOpenGL2_RenderDrawData(ImGui::GetDrawData());
+    SDL_GL_SwapWindow(g_window);
+}
