@@ -17,6 +17,7 @@
 #include "core/optics.h"
 #include "pathtrace/rng.h"
 #include "layered/layers.h"
+#include "scene/lights.h"
 #include "scene/medium.h"
 #include "scene/scene.h"
 
@@ -352,13 +353,7 @@ static inline float spot_falloff(const nacre_light_desc *l, nc_vec3 from_light)
     if (l->type != NACRE_LIGHT_SPOT)
         return 1.0f;
     float c = nc_dot(nc_v3a(l->direction), from_light);
-    float co = cosf(l->outer_angle * NC_DEG2RAD), ci = cosf(l->inner_angle * NC_DEG2RAD);
-    if (c <= co)
-        return 0.0f;
-    if (c >= ci || ci <= co)
-        return 1.0f;
-    float t = (c - co) / (ci - co);
-    return t * t * (3.0f - 2.0f * t);
+    return nc_spot_falloff(l->falloff, c, cosf(l->outer_angle * NC_DEG2RAD), cosf(l->inner_angle * NC_DEG2RAD));
 }
 
 /* Solid-angle pdf of sampling the cone subtended by sphere light `l` from p; 0 when inside. */
