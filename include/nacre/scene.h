@@ -217,6 +217,19 @@ NACRE_API nacre_object_desc nacre_object_desc_defaults(void);
 
 typedef enum nacre_light_type { NACRE_LIGHT_DIRECTIONAL = 0, NACRE_LIGHT_POINT, NACRE_LIGHT_SPOT } nacre_light_type;
 
+/* A spot light's intensity across its cone, as a factor of `strength` (c = cos of the angle from
+ * the axis, co and ci = cos of outer_angle and inner_angle; docs/scene-format.md has the sources):
+ *   SMOOTH (default): 0 outside, s = t^2 (3 - 2t) with t = (c - co) / (ci - co), 1 inside ci;
+ *   CYCLES: c * s, as Blender Cycles 2.8-3.x (spot_size = 2 outer_angle, spot_blend =
+ *           (ci - co) / (1 - co)); Cycles 4.x dropped the factor c and then equals SMOOTH;
+ *   GLTF:   clamp(t, 0, 1)^2, as the sample code of glTF's KHR_lights_punctual.
+ * inner_angle = outer_angle gives a hard cone for each (CYCLES: c inside). */
+typedef enum nacre_spot_falloff {
+    NACRE_SPOT_FALLOFF_SMOOTH = 0,
+    NACRE_SPOT_FALLOFF_CYCLES,
+    NACRE_SPOT_FALLOFF_GLTF
+} nacre_spot_falloff;
+
 typedef struct nacre_light_desc {
     nacre_light_type type;
     float direction[3];      /* directional, spot: the way the light travels (normalised) */
@@ -224,6 +237,7 @@ typedef struct nacre_light_desc {
     float strength[3];       /* directional: irradiance (W/m^2); point, spot: intensity (W/sr) */
     float inner_angle;       /* spot: full strength inside this half-angle (degrees) */
     float outer_angle;       /* spot: zero outside this half-angle (degrees) */
+    nacre_spot_falloff falloff; /* spot: profile between the cones (default SMOOTH) */
     float radius;            /* point, spot: emitter radius (path tracer), 0 = a point */
     float angular_radius;    /* directional: apparent radius in degrees (default the sun, 0.27) */
     bool cast_shadows;       /* default true */

@@ -15,7 +15,7 @@
  *   - Point and spot lights: a perspective map from the light around that box (any frustum, so
  *     asymmetric), or a cube map (six 90-degree faces) when the light is inside or too close to
  *     the box; texel flux = I x solid angle of the texel x Ft (= I / d^2 x perpendicular area),
- *     with the spot cone falloff of phong.c.
+ *     with the spot profile of scene/lights.h (as phong.c).
  *   - Ft = 1 - F(cos, eta), F the Fresnel reflectance at the angle to the voxel face normal.
  *   - Occlusion by other objects: the renderer's shadow map of the light is looked up where the
  *     texel's ray enters the object's box (grown by one cell). The object itself lies beyond that
@@ -40,6 +40,7 @@
  */
 #include "diffusion/pipeline.h"
 #include "core/optics.h"
+#include "scene/lights.h"
 
 #include <math.h>
 #include <string.h>
@@ -130,17 +131,11 @@ static nacre_result band_reserve(nacre_context *ctx, nc_tsm_band *b, size_t texe
     return NACRE_OK;
 }
 
-/* Smooth spot falloff between the inner and outer cone, as phong.c (Hermite in cos angle). */
+/* The spot's profile (scene/lights.h) in direction dir from the light, as phong.c. */
 static float spot_falloff(const nacre_light_desc *l, nc_vec3 dir)
 {
     float c = nc_dot(nc_normalize(nc_v3a(l->direction)), dir);
-    float co = cosf(l->outer_angle * NC_DEG2RAD), ci = cosf(l->inner_angle * NC_DEG2RAD);
-    if (c <= co)
-        return 0.0f;
-    if (c >= ci || ci <= co)
-        return 1.0f;
-    float t = (c - co) / (ci - co);
-    return t * t * (3.0f - 2.0f * t);
+    return nc_spot_falloff(l->falloff, c, cosf(l->outer_angle * NC_DEG2RAD), cosf(l->inner_angle * NC_DEG2RAD));
 }
 
 /* The face a ray enters when it steps along `axis` in direction `step` (table 4.1). */

@@ -73,8 +73,8 @@ void nc_json_parse_light(loader *ld, const cJSON *obj)
     static const char *const point_keys[] = {"type", "position", "intensity", "strength", "radius",
                                              "shadows"};
     static const char *const spot_keys[] = {"type", "position", "direction", "intensity",
-                                            "strength", "inner_angle", "outer_angle", "radius",
-                                            "shadows"};
+                                            "strength", "inner_angle", "outer_angle", "falloff",
+                                            "radius", "shadows"};
     if (!nc_json_expect_object(ld, obj) || !nc_json_require(ld, obj, "type"))
         return;
     int type = nc_json_get_choice(ld, obj, "type", "light type", types, COUNT_OF(types));
@@ -109,6 +109,13 @@ void nc_json_parse_light(loader *ld, const cJSON *obj)
     nc_json_get_number(ld, obj, "inner_angle", inner_range, &d.inner_angle);
     nc_json_get_number(ld, obj, "outer_angle", outer_range, &d.outer_angle);
     nc_json_get_bool(ld, obj, "shadows", &d.cast_shadows);
+    /* In the order of nacre_spot_falloff; an unknown name fails listing these. */
+    static const char *const falloffs[] = {"smooth", "cycles", "gltf"};
+    if (type == 2 && nc_json_member(obj, "falloff")) {
+        int f = nc_json_get_choice(ld, obj, "falloff", "spot falloff", falloffs, COUNT_OF(falloffs));
+        if (f >= 0)
+            d.falloff = (nacre_spot_falloff)f;
+    }
     if (!ld->err && type == 2 && d.inner_angle > d.outer_angle)
         nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT,
                      "inner_angle (%g) must not exceed outer_angle (%g)", d.inner_angle,

@@ -600,6 +600,8 @@ static cJSON *light_object(writer *w, const nc_light_rec *rec)
     if (d->type == NACRE_LIGHT_SPOT) {
         add_float(w, o, "inner_angle", d->inner_angle);
         add_float(w, o, "outer_angle", d->outer_angle);
+        static const char *const falloffs[] = {"smooth", "cycles", "gltf"};
+        add_string(w, o, "falloff", falloffs[d->falloff]);
     }
     if (d->type != NACRE_LIGHT_DIRECTIONAL)
         add_float(w, o, "radius", d->radius);

@@ -116,6 +116,44 @@ void nc_pathtracer_destroy(nacre_context *ctx, nc_pathtracer *state) { (void)ctx
 
 #else /* NACRE_HAVE_EMBREE */
 
+/* The equiangular technique on fog segment e (pt_internal.h, "Equiangular sampling"): for each
+ * point or spot light, one distance t with density proportional to 1 / (D^2 + (t - delta)^2) on
+ * [a, b] (the inverse of Kulla and Fajardo's eq. 6), the fog there, the transmittance from the
+ * segment's origin by ratio tracking (the fog is heterogeneous in general), and NEE towards that
+ * light; weighted by the balance heuristic against the distance technique's vertices, whose NEE
+ * and phase-sampled hits of these lights carry the complementary weight (eq_weight_d). Single
+ * scattering from a point light in fog is concentrated near the light, where distance sampling
+ * rarely puts a vertex and NEE's 1 / d^2 then makes fireflies (issue 28). beta: the path's
+ * throughput at the segment's origin. */
+static nc_vec3 equiangular(const pt_scene *ps, const pt_eq *e, nc_vec3 beta, nc_rng *rng)
+{
+    const nc_pathtracer *pt = ps->pt;
+    nc_vec3 L = nc_v3(0, 0, 0);
+    for (uint32_t li = 0; li < pt->light_count; li++) {
+        const pt_light *l = &pt->lights[li];
+        float delta, D, ta, tb;
+        if (l->type == NACRE_LIGHT_DIRECTIONAL || !eq_frame(l, e, &delta, &D, &ta, &tb))
+            continue;
+        float t = delta + D * tanf(ta + nc_rng_float(rng) * (tb - ta));
+        t = fminf(fmaxf(t, e->a), e->b);
+        float pe = eq_pdf(l, e, t);
+        if (!(pe > 0.0f))
+            continue;
+        float sa[3], ss[3];
+        nc_vec3 bw = beta;
+        float g = nc_pt_fog_point(ps, e->o, e->d, e->tmax, t, sa, ss, &bw, rng);
+        if (!(ss[0] > 0.0f || ss[1] > 0.0f || ss[2] > 0.0f))
+            continue;
+        nc_vec3 tr = nc_pt_transmittance(ps, NULL, e->o, e->d, t, rng);
+        if (tr.x == 0 && tr.y == 0 && tr.z == 0)
+            continue;
+        nc_vec3 ld = nc_pt_direct_one(ps, li, ray_at(e->o, e->d, t), e->d, g, rng);
+        float w = pe / (pe + eq_pd(sa, ss, t - e->a));
+        L = nc_add(L, nc_scale(nc_mul(nc_mul(bw, tr), nc_mul(nc_v3(ss[0], ss[1], ss[2]), ld)), w / pe));
+    }
+    return L;
+}
+
 /* The radiance arriving at o from direction -d along one camera path. Longer than 150 lines on
  * purpose: the loop's events (free flight, medium vertex with NEE or the guided sun, light hit,
  * escape, index-matched and dielectric boundaries, opaque vertex, roulette) read and update about
@@ -149,6 +187,15 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
     uint32_t seed = UINT32_MAX, guide_seed = UINT32_MAX; /* see nc_pt_make_guide */
     int seed_obj = -1;
     float clear_here = -1.0f; /* clearance of o when o is a scattering vertex that looked it up */
+    /* Equiangular sampling of fog segments (see equiangular()): this segment's, and the one of
+     * the previous vertex when it was a fog vertex (for the MIS weight of a light it hits). */
+    bool eq_lights = false;
+    for (uint32_t li = 0; li < pt->light_count; li++)
+        eq_lights |= pt->lights[li].type != NACRE_LIGHT_DIRECTIONAL;
+    eq_lights &= pt->fog_count > 0;
+    pt_eq eq, prev_eq;
+    memset(&eq, 0, sizeof(eq));
+    memset(&prev_eq, 0, sizeof(prev_eq));
     for (int vertex = 0, crossings = 0;;) {
         if (vertex >= MAX_VERTICES || crossings >= 4 * MAX_VERTICES) {
             ps->budget->capped = true;
@@ -190,6 +237,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
             }
         }
         clear_here = -1.0f;
+        eq.on = false;
         pt_hit h;
         memset(&h, 0, sizeof(h));
         float t_end = INFINITY;
@@ -211,8 +259,17 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
             if (mo)
                 ev = mo->heterogeneous ? nc_pt_free_flight(ps, mo, o, d, tmax, rng, &beta, &ts, &g)
                                        : nc_pt_flight_resolve_homogeneous(mo, t_hom, tmax, &beta, &ts);
-            else if (pt->fog_count)
+            else if (pt->fog_count) {
+                if (eq_lights && !(ps->max_scatter && scatters + 1 > ps->max_scatter) &&
+                    nc_pt_fog_span(ps, o, d, tmax, &eq.a, &eq.b)) {
+                    eq.on = true;
+                    eq.o = o;
+                    eq.d = d;
+                    eq.tmax = tmax;
+                    L = nc_add(L, equiangular(ps, &eq, beta, rng));
+                }
                 ev = nc_pt_free_flight(ps, NULL, o, d, tmax, rng, &beta, &ts, &g);
+            }
         }
         if (ev == FF_ABSORB)
             break;
@@ -229,15 +286,22 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
             bool guiding = false;
             float q = 1.0f;
             if (!ob) {
-                /* Fog: plain NEE (no clearance grid in the open). */
-                L = nc_add(L, nc_mul(beta, nc_pt_direct_light(ps, p, wo, false, NULL, wo, wo, g, -1, 1.0f, rng)));
+                /* Fog: plain NEE (no clearance grid in the open), MIS-weighted against the
+                 * equiangular technique for point and spot lights. */
+                if (eq.on) {
+                    float sa[3], ss[3];
+                    nc_pt_fog_point(ps, eq.o, eq.d, eq.tmax, ts, sa, ss, NULL, rng);
+                    eq.t = ts;
+                    eq.pd = eq_pd(sa, ss, ts - eq.a);
+                }
+                L = nc_add(L, nc_mul(beta, nc_pt_direct_light(ps, p, wo, false, NULL, wo, wo, g, -1, 1.0f, &eq, rng)));
             } else if (ob->kind == PT_MATCHED) {
                 /* NEE attenuated by at least the clearance: run it less often deep inside, as
                  * the guided technique (guide_probability has the same argument). */
                 clear_p = fmaxf(0.0f, nc_pt_clearance(ob, p));
                 q = guide_probability(ob, clear_p);
                 if (q >= 1.0f || nc_rng_float(rng) < q)
-                    L = nc_add(L, nc_mul(beta, nc_pt_direct_light(ps, p, wo, false, NULL, wo, wo, g, medium, q, rng)));
+                    L = nc_add(L, nc_mul(beta, nc_pt_direct_light(ps, p, wo, false, NULL, wo, wo, g, medium, q, NULL, rng)));
             } else if (sun >= 0 && !pt->opt.no_sun_guiding) {
                 guiding = true;
                 clear_p = fmaxf(0.0f, nc_pt_clearance(ob, p));
@@ -291,6 +355,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
             }
             prev_delta = false;
             prev_p = p;
+            prev_eq = eq;
             o = p;
             d = wi;
             clear_here = clear_p;
@@ -304,7 +369,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
             float w = 1.0f, cos_max;
             if (!prev_delta) {
                 float lp = sphere_pdf(l, prev_p, &cos_max);
-                w = pt->nee_only ? 0.0f : power_heuristic(prev_pdf, prev_q * lp);
+                w = pt->nee_only ? 0.0f : power_heuristic(prev_pdf, prev_q * lp) * eq_weight_d(l, &prev_eq);
             }
             L = nc_add(L, nc_mul(beta, nc_scale(l->value, fall * w)));
             break;
@@ -374,7 +439,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
             if (nc_dot(ns, ng) < 0)
                 ns = nc_scale(ns, -1.0f);
             const nacre_material_desc *m = ob->mat;
-            L = nc_add(L, nc_mul(beta, nc_pt_direct_light(ps, p, ng, true, m, ns, wo, 0, medium, 1.0f, rng)));
+            L = nc_add(L, nc_mul(beta, nc_pt_direct_light(ps, p, ng, true, m, ns, wo, 0, medium, 1.0f, NULL, rng)));
             nc_vec3 wi = bsdf_sample(m, ns, wo, rng);
             float pdf;
             nc_vec3 f = nc_pt_bsdf_eval(m, ns, wo, wi, &pdf);
@@ -384,6 +449,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
             prev_pdf = pdf;
             prev_q = 1.0f;
             prev_delta = false;
+            prev_eq.on = false;
             prev_p = p;
             o = offset_origin(ps, p, ng, wi);
             d = wi;

@@ -138,11 +138,34 @@ static bool sample_light(const pt_light *l, nc_vec3 p, nc_rng *rng, light_sample
     return true;
 }
 
+/* NEE from a fog point p towards light li alone, by light sampling only (weight 1: the
+ * equiangular vertices of integrator.c have no phase-sampled continuation to share it with);
+ * d is the direction the path travels, g the phase's anisotropy. */
+nc_vec3 nc_pt_direct_one(const pt_scene *ps, uint32_t li, nc_vec3 p, nc_vec3 d, float g, nc_rng *rng)
+{
+    const nc_pathtracer *pt = ps->pt;
+    light_sample s;
+    if (!sample_light(&pt->lights[li], p, rng, &s))
+        return nc_v3(0, 0, 0);
+    float f = (float)nc_hg_phase(nc_dot(d, s.wi), g);
+    if (!(f > 0))
+        return nc_v3(0, 0, 0);
+    float dist = s.dist * (1.0f - 1e-4f);
+    for (uint32_t k = 0; k < pt->light_count; k++) {
+        const pt_light *b = &pt->lights[k];
+        if (k != li && b->type != NACRE_LIGHT_DIRECTIONAL && !b->delta && sphere_hit(b, p, s.wi) < dist)
+            return nc_v3(0, 0, 0);
+    }
+    nc_vec3 tr = nc_pt_shadow(ps, p, s.wi, dist, -1, rng);
+    return nc_scale(nc_mul(tr, s.value), f / (s.pdf > 0 ? s.pdf : 1.0f));
+}
+
 /* NEE from p over every light and the environment. `surface`: opaque vertex with shading
  * normal n and outgoing wo (else a medium vertex with HG g, incoming direction d = -wo). Run
- * with probability q (see nee_probability): weighted by 1 / q, MIS with the density q pdf. */
+ * with probability q (see nee_probability): weighted by 1 / q, MIS with the density q pdf. At a
+ * fog vertex eq (else NULL) gives each point or spot light's weight against equiangular sampling. */
 nc_vec3 nc_pt_direct_light(const pt_scene *ps, nc_vec3 p, nc_vec3 ng, bool surface, const nacre_material_desc *m,
-                           nc_vec3 n, nc_vec3 wo, float g, int medium, float q, nc_rng *rng)
+                           nc_vec3 n, nc_vec3 wo, float g, int medium, float q, const pt_eq *eq, nc_rng *rng)
 {
     const nc_pathtracer *pt = ps->pt;
     nc_vec3 sum = nc_v3(0, 0, 0);
@@ -184,7 +207,7 @@ nc_vec3 nc_pt_direct_light(const pt_scene *ps, nc_vec3 p, nc_vec3 ng, bool surfa
         nc_vec3 tr = nc_pt_shadow(ps, o, s.wi, dist, medium, rng);
         if (tr.x == 0 && tr.y == 0 && tr.z == 0)
             continue;
-        nc_vec3 c = nc_mul(nc_mul(f, tr), s.value);
+        nc_vec3 c = nc_scale(nc_mul(nc_mul(f, tr), s.value), li < pt->light_count ? eq_weight_d(&pt->lights[li], eq) : 1.0f);
         if (s.pdf > 0)
             c = nc_scale(c, (pt->nee_only ? 1.0f : power_heuristic(q * s.pdf, fpdf)) / (q * s.pdf));
         else

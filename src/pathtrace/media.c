@@ -425,6 +425,35 @@ static float fog_pick_phase(const fog_iter *it, float t, nc_vec3 p, nc_vec3 *bet
     return pt->fogs[k].g;
 }
 
+/* The part [*t0, *t1] of [0, tmax] where some fog is present (false: none), for equiangular
+ * sampling (integrator.c), which should not spend samples where no fog can scatter. */
+bool nc_pt_fog_span(const pt_scene *ps, nc_vec3 org, nc_vec3 dir, float tmax, float *t0, float *t1)
+{
+    fog_iter it;
+    fog_init(&it, ps, org, dir, tmax);
+    float a = INFINITY, b = -INFINITY;
+    for (uint32_t i = 0; i < ps->pt->fog_count; i++)
+        if (it.a[i] < it.b[i]) {
+            a = fminf(a, it.a[i]);
+            b = fmaxf(b, it.b[i]);
+        }
+    *t0 = a;
+    *t1 = fminf(b, tmax);
+    return a < *t1;
+}
+
+/* The fogs' coefficients at parameter t of the ray (summed) and, as at a scattering there, the
+ * phase's g (fog_pick_phase: weights *beta where fogs of different g overlap; beta NULL: no g). */
+float nc_pt_fog_point(const pt_scene *ps, nc_vec3 org, nc_vec3 dir, float tmax, float t, float sa[3], float ss[3],
+                      nc_vec3 *beta, nc_rng *rng)
+{
+    fog_iter it;
+    fog_init(&it, ps, org, dir, tmax);
+    nc_vec3 p = ray_at(org, dir, t);
+    fog_at(&it, t, p, sa, ss);
+    return beta ? fog_pick_phase(&it, t, p, beta, rng) : 0.0f;
+}
+
 /* Tentative collisions along the ray: exponential steps at each piece's majorant (delta,
  * spectral and ratio tracking all walk this way; they differ in what they do at a collision).
  * In an object's medium (o) the pieces come from its majorant grid, in the air from the fogs. */

@@ -17,6 +17,7 @@
 #include "core/optics.h"
 #include "pathtrace/rng.h"
 #include "layered/layers.h"
+#include "scene/lights.h"
 #include "scene/medium.h"
 #include "scene/scene.h"
 #include "volume/volume.h"
@@ -240,11 +241,16 @@ ff_event nc_pt_flight_resolve_homogeneous(const pt_object *o, float t, float tma
 ff_event nc_pt_free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax,
                            nc_rng *rng, nc_vec3 *beta, float *t_out, float *g_out);
 nc_vec3 nc_pt_transmittance(const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax, nc_rng *rng);
+bool nc_pt_fog_span(const pt_scene *ps, nc_vec3 org, nc_vec3 dir, float tmax, float *t0, float *t1);
+float nc_pt_fog_point(const pt_scene *ps, nc_vec3 org, nc_vec3 dir, float tmax, float t, float sa[3], float ss[3],
+                      nc_vec3 *beta, nc_rng *rng);
 
 /* lights.c */
 nc_vec3 nc_pt_shadow(const pt_scene *ps, nc_vec3 p, nc_vec3 wi, float dist, int medium, nc_rng *rng);
+typedef struct pt_eq pt_eq;
 nc_vec3 nc_pt_direct_light(const pt_scene *ps, nc_vec3 p, nc_vec3 ng, bool surface, const nacre_material_desc *m,
-                           nc_vec3 n, nc_vec3 wo, float g, int medium, float q, nc_rng *rng);
+                           nc_vec3 n, nc_vec3 wo, float g, int medium, float q, const pt_eq *eq, nc_rng *rng);
+nc_vec3 nc_pt_direct_one(const pt_scene *ps, uint32_t li, nc_vec3 p, nc_vec3 d, float g, nc_rng *rng);
 
 /* sun_guide.c */
 bool nc_pt_refract_sun_facet(const pt_object *ob, const pt_light *l, uint32_t prim, nc_vec3 *dir);
@@ -351,13 +357,61 @@ static inline float spot_falloff(const nacre_light_desc *l, nc_vec3 from_light)
     if (l->type != NACRE_LIGHT_SPOT)
         return 1.0f;
     float c = nc_dot(nc_v3a(l->direction), from_light);
-    float co = cosf(l->outer_angle * NC_DEG2RAD), ci = cosf(l->inner_angle * NC_DEG2RAD);
-    if (c <= co)
+    return nc_spot_falloff(l->falloff, c, cosf(l->outer_angle * NC_DEG2RAD), cosf(l->inner_angle * NC_DEG2RAD));
+}
+
+/* Equiangular sampling (Kulla and Fajardo 2012) of fog segments for point and spot lights,
+ * combined with distance sampling by one-sample MIS per technique with the balance heuristic
+ * (integrator.c). A fog segment: the ray o + t d, the part [a, b] of it where fog is, and for a
+ * vertex of the distance technique its t and the density pd of that technique there. pd is a
+ * deterministic stand-in (mean sigma_s at the vertex times exp(-mean sigma_t there x (t - a))):
+ * any weights that sum to 1 at each point keep MIS unbiased, the true density of spectral
+ * tracking in heterogeneous fog has no closed form, and this one follows it where the fog is
+ * locally uniform. */
+struct pt_eq {
+    bool on;
+    nc_vec3 o, d;
+    float a, b, tmax; /* tmax: the segment's end (the fog lookups' ray) */
+    float t, pd;
+};
+
+static inline float eq_pd(const float sa[3], const float ss[3], float s)
+{
+    float ms = (ss[0] + ss[1] + ss[2]) / 3.0f, mt = ms + (sa[0] + sa[1] + sa[2]) / 3.0f;
+    return ms * expf(-mt * s);
+}
+
+/* The equiangular frame of light l on segment e: foot of the perpendicular (delta along the
+ * ray), distance D and the angles of a and b seen from the light. False when degenerate. */
+static inline bool eq_frame(const pt_light *l, const pt_eq *e, float *delta, float *D, float *ta, float *tb)
+{
+    *delta = nc_dot(nc_sub(l->pos, e->o), e->d);
+    *D = nc_length(nc_sub(l->pos, ray_at(e->o, e->d, *delta)));
+    if (!(*D > 0.0f))
+        return false;
+    *ta = atanf((e->a - *delta) / *D);
+    *tb = atanf((e->b - *delta) / *D);
+    return *tb > *ta;
+}
+
+/* Density in t of the equiangular technique for light l on segment e (0 outside [a, b]). */
+static inline float eq_pdf(const pt_light *l, const pt_eq *e, float t)
+{
+    float delta, D, ta, tb;
+    if (!(t >= e->a && t <= e->b) || !eq_frame(l, e, &delta, &D, &ta, &tb))
         return 0.0f;
-    if (c >= ci || ci <= co)
+    float x = t - delta;
+    return D / ((tb - ta) * (D * D + x * x));
+}
+
+/* Balance-heuristic weight of the distance technique's vertex for light l (1 for suns, or
+ * outside fog segments). */
+static inline float eq_weight_d(const pt_light *l, const pt_eq *e)
+{
+    if (!e || !e->on || l->type == NACRE_LIGHT_DIRECTIONAL)
         return 1.0f;
-    float t = (c - co) / (ci - co);
-    return t * t * (3.0f - 2.0f * t);
+    float pe = eq_pdf(l, e, e->t);
+    return pe > 0.0f ? e->pd / (e->pd + pe) : 1.0f;
 }
 
 /* Solid-angle pdf of sampling the cone subtended by sphere light `l` from p; 0 when inside. */

@@ -296,6 +296,8 @@ static nacre_result check_light(nacre_context *ctx, const nacre_light_desc *d)
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "light: outer_angle: must be in (0, 90) degrees");
         if (!(isfinite(d->inner_angle) && d->inner_angle >= 0 && d->inner_angle <= d->outer_angle))
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "light: inner_angle: must be in [0, outer_angle]");
+        if (d->falloff < NACRE_SPOT_FALLOFF_SMOOTH || d->falloff > NACRE_SPOT_FALLOFF_GLTF)
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "light: falloff: unknown (%d)", (int)d->falloff);
     }
     if (!(isfinite(d->radius) && d->radius >= 0))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "light: radius: must be finite and >= 0");

@@ -36,6 +36,7 @@
 #include "shade/shade.h"
 #include "core/optics.h"
 #include "core/simd.h"
+#include "scene/lights.h"
 
 #include <math.h>
 #include <stdint.h>
@@ -197,9 +198,7 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
             ok &= ~(d2 <= 0.0f);
             if (spot) {
                 const nc_v8f c = dx0 * -wx + dy0 * -wy + dz0 * -wz;
-                const nc_v8f t = (c - co) / (ci - co);
-                const nc_v8f smooth = t * t * (3.0f - 2.0f * t);
-                scale *= nc_v8_sel(c <= co, zero, nc_v8_sel((c >= ci) | hard, one, smooth));
+                scale *= nc_spot_falloff8(l->falloff, c, co, ci, hard);
             }
         }
         const nc_v8f ct = nx * wx + ny * wy + nz * wz;

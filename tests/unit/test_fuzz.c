@@ -137,6 +137,7 @@ static const char *const words[] = {
     "orthographic", "opaque", "translucent", "preset", "diffuse", "specular", "shininess",
     "sigma_a", "sigma_s", "g", "eta", "directional", "point", "spot", "direction", "irradiance",
     "intensity", "strength", "angular_radius", "radius", "inner_angle", "outer_angle", "shadows",
+    "falloff", "smooth", "cycles", "gltf",
     "name", "mesh", "shape", "material", "transform", "translate", "rotate", "scale", "deformers",
     "twist", "bend", "axis", "angle", "angle_rate", "length", "center", "scale_rate",
     "double_sided", "sphere", "box", "plane", "torus", "size", "segments", "rings",

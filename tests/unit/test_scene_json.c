@@ -97,7 +97,7 @@ static const char full_scene[] =
     "     \"shadows\": false},\n"
     "    {\"type\": \"point\", \"position\": [1, 2, 3], \"intensity\": 100, \"radius\": 0.25},\n"
     "    {\"type\": \"spot\", \"position\": [0, 10, 0], \"direction\": [0, -1, 0], \"intensity\": [5, 6, 7],\n"
-    "     \"inner_angle\": 10, \"outer_angle\": 40, \"_note\": \"skipped\"}\n"
+    "     \"inner_angle\": 10, \"outer_angle\": 40, \"falloff\": \"cycles\", \"_note\": \"skipped\"}\n"
     "  ],\n"
     "  \"objects\": [\n"
     "    {\"name\": \"monkey\", \"mesh\": \"meshes/suzanne.ply\", \"material\": \"marble\",\n"
@@ -198,6 +198,8 @@ static void test_full_scene(void)
     CHECK(spot->type == NACRE_LIGHT_SPOT);
     CHECK_NEAR(spot->inner_angle, 10, 0);
     CHECK_NEAR(spot->outer_angle, 40, 0);
+    CHECK(spot->falloff == NACRE_SPOT_FALLOFF_CYCLES);
+    CHECK(point->falloff == NACRE_SPOT_FALLOFF_SMOOTH);
     CHECK_NEAR(spot->strength[0], 5, 0);
 
     /* Suzanne is loaded once for two objects, the identical spheres share one mesh. */
@@ -378,6 +380,12 @@ static const bad_case bad_cases[] = {
      " \"outer_angle\": 30}]}", INVALID, "lights[0]: inner_angle (40) must not exceed outer_angle (30)", NULL},
     {"{\"lights\": [{\"type\": \"spot\", \"position\": [0, 1, 0], \"direction\": [0, -1, 0], \"outer_angle\": 95}]}",
      INVALID, "lights[0].outer_angle: must be in (0, 90)", NULL},
+    {"{\"lights\": [{\"type\": \"spot\", \"position\": [0, 1, 0], \"direction\": [0, -1, 0], \"falloff\": \"ies\"}]}",
+     INVALID, "t.json: lights[0].falloff: unknown spot falloff \"ies\" (valid: smooth, cycles, gltf)", NULL},
+    {"{\"lights\": [{\"type\": \"spot\", \"position\": [0, 1, 0], \"direction\": [0, -1, 0], \"falloff\": 1}]}",
+     INVALID, "lights[0].falloff", NULL},
+    {"{\"lights\": [{\"type\": \"point\", \"position\": [0, 1, 0], \"falloff\": \"gltf\"}]}", INVALID,
+     "lights[0]: unknown key \"falloff\"", NULL},
     /* Objects. */
     {OBJ("{\"material\": \"nope\", " SPHERE "}"), INVALID, "t.json: objects[0].material: unknown material \"nope\"",
      "defined: m"},

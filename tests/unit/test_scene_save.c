@@ -345,6 +345,7 @@ static nacre_scene *make_raw_scene(nacre_context *ctx)
     spot.position[0] = 1.0f;
     spot.position[1] = 3.0f;
     spot.direction[0] = -0.2f;
+    spot.falloff = NACRE_SPOT_FALLOFF_GLTF; /* not the default: the file must keep it */
     CHECK(nacre_scene_add_light(s, &spot, &light) == NACRE_OK);
     nacre_camera_desc cam = nacre_camera_desc_defaults();
     cam.position[1] = 2.5f;
