@@ -10,6 +10,9 @@ TEST_DIR ?= build/test
 GENERIC_TEST_DIR ?= build/test-generic
 FUZZ_DIR ?= build/fuzz
 FUZZ_SECONDS ?= 20
+# `make test` fuzzes from a fixed seed so that it is repeatable; `make fuzz` and `make fuzz-long`
+# draw a new seed each run (tests/fuzz/README.md).
+FUZZ_SEED ?= 1
 FUZZ_LONG_SECONDS ?= 900
 
 .PHONY: run test deps build build-test build-test-generic build-fuzz fuzz fuzz-long bench clean
@@ -44,7 +47,7 @@ test: build build-test build-test-generic build-fuzz
 	cd $(TEST_DIR) && ctest --output-on-failure -j $(JOBS)
 	cd $(GENERIC_TEST_DIR) && ctest --output-on-failure -j $(JOBS)
 	bash tests/limits.sh $(RELEASE_DIR)/nacre
-	bash tests/fuzz/run.sh $(FUZZ_DIR) $(FUZZ_SECONDS)
+	NACRE_FUZZ_FLAGS="-seed=$(FUZZ_SEED) $(NACRE_FUZZ_FLAGS)" bash tests/fuzz/run.sh $(FUZZ_DIR) $(FUZZ_SECONDS)
 
 fuzz: build-fuzz
 	bash tests/fuzz/run.sh $(FUZZ_DIR) $(FUZZ_SECONDS)
