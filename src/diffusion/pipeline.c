@@ -250,6 +250,9 @@ nacre_result nc_diff_object_medium(nc_diff_object *o, const nacre_scene *s, uint
     if (res != NACRE_OK)
         return res;
     if (o->heterogeneous) {
+        /* The rest points of the solid cells only, packed in cell order (evaluated, then
+         * scattered back below). */
+        size_t n = 0;
         if (obj->desc.deformer_count == 0) {
             /* Undeformed: the rest point of a voxel centre is exactly its inverse transform. */
             nc_mat4 to_rest;
@@ -257,26 +260,25 @@ nacre_result nc_diff_object_medium(nc_diff_object *o, const nacre_scene *s, uint
             for (uint32_t z = 0; z < o->dims[2]; z++)
                 for (uint32_t y = 0; y < o->dims[1]; y++)
                     for (uint32_t x = 0; x < o->dims[0]; x++) {
-                        size_t i = x + o->dims[0] * (y + (size_t)o->dims[1] * z);
+                        if (!o->solid[x + o->dims[0] * (y + (size_t)o->dims[1] * z)])
+                            continue;
                         nc_vec3 c = nc_v3(o->origin[0] + ((float)x + 0.5f) * o->h,
                                           o->origin[1] + ((float)y + 0.5f) * o->h,
                                           o->origin[2] + ((float)z + 0.5f) * o->h);
-                        nc_v3store(nc_mat4_point(&to_rest, c), o->rest + 3 * i);
+                        nc_v3store(nc_mat4_point(&to_rest, c), o->rest + 3 * n++);
                     }
         } else {
             const nacre_mesh_data *rest = &s->meshes[obj->desc.mesh.id - 1].data;
             nacre_mesh_data dm = world_mesh(s, obj);
             if ((res = nacre_voxel_grid_rest_positions(o->grid, rest, &dm, o->rest)) != NACRE_OK)
                 return res;
+            /* Compact in place: the write index never passes the read index. */
+            for (size_t i = 0; i < o->cells; i++)
+                if (o->solid[i]) {
+                    memmove(o->rest + 3 * n, o->rest + 3 * i, 3 * sizeof(float));
+                    n++;
+                }
         }
-        /* Evaluate the solid cells only: compact their points in place (the write index never
-         * passes the read index), evaluate, then scatter. */
-        size_t n = 0;
-        for (size_t i = 0; i < o->cells; i++)
-            if (o->solid[i]) {
-                memmove(o->rest + 3 * n, o->rest + 3 * i, 3 * sizeof(float));
-                n++;
-            }
         nc_medium_eval(s, m, o->rest, n, o->eval_a, o->eval_s);
         size_t k = 0;
         for (size_t i = 0; i < o->cells; i++) {
