@@ -22,13 +22,16 @@ extern "C" {
 
 /* A plane-parallel slab, infinite in x and y, of optical thickness tau (sigma_t * depth; INFINITY
  * for semi-infinite), single-scattering albedo a = sigma_s / sigma_t, Henyey-Greenstein g and
- * relative index eta with air (index 1) on both sides, lit by collimated light at normal
- * incidence with unit power per unit area. R: light leaving the top after scattering (the
+ * relative index eta with air (index 1) on both sides, lit by collimated light at `incidence`
+ * degrees from the normal with unit power per unit area of the slab's face. R: light leaving the top after scattering (the
  * specular reflection at the top excluded, reported as R_specular); T: all light leaving the
  * bottom (unscattered included). */
 typedef struct nacre_slab_desc {
     nacre_method method;            /* DIFFUSION or PATHTRACE */
     double albedo, tau, g, eta;
+    double incidence;               /* angle of the collimated light to the normal, degrees in
+                                       [0, 89]; default 0. The power per unit area of the slab's
+                                       face stays 1 (irradiance on the face, not on the beam) */
     /* diffusion */
     uint32_t cells_per_mfp;         /* grid cells per reduced mean free path 1/sigma_t', default 8 */
     nacre_diffusion_solver solver;
@@ -47,7 +50,7 @@ typedef struct nacre_slab_result {
     double R_stderr, T_stderr;      /* pathtrace: standard errors of the means; diffusion: 0 */
     uint64_t samples_done;          /* pathtrace: paths completed (samples, or fewer at the time limit) */
     uint64_t paths_capped;          /* pathtrace: paths ended by the collision cap (README) */
-    double R_specular;              /* Fresnel reflection at normal incidence, ((eta-1)/(eta+1))^2 */
+    double R_specular;              /* Fresnel reflection of the incident light at the top */
     uint32_t iterations;            /* diffusion */
     double residual;                /* diffusion */
     double ms;

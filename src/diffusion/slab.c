@@ -1,7 +1,7 @@
 /*
  * slab.c: the diffusion method's measurement of the slab experiment (src/slab/slab.c: a
  * plane-parallel slab, infinite in x and y, lit by collimated light of unit power per unit area
- * at normal incidence; the desc is checked there).
+ * at a given incidence; the desc is checked there).
  *
  * Diffusion: the same finite-volume solver the renderer uses (solver.c) on a column of cells,
  * periodic in x and y (one cell each, so there is no lateral flux), the top face at z = depth
@@ -9,8 +9,10 @@
  * (sigma_t = 1): sigma_s = a, sigma_a = 1 - a, sigma_s' = a (1 - g), cells of 1 / cells_per_mfp
  * reduced mean free paths. A semi-infinite slab is cut at 12 diffusion lengths (at least 60
  * reduced mean free paths), where the fluence has fallen by e^-12.
- * Sources: VOLUME deposits the scattered part of the reduced intensity, alpha' sigma_t'
- * exp(-sigma_t' z), integrated exactly over each cell; FACE puts the transmitted flux on the
+ * Sources: VOLUME deposits the scattered part of the reduced intensity along the refracted
+ * ray, alpha' sigma_t' exp(-sigma_t' s) per unit path s = z / mu_t (mu_t the cosine of the
+ * refracted direction), integrated exactly over each cell, as the renderer does along each
+ * light's refracted rays; FACE puts the transmitted flux on the
  * top face as the boundary source of seed eq. 4.7.
  * R = light escaping through the top (net outward flux plus, for FACE, the incoming flux the
  * Robin condition counts as going in); T = net flux through the bottom plus the unscattered
@@ -82,7 +84,9 @@ nacre_result nc_slab_diffusion(nacre_context *ctx, const nacre_slab_desc *d, nac
     if ((res = nc_diff_setup(solver, &m)) != NACRE_OK)
         goto done;
     const double area = hz * hz;
-    const double r0 = ((d->eta - 1.0) / (d->eta + 1.0)) * ((d->eta - 1.0) / (d->eta + 1.0));
+    const double cos_i = cos(d->incidence * 0.017453292519943295), sin_i = sqrt(fmax(0.0, 1.0 - cos_i * cos_i));
+    const double mu_t = sqrt(fmax(0.0, 1.0 - sin_i * sin_i / (d->eta * d->eta)));
+    const double r0 = nc_fresnel_dielectric(cos_i, d->eta);
     const double entering = (1.0 - r0) * area; /* power through the top face */
     const double D = 1.0 / (3.0 * sigma_tp), A = nc_diff_robin_a(d->eta), fdr = nc_fresnel_fdr(d->eta);
     const double c = 2.0 * D / (hz + 4.0 * A * D); /* outward flux per area per unit fluence */
@@ -94,7 +98,7 @@ nacre_result nc_slab_diffusion(nacre_context *ctx, const nacre_slab_desc *d, nac
     } else {
         for (uint32_t k = 0; k < nz; k++) {
             double z0 = (nz - 1 - k) * hz, z1 = z0 + hz; /* depth below the top */
-            src[k] = (float)(entering * alpha_p * (exp(-sigma_tp * z0) - exp(-sigma_tp * z1)));
+            src[k] = (float)(entering * alpha_p * (exp(-sigma_tp * z0 / mu_t) - exp(-sigma_tp * z1 / mu_t)));
         }
     }
     nc_diff_solve_opts o = {.solver = d->solver, .tolerance = d->tolerance, .max_iterations = 1000};
@@ -121,7 +125,7 @@ nacre_result nc_slab_diffusion(nacre_context *ctx, const nacre_slab_desc *d, nac
     double top = c * phi[nz - 1] * area, bottom = c * phi[0] * area;
     if (d->source == NACRE_SOURCE_FACE)
         top += (1.0 - r0) * area - c * face_s * area;
-    double unscattered = isinf(d->tau) ? 0.0 : (1.0 - r0) * exp(-sigma_tp * d->tau) * (1.0 - r0);
+    double unscattered = isinf(d->tau) ? 0.0 : (1.0 - r0) * exp(-sigma_tp * d->tau / mu_t) * (1.0 - r0);
     out->R = top / area;
     out->T = bottom / area * (thick ? exp(-sigma_tr * (d->tau - depth)) : 1.0) + unscattered;
     out->R_stderr = out->T_stderr = 0.0;

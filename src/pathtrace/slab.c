@@ -6,13 +6,14 @@
  * plane-parallel slab only the depth z and the direction cosine mu to the inward normal matter.
  *
  * Units: optical depth (sigma_t = 1), so free paths are Exp(1) and the slab is [0, tau]. Light
- * arrives at z = 0 travelling +z (mu = 1) with unit power. Boundaries are smooth dielectrics of
+ * arrives at z = 0 with unit power, refracted to the direction cosine mu_t (1 at normal
+ * incidence). Boundaries are smooth dielectrics of
  * relative index eta against air on both sides; a path meeting one reflects with the Fresnel
  * probability, otherwise leaves (no radiance scaling is needed: we count power, not radiance).
  *
  * Variance reduction, all unbiased:
  *   - the specular reflection at the top is removed analytically (R_specular);
- *   - the unscattered light, including its bounces between the two faces at normal incidence,
+ *   - the unscattered light, including its bounces between the two faces (at mu_t),
  *     is scored analytically, and the first collision is forced inside the slab (on a leg of the
  *     ballistic zig-zag chosen by its share of the collision probability), so a pure absorber
  *     has T = exp(-tau) exactly and zero variance;
@@ -58,8 +59,10 @@ typedef struct slab_sums {
 
 typedef struct slab_setup {
     double albedo, tau, g, eta_out; /* eta_out: relative index seen from inside, 1 / eta */
-    double ext;                     /* exp(-tau) */
-    double f0;                      /* Fresnel at normal incidence (same from either side) */
+    double ext;                     /* exp(-tau / mu_t): one ballistic crossing */
+    double mu_t;                    /* direction cosine of the refracted incident light */
+    double f0;                      /* Fresnel of the incident light, outside at the incidence
+                                       angle or inside at mu_t (the same by reciprocity) */
     double w_collide;               /* weight of the forced first collision */
     uint32_t max_scatter;
     bool index_matched;
@@ -121,8 +124,8 @@ static int trace_path(const slab_setup *s, nc_rng *rng, slab_sums *sum, uint32_t
     unsigned leg = 0;
     while (q > 0 && nc_rng_double(rng) < q && leg < 4096)
         leg++;
-    double mu = (leg & 1) ? -1.0 : 1.0;
-    double d = -log(1.0 - nc_rng_double(rng) * (1.0 - s->ext));
+    double mu = (leg & 1) ? -s->mu_t : s->mu_t;
+    double d = -log(1.0 - nc_rng_double(rng) * (1.0 - s->ext)) * s->mu_t; /* depth travelled */
     double z = (leg & 1) ? s->tau - d : d;
     double w = s->w_collide;
     uint32_t scatters = 0, events = 0;
@@ -211,11 +214,12 @@ nacre_result nc_slab_pathtrace(nacre_context *ctx, const nacre_slab_desc *desc, 
     s.index_matched = desc->eta == 1.0;
     s.max_scatter = desc->max_scatter;
     s.deadline_us = desc->time_limit > 0 ? t0 + (uint64_t)(desc->time_limit * 1e6) : 0;
-    s.ext = exp(-desc->tau);
-    s.f0 = (desc->eta - 1.0) / (desc->eta + 1.0);
-    s.f0 *= s.f0;
-    /* Ballistic light: enters with 1 - F0, then zig-zags at normal incidence, each leg losing
-     * exp(-tau) to collisions and each face letting 1 - F0 out. */
+    double cos_i = cos(desc->incidence * 0.017453292519943295), sin_i = sqrt(fmax(0.0, 1.0 - cos_i * cos_i));
+    s.mu_t = sqrt(fmax(0.0, 1.0 - sin_i * sin_i / (desc->eta * desc->eta)));
+    s.ext = exp(-desc->tau / s.mu_t);
+    s.f0 = s.index_matched ? 0.0 : nc_fresnel_dielectric(cos_i, desc->eta);
+    /* Ballistic light: enters with 1 - F0, then zig-zags at mu_t, each leg losing exp(-tau / mu_t)
+     * to collisions and each face letting 1 - F0 out. */
     double w0 = 1.0 - s.f0, e = s.ext, f = s.f0;
     double zigzag = 1.0 - f * f * e * e;
     double t_ball = w0 * e * (1.0 - f) / zigzag;

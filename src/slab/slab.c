@@ -1,7 +1,7 @@
 /*
  * slab.c: nacre_slab_measure, the validation experiment shared by the methods: reflectance R and
  * transmittance T of a plane-parallel slab, infinite in x and y, lit by collimated light of unit
- * power per unit area at normal incidence, air on both sides. Lengths are mean free paths
+ * power per unit area of its face at a given incidence (normal by default), air on both sides. Lengths are mean free paths
  * (sigma_t = 1). The desc is checked here; the diffusion method measures it on its solver's
  * column (src/diffusion/slab.c, nc_slab_diffusion), the path tracer by Monte Carlo
  * (src/pathtrace/slab.c, nc_slab_pathtrace). This module sits above both.
@@ -41,6 +41,8 @@ static nacre_result check_desc(nacre_context *ctx, const nacre_slab_desc *d)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: tau must be > 0 (or infinite)");
     if (!(d->g > -1 && d->g < 1))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: g must be in (-1, 1)");
+    if (!(d->incidence >= 0 && d->incidence <= 89))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: incidence must be in [0, 89] degrees");
     if (!(d->time_limit >= 0) || !isfinite(d->time_limit))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "slab: time_limit: must be finite and >= 0");
     if (!(d->eta > 0) || !isfinite(d->eta))

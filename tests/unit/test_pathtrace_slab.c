@@ -105,6 +105,56 @@ int main(void)
         CHECK_NEAR(r.T, (1 - f) * (1 - f) * e / (1 - f * f * e * e), 1e-12);
     }
 
+    /* Oblique incidence. Semi-infinite, isotropic, single scattering, index matched, light at mu0
+     * to the normal (unit power per unit area of the face): collisions at depth z have density
+     * e^(-z/mu0)/mu0 and escape upwards at cosine m with e^(-z/m), so
+     *   R1 = (a/2) int_0^1 m / (m + mu0) dm = (a/2) (1 - mu0 ln((1 + mu0) / mu0)). */
+    for (int i = 0; i < 2; i++) {
+        double deg = i ? 75.0 : 50.0, mu0 = cos(deg * 3.141592653589793 / 180.0), a = 0.9;
+        nacre_slab_desc d = nacre_slab_desc_defaults();
+        d.method = NACRE_METHOD_PATHTRACE;
+        d.albedo = a;
+        d.incidence = deg;
+        d.samples = 100000;
+        d.max_scatter = 1;
+        d.seed = 3;
+        nacre_slab_result o;
+        CHECK(nacre_slab_measure(ctx, &d, &o) == NACRE_OK);
+        double r1 = 0.5 * a * (1.0 - mu0 * log((1.0 + mu0) / mu0));
+        printf("  oblique %.0f deg, single scattering: R=%.5f +- %.5f, exact %.5f\n", deg, o.R, o.R_stderr, r1);
+        CHECK_STAT(o.R, o.R_stderr, r1);
+        /* Diffusion (volume source along the refracted ray) within 3% of the full transport there
+         * (measured at albedo 0.9: +2.1% at 50 degrees, +0.3% at 75). */
+        d.max_scatter = 0;
+        nacre_slab_result pt, df;
+        CHECK(nacre_slab_measure(ctx, &d, &pt) == NACRE_OK);
+        d.method = NACRE_METHOD_DIFFUSION;
+        CHECK(nacre_slab_measure(ctx, &d, &df) == NACRE_OK);
+        printf("  oblique %.0f deg: path tracer R=%.5f +- %.5f, diffusion R=%.5f\n", deg, pt.R, pt.R_stderr, df.R);
+        CHECK_NEAR(df.R, pt.R, 0.03 * pt.R);
+    }
+    /* A pure absorber with boundaries lit at 50 degrees: the ballistic zig-zag at the refracted
+     * cosine, Fresnel at the incidence angle, in closed form. */
+    {
+        nacre_slab_desc d = nacre_slab_desc_defaults();
+        d.method = NACRE_METHOD_PATHTRACE;
+        d.albedo = 0.0;
+        d.tau = 0.5;
+        d.eta = 1.5;
+        d.incidence = 50.0;
+        d.samples = 1000;
+        nacre_slab_result o;
+        CHECK(nacre_slab_measure(ctx, &d, &o) == NACRE_OK);
+        double ci = cos(50.0 * 3.141592653589793 / 180.0), si = sqrt(1 - ci * ci);
+        double ct = sqrt(1 - si * si / 2.25);
+        double rs = (ci - 1.5 * ct) / (ci + 1.5 * ct), rp = (1.5 * ci - ct) / (1.5 * ci + ct);
+        double f = 0.5 * (rs * rs + rp * rp), e = exp(-0.5 / ct);
+        CHECK_NEAR(o.R_specular, f, 1e-12);
+        CHECK_NEAR(o.T, (1 - f) * (1 - f) * e / (1 - f * f * e * e), 1e-12);
+        d.incidence = 90.0;
+        CHECK(nacre_slab_measure(ctx, &d, &o) == NACRE_ERROR_INVALID_ARGUMENT);
+    }
+
     /* No absorption: everything entering leaves (R + T = 1 - R_specular). */
     r = measure(1.0, 2.0, 0.0, 1.0, 40000, 0);
     CHECK_NEAR(r.R + r.T, 1.0, 1e-9);

@@ -10,12 +10,13 @@
 static const char slab_help[] =
     "usage: nacre slab [options]\n"
     "Measure reflectance R and transmittance T of a plane-parallel slab, infinite in x and y,\n"
-    "lit by collimated light at normal incidence (unit power per unit area). R excludes the\n"
+    "lit by collimated light (unit power per unit area of the slab's face). R excludes the\n"
     "specular reflection at the top; T includes unscattered light.\n"
     "\n"
     "  --albedo A        single-scattering albedo sigma_s / sigma_t in [0, 1] (default 0.99)\n"
     "  --tau T|inf       optical thickness sigma_t * depth (default inf: semi-infinite)\n"
     "  --g G             Henyey-Greenstein anisotropy in (-1, 1) (default 0)\n"
+    "  --incidence DEG   angle of the light to the normal in [0, 89] (default 0)\n"
     "  --eta N           relative index of refraction, air on both sides (default 1)\n"
     "  --method M        diffusion (default) | pathtrace\n"
     "  --json            print {\"R\":..,\"T\":..,...} on one line\n"
@@ -66,6 +67,10 @@ int nc_cli_slab(int argc, char **argv)
             if (!has || !nc_tool_parse_float(argv[++i], &f) || !(f > -1 && f < 1))
                 return nc_tool_usage("slab", "--g needs a number in (-1, 1)");
             d.g = f;
+        } else if (strcmp(a, "--incidence") == 0) {
+            if (!has || !nc_tool_parse_float(argv[++i], &f) || !(f >= 0 && f <= 89))
+                return nc_tool_usage("slab", "--incidence needs an angle in [0, 89] degrees");
+            d.incidence = f;
         } else if (strcmp(a, "--eta") == 0) {
             if (!has || !nc_tool_parse_float(argv[++i], &f) || !(f > 0 && f <= 10))
                 return nc_tool_usage("slab", "--eta needs a number in (0, 10]");
@@ -134,7 +139,8 @@ int nc_cli_slab(int argc, char **argv)
             printf("\"inf\"");
         else
             printf("%.9g", d.tau);
-        printf(",\"g\":%.9g,\"eta\":%.9g,\"R\":%.6f,\"T\":%.6f", d.g, d.eta, r.R, r.T);
+        printf(",\"g\":%.9g,\"eta\":%.9g,\"incidence\":%.9g,\"R\":%.6f,\"T\":%.6f", d.g, d.eta, d.incidence, r.R,
+               r.T);
         if (d.method == NACRE_METHOD_PATHTRACE)
             printf(",\"R_stderr\":%.6f,\"T_stderr\":%.6f,\"samples\":%llu,\"paths_capped\":%llu", r.R_stderr,
                    r.T_stderr, (unsigned long long)r.samples_done, (unsigned long long)r.paths_capped);
