@@ -148,6 +148,7 @@ nacre_result nc_diff_object_voxelize(nc_diff_object *o, const nacre_scene *s, ui
     nacre_context *ctx = o->ctx;
     const nc_object_rec *obj = &s->objects[index];
     nacre_mesh_data dm = world_mesh(s, obj);
+    o->index = index;
     nacre_voxel_settings vs = nacre_voxel_settings_defaults();
     vs.resolution = resolution;
     vs.anisotropic = false;

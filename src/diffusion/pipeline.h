@@ -32,6 +32,7 @@ enum { NC_FACE_ZN = 0, NC_FACE_ZP, NC_FACE_XN, NC_FACE_XP, NC_FACE_YN, NC_FACE_Y
 typedef struct nc_diff_object {
     nacre_context *ctx;
     /* Voxelization (level 0 of the grid is the domain) */
+    uint32_t index;                  /* the scene object voxelized */
     nacre_voxel_grid *grid;
     bool rule_known;                 /* the solid rule was decided by AUTO on the first frame */
     nacre_voxel_solid_rule rule;
@@ -110,6 +111,13 @@ typedef struct nc_tsm_band {
     float *depth;                    /* per band texel: distance along the light to the nearest face */
     uint32_t *hit;                   /* per band texel: index into faces, UINT32_MAX: none */
     size_t raster_capacity;          /* texels of depth and hit */
+    /* The object's true surface along each band texel's ray (tsm.c mesh_band): */
+    float *mesh_t;                   /* per band texel: distance to the mesh (grid units), INFINITY: misses */
+    float *mesh_n;                   /* 3 per band texel: unit mesh normal there, facing the light */
+    uint64_t *mesh_key;              /* per band texel: scratch of mesh_band */
+    size_t mesh_capacity;            /* texels of mesh_t and mesh_n */
+    float *vproj;                    /* 3 per mesh vertex: map coordinates a, b and 1 if in front */
+    size_t vproj_capacity;           /* vertices */
 } nc_tsm_band;
 
 /* Everything the diffusion method keeps in a renderer. */
