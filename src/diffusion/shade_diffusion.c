@@ -30,8 +30,13 @@
  * against 0.46 / 0.60 / 0.65 / 0.66 half a cell deep. Per cell we store E with the cell's own D,
  * so heterogeneous media need no separate D interpolation.
  *
- * Interpolation: trilinear between cell centres over solid cells only (weights renormalized), so
- * empty space never leaks in. Where no solid corner has weight (thin parts at coarse grids: a
+ * Interpolation: trilinear between cell centres over the boundary cells only (solid cells with an
+ * exposed face; weights renormalized), so that neither empty space nor the interior leaks in. An
+ * interior cell's k phi is no exitance: below a lit surface phi grows over the first mean free
+ * path, and on the wide terraces of a surface nearly aligned with a grid axis the sample point
+ * half a cell down falls between a boundary cell and the interior one under it. Mixing those in
+ * made a sphere 11-14% too bright at 32^3-64^3 (docs/accuracy.md); over boundary cells only,
+ * 5-8%. Where no solid corner has weight (thin parts at coarse grids: a
  * fifth of Suzanne's pixels at 4^3, half of the statue's, 1% at 128^3), the corners take ghost
  * values: an empty cell next to the domain (26-neighbourhood) holds the weighted mean of its
  * solid neighbours, and the point interpolates the corners that have one (ghost_record; small
@@ -66,7 +71,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Trilinear interpolation of a per-cell field (3 channels) at p over the solid cells around it
+/* Trilinear interpolation of a per-cell field (3 channels) at p over the boundary cells around it
  * (weights renormalized); where no solid corner has weight, over the corners' ghost values
  * (ghost_record). For many nearby points (a batch of pixels) the cache keeps the solid corners of
  * the last interpolation cell and the corner values of the last ghost interpolation, so that
@@ -94,16 +99,29 @@ static inline v4f lerp8(const v4f c[8], float fx, float fy, float fz)
     return (c00 * gy0 + c10 * fy) * gz0 + (c01 * gy0 + c11 * fy) * fz;
 }
 
+/* Whether grid cell (x, y, z) (inside the grid) is a boundary cell: solid with an exposed face. */
+static inline bool boundary_cell(const nc_diff_object *o, int x, int y, int z)
+{
+    const int nx = (int)o->dims[0], ny = (int)o->dims[1], nz = (int)o->dims[2];
+    const size_t i = (size_t)x + (size_t)nx * ((size_t)y + (size_t)ny * (size_t)z), sy = (size_t)nx,
+                 sz = (size_t)nx * (size_t)ny;
+    if (!o->solid[i])
+        return false;
+    return x == 0 || y == 0 || z == 0 || x == nx - 1 || y == ny - 1 || z == nz - 1 || !o->solid[i - 1] ||
+           !o->solid[i + 1] || !o->solid[i - sy] || !o->solid[i + sy] || !o->solid[i - sz] || !o->solid[i + sz];
+}
+
 /* The fallback's record of grid cell (x, y, z), possibly outside the grid: (value, 1) with its own
- * value if solid, else with the weighted mean of the solid cells among its 26 neighbours (weight
- * 2^-(|dx|+|dy|+|dz|): face 1/2, edge 1/4, corner 1/8); zero if it has none. */
+ * value if a boundary cell, else with the weighted mean of the boundary cells among its 26
+ * neighbours (weight 2^-(|dx|+|dy|+|dz|): face 1/2, edge 1/4, corner 1/8); zero if it has none.
+ * The same records as ghost_grid makes from the packed grid. */
 static v4f ghost_record(const nc_diff_object *o, float *const field[3], int x, int y, int z)
 {
     const int nx = (int)o->dims[0], ny = (int)o->dims[1], nz = (int)o->dims[2];
     static const float weight[4] = {1.0f, 0.5f, 0.25f, 0.125f};
     if (x >= 0 && y >= 0 && z >= 0 && x < nx && y < ny && z < nz) {
         size_t i = (size_t)x + (size_t)nx * ((size_t)y + (size_t)ny * (size_t)z);
-        if (o->solid[i])
+        if (boundary_cell(o, x, y, z))
             return (v4f){field[0][i], field[1][i], field[2][i], 1.0f};
     }
     float a[3] = {0.0f, 0.0f, 0.0f}, ws = 0.0f;
@@ -114,7 +132,7 @@ static v4f ghost_record(const nc_diff_object *o, float *const field[3], int x, i
                 if (cx < 0 || cy < 0 || cz < 0 || cx >= nx || cy >= ny || cz >= nz)
                     continue;
                 size_t i = (size_t)cx + (size_t)nx * ((size_t)cy + (size_t)ny * (size_t)cz);
-                if (!o->solid[i])
+                if (!boundary_cell(o, cx, cy, cz))
                     continue;
                 float w = weight[abs(dx) + abs(dy) + abs(dz)];
                 for (int c = 0; c < 3; c++)
@@ -175,7 +193,7 @@ static bool sample_field_cached(const nc_diff_object *o, float *const field[3], 
             if (x < 0 || y < 0 || z < 0 || x >= nx || y >= ny || z >= nz)
                 continue;
             size_t i = (size_t)x + (size_t)nx * ((size_t)y + (size_t)ny * (size_t)z);
-            if (!o->solid[i])
+            if (!boundary_cell(o, x, y, z))
                 continue;
             fc->corner_k[fc->corner_n] = k;
             fc->corner_i[fc->corner_n++] = i;
@@ -223,8 +241,8 @@ static void blur_axis(const v4f *restrict in, v4f *restrict out, size_t cells, s
         }
 }
 
-/* Every padded cell's ghost record (ghost_record) from the packed records (E, 1 if solid, 0
- * else): the neighbours' weighted sums 2^-(|dx|+|dy|+|dz|) are a separable 3x3x3 filter of
+/* Every padded cell's ghost record (ghost_record) from the packed records (E, 1 if a boundary
+ * cell, 0 else): the neighbours' weighted sums 2^-(|dx|+|dy|+|dz|) are a separable 3x3x3 filter of
  * them, three passes over the grid. ghost and scratch hold px py pz records each. */
 static void ghost_grid(const float *packed, v4f *ghost, v4f *scratch, size_t px, size_t py, size_t pz)
 {
@@ -338,12 +356,17 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
                             q[u + x] *= 1.0f - 4.0f * kf * inv_1mfdr;
                         }
             }
+            const size_t yy = y - 1, zz = z - 1;
             for (size_t x = lo; x < hi; x++) {
                 float *v = row + 4 * (x + 1);
-                v[0] = E[0][u + x];
-                v[1] = E[1][u + x];
-                v[2] = E[2][u + x];
-                v[3] = solid[u + x] ? 1.0f : 0.0f;
+                const size_t i = u + x;
+                const bool b = solid[i] && (x == 0 || x == nx - 1 || yy == 0 || yy == ny - 1 || zz == 0 ||
+                                            zz == nz - 1 || !solid[i - 1] || !solid[i + 1] || !solid[i - nx] ||
+                                            !solid[i + nx] || !solid[i - nx * ny] || !solid[i + nx * ny]);
+                v[0] = b ? E[0][i] : 0.0f;
+                v[1] = b ? E[1][i] : 0.0f;
+                v[2] = b ? E[2][i] : 0.0f;
+                v[3] = b ? 1.0f : 0.0f;
             }
         }
     memcpy(o->exit_dims, o->dims, sizeof(o->dims));
