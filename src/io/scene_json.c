@@ -20,6 +20,7 @@
  * through the context's allocator.
  */
 #include "io/scene_json_internal.h"
+#include "io/gltf.h"
 
 #include <errno.h>
 #include <stdio.h>
@@ -280,6 +281,8 @@ nacre_result nacre_scene_load_file(nacre_context *ctx, const char *path, nacre_s
     if (!out || !path)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "nacre_scene_load_file: %s is NULL",
                        out ? "path" : "out");
+    if (nc_gltf_is_path(path))
+        return nacre_scene_load_gltf(ctx, path, NULL, out, settings, NULL);
     char *text = NULL;
     size_t size = 0;
     nacre_result r = read_whole_file(ctx, path, &text, &size);

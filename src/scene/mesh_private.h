@@ -26,4 +26,19 @@ nacre_result nc_mesh_weld(nacre_context *ctx, uint32_t n, const float *positions
 nacre_result nc_mesh_check_geometry(nacre_context *ctx, const nacre_mesh_data *mesh,
                                     const char *name, nacre_result code);
 
+/* One mesh instance of a file's node tree (src/io/mesh_load.c): the instance's triangles with
+ * its node's global transform applied, and the index of its material in the file (assimp's
+ * numbering, which for glTF is the file's own material order). */
+typedef struct nc_mesh_part {
+    nacre_mesh_data data;
+    uint32_t material;
+    uint32_t mesh; /* assimp mesh index (one per glTF primitive) */
+} nc_mesh_part;
+
+/* Load a mesh file as one part per mesh instance (checks and completion as nacre_mesh_load).
+ * *parts is allocated through the context; free with nc_mesh_parts_free. */
+nacre_result nc_mesh_load_parts(nacre_context *ctx, const char *path, nc_mesh_part **parts,
+                                uint32_t *count);
+void nc_mesh_parts_free(nacre_context *ctx, nc_mesh_part *parts, uint32_t count);
+
 #endif /* NACRE_MESH_PRIVATE_H */
