@@ -33,7 +33,7 @@
 static void parse_scene(loader *ld, const cJSON *root)
 {
     static const char *const keys[] = {"units", "render", "camera", "environment", "materials",
-                                       "lights", "objects", "fog"};
+                                       "lights", "objects", "fog", "import"};
     if (!cJSON_IsObject(root)) {
         nc_json_fail(ld, NACRE_ERROR_PARSE, "the top level must be an object, got %s",
                      nc_json_type_name(root));
@@ -45,6 +45,8 @@ static void parse_scene(loader *ld, const cJSON *root)
     const cJSON *item;
     if ((item = nc_json_member(root, "units")))
         nc_json_parse_units(ld, item);
+    if (nc_json_member(root, "import") && !ld->err)
+        nc_json_parse_import(ld, root, nc_json_member(root, "units") != NULL);
     if ((item = nc_json_member(root, "render")))
         nc_json_parse_render(ld, item);
     if ((item = nc_json_member(root, "environment")) && !ld->err)
@@ -192,6 +194,9 @@ static nacre_result load_text(nacre_context *ctx, const char *json, size_t lengt
         nc_free(ctx, ld.meshes[i].path);
     nc_free(ctx, ld.meshes);
     nc_free(ctx, ld.materials);
+    for (uint32_t i = 0; i < ld.imported_count; i++)
+        nc_free(ctx, (char *)ld.imported[i].name);
+    nc_free(ctx, ld.imported);
     cJSON_Delete(root);
     nc_free(ctx, text);
     if (ld.err != NACRE_OK) {
