@@ -8,6 +8,12 @@ gltf_pair.json     the same scene as a nacre scene file: the same triangles as P
                    says ("glTF 2.0 scenes"), so that both render the same image
 gltf_import.json   a nacre scene that imports gltf_pair.glb and overrides a material and the lights
 gltf_split.gltf    the pair as .gltf + gltf_split.bin, with an ignored extension (clearcoat)
+gltf_demo.glb      examples/demo.json as glTF: the same shapes (nacre's generators, rewritten
+                   below), the torus's transform as its node's matrix, the column's twist baked
+                   into its vertices, in metres; gltf_demo.json imports it in millimetres and
+                   overrides jade and marble with the presets (glTF has no scattering)
+gltf_misc.gltf     one root node over a two-primitive mesh (a metal, and no material: the default),
+                   a spot light and an orthographic camera; its buffer is a base64 data: URI
 bad_*.gl*          malformed files: truncated GLB, a missing buffer, an out-of-range accessor,
                    an unknown required extension
 
@@ -213,8 +219,191 @@ def write_ply(path, geo):
     open(path, "w").write("\n".join(lines) + "\n")
 
 
+# ---- the demo scene (examples/demo.json), shapes as src/scene/shapes.c builds them ----------
+
+def grid(base, cols, rows):
+    tri = []
+    for j in range(rows):
+        for i in range(cols):
+            v00 = base + j * (cols + 1) + i
+            v10, v01 = v00 + 1, v00 + cols + 1
+            tri += [(v00, v10, v01 + 1), (v00, v01 + 1, v01)]
+    return tri
+
+
+def box_faces(faces, size, N):
+    pos, nrm, tri = [], [], []
+    for na, ns, ua, us, va, vs in faces:
+        n = [0.0, 0.0, 0.0]
+        n[na] = float(ns)
+        base = len(pos)
+        for j in range(N + 1):
+            for i in range(N + 1):
+                k = [0, 0, 0]
+                k[na] = N if ns > 0 else 0
+                k[ua] = i if us > 0 else N - i
+                k[va] = j if vs > 0 else N - j
+                pos.append(tuple(f32((k[a] / N - 0.5) * f32(size[a])) for a in range(3)))
+                nrm.append(tuple(n))
+        tri += grid(base, N, N)
+    return pos, nrm, None, tri
+
+
+BOX_FACES = [(0, 1, 2, -1, 1, 1), (0, -1, 2, 1, 1, 1), (1, 1, 0, 1, 2, -1), (1, -1, 0, 1, 2, 1),
+             (2, 1, 0, 1, 1, 1), (2, -1, 0, -1, 1, 1)]
+
+
+def torus(major, minor, S, R):
+    two_pi = 6.283185307179586476925
+    pos, nrm = [], []
+    for j in range(R + 1):
+        psi = two_pi * (j % R) / R
+        sq, cq = math.sin(psi), math.cos(psi)
+        for i in range(S + 1):
+            phi = two_pi * (i % S) / S
+            sp, cp = math.sin(phi), math.cos(phi)
+            ring = major + minor * cq
+            pos.append((f32(ring * cp), f32(minor * sq), f32(-ring * sp)))
+            nrm.append((cq * cp, sq, -cq * sp))
+    return pos, nrm, None, grid(0, S, R)
+
+
+def rot_matrix(axis, deg):
+    a = math.radians(deg)
+    c, s, t = math.cos(a), math.sin(a), 1 - math.cos(a)
+    x, y, z = axis
+    return [[t * x * x + c, t * x * y - s * z, t * x * z + s * y],
+            [t * x * y + s * z, t * y * y + c, t * y * z - s * x],
+            [t * x * z - s * y, t * y * z + s * x, t * z * z + c]]
+
+
+def matmul(a, b):
+    return [[sum(a[i][k] * b[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+
+
+def twist_y(geo, angle_deg, length, center_y):
+    """The demo column's twist deformer (about +y through (0, center_y, 0)), baked; normals by the
+    deformation's Jacobian (inverse transpose), as nacre's commit maps them."""
+    pos, nrm, uv, tri = geo
+    k = math.radians(angle_deg) / length
+    out_p, out_n = [], []
+    for p, n in zip(pos, nrm):
+        s = p[1] - center_y
+        a = k * s
+        c, si = math.cos(a), math.sin(a)
+        # Rotation about +y by a: x' = c x + s z, z' = -s x + c z (right-handed).
+        out_p.append((c * p[0] + si * p[2], p[1], -si * p[0] + c * p[2]))
+        # Jacobian J = R(a) + dR/da * k (x, z) e_y^T; normal -> cofactor(J) n.
+        J = [[c, k * (-si * p[0] + c * p[2]), si], [0, 1, 0], [-si, k * (-c * p[0] - si * p[2]), c]]
+        cof = [[J[1][1] * J[2][2] - J[1][2] * J[2][1], J[1][2] * J[2][0] - J[1][0] * J[2][2], J[1][0] * J[2][1] - J[1][1] * J[2][0]],
+               [J[0][2] * J[2][1] - J[0][1] * J[2][2], J[0][0] * J[2][2] - J[0][2] * J[2][0], J[0][1] * J[2][0] - J[0][0] * J[2][1]],
+               [J[0][1] * J[1][2] - J[0][2] * J[1][1], J[0][2] * J[1][0] - J[0][0] * J[1][2], J[0][0] * J[1][1] - J[0][1] * J[1][0]]]
+        m = [sum(cof[i][j] * n[j] for j in range(3)) for i in range(3)]
+        ln = math.sqrt(sum(v * v for v in m))
+        out_n.append(tuple(v / ln for v in m))
+    return out_p, out_n, uv, tri
+
+
+def scaled(geo, f, offset=(0, 0, 0)):
+    pos, nrm, uv, tri = geo
+    return [tuple((p[k] + offset[k]) * f for k in range(3)) for p in pos], nrm, uv, tri
+
+
+def write_demo():
+    mm = 0.001
+    plane = box_faces([(1, 1, 0, 1, 2, -1)], [600, 0, 600], 1)
+    tor = torus(28.0, 11.0, 96, 48)
+    column = twist_y(box_faces(BOX_FACES, [26, 60, 26], 24), 60.0, 60.0, -30.0)
+    # The torus's transform, translate [-22, 39, 0] and rotate [90, 20, 0] (x, then y), in metres.
+    r = matmul(rot_matrix((0, 1, 0), 20.0), rot_matrix((1, 0, 0), 90.0))
+    t = [-22 * mm, 39 * mm, 0.0]
+    torus_matrix = [r[0][0], r[1][0], r[2][0], 0, r[0][1], r[1][1], r[2][1], 0,
+                    r[0][2], r[1][2], r[2][2], 0, t[0], t[1], t[2], 1]
+    b = Builder()
+    jade = {"name": "jade", "pbrMetallicRoughness": {"baseColorFactor": [0.4, 0.7, 0.45, 1], "metallicFactor": 0,
+                                                     "roughnessFactor": 0.35},
+            "extensions": {"KHR_materials_volume": {"thicknessFactor": 0.02, "attenuationColor": [0.3, 0.75, 0.4],
+                                                    "attenuationDistance": 0.01},
+                           "KHR_materials_diffuse_transmission": {"diffuseTransmissionFactor": 1.0},
+                           "KHR_materials_ior": {"ior": 1.6}}}
+    marble = {"name": "marble", "pbrMetallicRoughness": {"baseColorFactor": [0.9, 0.88, 0.85, 1], "metallicFactor": 0,
+                                                         "roughnessFactor": 0.35},
+              "extensions": {"KHR_materials_volume": {"thicknessFactor": 0.02, "attenuationColor": [0.95, 0.9, 0.85],
+                                                      "attenuationDistance": 0.02},
+                             "KHR_materials_diffuse_transmission": {"diffuseTransmissionFactor": 1.0}}}
+    # Opaque ground: diffuse [0.55, 0.5, 0.45]; specular 0.02 = F0 0.04 x specularFactor 0.5;
+    # shininess 16 = 2 / alpha^2 - 2 with alpha = roughness^2, so roughness = (1/9)^(1/4).
+    ground = {"name": "ground", "pbrMetallicRoughness": {"baseColorFactor": [0.55, 0.5, 0.45, 1],
+                                                         "metallicFactor": 0, "roughnessFactor": (1 / 9) ** 0.25},
+              "extensions": {"KHR_materials_specular": {"specularFactor": 0.5}}}
+    meshes = [b.mesh(scaled(plane, mm), 2, "ground"), b.mesh(scaled(tor, mm), 0, "jade torus"),
+              b.mesh(scaled(column, mm, (48, 30, -10)), 1, "marble column")]
+    cam_at, cam_target = [0, 70 * mm, 190 * mm], [0, 25 * mm, 0]
+    fwd = [cam_target[k] - cam_at[k] for k in range(3)]
+    sun = [-0.5, -1.0, -0.6]
+    irr = [3.0, 2.9, 2.7]
+    doc = {
+        "asset": {"version": "2.0", "generator": "nacre scripts/make_gltf_tests.py (examples/demo.json)"},
+        "extensionsUsed": ["KHR_lights_punctual", "KHR_materials_volume", "KHR_materials_diffuse_transmission",
+                           "KHR_materials_ior", "KHR_materials_specular"],
+        "scene": 0, "scenes": [{"nodes": [0, 1, 2, 3, 4]}],
+        "nodes": [{"name": "ground", "mesh": 0}, {"name": "jade torus", "mesh": 1, "matrix": torus_matrix},
+                  {"name": "marble column", "mesh": 2},
+                  {"name": "sun", "rotation": quat_look(sun, [0, 1, 0]),
+                   "extensions": {"KHR_lights_punctual": {"light": 0}}},
+                  {"name": "camera", "camera": 0, "translation": cam_at, "rotation": quat_look(fwd, [0, 1, 0])}],
+        "cameras": [{"name": "camera", "type": "perspective", "perspective": {"yfov": math.radians(35), "znear": 0.001}}],
+        "extensions": {"KHR_lights_punctual": {"lights": [
+            {"type": "directional", "color": [1.0, irr[1] / irr[0], irr[2] / irr[0]],
+             "intensity": irr[0] * LUMENS_PER_WATT}]}},
+        "materials": [jade, marble, ground],
+        "meshes": meshes, "accessors": b.accessors, "bufferViews": b.views,
+        "buffers": [{"byteLength": len(b.bin)}],
+    }
+    open(os.path.join(OUT, "gltf_demo.glb"), "wb").write(glb(doc, b.bin))
+    demo = {"import": "gltf_demo.glb", "units": "mm",
+            "render": {"method": "phong", "width": 960, "height": 540, "exposure": 0, "shadow_map_size": 2048},
+            "environment": [0.25, 0.3, 0.4],
+            "materials": {"jade": {"preset": "jade"}, "marble": {"preset": "marble"}}}
+    open(os.path.join(OUT, "gltf_demo.json"), "w").write(json.dumps(demo, indent=1) + "\n")
+
+
+def write_misc():
+    import base64
+    b = Builder()
+    tri = [(0, 0, 0), (1, 0, 0), (0, 1, 0)]
+    m = b.mesh((tri, [(0, 0, 1)] * 3, None, [(0, 1, 2)]), 0, "tri")
+    quad2 = [(0, 0, -1), (1, 0, -1), (0, 1, -1)]
+    m2 = b.mesh((quad2, [(0, 0, 1)] * 3, None, [(0, 1, 2)]), 0, "tri2")
+    prim2 = m2["primitives"][0]
+    del prim2["material"]
+    m["primitives"].append(prim2)
+    doc = {
+        "asset": {"version": "2.0"},
+        "extensionsUsed": ["KHR_lights_punctual"],
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"children": [1, 2, 3], "translation": [0, 0, -2]},
+                  {"mesh": 0, "scale": [2, 2, 2]},
+                  {"translation": [0, 3, 0], "rotation": [-math.sqrt(0.5), 0, 0, math.sqrt(0.5)],  # -z to -y
+                   "extensions": {"KHR_lights_punctual": {"light": 0}}},
+                  {"camera": 0, "translation": [0.5, 0.5, 4]}],
+        "cameras": [{"type": "orthographic", "orthographic": {"xmag": 2, "ymag": 1.5, "znear": 0.1, "zfar": 10}}],
+        "extensions": {"KHR_lights_punctual": {"lights": [
+            {"type": "spot", "color": [1, 0.5, 0.25], "intensity": 683, "spot": {"innerConeAngle": 0.2,
+                                                                                  "outerConeAngle": 0.6}}]}},
+        "materials": [{"pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.6, 0.2, 1], "metallicFactor": 1,
+                                                "roughnessFactor": 0.5}, "doubleSided": True}],
+        "meshes": [m], "accessors": b.accessors, "bufferViews": b.views,
+        "buffers": [{"byteLength": len(b.bin),
+                     "uri": "data:application/octet-stream;base64," + base64.b64encode(bytes(b.bin)).decode()}],
+    }
+    open(os.path.join(OUT, "gltf_misc.gltf"), "w").write(json.dumps(doc, separators=(",", ":")))
+
+
 def main():
     os.makedirs(OUT, exist_ok=True)
+    write_demo()
+    write_misc()
     b = Builder()
     doc = gltf_doc(b)
     open(os.path.join(OUT, "gltf_pair.glb"), "wb").write(glb(doc, b.bin))

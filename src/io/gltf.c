@@ -66,6 +66,10 @@ typedef struct gltf_state {
     int node_count;
     nc_mat4 *world;     /* per node; valid where `reached` */
     bool *reached;
+    /* Nodes in assimp's preorder (its root first, children in order): -1 for the root assimp
+     * makes when the scene has several root nodes. Maps nc_mesh_part.node to a glTF node. */
+    int *order;
+    int order_count;
 } gltf_state;
 
 bool nc_gltf_is_path(const char *path)
@@ -476,6 +480,7 @@ static nacre_result walk_nodes(gltf_state *g, int index, nc_mat4 parent, int dep
                        g->path, index);
     g->world[index] = nc_mat4_mul(parent, local);
     g->reached[index] = true;
+    g->order[g->order_count++] = index;
     const cJSON *children = get(node, "children");
     int i = 0;
     for (const cJSON *c = children ? children->child : NULL; c; c = c->next, i++) {
@@ -503,7 +508,8 @@ static nacre_result compute_world(gltf_state *g)
         return nc_fail(g->ctx, NACRE_ERROR_PARSE, "%s: no nodes", g->path);
     g->world = nc_calloc(g->ctx, (size_t)g->node_count, sizeof(*g->world));
     g->reached = nc_calloc(g->ctx, (size_t)g->node_count, sizeof(*g->reached));
-    if (!g->world || !g->reached)
+    g->order = nc_calloc(g->ctx, (size_t)g->node_count + 1, sizeof(*g->order));
+    if (!g->world || !g->reached || !g->order)
         return NACRE_ERROR_OUT_OF_MEMORY;
     int nmesh = array_size(get(g->root, "meshes")), ncam = array_size(get(g->root, "cameras"));
     for (int i = 0; i < g->node_count; i++) {
@@ -518,6 +524,8 @@ static nacre_result compute_world(gltf_state *g)
     if (!get_index(g, g->root, "scene", 0, array_size(scenes) - 1, 0, "", 0, &si))
         return fail_r(g);
     const cJSON *roots = get(cJSON_GetArrayItem(scenes, (int)si), "nodes");
+    if (array_size(roots) != 1)
+        g->order[g->order_count++] = -1;
     int i = 0;
     for (const cJSON *c = roots ? roots->child : NULL; c; c = c->next, i++) {
         if (!cJSON_IsNumber(c) || c->valuedouble != floor(c->valuedouble) || c->valuedouble < 0 ||
@@ -821,6 +829,21 @@ static nacre_result set_camera(gltf_state *g, const float bmin[3], const float b
 /* Meshes and the entry points                                                                */
 /* ------------------------------------------------------------------------------------------ */
 
+/* The glTF material of a part, found through its node and primitive (assimp renumbers
+ * materials); -1: none (the default material). */
+static int part_material(const gltf_state *g, const nc_mesh_part *part)
+{
+    if (part->node >= (uint32_t)g->order_count || g->order[part->node] < 0)
+        return -1;
+    const cJSON *node = cJSON_GetArrayItem(get(g->root, "nodes"), g->order[part->node]);
+    const cJSON *mesh = get(node, "mesh");
+    if (!cJSON_IsNumber(mesh))
+        return -1;
+    const cJSON *prims = get(cJSON_GetArrayItem(get(g->root, "meshes"), (int)mesh->valuedouble), "primitives");
+    const cJSON *mat = get(cJSON_GetArrayItem(prims, (int)part->slot), "material");
+    return cJSON_IsNumber(mat) ? (int)mat->valuedouble : -1;
+}
+
 static nacre_result add_objects(gltf_state *g, const nacre_material *materials, int material_count,
                                 float bmin[3], float bmax[3])
 {
@@ -843,8 +866,8 @@ static nacre_result add_objects(gltf_state *g, const nacre_material *materials, 
             bmax[v % 3] = fmaxf(bmax[v % 3], m->positions[v]);
         }
         nacre_object_desc d = nacre_object_desc_defaults();
-        int mi = (int)parts[i].material;
-        if (mi < material_count) {
+        int mi = part_material(g, &parts[i]);
+        if (mi >= 0 && mi < material_count) {
             d.material = materials[mi];
             const cJSON *ds = get(cJSON_GetArrayItem(mats, mi), "doubleSided");
             d.double_sided = cJSON_IsTrue(ds);
@@ -934,6 +957,7 @@ out:
     nc_free(ctx, materials);
     nc_free(ctx, g.world);
     nc_free(ctx, g.reached);
+    nc_free(ctx, g.order);
     return r;
 }
 

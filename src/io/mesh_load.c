@@ -69,6 +69,7 @@ typedef struct load_instance {
     uint32_t first_vertex;  /* in the merged mesh */
     uint32_t first_triangle;
     uint32_t triangles;     /* faces with three corners */
+    uint32_t node, slot;    /* preorder number of its node, its index in the node's mesh list */
 } load_instance;
 
 typedef struct load_state {
@@ -80,6 +81,7 @@ typedef struct load_state {
     uint64_t vertices, triangles;
     double (*uv)[2]; /* triangulate_polygon's scratch for the longest polygon, or NULL */
     uint32_t *tri;
+    uint32_t nodes;  /* nodes visited so far (preorder numbering) */
 } load_state;
 
 static nc_mat4 from_ai(const struct aiMatrix4x4 *a)
@@ -262,6 +264,7 @@ static nacre_result collect(load_state *s, const struct aiNode *node, nc_mat4 pa
                        LOAD_MAX_NODE_DEPTH);
     nc_mat4 local = from_ai(&node->mTransformation);
     nc_mat4 xf = nc_mat4_mul(parent, local);
+    const uint32_t serial = s->nodes++;
     for (unsigned k = 0; k < node->mNumMeshes; k++) {
         unsigned mi = node->mMeshes[k];
         if (mi >= s->scene->mNumMeshes)
@@ -301,6 +304,8 @@ static nacre_result collect(load_state *s, const struct aiNode *node, nc_mat4 pa
         in->first_vertex = (uint32_t)s->vertices;
         in->first_triangle = (uint32_t)s->triangles;
         in->triangles = (uint32_t)tris;
+        in->node = serial;
+        in->slot = k;
         s->vertices += mesh->mNumVertices;
         s->triangles += tris;
     }
@@ -1124,7 +1129,7 @@ static nacre_result open_scene(nacre_context *ctx, const char *path, load_state 
     if (!scene)
         return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: triangulation failed", path);
 
-    *s = (load_state){ctx, path, scene, NULL, 0, 0, 0, 0, NULL, NULL};
+    *s = (load_state){ctx, path, scene, NULL, 0, 0, 0, 0, NULL, NULL, 0};
     if (own_triangulation) {
         s->uv = nc_alloc(ctx, (size_t)max_corners * sizeof(*s->uv));
         s->tri = nc_calloc(ctx, (size_t)max_corners, 3 * sizeof(uint32_t));
@@ -1269,6 +1274,8 @@ nacre_result nc_mesh_load_parts(nacre_context *ctx, const char *path, nc_mesh_pa
     for (uint32_t i = 0; i < s.count && r == NACRE_OK; i++) {
         const struct aiMesh *mesh = s.inst[i].mesh;
         parts[i].material = mesh->mMaterialIndex;
+        parts[i].node = s.inst[i].node;
+        parts[i].slot = s.inst[i].slot;
         parts[i].mesh = UINT32_MAX;
         for (unsigned k = 0; k < s.scene->mNumMeshes; k++)
             if (s.scene->mMeshes[k] == mesh)
