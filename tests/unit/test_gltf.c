@@ -227,6 +227,53 @@ out:
     nacre_context_destroy(ctx);
 }
 
+/* One root node (assimp then has no root of its own), a primitive without material, a metal, a
+ * spot light, an orthographic camera, a base64 data: URI buffer. */
+static void test_misc(void)
+{
+    nacre_context *ctx = make_ctx();
+    nacre_gltf_report rep;
+    nacre_scene *s = NULL;
+    CHECK(nacre_scene_load_gltf(ctx, DATA "/gltf_misc.gltf", NULL, &s, NULL, &rep) == NACRE_OK);
+    if (!s)
+        goto out;
+    CHECK(rep.objects == 2 && rep.material_count == 2 && rep.lights == 1);
+    CHECK(strcmp(rep.materials[0], "material0") == 0 && strcmp(rep.materials[1], "default") == 0);
+    nacre_object_desc od;
+    CHECK(nacre_scene_get_object(s, (nacre_object){1}, &od) == NACRE_OK);
+    CHECK(od.material.id == rep.first_material && od.double_sided);
+    CHECK(nacre_scene_get_object(s, (nacre_object){2}, &od) == NACRE_OK);
+    CHECK(od.material.id == rep.first_material + 1 && !od.double_sided);
+    nacre_material_desc m;
+    CHECK(nacre_scene_get_material(s, (nacre_material){rep.first_material}, &m) == NACRE_OK);
+    CHECK(m.diffuse[0] == 0.0f);                                     /* metal: no diffuse */
+    CHECK_NEAR(m.specular[1], 0.6, 1e-6);                            /* its base colour */
+    CHECK_NEAR(m.shininess, 30.0, 1e-3);                             /* roughness 0.5 */
+    nacre_light_desc l;
+    CHECK(nacre_scene_get_light(s, (nacre_light){1}, &l) == NACRE_OK);
+    CHECK(l.type == NACRE_LIGHT_SPOT && l.falloff == NACRE_SPOT_FALLOFF_GLTF);
+    CHECK_NEAR(l.position[1], 3.0, 1e-6);
+    CHECK_NEAR(l.position[2], -2.0, 1e-6);
+    CHECK_NEAR(l.direction[1], -1.0, 1e-6);
+    CHECK_NEAR(l.inner_angle, 0.2 * 180.0 / 3.14159265358979, 1e-4);
+    CHECK_NEAR(l.outer_angle, 0.6 * 180.0 / 3.14159265358979, 1e-4);
+    CHECK_NEAR(l.strength[1], 0.5, 1e-6); /* 683 cd x 0.5 */
+    nacre_camera_desc cam;
+    CHECK(nacre_scene_get_camera(s, &cam) == NACRE_OK);
+    CHECK(cam.projection == NACRE_ORTHOGRAPHIC);
+    CHECK_NEAR(cam.ortho_height, 3.0, 1e-6);
+    CHECK_NEAR(cam.position[2], 2.0, 1e-6);
+    CHECK_NEAR(cam.near_clip, 0.1, 1e-6);
+    CHECK_NEAR(cam.far_clip, 10.0, 1e-5);
+    float lo[3], hi[3];
+    CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK && nacre_scene_bounds(s, lo, hi) == NACRE_OK);
+    CHECK_NEAR(hi[0], 2.0, 1e-6); /* node scale 2 */
+    CHECK_NEAR(lo[2], -4.0, 1e-6);
+    nacre_scene_destroy(s);
+out:
+    nacre_context_destroy(ctx);
+}
+
 static int warnings;
 static char last_warning[512];
 static void count_warning(void *user, nacre_log_level level, const char *msg)
@@ -377,6 +424,7 @@ int main(void)
     test_pair_images();
     test_demo();
     test_mapping();
+    test_misc();
     test_split_and_ignored();
     test_import();
     test_malformed_cli();
