@@ -17,7 +17,7 @@
 #include "demo_scene.h"
 
 static const char view_help[] =
-    "usage: nacre view [SCENE.json] [options]\n"
+    "usage: nacre view [SCENE.json | MODEL.gltf | MODEL.glb] [options]\n"
     "Open a window on a scene (default: the built-in demo) and edit it while it renders.\n"
     "\n"
     "  --size WxH          image and window size (default 640x480)\n"
