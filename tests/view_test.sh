@@ -105,6 +105,8 @@ out=$(windowed "$glb" --size 160x120 --frames 2 --method phong --screenshot "$tm
 "$nacre" render "$glb" --size 160x120 --method phong -o "$tmp/render_glb.png" --threads 2 || fail "glTF: nacre render"
 cmp=$("$nacre" compare "$tmp/view_glb.png" "$tmp/render_glb.png" --json)
 [ "$(json_num "$cmp" max_abs_err)" = 0 ] || fail "glTF: the screenshot differs from nacre render: $cmp"
+out=$(windowed "$glb" --camera sidecam --size 160x120 --frames 1 --threads 2) || fail "glTF --camera run failed: $out"
+grep -q '"position":\[0.899999976,0.200000003,0\]' <<<"$out" || fail "glTF --camera sidecam: $out"
 
 [ $fails -eq 0 ] && echo "view_test: all checks passed"
 exit $((fails > 0))
