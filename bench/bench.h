@@ -35,5 +35,8 @@ int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filt
 int nc_bench_diffusion_solver(bool json, int runs);
 /* Samples/s and time to relative MSE 1e-3 (bench/bench_pathtrace.c). */
 int nc_bench_pathtrace(bool json, double seconds);
+/* Loading a mesh as a scene from PLY and from the same triangles as GLB (bench/bench_load.c);
+ * NULL paths: lucy_1600k.ply / .glb from the mesh folders. */
+int nc_bench_load(bool json, int runs, const char *ply, const char *glb);
 
 #endif /* NACRE_BENCH_H */

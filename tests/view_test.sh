@@ -98,5 +98,15 @@ printf '1 pick 2 2\n' >"$tmp/sky.txt"
 out=$(windowed --size 160x120 --frames 2 --script "$tmp/sky.txt" --threads 2)
 grep -q selected_object <<<"$out" && fail "pick: the sky selected an object: $out"
 
+# --- a glTF scene opens through the same loader: the frame equals nacre render of the file ----
+glb=$(cd "$(dirname "$0")" && pwd)/data/gltf_pair.glb
+out=$(windowed "$glb" --size 160x120 --frames 2 --method phong --screenshot "$tmp/view_glb.png" --threads 2) ||
+    fail "glTF run failed: $out"
+"$nacre" render "$glb" --size 160x120 --method phong -o "$tmp/render_glb.png" --threads 2 || fail "glTF: nacre render"
+cmp=$("$nacre" compare "$tmp/view_glb.png" "$tmp/render_glb.png" --json)
+[ "$(json_num "$cmp" max_abs_err)" = 0 ] || fail "glTF: the screenshot differs from nacre render: $cmp"
+out=$(windowed "$glb" --camera sidecam --size 160x120 --frames 1 --threads 2) || fail "glTF --camera run failed: $out"
+grep -q '"position":\[0.899999976,0.200000003,0\]' <<<"$out" || fail "glTF --camera sidecam: $out"
+
 [ $fails -eq 0 ] && echo "view_test: all checks passed"
 exit $((fails > 0))

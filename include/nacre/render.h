@@ -278,6 +278,45 @@ NACRE_API nacre_result nacre_scene_save_json(const nacre_scene *scene,
                                              const char *base_dir, char **json_out,
                                              size_t *length_out);
 
+/* ------------------------------------------------------------------------------------------ */
+/* glTF 2.0 scenes (.gltf, .glb; the mapping is in docs/scene-format.md, "glTF 2.0 scenes")   */
+/* ------------------------------------------------------------------------------------------ */
+
+#define NACRE_GLTF_REPORT_MAX 64 /* names kept per list of nacre_gltf_report */
+#define NACRE_GLTF_NAME_MAX 64   /* bytes per name, NUL included; longer names are cut */
+
+typedef struct nacre_gltf_options {
+    const char *camera;  /* camera to use, by the name of its camera or its node; NULL: the first */
+    float unit_mm;       /* millimetres per scene unit to import into; 0: metres (glTF's own) */
+    bool skip_lights;    /* add none of the file's lights */
+    bool skip_camera;    /* leave the scene's camera alone */
+} nacre_gltf_options;
+
+/* What an import mapped. Extension names are those the file lists in extensionsUsed. */
+typedef struct nacre_gltf_report {
+    uint32_t meshes, primitives;     /* in the file */
+    uint32_t objects;                /* added: one per mesh instance (node x primitive) */
+    uint32_t lights, cameras;        /* lights added; cameras in the file */
+    uint32_t material_count;         /* materials added (the file's, plus a default if needed) */
+    uint32_t first_material;         /* id of the first of them in the scene */
+    char materials[NACRE_GLTF_REPORT_MAX][NACRE_GLTF_NAME_MAX];
+    bool translucent[NACRE_GLTF_REPORT_MAX];
+    uint32_t mapped_count, ignored_count;
+    char mapped[NACRE_GLTF_REPORT_MAX][NACRE_GLTF_NAME_MAX];
+    char ignored[NACRE_GLTF_REPORT_MAX][NACRE_GLTF_NAME_MAX];
+} nacre_gltf_report;
+
+/* Load a glTF 2.0 file (.gltf with its buffers, or .glb) as a scene in metres (or
+ * options->unit_mm): meshes through assimp with their node transforms applied, materials,
+ * KHR_lights_punctual lights, the chosen camera. settings get the defaults. options and report
+ * may be NULL. An extension the file requires (extensionsRequired) that nacre does not map fails
+ * with UNSUPPORTED; used but unknown ones are listed in report->ignored (the caller warns).
+ * nacre_scene_load_file calls this for paths ending in .gltf or .glb. */
+NACRE_API nacre_result nacre_scene_load_gltf(nacre_context *ctx, const char *path,
+                                             const nacre_gltf_options *options, nacre_scene **out,
+                                             nacre_scene_file_settings *settings,
+                                             nacre_gltf_report *report);
+
 #ifdef __cplusplus
 }
 #endif

@@ -211,7 +211,8 @@ static void parse_layering(loader *ld, const cJSON *obj, nacre_layering *l)
     nc_json_pop(ld, mark);
 }
 
-static void parse_material(loader *ld, const cJSON *obj, nacre_material *out)
+/* `replace`: an imported material of the same name, which this entry overrides. */
+static void parse_material(loader *ld, const cJSON *obj, const nacre_material *replace, nacre_material *out)
 {
     static const char *const opaque_keys[] = {"type", "diffuse", "specular", "shininess"};
     static const char *const translucent_keys[] = {"type", "preset", "sigma_a", "sigma_s", "g",
@@ -264,7 +265,13 @@ static void parse_material(loader *ld, const cJSON *obj, nacre_material *out)
         parse_layering(ld, obj, &d.layering);
     if (ld->err)
         return;
-    nacre_result r = nacre_scene_add_material(ld->scene, &d, out);
+    nacre_result r;
+    if (replace) {
+        *out = *replace;
+        r = nacre_scene_set_material(ld->scene, *replace, &d);
+    } else {
+        r = nacre_scene_add_material(ld->scene, &d, out);
+    }
     if (r != NACRE_OK)
         nc_json_fail_inner(ld, r);
 }
@@ -293,7 +300,8 @@ void nc_json_parse_materials(loader *ld, const cJSON *obj)
         if (c->string[0] == '\0')
             nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "material names must not be empty");
         material_entry *e = &ld->materials[ld->material_count];
-        parse_material(ld, c, &e->handle);
+        const material_entry *imported = nc_json_find_imported(ld, c->string);
+        parse_material(ld, c, imported ? &imported->handle : NULL, &e->handle);
         /* Kept by the scene so that saving it writes the same names. */
         if (!ld->err) {
             nacre_result r = nc_scene_set_material_name(ld->scene, e->handle, c->string);
@@ -317,6 +325,8 @@ bool nc_json_find_material(const loader *ld, const char *name, nacre_material *o
     const material_entry *e = ld->material_count == 0 ? NULL
         : bsearch(&key, ld->materials, ld->material_count, sizeof(*ld->materials),
                   compare_material_entries);
+    if (!e)
+        e = nc_json_find_imported(ld, name);
     if (e)
         *out = e->handle;
     return e != NULL;

@@ -69,6 +69,7 @@ typedef struct load_instance {
     uint32_t first_vertex;  /* in the merged mesh */
     uint32_t first_triangle;
     uint32_t triangles;     /* faces with three corners */
+    uint32_t node, slot;    /* preorder number of its node, its index in the node's mesh list */
 } load_instance;
 
 typedef struct load_state {
@@ -80,6 +81,7 @@ typedef struct load_state {
     uint64_t vertices, triangles;
     double (*uv)[2]; /* triangulate_polygon's scratch for the longest polygon, or NULL */
     uint32_t *tri;
+    uint32_t nodes;  /* nodes visited so far (preorder numbering) */
 } load_state;
 
 static nc_mat4 from_ai(const struct aiMatrix4x4 *a)
@@ -262,6 +264,7 @@ static nacre_result collect(load_state *s, const struct aiNode *node, nc_mat4 pa
                        LOAD_MAX_NODE_DEPTH);
     nc_mat4 local = from_ai(&node->mTransformation);
     nc_mat4 xf = nc_mat4_mul(parent, local);
+    const uint32_t serial = s->nodes++;
     for (unsigned k = 0; k < node->mNumMeshes; k++) {
         unsigned mi = node->mMeshes[k];
         if (mi >= s->scene->mNumMeshes)
@@ -301,6 +304,8 @@ static nacre_result collect(load_state *s, const struct aiNode *node, nc_mat4 pa
         in->first_vertex = (uint32_t)s->vertices;
         in->first_triangle = (uint32_t)s->triangles;
         in->triangles = (uint32_t)tris;
+        in->node = serial;
+        in->slot = k;
         s->vertices += mesh->mNumVertices;
         s->triangles += tris;
     }
@@ -1061,15 +1066,11 @@ static nacre_result check_faces(nacre_context *ctx, const char *path, const stru
     return NACRE_OK;
 }
 
-nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_data *out)
+/* Read a mesh file through assimp: the checks before assimp opens it, the import, the face
+ * checks, triangulation, and the list of mesh instances in the node tree (s->inst). On failure
+ * nothing is left to free. */
+static nacre_result open_scene(nacre_context *ctx, const char *path, load_state *s)
 {
-    if (!ctx)
-        return NACRE_ERROR_INVALID_ARGUMENT;
-    if (!path || !out)
-        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "mesh load: %s is NULL",
-                       path ? "output mesh" : "path");
-    memset(out, 0, sizeof(*out));
-
     /* assimp's own message for a missing file is vague; ask the OS first. */
     FILE *f = fopen(path, "rb");
     if (!f)
@@ -1128,34 +1129,67 @@ nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_da
     if (!scene)
         return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: triangulation failed", path);
 
-    load_state s = {ctx, path, scene, NULL, 0, 0, 0, 0, NULL, NULL};
-    nacre_mesh_data m;
-    memset(&m, 0, sizeof(m));
+    *s = (load_state){ctx, path, scene, NULL, 0, 0, 0, 0, NULL, NULL, 0};
     if (own_triangulation) {
-        s.uv = nc_alloc(ctx, (size_t)max_corners * sizeof(*s.uv));
-        s.tri = nc_calloc(ctx, (size_t)max_corners, 3 * sizeof(uint32_t));
-        if (!s.uv || !s.tri) {
+        s->uv = nc_alloc(ctx, (size_t)max_corners * sizeof(*s->uv));
+        s->tri = nc_calloc(ctx, (size_t)max_corners, 3 * sizeof(uint32_t));
+        if (!s->uv || !s->tri) {
             r = NACRE_ERROR_OUT_OF_MEMORY;
             goto fail;
         }
     }
     if (scene->mRootNode)
-        r = collect(&s, scene->mRootNode, nc_mat4_identity(), 0);
+        r = collect(s, scene->mRootNode, nc_mat4_identity(), 0);
     if (r != NACRE_OK)
         goto fail;
-    if (s.count == 0 || s.triangles == 0) {
+    if (s->count == 0 || s->triangles == 0) {
         r = nc_fail(ctx, NACRE_ERROR_PARSE, "%s: mesh has no triangles", path);
         goto fail;
     }
+    return NACRE_OK;
+fail:
+    aiReleaseImport(scene);
+    nc_free(ctx, s->inst);
+    nc_free(ctx, s->uv);
+    nc_free(ctx, s->tri);
+    memset(s, 0, sizeof(*s));
+    return r;
+}
 
+static void close_scene(load_state *s)
+{
+    if (s->scene)
+        aiReleaseImport(s->scene);
+    nc_free(s->ctx, s->inst);
+    nc_free(s->ctx, s->uv);
+    nc_free(s->ctx, s->tri);
+    s->scene = NULL;
+    s->inst = NULL;
+    s->uv = NULL;
+    s->tri = NULL;
+}
+
+/* Build one mesh from instances [begin, end) of s->inst, numbered from vertex and triangle 0,
+ * and complete it (geometry check, missing normals and tangents). */
+static nacre_result build_mesh(load_state *s, uint32_t begin, uint32_t end, nacre_mesh_data *out)
+{
+    nacre_context *ctx = s->ctx;
+    nacre_mesh_data m;
+    memset(&m, 0, sizeof(m));
     bool any_normals = false, any_uvs = false, any_tangents = false;
-    for (uint32_t i = 0; i < s.count; i++) {
-        const struct aiMesh *mesh = s.inst[i].mesh;
+    uint64_t nv64 = 0, nt64 = 0;
+    for (uint32_t i = begin; i < end; i++) {
+        const struct aiMesh *mesh = s->inst[i].mesh;
         any_normals |= mesh->mNormals != NULL;
         any_uvs |= mesh->mTextureCoords[0] != NULL;
         any_tangents |= mesh->mTangents && mesh->mBitangents && mesh->mNormals;
+        s->inst[i].first_vertex = (uint32_t)nv64;
+        s->inst[i].first_triangle = (uint32_t)nt64;
+        nv64 += mesh->mNumVertices;
+        nt64 += s->inst[i].triangles;
     }
-    const size_t nv = (size_t)s.vertices, nt = (size_t)s.triangles;
+    const size_t nv = (size_t)nv64, nt = (size_t)nt64;
+    nacre_result r = NACRE_OK;
     m.vertex_count = (uint32_t)nv;
     m.triangle_count = (uint32_t)nt;
     m.positions = nc_alloc(ctx, nv * 3 * sizeof(float));
@@ -1171,22 +1205,13 @@ nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_da
         r = NACRE_ERROR_OUT_OF_MEMORY;
         goto fail;
     }
-    for (uint32_t i = 0; i < s.count; i++) {
-        fill_vertices(&s, &s.inst[i], &m);
-        if ((r = fill_indices(&s, &s.inst[i], &m)) != NACRE_OK)
+    for (uint32_t i = begin; i < end; i++) {
+        fill_vertices(s, &s->inst[i], &m);
+        if ((r = fill_indices(s, &s->inst[i], &m)) != NACRE_OK)
             goto fail;
     }
-    aiReleaseImport(scene);
-    scene = NULL;
-    nc_free(ctx, s.inst);
-    s.inst = NULL;
-    nc_free(ctx, s.uv);
-    nc_free(ctx, s.tri);
-    s.uv = NULL;
-    s.tri = NULL;
-
     /* Indices were checked per instance; this checks finite positions and UVs. */
-    r = nc_mesh_check_geometry(ctx, &m, path, NACRE_ERROR_PARSE);
+    r = nc_mesh_check_geometry(ctx, &m, s->path, NACRE_ERROR_PARSE);
     if (r != NACRE_OK)
         goto fail;
     if (!m.normals)
@@ -1203,13 +1228,67 @@ nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_da
         goto fail;
     *out = m;
     return NACRE_OK;
-
 fail:
-    if (scene)
-        aiReleaseImport(scene);
-    nc_free(ctx, s.inst);
-    nc_free(ctx, s.uv);
-    nc_free(ctx, s.tri);
     nacre_mesh_data_free(ctx, &m);
     return r;
+}
+
+nacre_result nacre_mesh_load(nacre_context *ctx, const char *path, nacre_mesh_data *out)
+{
+    if (!ctx)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    if (!path || !out)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "mesh load: %s is NULL",
+                       path ? "output mesh" : "path");
+    memset(out, 0, sizeof(*out));
+    load_state s;
+    nacre_result r = open_scene(ctx, path, &s);
+    if (r != NACRE_OK)
+        return r;
+    r = build_mesh(&s, 0, s.count, out);
+    close_scene(&s);
+    return r;
+}
+
+void nc_mesh_parts_free(nacre_context *ctx, nc_mesh_part *parts, uint32_t count)
+{
+    for (uint32_t i = 0; parts && i < count; i++)
+        nacre_mesh_data_free(ctx, &parts[i].data);
+    nc_free(ctx, parts);
+}
+
+nacre_result nc_mesh_load_parts(nacre_context *ctx, const char *path, nc_mesh_part **parts_out,
+                                uint32_t *count_out)
+{
+    *parts_out = NULL;
+    *count_out = 0;
+    load_state s;
+    nacre_result r = open_scene(ctx, path, &s);
+    if (r != NACRE_OK)
+        return r;
+    nc_mesh_part *parts = nc_calloc(ctx, s.count, sizeof(*parts));
+    if (!parts) {
+        close_scene(&s);
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    }
+    for (uint32_t i = 0; i < s.count && r == NACRE_OK; i++) {
+        const struct aiMesh *mesh = s.inst[i].mesh;
+        parts[i].material = mesh->mMaterialIndex;
+        parts[i].node = s.inst[i].node;
+        parts[i].slot = s.inst[i].slot;
+        parts[i].mesh = UINT32_MAX;
+        for (unsigned k = 0; k < s.scene->mNumMeshes; k++)
+            if (s.scene->mMeshes[k] == mesh)
+                parts[i].mesh = k;
+        r = build_mesh(&s, i, i + 1, &parts[i].data);
+    }
+    uint32_t count = s.count;
+    close_scene(&s);
+    if (r != NACRE_OK) {
+        nc_mesh_parts_free(ctx, parts, count);
+        return r;
+    }
+    *parts_out = parts;
+    *count_out = count;
+    return NACRE_OK;
 }

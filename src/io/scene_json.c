@@ -20,6 +20,7 @@
  * through the context's allocator.
  */
 #include "io/scene_json_internal.h"
+#include "io/gltf.h"
 
 #include <errno.h>
 #include <stdio.h>
@@ -32,7 +33,7 @@
 static void parse_scene(loader *ld, const cJSON *root)
 {
     static const char *const keys[] = {"units", "render", "camera", "environment", "materials",
-                                       "lights", "objects", "fog"};
+                                       "lights", "objects", "fog", "import"};
     if (!cJSON_IsObject(root)) {
         nc_json_fail(ld, NACRE_ERROR_PARSE, "the top level must be an object, got %s",
                      nc_json_type_name(root));
@@ -44,6 +45,8 @@ static void parse_scene(loader *ld, const cJSON *root)
     const cJSON *item;
     if ((item = nc_json_member(root, "units")))
         nc_json_parse_units(ld, item);
+    if (nc_json_member(root, "import") && !ld->err)
+        nc_json_parse_import(ld, root, nc_json_member(root, "units") != NULL);
     if ((item = nc_json_member(root, "render")))
         nc_json_parse_render(ld, item);
     if ((item = nc_json_member(root, "environment")) && !ld->err)
@@ -191,6 +194,9 @@ static nacre_result load_text(nacre_context *ctx, const char *json, size_t lengt
         nc_free(ctx, ld.meshes[i].path);
     nc_free(ctx, ld.meshes);
     nc_free(ctx, ld.materials);
+    for (uint32_t i = 0; i < ld.imported_count; i++)
+        nc_free(ctx, (char *)ld.imported[i].name);
+    nc_free(ctx, ld.imported);
     cJSON_Delete(root);
     nc_free(ctx, text);
     if (ld.err != NACRE_OK) {
@@ -280,6 +286,8 @@ nacre_result nacre_scene_load_file(nacre_context *ctx, const char *path, nacre_s
     if (!out || !path)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "nacre_scene_load_file: %s is NULL",
                        out ? "path" : "out");
+    if (nc_gltf_is_path(path))
+        return nacre_scene_load_gltf(ctx, path, NULL, out, settings, NULL);
     char *text = NULL;
     size_t size = 0;
     nacre_result r = read_whole_file(ctx, path, &text, &size);

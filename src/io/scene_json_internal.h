@@ -59,6 +59,8 @@ typedef struct loader {
     uint32_t material_count;
     mesh_entry *meshes;
     uint32_t mesh_count, mesh_capacity;
+    material_entry *imported;  /* materials of an "import"ed glTF, names owned; unsorted */
+    uint32_t imported_count;
 } loader;
 
 /* json_read.c: messages and field paths. nc_json_fail records the first failure only, prefixed
@@ -113,5 +115,8 @@ void nc_json_parse_materials(loader *ld, const cJSON *obj);
 bool nc_json_find_material(const loader *ld, const char *name, nacre_material *out);
 void nc_json_parse_object(loader *ld, const cJSON *obj);
 void nc_json_parse_fog(loader *ld, const cJSON *obj);
+/* json_import.c: "import" (a glTF file), before camera, materials and lights. */
+void nc_json_parse_import(loader *ld, const cJSON *root, bool has_units);
+const material_entry *nc_json_find_imported(const loader *ld, const char *name);
 
 #endif

@@ -5,7 +5,8 @@
  * extension comes from the content: "ply" (any case) at the start is a PLY, the binary glTF magic a .glb, a
  * '{' first (after white space) a .gltf, anything else an OBJ. A saved crash therefore reproduces
  * by copying it to a file of that extension. A mesh that loads must validate, analyse and go into
- * a scene that commits; a failure must leave the output empty with one line of message.
+ * a scene that commits; a failure must leave the output empty with one line of message. glTF
+ * inputs are also imported as scenes (nacre_scene_load_gltf) under the same rules.
  */
 #include "fuzz_common.h"
 
@@ -74,6 +75,22 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     } else {
         FUZZ_REQUIRE(mesh.vertex_count == 0 && mesh.positions == NULL && mesh.indices == NULL);
         fuzz_check_failure(ctx, r);
+    }
+    /* glTF inputs also go through the scene importer (its own JSON and structure checks). */
+    const char *ext = mesh_extension(data, size);
+    if (strcmp(ext, "glb") == 0 || strcmp(ext, "gltf") == 0) {
+        nacre_scene *scene = NULL;
+        r = nacre_scene_load_gltf(ctx, path, NULL, &scene, NULL, NULL);
+        if (r == NACRE_OK) {
+            FUZZ_REQUIRE(scene != NULL && nacre_scene_object_count(scene) > 0);
+            r = nacre_scene_commit(scene, 0.0);
+            if (r != NACRE_OK)
+                fuzz_check_failure(ctx, r);
+        } else {
+            FUZZ_REQUIRE(scene == NULL);
+            fuzz_check_failure(ctx, r);
+        }
+        nacre_scene_destroy(scene);
     }
     nacre_context_destroy(ctx);
     unlink(path);

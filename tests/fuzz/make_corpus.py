@@ -188,6 +188,8 @@ def main():
 
     copy("mesh", "tests/data/quad_cube.obj")
     copy("mesh", "tests/data/tetra_nodes.gltf")
+    copy("mesh", "tests/data/gltf_pair.glb")
+    copy("mesh", "tests/data/gltf_misc.gltf")
     put("mesh", "gen-tetra-ascii.ply", ply_ascii())
     put("mesh", "gen-tetra-le.ply", ply_binary(False))
     put("mesh", "gen-tetra-be.ply", ply_binary(True))

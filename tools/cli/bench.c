@@ -34,7 +34,10 @@ static const char bench_help[] =
     "usage: nacre bench pathtrace [--json] [--runs N]\n"
     "  pathtrace  samples/s and extrapolated time to relative MSE 1e-3 at 512x512: translucent\n"
     "           sphere (index matched, dielectric, layered skin) and the demo scene, N x 30 s each\n"
-    "           (default 1)\n";
+    "           (default 1)\n"
+    "usage: nacre bench load [--json] [--runs N] [--mesh PLY] [--glb GLB]\n"
+    "  load     lucy_1600k.ply as a scene, and the same triangles from a .glb (nacre_scene_load_gltf;\n"
+    "           make it with scripts/ply_to_glb.py), medians and their ratio (target <= 1.5)\n";
 
 
 
@@ -50,8 +53,10 @@ int nc_cli_bench(int argc, char **argv)
         return code;
     bool voxelize = strcmp(argv[0], "voxelize") == 0, diffusion = strcmp(argv[0], "diffusion") == 0;
     bool pathtrace = strcmp(argv[0], "pathtrace") == 0;
-    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace)
-        return nc_tool_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace)", argv[0]);
+    bool load = strcmp(argv[0], "load") == 0;
+    const char *load_ply = NULL, *load_glb = NULL;
+    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace && !load)
+        return nc_tool_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace, load)", argv[0]);
     bool json = false;
     long runs = pathtrace ? 1 : 15, res_only = 0;
     nc_bench_filter filter = {NULL, 0};
@@ -70,6 +75,10 @@ int nc_cli_bench(int argc, char **argv)
             filter.res = (uint32_t)res_only, i++;
         else if (diffusion && strcmp(argv[i], "--repaint") == 0)
             repaint = true;
+        else if (load && strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
+            load_ply = argv[++i];
+        else if (load && strcmp(argv[i], "--glb") == 0 && i + 1 < argc)
+            load_glb = argv[++i];
         else if (!voxelize && strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
             i++; /* read by nc_bench_raster */
         else
@@ -87,6 +96,8 @@ int nc_cli_bench(int argc, char **argv)
     }
     if (pathtrace)
         return nc_bench_pathtrace(json, 30.0 * (double)runs);
+    if (load)
+        return nc_bench_load(json, (int)runs, load_ply, load_glb);
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;

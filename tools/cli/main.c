@@ -97,8 +97,8 @@ static bool output_distinct(const char *command, const char *out, const char *ou
 /* ---------------------------------------------------------------------------------------- */
 
 static const char render_help[] =
-    "usage: nacre render [SCENE.json] [options]\n"
-    "Render a scene file (default: the built-in demo scene) to an image.\n"
+    "usage: nacre render [SCENE.json | MODEL.gltf | MODEL.glb] [options]\n"
+    "Render a scene file or a glTF 2.0 scene (default: the built-in demo scene) to an image.\n"
     "\n"
     "  -o, --output FILE   output .png (sRGB, exposure-scaled) or .exr (linear); default nacre.png\n"
     "  --method M          phong | diffusion | layered | pathtrace (default: the scene's, else phong)\n"
@@ -110,6 +110,8 @@ static const char render_help[] =
     "  --exr-float         write 32-bit float EXR instead of half (half holds up to 65504: larger\n"
     "                      values are written as 65504, with a warning giving their count)\n"
     "  --stats             print one JSON object with per-stage timings in microseconds\n"
+    "  --camera NAME       glTF: render from the camera of this name (camera or node; default:\n"
+    "                      the first); glTF is in metres, lights in lux and candela (683 lm/W)\n"
     "  --save-scene FILE   also write the scene as a .json scene file, with this run's settings\n"
     "                      (size, method, time, ...) in its render block, before rendering;\n"
     "                      `nacre render FILE` then renders the same image\n"
@@ -199,7 +201,7 @@ static int cmd_render(int argc, char **argv)
 {
     const char *scene_path = NULL, *out_path = "nacre.png", *method_name = NULL, *variance_path = NULL,
                *save_path = NULL;
-    const char *solver_name = NULL, *source_name = NULL;
+    const char *solver_name = NULL, *source_name = NULL, *camera_name = NULL;
     nacre_diffusion_solver solver = NACRE_SOLVER_MULTIGRID;
     nacre_diffusion_source source = NACRE_SOURCE_VOLUME;
     long width = 0, height = 0, threads = 0, voxel_res = -1, tsm_size = -1, seed_iters = -1, spp = -1, seed = -1,
@@ -291,6 +293,10 @@ static int cmd_render(int argc, char **argv)
                 return nc_tool_usage("render", "--save-scene '%s': use a .json file name", save_path);
         } else if (strcmp(a, "--stats") == 0) {
             stats = true;
+        } else if (strcmp(a, "--camera") == 0) {
+            if (!has_value)
+                return nc_tool_usage("render", "--camera needs a camera name");
+            camera_name = argv[++i];
         } else if (strcmp(a, "--exr-float") == 0) {
             exr_float = true;
         } else if (a[0] == '-' && a[1] != '\0') {
@@ -313,6 +319,9 @@ static int cmd_render(int argc, char **argv)
     nacre_method method = NACRE_METHOD_PHONG;
     if (method_name && !nacre_method_from_name(method_name, &method))
         return nc_tool_usage("render", "unknown method '%s' (phong, diffusion, layered, pathtrace)", method_name);
+    const bool gltf = scene_path && (has_suffix(scene_path, ".gltf") || has_suffix(scene_path, ".glb"));
+    if (camera_name && !gltf)
+        return nc_tool_usage("render", "--camera needs a .gltf or .glb scene");
 
     nacre_context *ctx = nc_tool_context((int)threads);
     if (!ctx)
@@ -326,7 +335,10 @@ static int cmd_render(int argc, char **argv)
     nacre_method_info info;
     uint64_t t_start = nc_tool_now_us();
     nacre_result res;
-    if (scene_path)
+    if (gltf)
+        res = nacre_scene_load_gltf(ctx, scene_path, &(nacre_gltf_options){.camera = camera_name}, &scene, &fs,
+                                    NULL);
+    else if (scene_path)
         res = nacre_scene_load_file(ctx, scene_path, &scene, &fs);
     else
         res = nacre_scene_load_json(ctx, (const char *)nacre_demo_scene_json, strlen((const char *)nacre_demo_scene_json),
@@ -483,13 +495,70 @@ static const char info_help[] =
     "usage: nacre info MESH [--json]\n"
     "Load a mesh (OBJ, PLY, glTF) and report vertex and triangle counts, bounds, surface area,\n"
     "and its topology after welding exactly coincident vertices: boundary (open) edges,\n"
-    "non-manifold edges, degenerate triangles, closedness.\n"
+    "non-manifold edges, degenerate triangles, closedness. For a glTF (.gltf, .glb) also its\n"
+    "scene: meshes, materials (opaque or translucent), lights, cameras, and which extensions\n"
+    "were mapped and which ignored (each ignored one also warns on stderr).\n"
     "\n"
     "  --json   one JSON object\n"
     "  --help, --version\n";
 
+static void print_json_string(const char *str)
+{
+    putchar('"');
+    for (const char *c = str; *c; c++) {
+        if (*c == '"' || *c == '\\')
+            putchar('\\');
+        if ((unsigned char)*c >= 0x20)
+            putchar(*c);
+    }
+    putchar('"');
+}
+
+static void print_json_names(const char *key, const char (*names)[NACRE_GLTF_NAME_MAX], uint32_t count)
+{
+    printf(",\"%s\":[", key);
+    for (uint32_t i = 0; i < count && i < NACRE_GLTF_REPORT_MAX; i++) {
+        if (i)
+            putchar(',');
+        print_json_string(names[i]);
+    }
+    putchar(']');
+}
+
+/* The "gltf" member of info --json: what the scene import mapped. */
+static void print_gltf_json(const nacre_gltf_report *r, uint64_t scene_us)
+{
+    printf(",\"gltf\":{\"meshes\":%u,\"primitives\":%u,\"objects\":%u,\"lights\":%u,\"cameras\":%u,"
+           "\"scene_load_ms\":%.3f,\"materials\":[",
+           r->meshes, r->primitives, r->objects, r->lights, r->cameras, scene_us / 1000.0);
+    for (uint32_t i = 0; i < r->material_count && i < NACRE_GLTF_REPORT_MAX; i++) {
+        printf("%s{\"name\":", i ? "," : "");
+        print_json_string(r->materials[i]);
+        printf(",\"type\":\"%s\"}", r->translucent[i] ? "translucent" : "opaque");
+    }
+    printf("]");
+    print_json_names("extensions_mapped", r->mapped, r->mapped_count);
+    print_json_names("extensions_ignored", r->ignored, r->ignored_count);
+    printf("}");
+}
+
+static void print_gltf_text(const nacre_gltf_report *r, uint64_t scene_us)
+{
+    printf("  glTF                  %u meshes, %u primitives -> %u objects, %u lights, %u cameras\n", r->meshes,
+           r->primitives, r->objects, r->lights, r->cameras);
+    for (uint32_t i = 0; i < r->material_count && i < NACRE_GLTF_REPORT_MAX; i++)
+        printf("  material              %s (%s)\n", r->materials[i], r->translucent[i] ? "translucent" : "opaque");
+    for (uint32_t i = 0; i < r->mapped_count && i < NACRE_GLTF_REPORT_MAX; i++)
+        printf("  extension mapped      %s\n", r->mapped[i]);
+    for (uint32_t i = 0; i < r->ignored_count && i < NACRE_GLTF_REPORT_MAX; i++)
+        printf("  extension ignored     %s\n", r->ignored[i]);
+    printf("  scene load            %.1f ms\n", scene_us / 1000.0);
+}
+
 static int cmd_info(int argc, char **argv)
 {
+    nacre_gltf_report gltf_report;
+    memset(&gltf_report, 0, sizeof(gltf_report));
     const char *path = NULL;
     bool json = false;
     int code;
@@ -523,6 +592,18 @@ static int cmd_info(int argc, char **argv)
         nc_tool_fail(ctx);
         goto out;
     }
+    const bool gltf = has_suffix(path, ".gltf") || has_suffix(path, ".glb");
+    uint64_t scene_us = 0;
+    if (gltf) {
+        t0 = nc_tool_now_us();
+        nacre_scene *scene = NULL;
+        if (nacre_scene_load_gltf(ctx, path, NULL, &scene, NULL, &gltf_report) != NACRE_OK) {
+            nc_tool_fail(ctx);
+            goto out;
+        }
+        scene_us = nc_tool_now_us() - t0;
+        nacre_scene_destroy(scene);
+    }
     if (json) {
         printf("{\"file\":\"");
         for (const char *c = path; *c; c++) {
@@ -533,12 +614,15 @@ static int cmd_info(int argc, char **argv)
         printf("\",\"vertices\":%u,\"triangles\":%u,\"welded_vertices\":%u,\"unreferenced_vertices\":%u,"
                "\"degenerate_triangles\":%u,\"edges\":%llu,\"boundary_edges\":%llu,\"nonmanifold_edges\":%llu,"
                "\"closed\":%s,\"bounds\":{\"min\":[%.9g,%.9g,%.9g],\"max\":[%.9g,%.9g,%.9g]},\"surface_area\":%.9g,"
-               "\"has_normals\":%s,\"has_uvs\":%s,\"load_ms\":%.3f}\n",
+               "\"has_normals\":%s,\"has_uvs\":%s,\"load_ms\":%.3f",
                info.vertex_count, info.triangle_count, info.welded_vertex_count, info.unreferenced_vertices,
                info.degenerate_triangles, (unsigned long long)info.edge_count, (unsigned long long)info.boundary_edges,
                (unsigned long long)info.nonmanifold_edges, info.closed ? "true" : "false", info.bounds_min[0],
                info.bounds_min[1], info.bounds_min[2], info.bounds_max[0], info.bounds_max[1], info.bounds_max[2],
                info.surface_area, mesh.normals ? "true" : "false", mesh.uvs ? "true" : "false", load_us / 1000.0);
+        if (gltf)
+            print_gltf_json(&gltf_report, scene_us);
+        printf("}\n");
     } else {
         printf("%s\n", path);
         printf("  vertices              %u (%u after welding, %u unreferenced)\n", info.vertex_count,
@@ -551,6 +635,8 @@ static int cmd_info(int argc, char **argv)
                info.bounds_min[2], info.bounds_max[0], info.bounds_max[1], info.bounds_max[2]);
         printf("  surface area          %g\n", info.surface_area);
         printf("  load                  %.1f ms\n", load_us / 1000.0);
+        if (gltf)
+            print_gltf_text(&gltf_report, scene_us);
     }
     rc = 0;
 out:

@@ -17,7 +17,7 @@
 #include "demo_scene.h"
 
 static const char view_help[] =
-    "usage: nacre view [SCENE.json] [options]\n"
+    "usage: nacre view [SCENE.json | MODEL.gltf | MODEL.glb] [options]\n"
     "Open a window on a scene (default: the built-in demo) and edit it while it renders.\n"
     "\n"
     "  --size WxH          image and window size (default 640x480)\n"
@@ -25,6 +25,7 @@ static const char view_help[] =
     "  --voxel-res N       diffusion voxel resolution (default: the scene's, else 32)\n"
     "  --spp N             samples per pixel each path-traced frame adds (default 1)\n"
     "  --threads N         worker threads (default: all cores)\n"
+    "  --camera NAME       glTF: view from the camera of this name (default: the first)\n"
     "headless (tests, scripts):\n"
     "  --frames N          render N frames, then exit (the timeline steps 1/30 s per frame)\n"
     "  --script FILE       timed events, one per line: FRAME COMMAND ARGS (README, `nacre view`)\n"
@@ -38,9 +39,19 @@ static const char view_help[] =
     "  --help, --version\n";
 
 typedef struct view_options {
-    const char *scene, *method, *script, *screenshot, *save_scene;
+    const char *scene, *method, *script, *screenshot, *save_scene, *camera;
     long width, height, frames, voxel_res, spp, threads;
 } view_options;
+
+/* Case-insensitive suffix test (file extensions). */
+static bool ends_with(const char *s, const char *suffix)
+{
+    size_t n = strlen(s), m = strlen(suffix);
+    for (size_t i = 0; n >= m && i < m; i++)
+        if ((s[n - m + i] | 0x20) != (suffix[i] | 0x20))
+            return false;
+    return n >= m;
+}
 
 static int parse_options(int argc, char **argv, view_options *o, bool *done)
 {
@@ -66,6 +77,8 @@ static int parse_options(int argc, char **argv, view_options *o, bool *done)
                 return nc_tool_usage("view", "--size '%s': width and height must be integers in 1..16384", s);
         } else if (strcmp(a, "--method") == 0 && v) {
             o->method = argv[++i];
+        } else if (strcmp(a, "--camera") == 0 && v) {
+            o->camera = argv[++i];
         } else if (strcmp(a, "--script") == 0 && v) {
             o->script = argv[++i];
         } else if (strcmp(a, "--screenshot") == 0 && v) {
@@ -94,6 +107,8 @@ static int parse_options(int argc, char **argv, view_options *o, bool *done)
     }
     if ((o->screenshot || o->save_scene) && !o->frames)
         return nc_tool_usage("view", "--screenshot and --save-scene need --frames N (headless run)");
+    if (o->camera && !(o->scene && (ends_with(o->scene, ".glb") || ends_with(o->scene, ".gltf"))))
+        return nc_tool_usage("view", "--camera needs a .gltf or .glb scene");
     return 0;
 }
 
@@ -103,7 +118,9 @@ static bool open_view(nc_view *v, nacre_context *ctx, const view_options *o)
     nacre_scene *scene = NULL;
     nacre_scene_file_settings fs = {.render = nacre_render_settings_defaults()};
     nacre_result res;
-    if (o->scene)
+    if (o->camera)
+        res = nacre_scene_load_gltf(ctx, o->scene, &(nacre_gltf_options){.camera = o->camera}, &scene, &fs, NULL);
+    else if (o->scene)
         res = nacre_scene_load_file(ctx, o->scene, &scene, &fs);
     else
         res = nacre_scene_load_json(ctx, (const char *)nacre_demo_scene_json,

@@ -1,0 +1,432 @@
+/*
+ * test_gltf.c: glTF 2.0 import (src/io/gltf.c, json_import.c) against the files that
+ * scripts/make_gltf_tests.py writes: the glTF scene renders the same image as the same scene
+ * written as a nacre scene file (phong; the KHR_materials_volume sphere also by diffusion), the
+ * material, light and camera mappings of docs/scene-format.md, units, a scene file's "import"
+ * with overrides, the extension report, and malformed files through the CLI (one line, exit 2,
+ * nothing written).
+ */
+#include "test_util.h"
+
+#include <math.h>
+#include <nacre/nacre.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+
+#define DATA NACRE_SOURCE_DIR "/tests/data"
+#define TMP NACRE_TEST_TMP "/gltf"
+
+/* The constants scripts/make_gltf_tests.py wrote the files with. */
+static const double att_color[3] = {0.5, 0.8, 0.6};
+static const double att_dist = 0.01, ior = 1.45;
+static const double sun_dir[3] = {-0.4, -1.0, -0.5}, sun_w = 2.5, sun_color[3] = {1.0, 0.95, 0.9};
+
+static nacre_context *make_ctx(void)
+{
+    nacre_context_desc d = {0};
+    d.threads = 2;
+    nacre_context *ctx = NULL;
+    CHECK(nacre_context_create(&d, &ctx) == NACRE_OK);
+    return ctx;
+}
+
+static nacre_scene *load(nacre_context *ctx, const char *path, nacre_scene_file_settings *fs)
+{
+    nacre_scene *scene = NULL;
+    nacre_result r = nacre_scene_load_file(ctx, path, &scene, fs);
+    if (r != NACRE_OK)
+        fprintf(stderr, "load %s: %s\n", path, nacre_context_last_error(ctx));
+    CHECK(r == NACRE_OK);
+    return scene;
+}
+
+/* Render at 160x120 by `method`; the image is the caller's. */
+static nacre_image render(nacre_scene *scene, nacre_method method)
+{
+    nacre_image img = {0};
+    nacre_render_settings rs = nacre_render_settings_defaults();
+    rs.method = method;
+    rs.width = 160;
+    rs.height = 120;
+    rs.diffusion.voxel_resolution = 16;
+    CHECK(nacre_scene_commit(scene, 0.0) == NACRE_OK);
+    CHECK(nacre_render(scene, &rs, &img, NULL) == NACRE_OK);
+    return img;
+}
+
+/* Largest per-value difference relative to max(|b|, 1e-3), and the mean relative difference. */
+static void compare(const nacre_image *a, const nacre_image *b, double *max_rel, double *mean_rel)
+{
+    *max_rel = *mean_rel = 0.0;
+    CHECK(a->width == b->width && a->height == b->height && a->channels == b->channels);
+    size_t n = (size_t)a->width * a->height * a->channels;
+    for (size_t i = 0; i < n; i++) {
+        double d = fabs((double)a->pixels[i] - b->pixels[i]) / fmax(fabs((double)b->pixels[i]), 1e-3);
+        *max_rel = fmax(*max_rel, d);
+        *mean_rel += d / (double)n;
+    }
+}
+
+/* A glTF and the same scene as a nacre scene file render the same image. */
+static void test_pair_images(void)
+{
+    nacre_context *ctx = make_ctx();
+    nacre_scene *g = load(ctx, DATA "/gltf_pair.glb", NULL);
+    nacre_scene *n = load(ctx, DATA "/gltf_pair.json", NULL);
+    if (!g || !n)
+        goto out;
+    /* The glTF has no environment: give both the pair file's. */
+    const float env[3] = {0.05f, 0.05f, 0.05f};
+    CHECK(nacre_scene_set_environment(g, env) == NACRE_OK);
+    CHECK(nacre_scene_object_count(g) == 3 && nacre_scene_light_count(g) == 2);
+    double max_rel, mean_rel;
+    nacre_image a = render(g, NACRE_METHOD_PHONG), b = render(n, NACRE_METHOD_PHONG);
+    compare(&a, &b, &max_rel, &mean_rel);
+    printf("phong: max relative difference %.3g, mean %.3g\n", max_rel, mean_rel);
+    /* Same triangles, float-rounded conversions of lights, camera and materials: a few pixels
+     * on silhouettes may shift by a rounding step; the rest agree to float precision. */
+    CHECK(max_rel < 2e-3 && mean_rel < 1e-5);
+    nacre_image_free(ctx, &a);
+    nacre_image_free(ctx, &b);
+    /* The KHR_materials_volume sphere is a translucent medium: diffusion sees its coefficients. */
+    a = render(g, NACRE_METHOD_DIFFUSION);
+    b = render(n, NACRE_METHOD_DIFFUSION);
+    compare(&a, &b, &max_rel, &mean_rel);
+    printf("diffusion: max relative difference %.3g, mean %.3g\n", max_rel, mean_rel);
+    CHECK(max_rel < 2e-3 && mean_rel < 1e-5);
+    nacre_image_free(ctx, &a);
+    nacre_image_free(ctx, &b);
+out:
+    nacre_scene_destroy(g);
+    nacre_scene_destroy(n);
+    nacre_context_destroy(ctx);
+}
+
+/* examples/demo.json and its glTF (gltf_demo.json imports gltf_demo.glb in millimetres and
+ * overrides jade and marble with the presets) render the same phong image: the shapes are the
+ * same triangles, computed apart (nacre's float transforms and deformer against the script's
+ * double ones), so silhouette pixels may differ; everything else agrees to float rounding. */
+static void test_demo(void)
+{
+    nacre_context *ctx = make_ctx();
+    nacre_scene_file_settings fa, fb;
+    nacre_scene *a = load(ctx, DATA "/gltf_demo.json", &fa);
+    nacre_scene *b = load(ctx, NACRE_SOURCE_DIR "/examples/demo.json", &fb);
+    nacre_image ia = {0}, ib = {0};
+    if (!a || !b)
+        goto out;
+    CHECK(nacre_scene_object_count(a) == 3 && nacre_scene_light_count(a) == 1);
+    /* assimp numbers materials in the order it meets them (ground first here): the objects
+     * must still get the glTF's own (object 1, the ground, uses glTF material 2). */
+    nacre_object_desc od;
+    CHECK(nacre_scene_get_object(a, (nacre_object){1}, &od) == NACRE_OK && od.material.id == 3);
+    CHECK(nacre_scene_get_object(a, (nacre_object){2}, &od) == NACRE_OK && od.material.id == 1);
+    fa.render.width = fb.render.width = 240;
+    fa.render.height = fb.render.height = 135;
+    CHECK(nacre_scene_commit(a, 0.0) == NACRE_OK && nacre_scene_commit(b, 0.0) == NACRE_OK);
+    CHECK(nacre_render(a, &fa.render, &ia, NULL) == NACRE_OK);
+    CHECK(nacre_render(b, &fb.render, &ib, NULL) == NACRE_OK);
+    size_t n = (size_t)ia.width * ia.height * 3, off = 0;
+    double mean = 0.0;
+    for (size_t i = 0; i < n; i++) {
+        double d = fabs((double)ia.pixels[i] - ib.pixels[i]) / fmax(fabs((double)ib.pixels[i]), 1e-3);
+        mean += d / (double)n;
+        off += d > 1e-3;
+    }
+    printf("demo: mean relative difference %.3g, %zu of %zu values off by more than 0.1%%\n", mean, off, n);
+    CHECK(mean < 1e-5 && off * 1000 < n);
+out:
+    nacre_image_free(ctx, &ia);
+    nacre_image_free(ctx, &ib);
+    nacre_scene_destroy(a);
+    nacre_scene_destroy(b);
+    nacre_context_destroy(ctx);
+}
+
+/* Materials, lights and camera as docs/scene-format.md maps them; units. */
+static void test_mapping(void)
+{
+    nacre_context *ctx = make_ctx();
+    nacre_gltf_report rep;
+    nacre_scene *s = NULL;
+    CHECK(nacre_scene_load_gltf(ctx, DATA "/gltf_pair.glb", NULL, &s, NULL, &rep) == NACRE_OK);
+    if (!s)
+        goto out;
+    CHECK(nacre_scene_get_unit_mm(s) == 1000.0f);
+    CHECK(rep.material_count == 3 && rep.objects == 3 && rep.lights == 2 && rep.cameras == 2);
+    CHECK(strcmp(rep.materials[2], "ball") == 0 && rep.translucent[2] && !rep.translucent[0]);
+    CHECK(rep.mapped_count == 5 && rep.ignored_count == 0);
+    nacre_material_desc m;
+    CHECK(nacre_scene_get_material(s, (nacre_material){rep.first_material + 2}, &m) == NACRE_OK);
+    CHECK(m.type == NACRE_MATERIAL_TRANSLUCENT);
+    for (int c = 0; c < 3; c++) {
+        CHECK_NEAR(m.sigma_a[c], -log(att_color[c]) / att_dist, 1e-4 * -log(att_color[c]) / att_dist);
+        CHECK_NEAR(m.sigma_s[c], 1000.0, 1e-3); /* 1 per mm, per metre */
+    }
+    CHECK_NEAR(m.eta, ior, 1e-6);
+    CHECK_NEAR(m.specular[0], pow((ior - 1) / (ior + 1), 2), 1e-6);
+    CHECK(nacre_scene_get_material(s, (nacre_material){rep.first_material}, &m) == NACRE_OK);
+    CHECK(m.type == NACRE_MATERIAL_OPAQUE);
+    CHECK_NEAR(m.diffuse[1], 0.5, 1e-6);
+    CHECK_NEAR(m.specular[0], 0.02, 1e-6);          /* F0 0.04 x specularFactor 0.5 */
+    CHECK_NEAR(m.shininess, 2.0 / pow(0.36, 2) - 2.0, 1e-3); /* roughness 0.6 */
+    nacre_light_desc l;
+    CHECK(nacre_scene_get_light(s, (nacre_light){1}, &l) == NACRE_OK);
+    CHECK(l.type == NACRE_LIGHT_DIRECTIONAL);
+    double len = sqrt(sun_dir[0] * sun_dir[0] + sun_dir[1] * sun_dir[1] + sun_dir[2] * sun_dir[2]);
+    for (int c = 0; c < 3; c++) {
+        CHECK_NEAR(l.direction[c], sun_dir[c] / len, 1e-5);
+        CHECK_NEAR(l.strength[c], sun_w * sun_color[c], 1e-5); /* lux / 683 */
+    }
+    CHECK(nacre_scene_get_light(s, (nacre_light){2}, &l) == NACRE_OK);
+    CHECK(l.type == NACRE_LIGHT_POINT);
+    CHECK_NEAR(l.strength[0], 0.02, 1e-7);
+    CHECK_NEAR(l.position[1], 0.5, 1e-6);
+    nacre_camera_desc cam;
+    CHECK(nacre_scene_get_camera(s, &cam) == NACRE_OK);
+    CHECK_NEAR(cam.position[2], 0.75, 1e-6);
+    CHECK_NEAR(cam.fov_y, 35.0, 1e-4);
+    nacre_scene_destroy(s);
+    s = NULL;
+
+    /* --camera by camera name, and by node name; an unknown one fails naming it. */
+    nacre_gltf_options opt = {0};
+    opt.camera = "sidecam";
+    CHECK(nacre_scene_load_gltf(ctx, DATA "/gltf_pair.glb", &opt, &s, NULL, NULL) == NACRE_OK);
+    CHECK(s && nacre_scene_get_camera(s, &cam) == NACRE_OK && fabsf(cam.position[0] - 0.9f) < 1e-6f);
+    nacre_scene_destroy(s);
+    s = NULL;
+    opt.camera = "side";
+    CHECK(nacre_scene_load_gltf(ctx, DATA "/gltf_pair.glb", &opt, &s, NULL, NULL) == NACRE_OK);
+    nacre_scene_destroy(s);
+    s = NULL;
+    opt.camera = "nope";
+    CHECK(nacre_scene_load_gltf(ctx, DATA "/gltf_pair.glb", &opt, &s, NULL, NULL) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(s == NULL && strstr(nacre_context_last_error(ctx), "\"nope\"") != NULL);
+
+    /* Millimetres: lengths x1000, coefficients / 1000. */
+    opt.camera = NULL;
+    opt.unit_mm = 1.0f;
+    CHECK(nacre_scene_load_gltf(ctx, DATA "/gltf_pair.glb", &opt, &s, NULL, &rep) == NACRE_OK);
+    if (s) {
+        CHECK(nacre_scene_get_unit_mm(s) == 1.0f);
+        CHECK(nacre_scene_get_camera(s, &cam) == NACRE_OK);
+        CHECK_NEAR(cam.position[2], 750.0, 1e-3);
+        CHECK(nacre_scene_get_material(s, (nacre_material){rep.first_material + 2}, &m) == NACRE_OK);
+        CHECK_NEAR(m.sigma_a[0], -log(att_color[0]) / (att_dist * 1000.0), 1e-4);
+        CHECK_NEAR(m.sigma_s[0], 1.0, 1e-6);
+        float lo[3], hi[3];
+        CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK && nacre_scene_bounds(s, lo, hi) == NACRE_OK);
+        CHECK_NEAR(hi[0], 600.0, 1e-3);
+    }
+    nacre_scene_destroy(s);
+out:
+    nacre_context_destroy(ctx);
+}
+
+/* One root node (assimp then has no root of its own), a primitive without material, a metal, a
+ * spot light, an orthographic camera, a base64 data: URI buffer. */
+static void test_misc(void)
+{
+    nacre_context *ctx = make_ctx();
+    nacre_gltf_report rep;
+    nacre_scene *s = NULL;
+    CHECK(nacre_scene_load_gltf(ctx, DATA "/gltf_misc.gltf", NULL, &s, NULL, &rep) == NACRE_OK);
+    if (!s)
+        goto out;
+    CHECK(rep.objects == 2 && rep.material_count == 2 && rep.lights == 1);
+    CHECK(strcmp(rep.materials[0], "material0") == 0 && strcmp(rep.materials[1], "default") == 0);
+    nacre_object_desc od;
+    CHECK(nacre_scene_get_object(s, (nacre_object){1}, &od) == NACRE_OK);
+    CHECK(od.material.id == rep.first_material && od.double_sided);
+    CHECK(nacre_scene_get_object(s, (nacre_object){2}, &od) == NACRE_OK);
+    CHECK(od.material.id == rep.first_material + 1 && !od.double_sided);
+    nacre_material_desc m;
+    CHECK(nacre_scene_get_material(s, (nacre_material){rep.first_material}, &m) == NACRE_OK);
+    CHECK(m.diffuse[0] == 0.0f);                                     /* metal: no diffuse */
+    CHECK_NEAR(m.specular[1], 0.6, 1e-6);                            /* its base colour */
+    CHECK_NEAR(m.shininess, 30.0, 1e-3);                             /* roughness 0.5 */
+    nacre_light_desc l;
+    CHECK(nacre_scene_get_light(s, (nacre_light){1}, &l) == NACRE_OK);
+    CHECK(l.type == NACRE_LIGHT_SPOT && l.falloff == NACRE_SPOT_FALLOFF_GLTF);
+    CHECK_NEAR(l.position[1], 3.0, 1e-6);
+    CHECK_NEAR(l.position[2], -2.0, 1e-6);
+    CHECK_NEAR(l.direction[1], -1.0, 1e-6);
+    CHECK_NEAR(l.inner_angle, 0.2 * 180.0 / 3.14159265358979, 1e-4);
+    CHECK_NEAR(l.outer_angle, 0.6 * 180.0 / 3.14159265358979, 1e-4);
+    CHECK_NEAR(l.strength[1], 0.5, 1e-6); /* 683 cd x 0.5 */
+    nacre_camera_desc cam;
+    CHECK(nacre_scene_get_camera(s, &cam) == NACRE_OK);
+    CHECK(cam.projection == NACRE_ORTHOGRAPHIC);
+    CHECK_NEAR(cam.ortho_height, 3.0, 1e-6);
+    CHECK_NEAR(cam.position[2], 2.0, 1e-6);
+    CHECK_NEAR(cam.near_clip, 0.1, 1e-6);
+    CHECK_NEAR(cam.far_clip, 10.0, 1e-5);
+    float lo[3], hi[3];
+    CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK && nacre_scene_bounds(s, lo, hi) == NACRE_OK);
+    CHECK_NEAR(hi[0], 2.0, 1e-6); /* node scale 2 */
+    CHECK_NEAR(lo[2], -4.0, 1e-6);
+    nacre_scene_destroy(s);
+out:
+    nacre_context_destroy(ctx);
+}
+
+static int warnings;
+static char last_warning[512];
+static void count_warning(void *user, nacre_log_level level, const char *msg)
+{
+    (void)user;
+    if (level == NACRE_LOG_WARNING) {
+        warnings++;
+        snprintf(last_warning, sizeof(last_warning), "%s", msg);
+    }
+}
+
+/* A .gltf with an external buffer; an extension nacre does not map is reported and warned. */
+static void test_split_and_ignored(void)
+{
+    nacre_context_desc d = {0};
+    d.threads = 2;
+    d.log_fn = count_warning;
+    nacre_context *ctx = NULL;
+    CHECK(nacre_context_create(&d, &ctx) == NACRE_OK);
+    nacre_gltf_report rep;
+    nacre_scene *s = NULL;
+    warnings = 0;
+    CHECK(nacre_scene_load_gltf(ctx, DATA "/gltf_split.gltf", NULL, &s, NULL, &rep) == NACRE_OK);
+    CHECK(rep.ignored_count == 1 && strcmp(rep.ignored[0], "KHR_materials_clearcoat") == 0);
+    CHECK(warnings == 1 && strstr(last_warning, "KHR_materials_clearcoat") != NULL);
+    CHECK(nacre_scene_object_count(s) == 3);
+    nacre_scene_destroy(s);
+    nacre_context_destroy(ctx);
+}
+
+/* "import" with a material override and the file's own lights. */
+static void test_import(void)
+{
+    nacre_context *ctx = make_ctx();
+    nacre_scene_file_settings fs;
+    nacre_scene *s = load(ctx, DATA "/gltf_import.json", &fs);
+    nacre_scene *g = load(ctx, DATA "/gltf_pair.glb", NULL);
+    if (!s || !g)
+        goto out;
+    CHECK(fs.render.width == 160);
+    CHECK(nacre_scene_get_unit_mm(s) == 1000.0f); /* no "units": glTF's metres */
+    CHECK(nacre_scene_light_count(s) == 1);       /* "lights" replaces the glTF's */
+    CHECK(nacre_scene_material_count(s) == 3);    /* the override replaced "ball" */
+    nacre_material_desc m, marble;
+    CHECK(nacre_material_preset("marble", &marble));
+    nacre_material_desc_per_unit(&marble, 1000.0f);
+    CHECK(nacre_scene_get_material(s, (nacre_material){3}, &m) == NACRE_OK);
+    CHECK(memcmp(m.sigma_a, marble.sigma_a, sizeof(m.sigma_a)) == 0);
+    CHECK(memcmp(m.sigma_s, marble.sigma_s, sizeof(m.sigma_s)) == 0);
+    nacre_camera_desc a, b;
+    CHECK(nacre_scene_get_camera(s, &a) == NACRE_OK && nacre_scene_get_camera(g, &b) == NACRE_OK);
+    CHECK(memcmp(&a, &b, sizeof(a)) == 0); /* the glTF's camera, no "camera" to override it */
+
+    /* A nacre object may use an imported material by name; an unknown import fails. */
+    const char *json = "{\"import\": \"gltf_pair.glb\", \"objects\": [{\"shape\": {\"type\": \"sphere\"}, "
+                       "\"material\": \"paint\"}]}";
+    nacre_scene *t = NULL;
+    CHECK(nacre_scene_load_json(ctx, json, strlen(json), "t.json", DATA, &t, NULL) == NACRE_OK);
+    CHECK(t && nacre_scene_object_count(t) == 4);
+    nacre_scene_destroy(t);
+    t = NULL;
+    json = "{\"import\": \"no_such.glb\"}";
+    CHECK(nacre_scene_load_json(ctx, json, strlen(json), "t.json", DATA, &t, NULL) == NACRE_ERROR_IO);
+    CHECK(strstr(nacre_context_last_error(ctx), "import") != NULL);
+    json = "{\"import\": \"gltf_pair.json\"}";
+    CHECK(nacre_scene_load_json(ctx, json, strlen(json), "t.json", DATA, &t, NULL) == NACRE_ERROR_INVALID_ARGUMENT);
+out:
+    nacre_scene_destroy(s);
+    nacre_scene_destroy(g);
+    nacre_context_destroy(ctx);
+}
+
+/* Run `nacre ARGS`; stderr into err. */
+static int run(const char *args, char *err, size_t cap)
+{
+    char cmd[2048];
+    snprintf(cmd, sizeof(cmd), "%s %s >%s/stdout.txt 2>%s/stderr.txt", NACRE_CLI, args, TMP, TMP);
+    int st = system(cmd);
+    char path[1024];
+    snprintf(path, sizeof(path), "%s/stderr.txt", TMP);
+    FILE *f = fopen(path, "rb");
+    size_t n = f ? fread(err, 1, cap - 1, f) : 0;
+    err[n] = '\0';
+    if (f)
+        fclose(f);
+    return WIFEXITED(st) ? WEXITSTATUS(st) : -1;
+}
+
+static bool exists(const char *path)
+{
+    struct stat sb;
+    return stat(path, &sb) == 0;
+}
+
+/* Malformed files: one line naming the file and the problem, exit 2, no image. */
+static void test_malformed_cli(void)
+{
+    static const struct { const char *file, *expect; } cases[] = {
+        {"bad_truncated.glb", "truncated GLB"},
+        {"bad_missing_buffer.gltf", "buffers[0]: cannot open \"no_such_buffer.bin\""},
+        {"bad_accessor.gltf", "accessors[0]"},
+        {"bad_required.gltf", "extensionsRequired: \"KHR_draco_mesh_compression\""},
+    };
+    char err[4096], args[1024], out_png[512];
+    snprintf(out_png, sizeof(out_png), "%s/bad.png", TMP);
+    for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+        remove(out_png);
+        snprintf(args, sizeof(args), "render %s/%s -o %s --size 32x32", DATA, cases[i].file, out_png);
+        int code = run(args, err, sizeof(err));
+        /* Warnings (ignored extensions) may precede the error; the error is the last line. */
+        const char *last = err;
+        for (const char *p = err; *p; p++)
+            if (p[0] == '\n' && p[1])
+                last = p + 1;
+        printf("%s -> %d: %s", cases[i].file, code, last);
+        CHECK(code == 2);
+        CHECK(strstr(last, cases[i].file) != NULL && strstr(last, cases[i].expect) != NULL);
+        CHECK(strncmp(last, "nacre: ", 7) == 0 && strchr(last, '\n') == last + strlen(last) - 1);
+        CHECK(!exists(out_png));
+        snprintf(args, sizeof(args), "info %s/%s --json", DATA, cases[i].file);
+        CHECK(run(args, err, sizeof(err)) == 2);
+    }
+    /* A good file renders; --camera picks a camera; --camera needs a glTF. */
+    snprintf(args, sizeof(args), "render %s/gltf_pair.glb --camera sidecam -o %s --size 32x32", DATA, out_png);
+    CHECK(run(args, err, sizeof(err)) == 0 && exists(out_png));
+    remove(out_png);
+    snprintf(args, sizeof(args), "render %s/gltf_pair.json --camera sidecam -o %s", DATA, out_png);
+    CHECK(run(args, err, sizeof(err)) == 2 && !exists(out_png));
+    /* info --json: the report, and a warning per ignored extension on stderr. */
+    snprintf(args, sizeof(args), "info %s/gltf_split.gltf --json", DATA);
+    CHECK(run(args, err, sizeof(err)) == 0);
+    CHECK(strstr(err, "warning") && strstr(err, "KHR_materials_clearcoat"));
+    char path[512], buf[8192];
+    snprintf(path, sizeof(path), "%s/stdout.txt", TMP);
+    FILE *f = fopen(path, "rb");
+    size_t n = f ? fread(buf, 1, sizeof(buf) - 1, f) : 0;
+    buf[n] = '\0';
+    if (f)
+        fclose(f);
+    CHECK(strstr(buf, "\"extensions_ignored\":[\"KHR_materials_clearcoat\"]") != NULL);
+    CHECK(strstr(buf, "{\"name\":\"ball\",\"type\":\"translucent\"}") != NULL);
+}
+
+int main(void)
+{
+    mkdir(NACRE_TEST_TMP, 0755);
+    mkdir(TMP, 0755);
+    test_pair_images();
+    test_demo();
+    test_mapping();
+    test_misc();
+    test_split_and_ignored();
+    test_import();
+    test_malformed_cli();
+    return TEST_MAIN_END();
+}
