@@ -46,6 +46,15 @@ typedef struct nacre_image_metrics {
     /* Pixels with a NaN or infinite channel in the test and in the reference image. Values that
      * are not finite in either image are left out of every metric above: check these first. */
     uint64_t nonfinite_test, nonfinite_ref;
+    /* Over the reference's lit pixels (3 channels: R + G + B > 0, finite in both images), the
+     * measures of docs/accuracy.md's tables: the ratio of the test's sum to the reference's per
+     * channel, the same over the darkest quarter of those pixels (by the reference's R + G + B
+     * averaged over the lit pixels of its 3x3 neighbourhood, at or below the 25th percentile: a noisy
+     * reference's darkest pixels are biased dark), and the median and 90th percentile of the per-pixel relative error of
+     * R + G + B. All 0 when there is no such pixel or the images have another channel count. */
+    uint64_t lit_pixels;
+    double lit_ratio[3], dark_ratio[3];
+    double lit_rel_err_median, lit_rel_err_p90;
 } nacre_image_metrics;
 
 /* Allocate a zeroed image (stride = width * channels). 1 <= width, height <= 65536. */

@@ -657,6 +657,10 @@ static const char compare_help[] =
     "  psnr           10 log10(peak^2 / mse), peak = max reference value (dB)\n"
     "  mean_rel_err   mean(|t - r| / |r|) over values where the reference is non-zero\n"
     "  max_abs_err    max |t - r|\n"
+    "Over the reference's lit pixels (R + G + B > 0; the object on a black background):\n"
+    "  lit_ratio      sum(t) / sum(r) per channel\n"
+    "  dark_ratio     the same over the darkest quarter of those pixels\n"
+    "  lit_rel_err_median, lit_rel_err_p90   of |T - R| / R per pixel, T, R = R + G + B\n"
     "Pixels holding NaN or infinite values are counted (nonfinite_test, nonfinite_reference) and\n"
     "left out of the metrics; if either image has any, compare prints the metrics and an error\n"
     "and exits with status 2.\n"
@@ -714,12 +718,21 @@ static int cmd_compare(int argc, char **argv)
         printf(",\"max_abs_err\":");
         print_number(m.max_abs_err);
         printf(",\"values\":%llu,\"nonzero_reference_values\":%llu,\"nonfinite_test\":%llu,"
-               "\"nonfinite_reference\":%llu}\n",
+               "\"nonfinite_reference\":%llu",
                (unsigned long long)m.count, (unsigned long long)m.nonzero_ref, (unsigned long long)m.nonfinite_test,
                (unsigned long long)m.nonfinite_ref);
+        printf(",\"lit_pixels\":%llu,\"lit_ratio\":[%.6g,%.6g,%.6g],\"dark_ratio\":[%.6g,%.6g,%.6g]"
+               ",\"lit_rel_err_median\":%.6g,\"lit_rel_err_p90\":%.6g}\n",
+               (unsigned long long)m.lit_pixels, m.lit_ratio[0], m.lit_ratio[1], m.lit_ratio[2], m.dark_ratio[0],
+               m.dark_ratio[1], m.dark_ratio[2], m.lit_rel_err_median, m.lit_rel_err_p90);
     } else {
         printf("rmse          %.6g\nrel_mse       %.6g\npsnr          %.3f dB\nmean_rel_err  %.6g\nmax_abs_err   %.6g\n",
                m.rmse, m.rel_mse, m.psnr, m.mean_rel_err, m.max_abs_err);
+        if (m.lit_pixels)
+            printf("lit pixels    %llu: ratio R G B %.4f %.4f %.4f, darkest quarter %.4f %.4f %.4f,\n"
+                   "              relative error of R+G+B median %.4f, p90 %.4f\n",
+                   (unsigned long long)m.lit_pixels, m.lit_ratio[0], m.lit_ratio[1], m.lit_ratio[2], m.dark_ratio[0],
+                   m.dark_ratio[1], m.dark_ratio[2], m.lit_rel_err_median, m.lit_rel_err_p90);
         if (m.nonfinite_test || m.nonfinite_ref)
             printf("nonfinite     %llu test, %llu reference pixels (left out)\n", (unsigned long long)m.nonfinite_test,
                    (unsigned long long)m.nonfinite_ref);
