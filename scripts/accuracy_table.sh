@@ -39,12 +39,21 @@ echo "| scene | voxels | mean ratio R, G, B | darkest quarter R, G, B | rel. err
 echo "|---|---|---|---|---|"
 for scene in "${scenes[@]}"; do
     name=$(basename "$scene" .json)
-    dir=$(cd "$(dirname "$scene")" && pwd)
-    # The variant sits next to the original so that relative paths (meshes, maps) still resolve.
-    variant="$dir/.accuracy_$name.json"
+    variant="$out/$name.json"
     python3 - "$scene" "$variant" <<'EOF'
-import json, sys
-d = json.load(open(sys.argv[1]))
+import json, os, sys
+src = sys.argv[1]
+base = os.path.dirname(os.path.abspath(src))
+def absolute(v):
+    # Files the scene names (meshes, maps, volumes) resolve against the original's folder.
+    if isinstance(v, dict):
+        return {k: absolute(x) for k, x in v.items()}
+    if isinstance(v, list):
+        return [absolute(x) for x in v]
+    if isinstance(v, str) and not os.path.isabs(v) and os.path.isfile(os.path.join(base, v)):
+        return os.path.join(base, v)
+    return v
+d = absolute(json.load(open(src)))
 d["environment"] = [0, 0, 0]
 d["objects"] = [o for o in d["objects"] if o.get("name") != "ground"]
 d.get("render", {}).pop("method", None)
@@ -64,5 +73,4 @@ print("| %s | %s³ | %.3f, %.3f, %.3f | %.2f, %.2f, %.2f | %.1f%%, %.1f%% |" % (
       r[0], r[1], r[2], d[0], d[1], d[2], 100 * m["lit_rel_err_median"], 100 * m["lit_rel_err_p90"]))
 ' "$name" "$r"
     done
-    rm -f "$variant"
 done
