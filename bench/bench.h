@@ -35,5 +35,7 @@ int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filt
 int nc_bench_diffusion_solver(bool json, int runs);
 /* Samples/s and time to relative MSE 1e-3 (bench/bench_pathtrace.c). */
 int nc_bench_pathtrace(bool json, double seconds);
+/* The layered method at 640x480 on a scene file, cold and while the light moves (bench/bench_layered.c). */
+int nc_bench_layered(bool json, int runs, const char *scene_path);
 
 #endif /* NACRE_BENCH_H */

@@ -34,7 +34,10 @@ static const char bench_help[] =
     "usage: nacre bench pathtrace [--json] [--runs N]\n"
     "  pathtrace  samples/s and extrapolated time to relative MSE 1e-3 at 512x512: translucent\n"
     "           sphere (index matched, dielectric, layered skin) and the demo scene, N x 30 s each\n"
-    "           (default 1)\n";
+    "           (default 1)\n"
+    "usage: nacre bench layered [--json] [--runs N] [--scene FILE]\n"
+    "  layered  the layered method at 640x480 on FILE (default examples/layered.json): the cold\n"
+    "           frame per stage, then 10, 50, 100 steps of each integration while the light moves\n";
 
 
 
@@ -49,9 +52,10 @@ int nc_cli_bench(int argc, char **argv)
     if (nc_tool_common_flag("bench", argv[0], bench_help, &code))
         return code;
     bool voxelize = strcmp(argv[0], "voxelize") == 0, diffusion = strcmp(argv[0], "diffusion") == 0;
-    bool pathtrace = strcmp(argv[0], "pathtrace") == 0;
-    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace)
-        return nc_tool_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace)", argv[0]);
+    bool pathtrace = strcmp(argv[0], "pathtrace") == 0, layered = strcmp(argv[0], "layered") == 0;
+    const char *layered_scene = "examples/layered.json";
+    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace && !layered)
+        return nc_tool_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace, layered)", argv[0]);
     bool json = false;
     long runs = pathtrace ? 1 : 15, res_only = 0;
     nc_bench_filter filter = {NULL, 0};
@@ -70,6 +74,8 @@ int nc_cli_bench(int argc, char **argv)
             filter.res = (uint32_t)res_only, i++;
         else if (diffusion && strcmp(argv[i], "--repaint") == 0)
             repaint = true;
+        else if (layered && strcmp(argv[i], "--scene") == 0 && i + 1 < argc)
+            layered_scene = argv[++i];
         else if (!voxelize && strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
             i++; /* read by nc_bench_raster */
         else
@@ -87,6 +93,8 @@ int nc_cli_bench(int argc, char **argv)
     }
     if (pathtrace)
         return nc_bench_pathtrace(json, 30.0 * (double)runs);
+    if (layered)
+        return nc_bench_layered(json, (int)runs, layered_scene);
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;
