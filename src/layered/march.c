@@ -49,6 +49,11 @@
 #define NC_MARCH_MAX_PIECES (NC_MARCH_MAX_SAMPLES + 64)
 #define NC_MARCH_BISECT 6
 
+/* Plain comparisons: fminf / fmaxf are library calls here (their NaN rules), and the march
+ * makes hundreds per pixel. */
+static inline float minf(float a, float b) { return a < b ? a : b; }
+static inline float maxf(float a, float b) { return a > b ? a : b; }
+
 static inline float dot3(const float a[3], const float b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
 static inline float hg(float c, float g)
@@ -136,7 +141,7 @@ static inline void bottoms_at(const nc_layer_stack *s, float u, float v, float b
     }
     float run = 0;
     for (uint32_t j = 0; j < s->count; j++) {
-        run = fmaxf(run, s->depth[j] * mapv[j]);
+        run = maxf(run, s->depth[j] * mapv[j]);
         bottom[j] = run;
     }
 }
@@ -173,9 +178,11 @@ static inline uint32_t layer_at(const ray_ctx *r, float s)
 /* What one light gives at M(s), before the layer's sigma_s and phase: irradiance across the
  * refracted beam after the path K'M (rgb), and the cosine between the beam and the view ray. */
 typedef struct light_at {
-    float e[3];
+    bool lit;     /* false: no light reaches M this way (the rest is 0) */
+    float lw;     /* log of the scalar factor: Fresnel, beam compression, 1 / r^2, spot cone */
+    float tau[3]; /* optical depth along K'M */
     float cos_s;
-    float k[3]; /* K' */
+    float k[3];   /* K' */
 } light_at;
 
 static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, float ci, float s, light_at *out)
@@ -187,7 +194,7 @@ static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, fl
     for (int k = 0; k < 3; k++)
         mpt[k] = pt->p[k] + s * r->d[k];
     /* Eq. 9: the plane of M between the tangent plane (weight |MM_max|) and the fitted one (|MP|). */
-    float a = fmaxf(r->len - s, 0.0f), b = s;
+    float a = maxf(r->len - s, 0.0f), b = s;
     float nm[3], pm[3], nn = 0;
     for (int k = 0; k < 3; k++) {
         nm[k] = a * pt->n[k] + b * pt->ns[k];
@@ -221,7 +228,7 @@ static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, fl
         return;
     const float eta = m->eta;
     float sin2_t = (1.0f - cos_i * cos_i) / (eta * eta);
-    float cos_t = sqrtf(fmaxf(1.0f - sin2_t, 0.0f));
+    float cos_t = sqrtf(maxf(1.0f - sin2_t, 0.0f));
     if (!(cos_t > 1e-4f))
         return;
     float wt[3]; /* towards the light inside */
@@ -230,7 +237,7 @@ static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, fl
     float h = 0;
     for (int k = 0; k < 3; k++)
         h += (pm[k] - mpt[k]) * nm[k];
-    h = fmaxf(h, 0.0f);
+    h = maxf(h, 0.0f);
     const float km = h / cos_t; /* eq. 10, along the refracted ray */
     for (int k = 0; k < 3; k++)
         out->k[k] = mpt[k] + km * wt[k];
@@ -262,7 +269,7 @@ static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, fl
             float dj = 0.5f * ((bm[j] - prev_m) + (bk[j] - prev_k));
             prev_m = bm[j];
             prev_k = bk[j];
-            float len = fminf(km - above / cos_t, dj / cos_t);
+            float len = minf(km - above / cos_t, dj / cos_t);
             if (len > 0)
                 for (int c = 0; c < 3; c++)
                     tau[c] += m->st[j][c] * len;
@@ -273,8 +280,11 @@ static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, fl
             for (int c = 0; c < 3; c++)
                 tau[c] += m->st[m->count][c] * rest;
     }
-    for (int c = 0; c < 3; c++)
-        out->e[c] = l->strength[c] * scale * expf(-tau[c]);
+    if (!(scale > 0))
+        return;
+    out->lit = true;
+    out->lw = logf(scale);
+    memcpy(out->tau, tau, sizeof(tau));
     out->cos_s = dot3(wt, r->d);
 }
 
@@ -298,7 +308,7 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
         for (uint32_t i = 0; i < n && tau_min < tau_stop; i++) {
             uint32_t j = layer_at(r, ((float)i + 0.5f) * step);
             out[count++] = (piece){(float)i * step, (float)(i + 1) * step, (uint8_t)j};
-            tau_min += fminf(m->st[j][0], fminf(m->st[j][1], m->st[j][2])) * step;
+            tau_min += minf(m->st[j][0], minf(m->st[j][1], m->st[j][2])) * step;
         }
         return count;
     }
@@ -329,12 +339,12 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
             float cut = fa != fb ? a + (b - a) * fa / (fa - fb) : b;
             cut = cut >= a && cut <= b ? cut : b;
             out[count++] = (piece){lo, cut, (uint8_t)jl};
-            tau_min += fminf(m->st[jl][0], fminf(m->st[jl][1], m->st[jl][2])) * (cut - lo);
+            tau_min += minf(m->st[jl][0], minf(m->st[jl][1], m->st[jl][2])) * (cut - lo);
             lo = cut;
             jl = jb;
         }
         out[count++] = (piece){lo, s, (uint8_t)jl};
-        tau_min += fminf(m->st[jl][0], fminf(m->st[jl][1], m->st[jl][2])) * (s - lo);
+        tau_min += minf(m->st[jl][0], minf(m->st[jl][1], m->st[jl][2])) * (s - lo);
         lo = s;
         jl = j;
         if (count >= NC_MARCH_MAX_PIECES - 2)
@@ -363,7 +373,7 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
     r.du = dot3(pt->gu, r.d);
     r.dv = dot3(pt->gv, r.d);
     /* Eq. 15, with the refracted direction */
-    r.len = m->depth_max / fmaxf(-dot3(pt->ns, r.d), 0.1f);
+    r.len = m->depth_max / maxf(-dot3(pt->ns, r.d), 0.1f);
     const float t_out = (1.0f - nc_fresnel_dielectric_f(cos_o, eta, 1.0f / (eta * eta))) / (eta * eta);
 
     piece pieces[NC_MARCH_MAX_PIECES];
@@ -379,52 +389,68 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
             vis0 = nc_shadow_lookup(lights[li].shadow, nc_v3a(pt->p), n, prm->pcf_radius, prm->shadow_bias);
             light_at far;
             eval_light(&r, l, co, ci, r.len, &far);
-            vis1 = far.e[0] > 0 || far.e[1] > 0 || far.e[2] > 0
+            vis1 = far.lit
                        ? nc_shadow_lookup(lights[li].shadow, nc_v3a(far.k), nc_v3a(pt->ns), prm->pcf_radius,
                                           prm->shadow_bias)
                        : vis0;
             if (vis0 <= 0 && vis1 <= 0)
                 continue;
         }
-        float tau[3] = {0, 0, 0}, sum[3] = {0, 0, 0};
+        /* Per channel, ln of the integrand without sigma_s * strength (kc): the pieces' ends
+         * share it when the layer does not change, and its difference gives the exponential's
+         * rate without a logarithm per channel. */
+        float tau[3] = {0, 0, 0}, sum[3] = {0, 0, 0}, kc[3];
+        float lfa[3] = {0, 0, 0};
+        bool a_lit = false;
+        uint32_t a_layer = UINT32_MAX;
         light_at la, lb;
-        bool have_a = false;
         for (uint32_t i = 0; i < np; i++) {
             const piece *pc = &pieces[i];
             const uint32_t j = pc->layer;
             const float len = pc->s1 - pc->s0;
+            for (int c = 0; c < 3; c++)
+                kc[c] = m->ss[j][c] * l->strength[c];
             if (!prm->analytic) {
                 const float sm = 0.5f * (pc->s0 + pc->s1);
                 eval_light(&r, l, co, ci, sm, &la);
                 const float vis = vis0 + (vis1 - vis0) * (sm / r.len);
-                const float ph = hg(la.cos_s, m->g[j]) * vis * len;
+                const float w = hg(la.cos_s, m->g[j]) * vis * len;
                 for (int c = 0; c < 3; c++) {
-                    const float t = expf(-(tau[c] + 0.5f * m->st[j][c] * len));
-                    sum[c] += m->ss[j][c] * ph * la.e[c] * t;
+                    if (la.lit && w > 0)
+                        sum[c] += kc[c] * w * expf(la.lw - la.tau[c] - tau[c] - 0.5f * m->st[j][c] * len);
                     tau[c] += m->st[j][c] * len;
                 }
                 continue;
             }
-            if (!have_a)
-                eval_light(&r, l, co, ci, pc->s0, &la);
-            eval_light(&r, l, co, ci, pc->s1, &lb);
-            have_a = true;
-            const float va = vis0 + (vis1 - vis0) * (pc->s0 / r.len), vb = vis0 + (vis1 - vis0) * (pc->s1 / r.len);
-            const float pa = hg(la.cos_s, m->g[j]) * va, pb = hg(lb.cos_s, m->g[j]) * vb;
-            for (int c = 0; c < 3; c++) {
-                const float fa = m->ss[j][c] * pa * la.e[c] * expf(-tau[c]);
-                const float tb = tau[c] + m->st[j][c] * len;
-                const float fb = m->ss[j][c] * pb * lb.e[c] * expf(-tb);
-                float integral;
-                if (fa > 0 && fb > 0) {
-                    const float q = logf(fa / fb);
-                    integral = fabsf(q) > 1e-4f ? len * (fa - fb) / q : len * 0.5f * (fa + fb);
-                } else {
-                    integral = len * 0.5f * (fa + fb);
+            if (a_layer != j) { /* the first piece, or a new layer: the start's phase changed */
+                if (i == 0)
+                    eval_light(&r, l, co, ci, pc->s0, &la);
+                const float pa = hg(la.cos_s, m->g[j]) * (vis0 + (vis1 - vis0) * (pc->s0 / r.len));
+                a_lit = la.lit && pa > 0;
+                if (a_lit) {
+                    const float lp = logf(pa) + la.lw;
+                    for (int c = 0; c < 3; c++)
+                        lfa[c] = lp - la.tau[c] - tau[c];
                 }
-                sum[c] += integral;
-                tau[c] = tb;
             }
+            eval_light(&r, l, co, ci, pc->s1, &lb);
+            const float pb = hg(lb.cos_s, m->g[j]) * (vis0 + (vis1 - vis0) * (pc->s1 / r.len));
+            const bool b_lit = lb.lit && pb > 0;
+            const float lpb = b_lit ? logf(pb) + lb.lw : 0.0f;
+            for (int c = 0; c < 3; c++) {
+                const float tb = tau[c] + m->st[j][c] * len;
+                const float lfb = lpb - lb.tau[c] - tb;
+                if (a_lit && b_lit) {
+                    const float q = lfa[c] - lfb, fa = expf(lfa[c]), fb = expf(lfb);
+                    sum[c] += kc[c] * (q > 1e-4f || q < -1e-4f ? len * (fa - fb) / q : len * 0.5f * (fa + fb));
+                } else { /* light on one end only: the trapezoid */
+                    sum[c] += kc[c] * len * 0.5f * ((a_lit ? expf(lfa[c]) : 0.0f) + (b_lit ? expf(lfb) : 0.0f));
+                }
+                tau[c] = tb;
+                lfa[c] = lfb;
+            }
+            a_lit = b_lit;
+            a_layer = j;
             la = lb;
         }
         for (int c = 0; c < 3; c++)
