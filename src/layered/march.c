@@ -47,7 +47,7 @@
 #define NC_MARCH_T_MIN 1e-4f
 #define NC_MARCH_MAX_SAMPLES 4096
 #define NC_MARCH_MAX_PIECES (NC_MARCH_MAX_SAMPLES + 64)
-#define NC_MARCH_BISECT 6
+#define NC_MARCH_BISECT 2
 
 /* Plain comparisons: fminf / fmaxf are library calls here (their NaN rules), and the march
  * makes hundreds per pixel. */
