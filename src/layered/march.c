@@ -341,7 +341,10 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
             out[count++] = (piece){lo, cut, (uint8_t)jl};
             tau_min += minf(m->st[jl][0], minf(m->st[jl][1], m->st[jl][2])) * (cut - lo);
             lo = cut;
-            jl = jb;
+            /* The layer just past the cut: a bracket that held two boundaries goes on with the
+             * layer between them, not the one at its end. */
+            const uint32_t jn = layer_at(r, cut + 1e-3f * (b - cut));
+            jl = jn != jl ? jn : jb;
         }
         out[count++] = (piece){lo, s, (uint8_t)jl};
         tau_min += minf(m->st[jl][0], minf(m->st[jl][1], m->st[jl][2])) * (s - lo);
