@@ -416,6 +416,54 @@ static void test_bad_input(void)
     nacre_scene_destroy(s);
 }
 
+/* Procedural depth maps: values in [0, 1], the fixed channels at 1, veins covering some but not
+ * most of the map, the same seed giving the same map and another seed another; a data PNG
+ * reads back to the values; the fish preset is the seed's table 1. */
+static void test_maps_and_fish(void)
+{
+    nacre_image a = {0}, b = {0}, c = {0};
+    CHECK(nacre_layer_map_generate(ctx, NACRE_LAYER_MAP_VEINS, 128, 7, &a) == NACRE_OK);
+    CHECK(nacre_layer_map_generate(ctx, NACRE_LAYER_MAP_VEINS, 128, 7, &b) == NACRE_OK);
+    CHECK(nacre_layer_map_generate(ctx, NACRE_LAYER_MAP_VEINS, 128, 8, &c) == NACRE_OK);
+    CHECK(a.channels == 4 && a.width == 128 && a.height == 128);
+    size_t n = (size_t)a.width * (size_t)a.height * 4, vein = 0, fixed_ok = 0, diff = 0;
+    for (size_t i = 0; i < n; i++) {
+        CHECK(a.pixels[i] >= 0.0f && a.pixels[i] <= 1.0f);
+        if (i % 4 == 1)
+            vein += a.pixels[i] > 0.5f;
+        else
+            fixed_ok += a.pixels[i] == 1.0f;
+        diff += a.pixels[i] != c.pixels[i];
+    }
+    CHECK(memcmp(a.pixels, b.pixels, n * sizeof(float)) == 0);
+    CHECK(diff > 0);
+    CHECK(fixed_ok == 3 * n / 4);
+    CHECK(vein > n / 4 / 100 && vein < n / 4 / 2);
+    CHECK(nacre_image_write_data(ctx, &a, NACRE_TEST_TMP "/veins.png") == NACRE_OK);
+    nacre_image back = {0};
+    CHECK(nacre_image_read_data(ctx, NACRE_TEST_TMP "/veins.png", &back) == NACRE_OK);
+    double worst = 0;
+    for (int32_t y = 0; back.pixels && y < 128; y++)
+        for (int32_t x = 0; x < 4 * 128; x++)
+            worst = fmax(worst, fabs(back.pixels[back.stride * (size_t)y + (size_t)x] - a.pixels[a.stride * (size_t)y + (size_t)x]));
+    CHECK(back.channels == 4 && worst <= 0.5 / 255 + 1e-6);
+    nacre_image_free(ctx, &back);
+    nacre_image_free(ctx, &a);
+    nacre_image_free(ctx, &b);
+    nacre_image_free(ctx, &c);
+    CHECK(nacre_layer_map_generate(ctx, NACRE_LAYER_MAP_CONSTANT, 16, 1, &a) == NACRE_OK);
+    for (size_t i = 0; a.pixels && i < 16 * 16 * 4; i++)
+        CHECK(a.pixels[i] == 1.0f);
+    nacre_image_free(ctx, &a);
+    CHECK(nacre_layer_map_generate(ctx, NACRE_LAYER_MAP_SPOTS, 4, 1, &a) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(nacre_context_last_error(ctx), "size") != NULL && a.pixels == NULL);
+    nacre_material_desc fish;
+    CHECK(nacre_material_preset("fish", &fish) && fish.layering.count == 2);
+    CHECK_NEAR(fish.layering.layers[1].sigma_a[0] + fish.layering.layers[1].sigma_s[0], 6.6, 1e-5);
+    CHECK_NEAR(fish.sigma_a[2] + fish.sigma_s[2], 2.5, 1e-5);
+    CHECK_NEAR(fish.layering.layers[0].g, 0.25, 1e-6);
+}
+
 int main(void)
 {
     CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
@@ -425,6 +473,7 @@ int main(void)
     test_convergence();
     test_planes_cached();
     test_bad_input();
+    test_maps_and_fish();
     nacre_context_destroy(ctx);
     return TEST_MAIN_END();
 }

@@ -32,8 +32,9 @@ static void print_main_help(FILE *f)
             "  compare A B           error metrics of image A against reference B\n"
             "  voxelize MESH         surface and solid voxelization, NRRD export\n"
             "  slab                  reflectance and transmittance of a slab (diffusion, pathtrace)\n"
-            "  bench NAME            benchmarks (medians): raster, voxelize, diffusion, pathtrace\n"
+            "  bench NAME            benchmarks (medians): raster, voxelize, diffusion, pathtrace, layered\n"
             "  view [SCENE.json]     interactive viewer: edit lights, materials, method; headless runs\n"
+            "  layers --kind K -o F  procedural depth map for layered materials (veins, spots, constant)\n"
             "\n"
             "  nacre <command> --help   options of a command\n"
             "  nacre --version          version\n"
@@ -811,6 +812,8 @@ int main(int argc, char **argv)
         return nc_cli_bench(argc - 2, argv + 2);
     if (strcmp(cmd, "view") == 0)
         return nc_cli_view(argc - 2, argv + 2);
+    if (strcmp(cmd, "layers") == 0)
+        return nc_cli_layers(argc - 2, argv + 2);
     fprintf(stderr, "nacre: unknown command '%s'\n", cmd);
     print_main_help(stderr);
     return EXIT_BAD;
