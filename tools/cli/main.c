@@ -367,9 +367,11 @@ static int cmd_render(int argc, char **argv)
     if (method_name)
         rs.method = method;
     if (!method_name && scene_path == NULL) {
-        /* The demo shows the best method this build has. */
+        /* The demo shows the best method this build has (not layered: its single scattering is
+         * for layered materials, and the demo has none). */
         for (int m = NACRE_METHOD_COUNT - 1; m >= 0; m--)
-            if (nacre_method_info_get((nacre_method)m, &info) && info.available && !info.stochastic) {
+            if (m != NACRE_METHOD_LAYERED && nacre_method_info_get((nacre_method)m, &info) && info.available &&
+                !info.stochastic) {
                 rs.method = (nacre_method)m;
                 break;
             }
