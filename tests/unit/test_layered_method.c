@@ -414,6 +414,23 @@ static void test_bad_input(void)
     CHECK(strstr(nacre_context_last_error(ctx), "layered_epsilon") != NULL);
     CHECK(img.pixels == NULL);
     nacre_scene_destroy(s);
+    /* Scene files: the render block's keys, read and range-checked with the field named. */
+    const char *good = "{\"render\": {\"method\": \"layered\", \"layered_samples\": 7, \"layered_epsilon\": 0.05,"
+                       " \"layered_integration\": \"samples\"}, \"objects\": []}";
+    nacre_scene_file_settings fs;
+    s = NULL;
+    CHECK(nacre_scene_load_json(ctx, good, strlen(good), "g.json", NULL, &s, &fs) == NACRE_OK);
+    CHECK(fs.render.method == NACRE_METHOD_LAYERED && fs.render.layered.samples == 7 &&
+          fabsf(fs.render.layered.epsilon - 0.05f) < 1e-7f && fs.render.layered.integration == NACRE_LAYERED_SAMPLES);
+    nacre_scene_destroy(s);
+    const char *bad[] = {"{\"render\": {\"layered_samples\": 0}}", "{\"render\": {\"layered_samples\": 5000}}",
+                         "{\"render\": {\"layered_epsilon\": 1}}", "{\"render\": {\"layered_integration\": \"simpson\"}}"};
+    const char *field[] = {"layered_samples", "layered_samples", "layered_epsilon", "layered_integration"};
+    for (int i = 0; i < 4; i++) {
+        s = NULL;
+        CHECK(nacre_scene_load_json(ctx, bad[i], strlen(bad[i]), "b.json", NULL, &s, &fs) != NACRE_OK);
+        CHECK(s == NULL && strstr(nacre_context_last_error(ctx), field[i]) != NULL);
+    }
 }
 
 /* Procedural depth maps: values in [0, 1], the fixed channels at 1, veins covering some but not
