@@ -37,7 +37,7 @@ static const char bench_help[] =
     "           (default 1)\n"
     "usage: nacre bench layered [--json] [--runs N] [--scene FILE]\n"
     "  layered  the layered method at 640x480 on FILE (default examples/layered.json): the cold\n"
-    "           frame per stage, then 10, 50, 100 steps of each integration while the light moves\n";
+    "           frame per stage, then 4, 10, 50, 100 steps of each integration while the light moves\n";
 
 
 
