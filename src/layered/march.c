@@ -379,10 +379,22 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
     r.len = m->depth_max / maxf(-dot3(pt->ns, r.d), 0.1f);
     const float t_out = (1.0f - nc_fresnel_dielectric_f(cos_o, eta, 1.0f / (eta * eta))) / (eta * eta);
 
+    /* A directional light behind both P's tangent plane and the fitted plane is behind every
+     * plane of eq. 9 (their normals are positive blends of the two): it lights no sample. */
+    uint32_t lit = 0;
+    for (uint32_t li = 0; li < light_count && li < 32; li++) {
+        const nacre_light_desc *l = lights[li].desc;
+        if (l->type != NACRE_LIGHT_DIRECTIONAL || dot3(pt->n, l->direction) < 0 || dot3(pt->ns, l->direction) < 0)
+            lit |= 1u << li;
+    }
+    if (!lit && light_count <= 32)
+        return;
     piece pieces[NC_MARCH_MAX_PIECES];
     const uint32_t np = make_pieces(&r, prm, pieces);
     for (uint32_t li = 0; li < light_count; li++) {
         const nacre_light_desc *l = lights[li].desc;
+        if (li < 32 && !(lit & (1u << li)))
+            continue;
         const float co = l->type == NACRE_LIGHT_SPOT ? cosf(l->outer_angle * NC_DEG2RAD) : 0.0f;
         const float ci = l->type == NACRE_LIGHT_SPOT ? cosf(l->inner_angle * NC_DEG2RAD) : 0.0f;
         /* Visibility at P and at the entry point of M_max's light. */
