@@ -38,5 +38,7 @@ int nc_bench_pathtrace(bool json, double seconds);
 /* Loading a mesh as a scene from PLY and from the same triangles as GLB (bench/bench_load.c);
  * NULL paths: lucy_1600k.ply / .glb from the mesh folders. */
 int nc_bench_load(bool json, int runs, const char *ply, const char *glb);
+/* The layered method at 640x480 on a scene file, cold and while the light moves (bench/bench_layered.c). */
+int nc_bench_layered(bool json, int runs, const char *scene_path);
 
 #endif /* NACRE_BENCH_H */

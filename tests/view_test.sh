@@ -48,7 +48,7 @@ check_bad "2 light 3 direction 0 -1 0" "the scene has 1 light"
 check_bad "2 material 9 g 0.2" "the scene has 3 materials"
 check_bad "2 material 0 g 1.5" "g: must be in"
 check_bad "2 material 0 preset unobtainium" "unknown material preset"
-check_bad "2 method layered" "not implemented"
+check_bad "2 method froxel" "expected phong, diffusion, layered or pathtrace"
 check_bad "9 orbit 1 1" "past the run's last frame"
 check_bad "3 key F13" "unknown key"
 

@@ -69,6 +69,10 @@ NACRE_API void nacre_image_free(nacre_context *ctx, nacre_image *image);
  * are written as +-65504 and a warning with their count goes to the context's log callback. */
 NACRE_API nacre_result nacre_image_write(nacre_context *ctx, const nacre_image *image,
                                          const char *path, const nacre_image_write_options *options);
+/* Write a data image (depth maps and other non-colour images) by extension: .png as value * 255
+ * in every channel (8 bits, clamped to [0, 1], no sRGB curve or exposure; nacre_image_read_data
+ * reads it back), .exr as linear float. As nacre_image_write otherwise. */
+NACRE_API nacre_result nacre_image_write_data(nacre_context *ctx, const nacre_image *image, const char *path);
 /* Pixels with a NaN or infinite channel; the first one (row-major) in *x, *y and its channel in
  * *c when there is one (any pointer may be NULL). 0 for a NULL image. */
 NACRE_API uint64_t nacre_image_count_nonfinite(const nacre_image *image, int32_t *x, int32_t *y, int32_t *c);

@@ -28,7 +28,7 @@ extern "C" {
 typedef enum nacre_method {
     NACRE_METHOD_PHONG = 0, /* ambient + Lambert + Blinn-Phong, shadow maps with PCF */
     NACRE_METHOD_DIFFUSION, /* Blanchard 2012 voxel diffusion */
-    NACRE_METHOD_LAYERED,   /* Francois et al. 2006 subsurface texture mapping (not yet) */
+    NACRE_METHOD_LAYERED,   /* Francois et al. 2006 subsurface texture mapping: single scattering */
     NACRE_METHOD_PATHTRACE, /* reference volumetric path tracer (Embree; see nacre render --help) */
     NACRE_METHOD_COUNT
 } nacre_method;
@@ -90,6 +90,26 @@ typedef struct nacre_diffusion_settings {
     uint32_t seed_iterations;        /* SEED: Jacobi sweeps per level, 0 = the seed's table 5.6 count */
 } nacre_diffusion_settings;
 
+/* How the layered method integrates single scattering along each refracted view ray. */
+typedef enum nacre_layered_integration {
+    NACRE_LAYERED_ANALYTIC = 0, /* samples steps, each cut at the layer boundaries it crosses; each
+                                   piece of constant coefficients integrated in closed form */
+    NACRE_LAYERED_SAMPLES       /* the seed's ray marching: one point sample per step */
+} nacre_layered_integration;
+
+/* "analytic", "samples"; false if unknown. */
+NACRE_API const char *nacre_layered_integration_name(nacre_layered_integration integration);
+NACRE_API bool nacre_layered_integration_from_name(const char *name, nacre_layered_integration *out);
+
+/* The layered method (Francois et al. 2006). */
+typedef struct nacre_layered_settings {
+    uint32_t samples;                      /* steps along each view ray, 1..4096, default 16 */
+    float epsilon;                         /* negligible attenuation, in (0, 1), default 0.01: the
+                                              radius -log(eps) / sigma_t of the fitted planes and
+                                              the depth where marching stops */
+    nacre_layered_integration integration; /* default ANALYTIC */
+} nacre_layered_settings;
+
 /* The path tracer. */
 typedef struct nacre_pathtrace_settings {
     uint32_t spp;                    /* samples per pixel this frame adds, default 64 */
@@ -111,6 +131,7 @@ typedef struct nacre_render_settings {
     nacre_shadow_settings shadow;       /* phong, diffusion */
     nacre_diffusion_settings diffusion; /* diffusion */
     nacre_pathtrace_settings pathtrace; /* pathtrace */
+    nacre_layered_settings layered;     /* layered */
     /* Raster methods (phong, diffusion): true promises that `out` holds, unchanged, the image this
      * renderer wrote in its previous frame (same pixels, size and stride), as in a viewer that
      * shows each frame and passes the buffer back. Pixels that were background then and still are
@@ -136,6 +157,10 @@ NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
  *   shade      every frame
  *   fog        every frame of a raster method when the scene has fog (the post pass over the
  *              image and depth: distance and height fog, see docs/scene-format.md "fog")
+ *   planes     layered, per translucent object: geometry, materials, layered.epsilon (the
+ *              least-squares planes and uv gradients of seed 001 section 2.2)
+ *   march      layered: every frame (single scattering along each translucent pixel's view ray;
+ *              runs before shade, which adds the surface layer)
  * The path tracer runs none of these; its frames restart or accumulate (pathtrace.accumulate). */
 #define NACRE_STAGE_LIST(X)                                                                    \
     X(NACRE_STAGE_SETUP, "setup")                                                              \
@@ -148,7 +173,9 @@ NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
     X(NACRE_STAGE_INJECT, "inject")                                                            \
     X(NACRE_STAGE_PROPAGATE, "propagate")                                                      \
     X(NACRE_STAGE_SHADE, "shade")                                                              \
-    X(NACRE_STAGE_FOG, "fog")
+    X(NACRE_STAGE_FOG, "fog")                                                                  \
+    X(NACRE_STAGE_PLANES, "planes")                                                            \
+    X(NACRE_STAGE_MARCH, "march")
 
 typedef enum nacre_stage {
 #define NACRE_STAGE_ENUM_(name, text) name,

@@ -94,6 +94,23 @@ typedef struct nacre_layering {
                                              at least `count` channels and a mesh with uvs */
 } nacre_layering;
 
+/* Procedural depth maps for layerings (what seed 001 paints by hand): RGBA, values in [0, 1].
+ * CONSTANT: every channel 1. VEINS: R 1, G branching veins of tapering width (1 on a vein's axis,
+ * a tube's profile to 0 at its edge, 0 elsewhere), B and A 1. SPOTS: as VEINS with round spots
+ * of random size in G. The same seed gives the same map; maps tile (uv repeats). */
+typedef enum nacre_layer_map_kind {
+    NACRE_LAYER_MAP_CONSTANT = 0,
+    NACRE_LAYER_MAP_VEINS,
+    NACRE_LAYER_MAP_SPOTS
+} nacre_layer_map_kind;
+
+/* "constant", "veins", "spots"; false if unknown. */
+NACRE_API bool nacre_layer_map_kind_from_name(const char *name, nacre_layer_map_kind *out);
+/* Allocate *out (size x size x 4, free with nacre_image_free) and draw the map; size 8..8192.
+ * Write it with nacre_image_write_data so that a PNG holds the values as they are. */
+NACRE_API nacre_result nacre_layer_map_generate(nacre_context *ctx, nacre_layer_map_kind kind, int32_t size,
+                                                uint32_t seed, nacre_image *out);
+
 /* The range of a material's relative index of refraction eta (and of a slab's, for the diffusion
  * method). The diffusion boundary uses the polynomial fit of the diffuse Fresnel reflectance Fdr
  * (Egan and Hilgeman) in A = (1 + Fdr) / (1 - Fdr): Fdr reaches 1 near eta 3.85 and 0.26, where A
@@ -122,7 +139,8 @@ NACRE_API nacre_material_desc nacre_material_desc_defaults(nacre_material_type t
 
 /* Look up a named measured material (Jensen et al. 2001: "marble", "skimmilk", "wholemilk",
  * "cream", "ketchup", "apple", "potato", "chicken", "skin1", "skin2"; Blanchard 2012:
- * "jade", "aquamarine"), coefficients per millimetre, eta 1.3 for Jensen's. The
+ * "jade", "aquamarine"; Francois et al. 2006 table 1: "fish", dermis and blood layers of 0.5 and
+ * 1.5 mm depth over the organs, eta 1.33), coefficients per millimetre, eta 1.3 for Jensen's. The
  * result is a translucent desc. Returns false if the name is unknown. */
 NACRE_API bool nacre_material_preset(const char *name, nacre_material_desc *out);
 

@@ -393,3 +393,15 @@ nacre_result nacre_image_compare(nacre_context *ctx, const nacre_image *test,
     out->nonzero_ref = nonzero;
     return lit_metrics(ctx, test, reference, out);
 }
+
+nacre_result nacre_image_write_data(nacre_context *ctx, const nacre_image *image, const char *path)
+{
+    if (!ctx)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    if (!path)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "image write: path is NULL");
+    if (format_of(path) == FORMAT_PNG)
+        return nc_image_write_png_ex(ctx, image, path, 0.0f, true);
+    const nacre_image_write_options opt = {0.0f, NACRE_EXR_FLOAT};
+    return nacre_image_write(ctx, image, path, &opt);
+}

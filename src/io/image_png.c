@@ -2,7 +2,9 @@
  * image_png.c: PNG through libspng. Writing: 8 bits per channel, sRGB-encoded with the piecewise
  * sRGB curve after scaling by 2^exposure, clamped to [0, 1] and rounded to nearest; 1 channel is
  * written as grey, 2 as grey + alpha, 3 as RGB, 4 as RGBA. Alpha is coverage, so it is stored
- * linearly and not exposure-scaled. An sRGB chunk marks the encoding.
+ * linearly and not exposure-scaled. An sRGB chunk marks the encoding. Data images (depth maps,
+ * nacre_image_write_data) are written as value * 255 in every channel, without the curve,
+ * the exposure or the chunk.
  *
  * Reading: any PNG colour type at 1..16 bits is expanded by libspng to RGBA (8 or 16 bits; palette
  * and tRNS transparency applied), colour channels are decoded from sRGB to linear floats and alpha
@@ -92,10 +94,15 @@ void nc_srgb8_table_build(nc_srgb8_table *tb)
 }
 
 static void encode_row(const nc_srgb8_table *tb, const float *src, int32_t width, int32_t channels, float scale,
-                       uint8_t *dst)
+                       bool data, uint8_t *dst)
 {
     /* Channels 1 and 3 are all colour; with 2 and 4 the last one is alpha. */
-    int32_t colour = (channels == 2 || channels == 4) ? channels - 1 : channels;
+    int32_t colour = data ? 0 : (channels == 2 || channels == 4) ? channels - 1 : channels;
+    if (data) {
+        for (int32_t i = 0; i < width * channels; i++)
+            dst[i] = quantize(src[i]);
+        return;
+    }
     for (int32_t x = 0; x < width; x++) {
         for (int32_t c = 0; c < colour; c++)
             dst[c] = nc_srgb8_encode(tb, src[c] * scale);
@@ -108,6 +115,12 @@ static void encode_row(const nc_srgb8_table *tb, const float *src, int32_t width
 
 nacre_result nc_image_write_png(nacre_context *ctx, const nacre_image *image,
                                    const char *path, float exposure)
+{
+    return nc_image_write_png_ex(ctx, image, path, exposure, false);
+}
+
+nacre_result nc_image_write_png_ex(nacre_context *ctx, const nacre_image *image, const char *path, float exposure,
+                                   bool data)
 {
     nacre_result r = nc_image_write_check(ctx, image, path);
     if (r != NACRE_OK)
@@ -149,7 +162,7 @@ nacre_result nc_image_write_png(nacre_context *ctx, const nacre_image *image,
     if (!e)
         e = spng_set_ihdr(enc, &ihdr);
     if (!e)
-        e = spng_set_srgb(enc, 0); /* rendering intent: perceptual */
+        e = data ? 0 : spng_set_srgb(enc, 0); /* rendering intent: perceptual */
     /* zlib level 6 with every filter tried cost ~150 ms at 1280x720; level 3 with the
      * Paeth/Up filters writes files a few percent larger several times faster. */
     if (!e)
@@ -160,7 +173,7 @@ nacre_result nc_image_write_png(nacre_context *ctx, const nacre_image *image,
         e = spng_encode_image(enc, NULL, 0, SPNG_FMT_PNG,
                               SPNG_ENCODE_PROGRESSIVE | SPNG_ENCODE_FINALIZE);
     for (int32_t y = 0; !e && y < image->height; y++) {
-        encode_row(table, image->pixels + (size_t)y * image->stride, image->width, image->channels, scale, row);
+        encode_row(table, image->pixels + (size_t)y * image->stride, image->width, image->channels, scale, data, row);
         e = spng_encode_row(enc, row, row_bytes);
         /* The last row reports end of image, with the file finalized. */
         if (e == SPNG_EOI && y == image->height - 1)

@@ -22,6 +22,9 @@
 nacre_result nc_image_check(nacre_context *ctx, const nacre_image *image, const char *what);
 /* The writers behind nacre_image_write, which picks one by the path's extension. */
 nacre_result nc_image_write_png(nacre_context *ctx, const nacre_image *image, const char *path, float exposure);
+/* data: values * 255 without the sRGB curve or exposure (nacre_image_write_data). */
+nacre_result nc_image_write_png_ex(nacre_context *ctx, const nacre_image *image, const char *path, float exposure,
+                                   bool data);
 nacre_result nc_image_write_exr(nacre_context *ctx, const nacre_image *image, const char *path, nacre_exr_pixel type);
 /* Argument checks every writer starts with: context, path and image. */
 nacre_result nc_image_write_check(nacre_context *ctx, const nacre_image *image, const char *path);

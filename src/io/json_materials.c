@@ -13,7 +13,7 @@
 /* Names accepted by nacre_material_preset (listed in nacre/scene.h); used for the error message. */
 static const char *const preset_names[] = {"apple", "chicken1", "chicken2", "cream", "ketchup",
                                            "marble", "potato", "skimmilk", "skin1", "skin2",
-                                           "wholemilk", "jade", "aquamarine"};
+                                           "wholemilk", "jade", "aquamarine", "fish"};
 
 /* A preset's coefficients per scene unit, or false after an error listing the valid names. */
 static bool preset_per_unit(loader *ld, const char *key, const char *name, nacre_material_desc *d)

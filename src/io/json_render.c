@@ -47,7 +47,8 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
     static const char *const keys[] = {"method", "width", "height", "exposure", "shadow_map_size",
                                        "pcf_radius", "shadow_bias", "spp", "seed", "time",
                                        "voxel_resolution", "tsm_size", "solver", "source",
-                                       "tolerance", "seed_iterations", "time_limit", "max_scatter"};
+                                       "tolerance", "seed_iterations", "time_limit", "max_scatter",
+                                       "layered_samples", "layered_epsilon", "layered_integration"};
     /* indexed by the enums' values */
     const char *const solvers[] = {nacre_solver_name(NACRE_SOLVER_MULTIGRID), nacre_solver_name(NACRE_SOLVER_SEED)};
     const char *const sources[] = {nacre_source_name(NACRE_SOURCE_VOLUME), nacre_source_name(NACRE_SOURCE_FACE)};
@@ -102,5 +103,15 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
     nc_json_get_double(ld, obj, "time_limit", R_NONNEG, &s->pathtrace.time_limit);
     if (nc_json_get_integer(ld, obj, "max_scatter", 0, UINT32_MAX, &v))
         s->pathtrace.max_scatter = (uint32_t)v;
+    /* The layered method (seed 001) */
+    if (nc_json_get_integer(ld, obj, "layered_samples", 1, 4096, &v))
+        s->layered.samples = (uint32_t)v;
+    static const range epsilon_range = {0.0, 1.0, true, true};
+    nc_json_get_number(ld, obj, "layered_epsilon", epsilon_range, &s->layered.epsilon);
+    const char *const integrations[] = {nacre_layered_integration_name(NACRE_LAYERED_ANALYTIC),
+                                        nacre_layered_integration_name(NACRE_LAYERED_SAMPLES)};
+    choice = nc_json_get_choice(ld, obj, "layered_integration", "integration", integrations, COUNT_OF(integrations));
+    if (choice >= 0)
+        s->layered.integration = (nacre_layered_integration)choice;
     nc_json_pop(ld, mark);
 }

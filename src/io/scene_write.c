@@ -438,6 +438,10 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
         {s->diffusion.tolerance > 0 && s->diffusion.tolerance < 1, "tolerance"},
         {s->diffusion.seed_iterations <= 1000000, "seed_iterations"},
         {s->pathtrace.time_limit >= 0 && s->pathtrace.time_limit <= FLT_MAX, "time_limit"},
+        {s->layered.samples >= 1 && s->layered.samples <= 4096, "layered_samples"},
+        {s->layered.epsilon > 0 && s->layered.epsilon < 1, "layered_epsilon"},
+        {s->layered.integration == NACRE_LAYERED_ANALYTIC || s->layered.integration == NACRE_LAYERED_SAMPLES,
+         "layered_integration"},
     };
     for (size_t i = 0; i < COUNT_OF(checks); i++)
         if (!checks[i].ok) {
@@ -468,6 +472,9 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
     add_uint(w, o, "seed", s->pathtrace.seed);
     add_double(w, o, "time_limit", s->pathtrace.time_limit);
     add_uint(w, o, "max_scatter", s->pathtrace.max_scatter);
+    add_uint(w, o, "layered_samples", s->layered.samples);
+    add_float(w, o, "layered_epsilon", s->layered.epsilon);
+    add_string(w, o, "layered_integration", nacre_layered_integration_name(s->layered.integration));
     return o;
 }
 

@@ -68,8 +68,7 @@ void nc_layers_init(const nacre_scene *scene, const nacre_layering *l, nc_layer_
     }
 }
 
-/* Bottoms of the layers (running maximum of depth * map) at texture coordinates (u, v). */
-static void layers_bottoms(const nc_layer_stack *s, float u, float v, float bottom[NACRE_MAX_LAYERS])
+void nc_layers_bottoms(const nc_layer_stack *s, float u, float v, float bottom[NACRE_MAX_LAYERS])
 {
     float run = 0;
     for (uint32_t j = 0; j < s->count; j++) {
@@ -89,7 +88,7 @@ uint32_t nc_layers_find(const nc_layer_stack *s, float d, float u, float v)
     if (j == s->count || d < s->lo[j])
         return j;
     float bottom[NACRE_MAX_LAYERS];
-    layers_bottoms(s, u, v, bottom);
+    nc_layers_bottoms(s, u, v, bottom);
     while (j < s->count && d >= bottom[j])
         j++;
     return j;

@@ -22,6 +22,8 @@ void nc_layers_init(const nacre_scene *scene, const nacre_layering *layering, nc
 /* The layer holding depth d below the surface point of texture coordinates (u, v): 0..count-1,
  * or count for the core. A point exactly on a boundary belongs to the deeper layer. */
 uint32_t nc_layers_find(const nc_layer_stack *stack, float d, float u, float v);
+/* Bottoms of the layers (running maximum of depth * map) at texture coordinates (u, v). */
+void nc_layers_bottoms(const nc_layer_stack *stack, float u, float v, float bottom[NACRE_MAX_LAYERS]);
 /* Bit j set when some uv puts some depth of [d0, d1] in layer j (bit count: the core). */
 uint32_t nc_layers_touching(const nc_layer_stack *stack, float d0, float d1);
 /* Bilinear lookup (repeat) of channel c of a texture at (u, v), see nacre_scene_add_texture. */

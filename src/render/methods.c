@@ -7,19 +7,6 @@
 
 #include <string.h>
 
-static bool not_implemented(void) { return false; }
-
-/* Seed 001's real-time method: a row with no implementation yet, so that its name parses and
- * asking for it says "not implemented" instead of "unknown method". */
-const nc_method nc_method_layered = {
-    .name = "layered",
-    .id = NACRE_METHOD_LAYERED,
-    .available = not_implemented,
-    .needs_objects = true,
-    .uses_raster = true,
-    .stages = NC_RASTER_STAGES,
-};
-
 static const nc_method *const methods[NACRE_METHOD_COUNT] = {
     [NACRE_METHOD_PHONG] = &nc_method_phong,
     [NACRE_METHOD_DIFFUSION] = &nc_method_diffusion,

@@ -23,6 +23,9 @@ nacre_render_settings nacre_render_settings_defaults(void)
     s.diffusion.solver = NACRE_SOLVER_MULTIGRID;
     s.diffusion.source = NACRE_SOURCE_VOLUME;
     s.diffusion.tolerance = 1e-4f;
+    s.layered.samples = 16;
+    s.layered.epsilon = 0.01f;
+    s.layered.integration = NACRE_LAYERED_ANALYTIC;
     return s;
 }
 
@@ -60,6 +63,21 @@ bool nacre_source_from_name(const char *name, nacre_diffusion_source *out)
     int i = name_index(name, source_names, 2);
     if (i >= 0)
         *out = (nacre_diffusion_source)i;
+    return i >= 0;
+}
+
+static const char *const integration_names[] = {"analytic", "samples"};
+
+const char *nacre_layered_integration_name(nacre_layered_integration integration)
+{
+    return (unsigned)integration < 2 ? integration_names[integration] : "unknown";
+}
+
+bool nacre_layered_integration_from_name(const char *name, nacre_layered_integration *out)
+{
+    int i = name_index(name, integration_names, 2);
+    if (i >= 0)
+        *out = (nacre_layered_integration)i;
     return i >= 0;
 }
 

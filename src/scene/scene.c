@@ -89,6 +89,36 @@ bool nacre_material_preset(const char *name, nacre_material_desc *out)
         out->eta = presets[i].eta;
         return true;
     }
+    if (strcmp(name, "fish") == 0) {
+        /* Francois et al. 2006 (seed 001), table 1, sigma in mm^-1 (R, G, B): dermis and blood
+         * layers over the organs (the core); sigma_a = sigma_t - sigma_s. The seed gives the
+         * layers' depths only as its hand-painted texture: 0.5 mm of dermis and blood down to
+         * 1.5 mm here, meant to be scaled by a depth map (`nacre layers --kind veins`). */
+        static const float ss[3][3] = {{2.0f, 1.0f, 1.0f}, {6.0f, 3.0f, 2.0f}, {1.0f, 1.0f, 2.0f}};
+        static const float st[3][3] = {{2.6f, 1.6f, 1.6f}, {6.6f, 3.6f, 2.6f}, {1.5f, 1.5f, 2.5f}};
+        static const float g[3] = {0.25f, 0.40f, 0.80f}, depth[2] = {0.5f, 1.5f};
+        memset(out, 0, sizeof(*out));
+        out->type = NACRE_MATERIAL_TRANSLUCENT;
+        for (int c = 0; c < 3; c++) {
+            out->sigma_s[c] = ss[2][c];
+            out->sigma_a[c] = st[2][c] - ss[2][c];
+            out->specular[c] = 0.04f;
+            out->diffuse[c] = 0.8f;
+            for (int j = 0; j < 2; j++) {
+                out->layering.layers[j].sigma_s[c] = ss[j][c];
+                out->layering.layers[j].sigma_a[c] = st[j][c] - ss[j][c];
+            }
+        }
+        for (int j = 0; j < 2; j++) {
+            out->layering.layers[j].g = g[j];
+            out->layering.layers[j].depth = depth[j];
+        }
+        out->layering.count = 2;
+        out->shininess = 128.0f;
+        out->g = g[2];
+        out->eta = 1.33f;
+        return true;
+    }
     return false;
 }
 

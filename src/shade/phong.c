@@ -338,6 +338,7 @@ static void shade_run(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
     nc_shade_batch b;
     float acc[3][NC_SHADE_BATCH];
     b.count = count;
+    b.first = first;
     /* The batch's arrays are written 8 whole lanes at a time, the padding lanes included (see
      * nc_shade_batch): the kernels read them as vectors, and a vector load of lanes just written
      * one float at a time waits for those stores (no store forwarding), a stall per array and

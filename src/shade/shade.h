@@ -22,6 +22,7 @@ typedef struct nc_shade_light {
 
 typedef struct nc_shade_batch {
     uint32_t count;                     /* pixels in use, 1..NC_SHADE_BATCH */
+    size_t first;                       /* G-buffer index of lane 0 (lanes are consecutive pixels) */
     float px[NC_SHADE_BATCH], py[NC_SHADE_BATCH], pz[NC_SHADE_BATCH]; /* world position */
     float nx[NC_SHADE_BATCH], ny[NC_SHADE_BATCH], nz[NC_SHADE_BATCH]; /* unit shading normal */
     float vx[NC_SHADE_BATCH], vy[NC_SHADE_BATCH], vz[NC_SHADE_BATCH]; /* unit direction to the eye */

@@ -115,11 +115,21 @@ static void test_render_errors(void)
     CHECK(strstr(err, "pixels") != NULL);
     snprintf(args, sizeof(args), "render -o %s/out.bmp", TMP);
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
-    /* Known but not implemented method: a clear error, not a fake image. */
-    snprintf(args, sizeof(args), "render --method layered -o %s", outpng);
+    /* The layered method's options out of range: exit 2, nothing written. */
+    snprintf(args, sizeof(args), "render --method layered --samples 0 -o %s", outpng);
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
-    CHECK(strstr(err, "not implemented") != NULL);
+    CHECK(strstr(err, "--samples") != NULL);
+    snprintf(args, sizeof(args), "render --method layered --epsilon 1 -o %s", outpng);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
+    snprintf(args, sizeof(args), "render --method layered --integration simpson -o %s", outpng);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 2);
     CHECK(!exists(outpng));
+    /* and the layered example renders with it */
+    snprintf(args, sizeof(args), "render %s/examples/layered.json --method layered --size 40x30 --samples 4 -o %s",
+             NACRE_SOURCE_DIR, outpng);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    CHECK(exists(outpng));
+    remove(outpng);
     /* A layered material under a method that has no layers yet: the same. */
     snprintf(args, sizeof(args), "render %s/examples/layered.json --method diffusion -o %s", NACRE_SOURCE_DIR, outpng);
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) != 0);

@@ -193,10 +193,12 @@ static void test_shadow_and_caches(void)
     CHECK(nacre_renderer_render(r, f.scene, &rs, &img, &st) == NACRE_OK);
     CHECK(st.stage_ran[NACRE_STAGE_RASTER] && st.shadow_maps == 1);
 
-    /* Unimplemented and invalid settings. */
+    /* Invalid settings. */
     rs.method = NACRE_METHOD_LAYERED;
-    CHECK(nacre_renderer_render(r, f.scene, &rs, &img, &st) == NACRE_ERROR_UNSUPPORTED);
-    CHECK(strstr(nacre_context_last_error(f.ctx), "layered") != NULL);
+    rs.layered.samples = 0;
+    CHECK(nacre_renderer_render(r, f.scene, &rs, &img, &st) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(nacre_context_last_error(f.ctx), "layered_samples") != NULL);
+    rs.layered.samples = 16;
     rs.method = NACRE_METHOD_PHONG;
     rs.width = 0;
     CHECK(nacre_renderer_render(r, f.scene, &rs, &img, &st) == NACRE_ERROR_INVALID_ARGUMENT);

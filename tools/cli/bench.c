@@ -37,12 +37,10 @@ static const char bench_help[] =
     "           (default 1)\n"
     "usage: nacre bench load [--json] [--runs N] [--mesh PLY] [--glb GLB]\n"
     "  load     lucy_1600k.ply as a scene, and the same triangles from a .glb (nacre_scene_load_gltf;\n"
-    "           make it with scripts/ply_to_glb.py), medians and their ratio (target <= 1.5)\n";
-
-
-
-
-
+    "           make it with scripts/ply_to_glb.py), medians and their ratio (target <= 1.5)\n"
+    "usage: nacre bench layered [--json] [--runs N] [--scene FILE]\n"
+    "  layered  the layered method at 640x480 on FILE (default examples/layered.json): the cold\n"
+    "           frame per stage, then 4, 10, 50, 100 steps of each integration while the light moves\n";
 
 int nc_cli_bench(int argc, char **argv)
 {
@@ -52,11 +50,13 @@ int nc_cli_bench(int argc, char **argv)
     if (nc_tool_common_flag("bench", argv[0], bench_help, &code))
         return code;
     bool voxelize = strcmp(argv[0], "voxelize") == 0, diffusion = strcmp(argv[0], "diffusion") == 0;
-    bool pathtrace = strcmp(argv[0], "pathtrace") == 0;
+    bool pathtrace = strcmp(argv[0], "pathtrace") == 0, layered = strcmp(argv[0], "layered") == 0;
     bool load = strcmp(argv[0], "load") == 0;
     const char *load_ply = NULL, *load_glb = NULL;
-    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace && !load)
-        return nc_tool_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace, load)", argv[0]);
+    const char *layered_scene = "examples/layered.json";
+    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace && !load && !layered)
+        return nc_tool_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace, load, layered)",
+                             argv[0]);
     bool json = false;
     long runs = pathtrace ? 1 : 15, res_only = 0;
     nc_bench_filter filter = {NULL, 0};
@@ -79,6 +79,8 @@ int nc_cli_bench(int argc, char **argv)
             load_ply = argv[++i];
         else if (load && strcmp(argv[i], "--glb") == 0 && i + 1 < argc)
             load_glb = argv[++i];
+        else if (layered && strcmp(argv[i], "--scene") == 0 && i + 1 < argc)
+            layered_scene = argv[++i];
         else if (!voxelize && strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
             i++; /* read by nc_bench_raster */
         else
@@ -98,6 +100,8 @@ int nc_cli_bench(int argc, char **argv)
         return nc_bench_pathtrace(json, 30.0 * (double)runs);
     if (load)
         return nc_bench_load(json, (int)runs, load_ply, load_glb);
+    if (layered)
+        return nc_bench_layered(json, (int)runs, layered_scene);
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;

@@ -13,5 +13,7 @@ int nc_cli_slab(int argc, char **argv);
 int nc_cli_bench(int argc, char **argv);
 /* `nacre view ...` (tools/view/view_main.c; tools/view/view_stub.c in a build without SDL2). */
 int nc_cli_view(int argc, char **argv);
+/* `nacre layers ...` (tools/cli/layers.c): procedural depth maps. */
+int nc_cli_layers(int argc, char **argv);
 
 #endif /* NACRE_CLI_H */

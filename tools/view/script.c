@@ -12,7 +12,7 @@
  *   FRAME light I strength R G B   light I: irradiance or intensity
  *   FRAME material M preset NAME   material M (0-based): a measured preset (jade, marble, ...)
  *   FRAME material M FIELD VALUE   FIELD: sigma_a_scale, sigma_s_scale, g, eta
- *   FRAME method NAME              phong, diffusion, layered (refused: not implemented), pathtrace
+ *   FRAME method NAME              phong, diffusion, layered, pathtrace
  *   FRAME voxel_res N              diffusion voxel resolution (2..512)
  *   FRAME solver NAME              multigrid, seed
  *   FRAME exposure EV              display and PNG exposure (stops)

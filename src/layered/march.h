@@ -1,0 +1,51 @@
+/*
+ * march.h: single scattering below one visible point of a layered translucent material (seed
+ * 001, Francois et al. 2006, algorithms 1 and 2), for the layered render method. See march.c.
+ */
+#ifndef NACRE_LAYERED_MARCH_H
+#define NACRE_LAYERED_MARCH_H
+
+#include "layered/layers.h"
+#include "shade/shade.h"
+
+/* A material as the march sees it: layers 0..count-1 from the surface in, then the core. */
+typedef struct nc_layer_medium {
+    uint32_t count;
+    float st[NACRE_MAX_LAYERS + 1][3]; /* sigma_t per scene unit */
+    float ss[NACRE_MAX_LAYERS + 1][3]; /* sigma_s per scene unit */
+    float g[NACRE_MAX_LAYERS + 1];
+    float eta;                         /* n inside / n outside */
+    float depth_max;                   /* Depth_max of eq. 15: optical depth -log(eps) for every channel */
+    nc_layer_stack stack;
+} nc_layer_medium;
+
+/* Resolve a translucent material (its pattern is replaced by its first medium). */
+void nc_layer_medium_init(const nacre_scene *scene, const nacre_material_desc *m, float epsilon,
+                          nc_layer_medium *out);
+/* The smallest sigma_t of the first medium below the surface (eq. 7): the planes' radius is
+ * -log(eps) over it. */
+float nc_layer_medium_first_sigma_t(const nc_layer_medium *m);
+
+/* One visible point: everything in world space. */
+typedef struct nc_march_point {
+    float p[3];      /* P */
+    float n[3];      /* unit shading normal at P, outwards (on the viewer's side) */
+    float ns[3];     /* unit normal of the interpolated fitted plane (N_SP) */
+    float ps[3];     /* a point of that plane */
+    float v[3];      /* unit direction from P to the eye */
+    float uv[2];     /* texture coordinates of P */
+    float gu[3], gv[3]; /* world gradients of u and v at P (0 without uvs) */
+} nc_march_point;
+
+typedef struct nc_march_params {
+    uint32_t samples;
+    bool analytic;
+    float pcf_radius, shadow_bias;
+} nc_march_params;
+
+/* Radiance leaving P towards the eye from light scattered once below the surface (Fresnel at
+ * entry and exit included), summed over the lights, into rgb[3]. Thread-safe. */
+void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, const nc_shade_light *lights,
+                         uint32_t light_count, const nc_march_params *prm, float rgb[3]);
+
+#endif /* NACRE_LAYERED_MARCH_H */

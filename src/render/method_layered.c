@@ -1,0 +1,303 @@
+/*
+ * method_layered.c: `--method layered`, real-time single scattering in layered translucent
+ * materials after Francois, Pattanaik, Bouatouch and Breton 2006, "Subsurface texture mapping"
+ * (seed 001), over the shared raster frame.
+ *
+ * Stages: the raster frame (G-buffer with position, normal, uv and triangle per pixel; shadow
+ * maps), then per translucent object the least-squares planes and uv gradients (layered/planes.c,
+ * stage "planes", cached against the scene's geometry and materials versions and epsilon), then
+ * per translucent pixel the ray march (layered/march.c, stage "march"), and last the phong pass
+ * with the march's radiance in place of the Lambert term: ambient and the Blinn-Phong glossy
+ * layer stay on top, as the seed's surface layer (section 3). A translucent material without
+ * layers is one layer, the core, so every scene renders. The material's pattern is not read:
+ * the core is its first medium.
+ */
+#include "layered/march.h"
+#include "layered/planes.h"
+#include "render/method.h"
+
+#include <math.h>
+#include <string.h>
+
+typedef struct layered_object {
+    bool valid;
+    uint64_t scene_uid, geometry, materials;
+    float epsilon;
+    nc_layer_planes planes;
+} layered_object;
+
+typedef struct layered_state {
+    nacre_context *ctx;
+    layered_object *objects;
+    uint32_t object_capacity;
+    nc_layer_medium *media; /* per material (translucent ones used) */
+    uint32_t media_capacity;
+    uint8_t *subsurface;    /* per object: rendered by the march */
+    float *radiance;        /* 3 per pixel of the G-buffer, translucent pixels only */
+    size_t radiance_pixels;
+} layered_state;
+
+static nacre_result layered_check(nacre_context *ctx, const nacre_render_settings *s)
+{
+    if (s->layered.samples < 1 || s->layered.samples > 4096)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: layered_samples: %u is not in 1..4096",
+                       s->layered.samples);
+    if (!(s->layered.epsilon > 0.0f && s->layered.epsilon < 1.0f))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: layered_epsilon: %g is not in (0, 1)",
+                       (double)s->layered.epsilon);
+    if (s->layered.integration != NACRE_LAYERED_ANALYTIC && s->layered.integration != NACRE_LAYERED_SAMPLES)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: layered_integration: unknown (%d)",
+                       (int)s->layered.integration);
+    return NACRE_OK;
+}
+
+static nacre_result layered_create(nacre_context *ctx, void **state)
+{
+    layered_state *st = nc_calloc(ctx, 1, sizeof(*st));
+    *state = st;
+    if (!st)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    st->ctx = ctx;
+    return NACRE_OK;
+}
+
+static void layered_destroy(nacre_context *ctx, void *state)
+{
+    layered_state *st = state;
+    if (!st)
+        return;
+    for (uint32_t i = 0; i < st->object_capacity; i++)
+        nc_layer_planes_free(ctx, &st->objects[i].planes);
+    nc_free(ctx, st->objects);
+    nc_free(ctx, st->media);
+    nc_free(ctx, st->subsurface);
+    nc_free(ctx, st->radiance);
+    nc_free(ctx, st);
+}
+
+static nacre_result ensure_capacity(layered_state *st, const nacre_scene *s, size_t pixels)
+{
+    nacre_context *ctx = st->ctx;
+    if (s->object_count > st->object_capacity) {
+        layered_object *o = nc_calloc(ctx, s->object_count, sizeof(*o));
+        uint8_t *sub = nc_calloc(ctx, s->object_count, 1);
+        if (!o || !sub) {
+            nc_free(ctx, o);
+            nc_free(ctx, sub);
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        }
+        if (st->objects)
+            memcpy(o, st->objects, st->object_capacity * sizeof(*o));
+        nc_free(ctx, st->objects);
+        nc_free(ctx, st->subsurface);
+        st->objects = o;
+        st->subsurface = sub;
+        st->object_capacity = s->object_count;
+    }
+    if (s->material_count > st->media_capacity) {
+        nc_free(ctx, st->media);
+        st->media_capacity = 0;
+        if (!(st->media = nc_calloc(ctx, s->material_count, sizeof(*st->media))))
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        st->media_capacity = s->material_count;
+    }
+    if (pixels != st->radiance_pixels) {
+        nc_free(ctx, st->radiance);
+        st->radiance_pixels = 0;
+        if (!(st->radiance = nc_alloc(ctx, pixels * 3 * sizeof(float))))
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        st->radiance_pixels = pixels;
+    }
+    return NACRE_OK;
+}
+
+/* The planes of each translucent object, rebuilt when its geometry, the materials or epsilon
+ * changed. */
+static nacre_result update_planes(layered_state *st, const nacre_scene *s, float epsilon, nacre_render_stats *stats)
+{
+    uint64_t t0 = nc_now_us();
+    uint32_t runs = 0;
+    for (uint32_t i = 0; i < s->object_count; i++) {
+        if (!st->subsurface[i])
+            continue;
+        const nc_object_rec *o = &s->objects[i];
+        layered_object *lo = &st->objects[i];
+        if (lo->valid && lo->scene_uid == s->uid && lo->geometry == s->versions.geometry &&
+            lo->materials == s->versions.materials && lo->epsilon == epsilon)
+            continue;
+        lo->valid = false;
+        const nacre_mesh_data *mesh = &s->meshes[o->desc.mesh.id - 1].data;
+        const nc_layer_medium *med = &st->media[o->desc.material.id - 1];
+        /* Eq. 8; capped at half the object's size, beyond which a plane fits nothing */
+        float ext = 0;
+        for (int k = 0; k < 3; k++)
+            ext = fmaxf(ext, o->bounds_max[k] - o->bounds_min[k]);
+        float st_first = nc_layer_medium_first_sigma_t(med);
+        float radius = st_first > 0 ? -logf(epsilon) / st_first : INFINITY;
+        radius = fminf(radius, 0.5f * fmaxf(ext, 1e-6f));
+        nacre_result res = nc_layer_planes_build(st->ctx, o->world_positions, o->world_normals, mesh->uvs,
+                                                 mesh->indices, mesh->vertex_count, mesh->triangle_count, radius,
+                                                 &lo->planes);
+        if (res != NACRE_OK)
+            return res;
+        lo->valid = true;
+        lo->scene_uid = s->uid;
+        lo->geometry = s->versions.geometry;
+        lo->materials = s->versions.materials;
+        lo->epsilon = epsilon;
+        runs++;
+    }
+    stats->stage_us[NACRE_STAGE_PLANES] += nc_now_us() - t0;
+    stats->stage_ran[NACRE_STAGE_PLANES] = runs > 0;
+    stats->stage_runs[NACRE_STAGE_PLANES] = runs;
+    return NACRE_OK;
+}
+
+/* The march point of G-buffer pixel i (an object with planes). */
+static void march_point(const nacre_scene *s, const nc_gbuffer *gb, const layered_object *lo, size_t i,
+                        const nc_shade_params *sp, nc_march_point *pt)
+{
+    const nc_object_rec *o = &s->objects[gb->object[i]];
+    const nacre_mesh_data *mesh = &s->meshes[o->desc.mesh.id - 1].data;
+    const uint32_t tri = gb->triangle[i];
+    memcpy(pt->p, gb->position + 3 * i, sizeof(pt->p));
+    memcpy(pt->n, gb->normal + 3 * i, sizeof(pt->n));
+    memcpy(pt->uv, gb->uv + 2 * i, sizeof(pt->uv));
+    if (sp->orthographic) {
+        pt->v[0] = -sp->view_dir.x, pt->v[1] = -sp->view_dir.y, pt->v[2] = -sp->view_dir.z;
+    } else {
+        float d[3] = {sp->eye.x - pt->p[0], sp->eye.y - pt->p[1], sp->eye.z - pt->p[2]};
+        float l = sqrtf(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+        for (int k = 0; k < 3; k++)
+            pt->v[k] = l > 0 ? d[k] / l : pt->n[k];
+    }
+    const uint32_t *t = mesh->indices + 3 * (size_t)tri;
+    const float *a = o->world_positions + 3 * (size_t)t[0], *b = o->world_positions + 3 * (size_t)t[1],
+                *c = o->world_positions + 3 * (size_t)t[2];
+    /* Barycentrics of P: the fitted planes are interpolated as the seed's vertex attributes. */
+    float e0[3], e1[3], e2[3];
+    for (int k = 0; k < 3; k++)
+        e0[k] = b[k] - a[k], e1[k] = c[k] - a[k], e2[k] = pt->p[k] - a[k];
+    float d00 = e0[0] * e0[0] + e0[1] * e0[1] + e0[2] * e0[2], d01 = e0[0] * e1[0] + e0[1] * e1[1] + e0[2] * e1[2];
+    float d11 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2], d20 = e2[0] * e0[0] + e2[1] * e0[1] + e2[2] * e0[2];
+    float d21 = e2[0] * e1[0] + e2[1] * e1[1] + e2[2] * e1[2];
+    float den = d00 * d11 - d01 * d01;
+    float w1 = den != 0 ? (d11 * d20 - d01 * d21) / den : 0, w2 = den != 0 ? (d00 * d21 - d01 * d20) / den : 0;
+    float w[3] = {1 - w1 - w2, w1, w2};
+    float ns[3] = {0, 0, 0}, ps[3] = {0, 0, 0};
+    for (int v = 0; v < 3; v++)
+        for (int k = 0; k < 3; k++) {
+            ns[k] += w[v] * lo->planes.plane_n[3 * (size_t)t[v] + k];
+            ps[k] += w[v] * lo->planes.plane_p[3 * (size_t)t[v] + k];
+        }
+    float nn = sqrtf(ns[0] * ns[0] + ns[1] * ns[1] + ns[2] * ns[2]);
+    float along = nn > 0 ? (ns[0] * pt->n[0] + ns[1] * pt->n[1] + ns[2] * pt->n[2]) / nn : 0;
+    if (along > 0.2f) {
+        for (int k = 0; k < 3; k++)
+            pt->ns[k] = ns[k] / nn, pt->ps[k] = ps[k];
+    } else { /* seen from the back side, or a fold: the tangent plane */
+        memcpy(pt->ns, pt->n, sizeof(pt->ns));
+        memcpy(pt->ps, pt->p, sizeof(pt->ps));
+    }
+    if (lo->planes.grad_uv) {
+        memcpy(pt->gu, lo->planes.grad_uv + 6 * (size_t)tri, sizeof(pt->gu));
+        memcpy(pt->gv, lo->planes.grad_uv + 6 * (size_t)tri + 3, sizeof(pt->gv));
+    } else {
+        memset(pt->gu, 0, sizeof(pt->gu));
+        memset(pt->gv, 0, sizeof(pt->gv));
+    }
+}
+
+static void march(layered_state *st, const nacre_scene *s, const nc_raster_frame *rf,
+                  const nacre_render_settings *settings, const nc_shade_params *sp, nacre_render_stats *stats)
+{
+    uint64_t t0 = nc_now_us();
+    const nc_gbuffer *gb = &rf->gbuffer;
+    const nc_march_params prm = {.samples = settings->layered.samples,
+                                 .analytic = settings->layered.integration == NACRE_LAYERED_ANALYTIC,
+                                 .pcf_radius = settings->shadow.pcf_radius,
+                                 .shadow_bias = settings->shadow.bias};
+    const int32_t w = gb->width, h = gb->height;
+#pragma omp parallel for schedule(dynamic, 2) num_threads(nc_threads(st->ctx))
+    for (int32_t y = 0; y < h; y++) {
+        int32_t x0 = gb->row_span ? gb->row_span[2 * y] : 0, x1 = gb->row_span ? gb->row_span[2 * y + 1] : w;
+        for (int32_t x = x0; x < x1; x++) {
+            size_t i = (size_t)y * (size_t)w + (size_t)x;
+            uint32_t o = gb->object[i];
+            if (o == NC_NO_OBJECT || !st->subsurface[o])
+                continue;
+            nc_march_point pt;
+            march_point(s, gb, &st->objects[o], i, sp, &pt);
+            const nc_layer_medium *m = &st->media[s->objects[o].desc.material.id - 1];
+            nc_layered_radiance(m, &pt, rf->shade_lights, s->light_count, &prm, st->radiance + 3 * i);
+        }
+    }
+    stats->stage_us[NACRE_STAGE_MARCH] += nc_now_us() - t0;
+    stats->stage_ran[NACRE_STAGE_MARCH] = true;
+    stats->stage_runs[NACRE_STAGE_MARCH] = 1;
+}
+
+/* The shading pass's hook: the march's radiance in place of Lambert. */
+static void layered_subsurface(const void *user, uint32_t object, const nc_shade_batch *b,
+                               float out[3][NC_SHADE_BATCH])
+{
+    (void)object;
+    const layered_state *st = user;
+    const float *r = st->radiance + 3 * b->first;
+    const uint32_t padded = (b->count + 7u) & ~7u;
+    for (uint32_t i = 0; i < padded; i++)
+        for (int c = 0; c < 3; c++)
+            out[c][i] = i < b->count ? r[3 * i + c] : 0.0f;
+}
+
+static nacre_result layered_render(void *state, nc_frame *f)
+{
+    layered_state *st = state;
+    const nacre_scene *s = f->scene;
+    nacre_result res;
+    for (uint32_t i = 0; i < s->object_count; i++) {
+        const nacre_material_desc *m = nc_scene_material(s, s->objects[i].desc.material);
+        const nacre_mesh_data *mesh = &s->meshes[s->objects[i].desc.mesh.id - 1].data;
+        if (m && m->type == NACRE_MATERIAL_TRANSLUCENT && m->layering.count > 0 && !mesh->uvs)
+            return nc_fail(f->ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                           "render: object '%s' has a layered material but its mesh has no texture coordinates "
+                           "(the layered method needs uvs for its tangent frames)",
+                           s->objects[i].name ? s->objects[i].name : "(unnamed)");
+    }
+    if ((res = nc_raster_frame_prepare(f->raster, s, f->settings, f->stats)) != NACRE_OK)
+        return res;
+    const nc_gbuffer *gb = &f->raster->gbuffer;
+    if ((res = ensure_capacity(st, s, (size_t)gb->width * (size_t)gb->height)) != NACRE_OK)
+        return res;
+    for (uint32_t i = 0; i < s->material_count; i++)
+        if (s->materials[i].type == NACRE_MATERIAL_TRANSLUCENT)
+            nc_layer_medium_init(s, &s->materials[i], f->settings->layered.epsilon, &st->media[i]);
+    for (uint32_t i = 0; i < s->object_count; i++) {
+        const nacre_material_desc *m = nc_scene_material(s, s->objects[i].desc.material);
+        st->subsurface[i] = m && m->type == NACRE_MATERIAL_TRANSLUCENT;
+    }
+    if ((res = update_planes(st, s, f->settings->layered.epsilon, f->stats)) != NACRE_OK)
+        return res;
+    nc_shade_params params;
+    nc_raster_frame_shade_params(f->raster, f->settings, &params);
+    march(st, s, f->raster, f->settings, &params, f->stats);
+    params.subsurface_object = st->subsurface;
+    params.subsurface = layered_subsurface;
+    params.subsurface_user = st;
+    if ((res = nc_raster_frame_shade(f->raster, s, &params, f->out, f->reuse, f->stats)) != NACRE_OK)
+        return res;
+    f->depth = gb->view_depth;
+    return NACRE_OK;
+}
+
+const nc_method nc_method_layered = {
+    .name = "layered",
+    .id = NACRE_METHOD_LAYERED,
+    .needs_objects = true,
+    .uses_raster = true,
+    .stages = NC_RASTER_STAGES | (1u << NACRE_STAGE_PLANES) | (1u << NACRE_STAGE_MARCH),
+    .check = layered_check,
+    .create = layered_create,
+    .render = layered_render,
+    .destroy = layered_destroy,
+};

@@ -1,0 +1,496 @@
+/*
+ * test_layered_method.c: `--method layered` (seed 001) on a flat slab, where the seed's planar
+ * approximations are exact: the rendered radiance against a fine midpoint quadrature (in double)
+ * of the single-scattering integral through two layers and a core, with Fresnel at entry and
+ * exit, for both integrations; one layer of constant thickness against its closed form; the
+ * seed's point sampling converging as N grows (10 .. 200) and the analytic pieces reaching the
+ * 200-sample image with few steps on a slab with the vein depth map; the planes stage cached
+ * across light and camera edits; bad input (a layered mesh without uvs, samples and epsilon out
+ * of range) refused with messages naming the object or the field.
+ */
+#include "test_util.h"
+
+#include <nacre/nacre.h>
+
+static nacre_context *ctx;
+
+/* The slab: a box whose top face (y = 20) the orthographic camera sees, lit by a directional
+ * light; no environment and no specular, so the image is the single scattering alone. */
+static const char *sun_radius = "0"; /* degrees; the path tracer needs a sun of some size */
+
+static const char *slab_json(char *buf, size_t size, const char *layers, const char *extra_material)
+{
+    snprintf(buf, size,
+             "{\"units\": \"mm\","
+             " \"camera\": {\"type\": \"orthographic\", \"position\": [0, 80, 30], \"target\": [0, 20, 0],"
+             "   \"height\": 8},"
+             " \"environment\": [0, 0, 0],"
+             " \"materials\": {\"m\": {\"type\": \"translucent\", \"sigma_a\": [0.02, 0.1, 0.3],"
+             "   \"sigma_s\": [1.0, 0.8, 0.6], \"g\": 0.3, \"eta\": 1.4, \"specular\": 0, %s"
+             "   \"layers\": %s}},"
+             " \"lights\": [{\"type\": \"directional\", \"direction\": [-0.4, -1, -0.3], \"irradiance\": [2, 2, 2],"
+             "   \"angular_radius\": %s}],"
+             " \"objects\": [{\"name\": \"slab\", \"shape\": {\"type\": \"box\", \"size\": [80, 40, 80]},"
+             "   \"material\": \"m\"}]}",
+             extra_material, layers, sun_radius);
+    return buf;
+}
+
+typedef struct medium1 {
+    double st[3], ss[3], g;
+} medium1;
+
+static double hg(double c, double g)
+{
+    double d = 1 + g * g - 2 * g * c;
+    return (1 - g * g) / (4 * 3.14159265358979323846 * d * sqrt(d));
+}
+
+static double fresnel(double ci, double eta)
+{
+    double s2 = (1 - ci * ci) / (eta * eta);
+    if (s2 >= 1)
+        return 1;
+    double ct = sqrt(1 - s2);
+    double rs = (ci - eta * ct) / (ci + eta * ct), rp = (eta * ci - ct) / (eta * ci + ct);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+static void normalize(double v[3])
+{
+    double l = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    for (int k = 0; k < 3; k++)
+        v[k] /= l;
+}
+
+/* Geometry of the slab scene: cosines of the refracted view and light, the scattering cosine
+ * inside, and the factors outside the integral. */
+typedef struct slab_geo {
+    double cv, cl, cs, fac;
+} slab_geo;
+
+static slab_geo slab_geometry(double eta, double irradiance)
+{
+    double v[3] = {0, 60, 30}, w[3] = {0.4, 1, 0.3}; /* towards the eye, towards the light */
+    normalize(v);
+    normalize(w);
+    double co = v[1], ci = w[1];
+    double cv = sqrt(1 - (1 - co * co) / (eta * eta)), cl = sqrt(1 - (1 - ci * ci) / (eta * eta));
+    /* refracted directions (n = +y): inward view ray d, towards-light inside wt */
+    double d[3], wt[3];
+    for (int k = 0; k < 3; k++) {
+        double nk = k == 1 ? 1 : 0;
+        d[k] = -v[k] / eta + (co / eta - cv) * nk;
+        wt[k] = (w[k] - ci * nk) / eta + cl * nk;
+    }
+    slab_geo g = {cv, cl, d[0] * wt[0] + d[1] * wt[1] + d[2] * wt[2], 0};
+    g.fac = (1 - fresnel(co, eta)) / (eta * eta) * irradiance * (1 - fresnel(ci, eta)) * ci / cl;
+    return g;
+}
+
+/* Midpoint quadrature in depth of the single scattering through layers of thickness thick[]
+ * over a core (media[count]), channel c. */
+static double slab_quadrature(const medium1 *media, const double *thick, int count, int c, slab_geo g)
+{
+    double sum = 0, tau = 0, z = 0;
+    const double dz = 1e-4;
+    int j = 0;
+    double bottom = count > 0 ? thick[0] : INFINITY;
+    while (tau < 40) {
+        double zm = z + 0.5 * dz;
+        while (j < count && zm >= bottom) {
+            j++;
+            bottom = j < count ? bottom + thick[j] : INFINITY;
+        }
+        const medium1 *m = &media[j];
+        double k = m->st[c] * (1 / g.cl + 1 / g.cv);
+        sum += m->ss[c] * hg(g.cs, m->g) * exp(-(tau + 0.5 * k * dz)) * dz / g.cv;
+        tau += k * dz;
+        z += dz;
+    }
+    return g.fac * sum;
+}
+
+/* Render and return the mean of the central 16 x 16 pixels (all on the flat top) per channel. */
+static bool render_center(nacre_scene *s, nacre_render_settings rs, double out[3])
+{
+    nacre_image img = {0};
+    nacre_result r = nacre_render(s, &rs, &img, NULL);
+    if (r != NACRE_OK) {
+        printf("render: %s\n", nacre_context_last_error(ctx));
+        return false;
+    }
+    out[0] = out[1] = out[2] = 0;
+    for (int y = rs.height / 2 - 8; y < rs.height / 2 + 8; y++)
+        for (int x = rs.width / 2 - 8; x < rs.width / 2 + 8; x++)
+            for (int c = 0; c < 3; c++)
+                out[c] += img.pixels[img.stride * (size_t)y + 3 * (size_t)x + (size_t)c] / 256.0;
+    nacre_image_free(ctx, &img);
+    return true;
+}
+
+static nacre_scene *load(const char *json)
+{
+    nacre_scene *s = NULL;
+    if (nacre_scene_load_json(ctx, json, strlen(json), "slab.json", NACRE_SOURCE_DIR "/examples", &s, NULL) !=
+        NACRE_OK) {
+        printf("load: %s\n", nacre_context_last_error(ctx));
+        return NULL;
+    }
+    if (nacre_scene_commit(s, 0) != NACRE_OK) {
+        nacre_scene_destroy(s);
+        return NULL;
+    }
+    return s;
+}
+
+static nacre_render_settings settings(uint32_t samples, nacre_layered_integration integ)
+{
+    nacre_render_settings rs = nacre_render_settings_defaults();
+    rs.method = NACRE_METHOD_LAYERED;
+    rs.width = rs.height = 48;
+    rs.layered.samples = samples;
+    rs.layered.integration = integ;
+    rs.layered.epsilon = 1e-3f; /* Depth_max where the omitted tail is ~1e-6 of the sum */
+    return rs;
+}
+
+/* Two flat layers over a core against the quadrature. */
+static void test_flat_layers(void)
+{
+    char buf[2048];
+    const char *layers = "[{\"sigma_a\": [0.05, 0.2, 0.4], \"sigma_s\": [3, 2.5, 2], \"g\": 0.8, \"depth\": 0.3},"
+                         " {\"sigma_a\": [0.6, 0.1, 0.05], \"sigma_s\": [1, 1.5, 2], \"g\": -0.2, \"depth\": 0.9}]";
+    nacre_scene *s = load(slab_json(buf, sizeof(buf), layers, ""));
+    CHECK(s != NULL);
+    if (!s)
+        return;
+    const medium1 media[3] = {{{3.05, 2.7, 2.4}, {3, 2.5, 2}, 0.8},
+                              {{1.6, 1.6, 2.05}, {1, 1.5, 2}, -0.2},
+                              {{1.02, 0.9, 0.9}, {1.0, 0.8, 0.6}, 0.3}};
+    const double thick[2] = {0.3, 0.6};
+    slab_geo g = slab_geometry(1.4, 2.0);
+    double want[3];
+    for (int c = 0; c < 3; c++)
+        want[c] = slab_quadrature(media, thick, 2, c, g);
+    double got[3];
+    /* Analytic pieces: exact on flat layers whatever the number of steps. */
+    const uint32_t steps[] = {1, 4, 16};
+    for (int i = 0; i < 3; i++) {
+        CHECK(render_center(s, settings(steps[i], NACRE_LAYERED_ANALYTIC), got));
+        for (int c = 0; c < 3; c++)
+            CHECK_NEAR(got[c] / want[c], 1.0, 0.005);
+    }
+    printf("flat layers: quadrature %.6g %.6g %.6g, analytic(4) %.6g %.6g %.6g\n", want[0], want[1], want[2],
+           got[0], got[1], got[2]);
+    /* The seed's point samples: within 1% at 200 samples. */
+    CHECK(render_center(s, settings(200, NACRE_LAYERED_SAMPLES), got));
+    for (int c = 0; c < 3; c++)
+        CHECK_NEAR(got[c] / want[c], 1.0, 0.01);
+    /* Shadows on (the default) must not darken the lit top; the same without the shadow map. */
+    nacre_render_settings ns = settings(8, NACRE_LAYERED_ANALYTIC);
+    ns.shadow.map_size = 0;
+    double unshadowed[3];
+    CHECK(render_center(s, ns, unshadowed));
+    CHECK(render_center(s, settings(8, NACRE_LAYERED_ANALYTIC), got));
+    for (int c = 0; c < 3; c++)
+        CHECK_NEAR(got[c] / unshadowed[c], 1.0, 1e-3);
+    nacre_scene_destroy(s);
+}
+
+/* The same slab against the path tracer with one scattering event (the sun of angular radius
+ * 0.27 degrees, which the path tracer samples through the dielectric): image means agree within
+ * 1% plus 3 standard deviations of the reference's mean. */
+static void test_flat_layers_pathtrace(void)
+{
+#ifdef NACRE_HAVE_EMBREE
+    char buf[2048];
+    const char *layers = "[{\"sigma_a\": [0.05, 0.2, 0.4], \"sigma_s\": [3, 2.5, 2], \"g\": 0.8, \"depth\": 0.3},"
+                         " {\"sigma_a\": [0.6, 0.1, 0.05], \"sigma_s\": [1, 1.5, 2], \"g\": -0.2, \"depth\": 0.9}]";
+    sun_radius = "0.27";
+    nacre_scene *s = load(slab_json(buf, sizeof(buf), layers, ""));
+    sun_radius = "0";
+    CHECK(s != NULL);
+    if (!s)
+        return;
+    nacre_renderer *r = NULL;
+    CHECK(nacre_renderer_create(ctx, &r) == NACRE_OK);
+    nacre_render_settings rs = settings(4, NACRE_LAYERED_ANALYTIC);
+    rs.width = rs.height = 16;
+    nacre_image lay = {0}, pt = {0}, var = {0};
+    CHECK(nacre_renderer_render(r, s, &rs, &lay, NULL) == NACRE_OK);
+    rs.method = NACRE_METHOD_PATHTRACE;
+    rs.pathtrace.max_scatter = 1;
+    rs.pathtrace.spp = 1024;
+    CHECK(nacre_renderer_render(r, s, &rs, &pt, NULL) == NACRE_OK);
+    CHECK(nacre_renderer_variance(r, &var) == NACRE_OK);
+    if (lay.pixels && pt.pixels && var.pixels) {
+        for (int c = 0; c < 3; c++) {
+            double ml = 0, mp = 0, v = 0;
+            const double n = 16.0 * 16.0;
+            for (int y = 0; y < 16; y++)
+                for (int x = 0; x < 16; x++) {
+                    ml += lay.pixels[lay.stride * (size_t)y + 3 * (size_t)x + (size_t)c] / n;
+                    mp += pt.pixels[pt.stride * (size_t)y + 3 * (size_t)x + (size_t)c] / n;
+                    v += var.pixels[var.stride * (size_t)y + 3 * (size_t)x + (size_t)c] / (n * n);
+                }
+            printf("slab vs path tracer (max_scatter 1), channel %d: layered %.6g, path tracer %.6g +- %.2g\n", c, ml,
+                   mp, sqrt(v));
+            CHECK_NEAR(ml, mp, 0.01 * mp + 3 * sqrt(v));
+        }
+    }
+    nacre_image_free(ctx, &lay);
+    nacre_image_free(ctx, &pt);
+    nacre_image_free(ctx, &var);
+    nacre_renderer_destroy(r);
+    nacre_scene_destroy(s);
+#endif
+}
+
+/* One layer of constant thickness over the core: the closed form. */
+static void test_one_layer_closed_form(void)
+{
+    char buf[2048];
+    const char *layers = "[{\"sigma_a\": [0.3, 0.3, 0.3], \"sigma_s\": [4, 2, 1], \"g\": 0.5, \"depth\": 0.4}]";
+    nacre_scene *s = load(slab_json(buf, sizeof(buf), layers, ""));
+    CHECK(s != NULL);
+    if (!s)
+        return;
+    const double st1[3] = {4.3, 2.3, 1.3}, ss1[3] = {4, 2, 1}, g1 = 0.5, d1 = 0.4;
+    const double st2[3] = {1.02, 0.9, 0.9}, ss2[3] = {1.0, 0.8, 0.6}, g2 = 0.3;
+    slab_geo g = slab_geometry(1.4, 2.0);
+    double got[3];
+    CHECK(render_center(s, settings(3, NACRE_LAYERED_ANALYTIC), got));
+    for (int c = 0; c < 3; c++) {
+        double k1 = st1[c] * (1 / g.cl + 1 / g.cv), k2 = st2[c] * (1 / g.cl + 1 / g.cv);
+        double want = g.fac / g.cv *
+                      (ss1[c] * hg(g.cs, g1) * (1 - exp(-k1 * d1)) / k1 + exp(-k1 * d1) * ss2[c] * hg(g.cs, g2) / k2);
+        CHECK_NEAR(got[c] / want, 1.0, 0.005);
+    }
+    nacre_scene_destroy(s);
+}
+
+/* Mean relative error of a over b over the pixels where b > 0. */
+static double image_error(const nacre_image *a, const nacre_image *b)
+{
+    double sum = 0;
+    size_t n = 0;
+    for (int32_t y = 0; y < a->height; y++)
+        for (int32_t x = 0; x < 3 * a->width; x++) {
+            double r = b->pixels[b->stride * (size_t)y + (size_t)x], t = a->pixels[a->stride * (size_t)y + (size_t)x];
+            if (r > 1e-6) {
+                sum += fabs(t - r) / r;
+                n++;
+            }
+        }
+    return n ? sum / (double)n : INFINITY;
+}
+
+/* With the vein map the layers vary: the seed's sampling converges as N grows, and the analytic
+ * pieces get close to the 200-sample image with few steps. */
+static void test_convergence(void)
+{
+    char buf[2048];
+    const char *layers = "[{\"sigma_a\": [0.05, 0.12, 0.3], \"sigma_s\": [4, 4, 4], \"g\": 0.8, \"depth\": 0.15},"
+                         " {\"sigma_a\": [0.3, 1.5, 1.2], \"sigma_s\": [1.5, 1.5, 1.5], \"g\": 0.9, \"depth\": 1.2},"
+                         " {\"sigma_a\": [0.03, 0.06, 0.1], \"sigma_s\": [0.8, 0.9, 1.0], \"g\": 0, \"depth\": 3}]";
+    nacre_scene *s = load(slab_json(buf, sizeof(buf), layers, "\"depth_map\": \"layered_depth.png\","));
+    CHECK(s != NULL);
+    if (!s)
+        return;
+    nacre_renderer *r = NULL;
+    CHECK(nacre_renderer_create(ctx, &r) == NACRE_OK);
+    nacre_image ref = {0}, img = {0};
+    /* The reference: analytic pieces at 256 steps (converged: 64 steps give the same image to
+     * 1e-4). Point samples converge as 1 / N only, from the steps that straddle a boundary. */
+    nacre_render_settings rs = settings(256, NACRE_LAYERED_ANALYTIC);
+    rs.width = rs.height = 40;
+    rs.shadow.map_size = 0;
+    CHECK(nacre_renderer_render(r, s, &rs, &ref, NULL) == NACRE_OK);
+    rs.layered.samples = 64;
+    CHECK(nacre_renderer_render(r, s, &rs, &img, NULL) == NACRE_OK);
+    CHECK(image_error(&img, &ref) < 1e-3);
+    rs.layered.integration = NACRE_LAYERED_SAMPLES;
+    const uint32_t n[] = {10, 20, 50, 100, 200};
+    double err[5];
+    nacre_image i200 = {0};
+    for (int i = 0; i < 5; i++) {
+        rs.layered.samples = n[i];
+        CHECK(nacre_renderer_render(r, s, &rs, i == 4 ? &i200 : &img, NULL) == NACRE_OK);
+        err[i] = image_error(i == 4 ? &i200 : &img, &ref);
+        printf("samples %u: mean relative error to the converged image %.5f\n", n[i], err[i]);
+    }
+    CHECK(err[2] < err[0] && err[4] < 0.1 * err[1] && err[4] < 0.03);
+    rs.layered.integration = NACRE_LAYERED_ANALYTIC;
+    const uint32_t na[] = {1, 2, 4, 8, 16};
+    double e4 = INFINITY;
+    for (int i = 0; i < 5; i++) {
+        rs.layered.samples = na[i];
+        CHECK(nacre_renderer_render(r, s, &rs, &img, NULL) == NACRE_OK);
+        double e200 = image_error(&img, &i200), eref = image_error(&img, &ref);
+        printf("analytic %u steps: mean relative error to 200 samples %.5f, to the converged image %.5f\n", na[i],
+               e200, eref);
+        if (na[i] == 4)
+            e4 = eref;
+    }
+    /* 4 analytic steps are closer to the converged image than 200 point samples */
+    CHECK(e4 < err[4]);
+    nacre_image_free(ctx, &ref);
+    nacre_image_free(ctx, &img);
+    nacre_image_free(ctx, &i200);
+    nacre_renderer_destroy(r);
+    nacre_scene_destroy(s);
+}
+
+/* The planes stage runs once per geometry: light, material-free and camera edits keep it. */
+static void test_planes_cached(void)
+{
+    char buf[2048];
+    nacre_scene *s = load(slab_json(buf, sizeof(buf), "[]", ""));
+    CHECK(s != NULL);
+    if (!s)
+        return;
+    nacre_renderer *r = NULL;
+    CHECK(nacre_renderer_create(ctx, &r) == NACRE_OK);
+    nacre_render_settings rs = settings(4, NACRE_LAYERED_ANALYTIC);
+    nacre_render_stats st;
+    nacre_image img = {0};
+    CHECK(nacre_renderer_render(r, s, &rs, &img, &st) == NACRE_OK);
+    CHECK(st.stage_runs[NACRE_STAGE_PLANES] == 1 && st.stage_runs[NACRE_STAGE_MARCH] == 1);
+    nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
+    ld.direction[0] = 0.3f, ld.direction[1] = -1, ld.direction[2] = 0;
+    CHECK(nacre_scene_set_light(s, (nacre_light){1}, &ld) == NACRE_OK);
+    CHECK(nacre_scene_commit(s, 0) == NACRE_OK);
+    CHECK(nacre_renderer_render(r, s, &rs, &img, &st) == NACRE_OK);
+    CHECK(st.stage_runs[NACRE_STAGE_PLANES] == 0 && st.stage_runs[NACRE_STAGE_MARCH] == 1);
+    rs.layered.epsilon = 0.05f; /* a new radius */
+    CHECK(nacre_renderer_render(r, s, &rs, &img, &st) == NACRE_OK);
+    CHECK(st.stage_runs[NACRE_STAGE_PLANES] == 1);
+    nacre_image_free(ctx, &img);
+    nacre_renderer_destroy(r);
+    nacre_scene_destroy(s);
+}
+
+static void test_bad_input(void)
+{
+    /* A layered material on a mesh without uvs: the error names the object. */
+    nacre_scene *s = NULL;
+    CHECK(nacre_scene_create(ctx, &s) == NACRE_OK);
+    float pos[9] = {0, 0, 0, 1, 0, 0, 0, 0, -1};
+    uint32_t idx[3] = {0, 1, 2};
+    nacre_mesh_data md = {0};
+    md.vertex_count = 3;
+    md.triangle_count = 1;
+    md.positions = pos;
+    md.indices = idx;
+    nacre_mesh mesh = {0};
+    CHECK(nacre_scene_add_mesh(s, &md, &mesh) == NACRE_OK);
+    nacre_material_desc m = nacre_material_desc_defaults(NACRE_MATERIAL_TRANSLUCENT);
+    m.layering.count = 1;
+    m.layering.layers[0] = (nacre_layer){{0.1f, 0.1f, 0.1f}, {1, 1, 1}, 0, 0.5f};
+    nacre_material mat = {0};
+    CHECK(nacre_scene_add_material(s, &m, &mat) == NACRE_OK);
+    nacre_object_desc od = nacre_object_desc_defaults();
+    od.mesh = mesh;
+    od.material = mat;
+    od.name = "no-uv thing";
+    nacre_object obj = {0};
+    CHECK(nacre_scene_add_object(s, &od, &obj) == NACRE_OK);
+    CHECK(nacre_scene_commit(s, 0) == NACRE_OK);
+    nacre_render_settings rs = settings(4, NACRE_LAYERED_ANALYTIC);
+    nacre_image img = {0};
+    CHECK(nacre_render(s, &rs, &img, NULL) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(nacre_context_last_error(ctx), "no-uv thing") != NULL);
+    CHECK(strstr(nacre_context_last_error(ctx), "texture coordinates") != NULL);
+    /* Settings out of range name the field. */
+    rs.layered.samples = 0;
+    CHECK(nacre_render(s, &rs, &img, NULL) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(nacre_context_last_error(ctx), "layered_samples") != NULL);
+    rs.layered.samples = 100000;
+    CHECK(nacre_render(s, &rs, &img, NULL) == NACRE_ERROR_INVALID_ARGUMENT);
+    rs.layered.samples = 8;
+    rs.layered.epsilon = 1.0f;
+    CHECK(nacre_render(s, &rs, &img, NULL) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(nacre_context_last_error(ctx), "layered_epsilon") != NULL);
+    CHECK(img.pixels == NULL);
+    nacre_scene_destroy(s);
+    /* Scene files: the render block's keys, read and range-checked with the field named. */
+    const char *good = "{\"render\": {\"method\": \"layered\", \"layered_samples\": 7, \"layered_epsilon\": 0.05,"
+                       " \"layered_integration\": \"samples\"}, \"objects\": []}";
+    nacre_scene_file_settings fs;
+    s = NULL;
+    CHECK(nacre_scene_load_json(ctx, good, strlen(good), "g.json", NULL, &s, &fs) == NACRE_OK);
+    CHECK(fs.render.method == NACRE_METHOD_LAYERED && fs.render.layered.samples == 7 &&
+          fabsf(fs.render.layered.epsilon - 0.05f) < 1e-7f && fs.render.layered.integration == NACRE_LAYERED_SAMPLES);
+    nacre_scene_destroy(s);
+    const char *bad[] = {"{\"render\": {\"layered_samples\": 0}}", "{\"render\": {\"layered_samples\": 5000}}",
+                         "{\"render\": {\"layered_epsilon\": 1}}", "{\"render\": {\"layered_integration\": \"simpson\"}}"};
+    const char *field[] = {"layered_samples", "layered_samples", "layered_epsilon", "layered_integration"};
+    for (int i = 0; i < 4; i++) {
+        s = NULL;
+        CHECK(nacre_scene_load_json(ctx, bad[i], strlen(bad[i]), "b.json", NULL, &s, &fs) != NACRE_OK);
+        CHECK(s == NULL && strstr(nacre_context_last_error(ctx), field[i]) != NULL);
+    }
+}
+
+/* Procedural depth maps: values in [0, 1], the fixed channels at 1, veins covering some but not
+ * most of the map, the same seed giving the same map and another seed another; a data PNG
+ * reads back to the values; the fish preset is the seed's table 1. */
+static void test_maps_and_fish(void)
+{
+    nacre_image a = {0}, b = {0}, c = {0};
+    CHECK(nacre_layer_map_generate(ctx, NACRE_LAYER_MAP_VEINS, 128, 7, &a) == NACRE_OK);
+    CHECK(nacre_layer_map_generate(ctx, NACRE_LAYER_MAP_VEINS, 128, 7, &b) == NACRE_OK);
+    CHECK(nacre_layer_map_generate(ctx, NACRE_LAYER_MAP_VEINS, 128, 8, &c) == NACRE_OK);
+    CHECK(a.channels == 4 && a.width == 128 && a.height == 128);
+    size_t n = (size_t)a.width * (size_t)a.height * 4, vein = 0, fixed_ok = 0, diff = 0;
+    for (size_t i = 0; i < n; i++) {
+        CHECK(a.pixels[i] >= 0.0f && a.pixels[i] <= 1.0f);
+        if (i % 4 == 1)
+            vein += a.pixels[i] > 0.5f;
+        else
+            fixed_ok += a.pixels[i] == 1.0f;
+        diff += a.pixels[i] != c.pixels[i];
+    }
+    CHECK(memcmp(a.pixels, b.pixels, n * sizeof(float)) == 0);
+    CHECK(diff > 0);
+    CHECK(fixed_ok == 3 * n / 4);
+    CHECK(vein > n / 4 / 100 && vein < n / 4 / 2);
+    CHECK(nacre_image_write_data(ctx, &a, NACRE_TEST_TMP "/veins.png") == NACRE_OK);
+    nacre_image back = {0};
+    CHECK(nacre_image_read_data(ctx, NACRE_TEST_TMP "/veins.png", &back) == NACRE_OK);
+    double worst = 0;
+    for (int32_t y = 0; back.pixels && y < 128; y++)
+        for (int32_t x = 0; x < 4 * 128; x++)
+            worst = fmax(worst, fabs(back.pixels[back.stride * (size_t)y + (size_t)x] - a.pixels[a.stride * (size_t)y + (size_t)x]));
+    CHECK(back.channels == 4 && worst <= 0.5 / 255 + 1e-6);
+    nacre_image_free(ctx, &back);
+    nacre_image_free(ctx, &a);
+    nacre_image_free(ctx, &b);
+    nacre_image_free(ctx, &c);
+    CHECK(nacre_layer_map_generate(ctx, NACRE_LAYER_MAP_CONSTANT, 16, 1, &a) == NACRE_OK);
+    for (size_t i = 0; a.pixels && i < 16 * 16 * 4; i++)
+        CHECK(a.pixels[i] == 1.0f);
+    nacre_image_free(ctx, &a);
+    CHECK(nacre_layer_map_generate(ctx, NACRE_LAYER_MAP_SPOTS, 4, 1, &a) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(nacre_context_last_error(ctx), "size") != NULL && a.pixels == NULL);
+    nacre_material_desc fish;
+    CHECK(nacre_material_preset("fish", &fish) && fish.layering.count == 2);
+    CHECK_NEAR(fish.layering.layers[1].sigma_a[0] + fish.layering.layers[1].sigma_s[0], 6.6, 1e-5);
+    CHECK_NEAR(fish.sigma_a[2] + fish.sigma_s[2], 2.5, 1e-5);
+    CHECK_NEAR(fish.layering.layers[0].g, 0.25, 1e-6);
+}
+
+int main(void)
+{
+    CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
+    test_flat_layers();
+    test_flat_layers_pathtrace();
+    test_one_layer_closed_form();
+    test_convergence();
+    test_planes_cached();
+    test_bad_input();
+    test_maps_and_fish();
+    nacre_context_destroy(ctx);
+    return TEST_MAIN_END();
+}
