@@ -96,6 +96,7 @@
  *     nacre/render.h  methods, render settings, stats, the renderer; scene files (load, save)
  *     nacre/slab.h    slab measurement (validation against exact results)
  *     nacre/voxel.h   voxelization of triangle meshes
+ *     nacre/particles.h  particle systems (emitters, lists) as media: simulation, density grid
  *   Their include guards are NACRE_PUBLIC_<NAME>_H: the library's private headers use
  *   NACRE_<NAME>_H (src/core/core.h, src/scene/scene.h).
  */
@@ -109,5 +110,6 @@
 #include <nacre/render.h>
 #include <nacre/slab.h>
 #include <nacre/voxel.h>
+#include <nacre/particles.h>
 
 #endif /* NACRE_NACRE_H */

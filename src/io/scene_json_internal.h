@@ -113,5 +113,6 @@ void nc_json_parse_materials(loader *ld, const cJSON *obj);
 bool nc_json_find_material(const loader *ld, const char *name, nacre_material *out);
 void nc_json_parse_object(loader *ld, const cJSON *obj);
 void nc_json_parse_fog(loader *ld, const cJSON *obj);
+void nc_json_parse_particles(loader *ld, const cJSON *obj);
 
 #endif
