@@ -26,6 +26,7 @@
 #include <nacre/core.h>
 #include <nacre/scene.h>
 
+#include <stdbool.h>
 #include <stdint.h>
 
 #ifdef __cplusplus
@@ -86,6 +87,27 @@ typedef struct nacre_particles_desc {
     uint32_t grid_resolution;     /* density grid samples per axis over the particles' bounds,
                                      NACRE_PARTICLES_GRID_MIN..MAX (0: the default, 128) */
 } nacre_particles_desc;
+
+/* How the raster methods (phong, diffusion) draw particles (nacre_render_settings.particles);
+ * the path tracer always renders the density field exactly.
+ *   BILLBOARDS (default): screen-space volumetric billboards (seed 003 §3.1): one pass sums each
+ *     pixel's optical depth through its particles with the nearest and farthest distances, a
+ *     second reconstructs sigma_t along the ray with the remapping r(x) and ray marches it,
+ *     lit by directional lights through the same reconstruction and by the environment;
+ *   SPRITES: sorted alpha-blended billboards with soft-particle depth fade (§2.2.1), each
+ *     particle lit once without shadowing, the baseline the seed compares against;
+ *   VOXEL: the density grid as a fog, drawn by the scene's fog passes (seed 003 §3.2: the
+ *     ray-marched fog pass renders its shape; the analytic fog pass only its mean). */
+typedef enum nacre_particles_draw {
+    NACRE_PARTICLES_DRAW_BILLBOARDS = 0,
+    NACRE_PARTICLES_DRAW_SPRITES,
+    NACRE_PARTICLES_DRAW_VOXEL
+} nacre_particles_draw;
+
+/* "billboards", "sprites", "voxel"; "unknown" otherwise. */
+NACRE_API const char *nacre_particles_draw_name(nacre_particles_draw draw);
+/* false if the name is unknown. */
+NACRE_API bool nacre_particles_draw_from_name(const char *name, nacre_particles_draw *out);
 
 /* Defaults: a point emitter at the origin, 100 particles per second living 2 s, velocity
  * (0, 1, 0), spread 15 degrees, no gravity or drag, radius 0.2, density 1, no fade; grey smoke

@@ -12,6 +12,7 @@
 #include <nacre/core.h>
 #include <nacre/image.h>
 #include <nacre/scene.h>
+#include <nacre/particles.h>
 
 #include <stdbool.h>
 #include <stddef.h>
@@ -119,6 +120,7 @@ typedef struct nacre_render_settings {
      * everything when the buffer, its size, the environment or the method differ from its last
      * frame. Default false. */
     bool reuse_output;
+    nacre_particles_draw particles; /* phong, diffusion: how particles are drawn (particles.h) */
 } nacre_render_settings;
 
 NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
@@ -136,6 +138,8 @@ NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
  *   shade      every frame
  *   fog        every frame of a raster method when the scene has fog (the post pass over the
  *              image and depth: distance and height fog, see docs/scene-format.md "fog")
+ *   particles  every frame of a raster method with particles alive, drawn as billboards or
+ *              sprites (the post pass of nacre_render_settings.particles)
  * The path tracer runs none of these; its frames restart or accumulate (pathtrace.accumulate). */
 #define NACRE_STAGE_LIST(X)                                                                    \
     X(NACRE_STAGE_SETUP, "setup")                                                              \
@@ -148,7 +152,8 @@ NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
     X(NACRE_STAGE_INJECT, "inject")                                                            \
     X(NACRE_STAGE_PROPAGATE, "propagate")                                                      \
     X(NACRE_STAGE_SHADE, "shade")                                                              \
-    X(NACRE_STAGE_FOG, "fog")
+    X(NACRE_STAGE_FOG, "fog")                                                                  \
+    X(NACRE_STAGE_PARTICLES, "particles")
 
 typedef enum nacre_stage {
 #define NACRE_STAGE_ENUM_(name, text) name,

@@ -439,6 +439,7 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
         {s->diffusion.tolerance > 0 && s->diffusion.tolerance < 1, "tolerance"},
         {s->diffusion.seed_iterations <= 1000000, "seed_iterations"},
         {s->pathtrace.time_limit >= 0 && s->pathtrace.time_limit <= FLT_MAX, "time_limit"},
+        {(unsigned)s->particles <= NACRE_PARTICLES_DRAW_VOXEL, "particles"},
     };
     for (size_t i = 0; i < COUNT_OF(checks); i++)
         if (!checks[i].ok) {
@@ -469,6 +470,7 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
     add_uint(w, o, "seed", s->pathtrace.seed);
     add_double(w, o, "time_limit", s->pathtrace.time_limit);
     add_uint(w, o, "max_scatter", s->pathtrace.max_scatter);
+    add_string(w, o, "particles", nacre_particles_draw_name(s->particles));
     return o;
 }
 

@@ -52,6 +52,12 @@ void nc_particle_set_free(nacre_context *ctx, nc_particle_set *set);
 nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *set, uint32_t res,
                                 nc_particle_grid *grid);
 void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *grid);
+/* The state of particle system `index` (0-based) at the scene's last commit, with its desc;
+ * NULL if the scene has no committed particles or no such system. */
+struct nacre_scene;
+const nc_particle_set *nc_scene_particle_set(const struct nacre_scene *scene, uint32_t index,
+                                             const nacre_particles_desc **desc);
+
 /* Sum of the particles' masses, d0 (K R)^3, in double. */
 double nc_particles_mass(const nc_particle_set *set);
 

@@ -234,3 +234,29 @@ nacre_result nc_scene_commit_particles(nacre_scene *s, double time)
     s->particles_time = time;
     return NACRE_OK;
 }
+
+const nc_particle_set *nc_scene_particle_set(const nacre_scene *s, uint32_t index, const nacre_particles_desc **desc)
+{
+    if (!s->particles_built || index >= s->particles_count)
+        return NULL;
+    if (desc)
+        *desc = &s->particles[index].desc;
+    return &s->particles[index].set;
+}
+
+static const char *const draw_names[] = {"billboards", "sprites", "voxel"};
+
+const char *nacre_particles_draw_name(nacre_particles_draw draw)
+{
+    return (unsigned)draw < 3 ? draw_names[draw] : "unknown";
+}
+
+bool nacre_particles_draw_from_name(const char *name, nacre_particles_draw *out)
+{
+    for (int i = 0; name && i < 3; i++)
+        if (strcmp(name, draw_names[i]) == 0) {
+            *out = (nacre_particles_draw)i;
+            return true;
+        }
+    return false;
+}
