@@ -27,6 +27,11 @@
  * Not modelled: point and spot lights, the particles' shadows on the scene, multiple
  * scattering, particles closer to the camera plane than their radius (dropped).
  *
+ * Resolution: both draw into buffers of transmittance and added light at 1/F of the image's
+ * size, F = round(height / 180) (at least 1; 4 at 1280x720), as engines draw particles at
+ * reduced resolution; each pixel of the image then takes c T + L bilinearly from them. The cost
+ * of billboards grows with the pixels each particle covers, so this is what keeps a 720p frame
+ * within milliseconds; the surface depth is read at each buffer pixel's centre.
  * Threads: both passes run over bands of 8 rows, each band adding its particles in a fixed order
  * (index order, or the sorted order), so the image does not depend on the thread count.
  * Units: view space in scene units, distances along unit rays, coefficients per scene unit.
@@ -45,6 +50,7 @@
 #define VIEW_STEPS 16
 #define LIGHT_STEPS 8
 #define MAX_SUNS 8
+#define BUFFER_ROWS 180 /* rows of the particle buffers (see "Resolution") */
 
 typedef struct pp_system {
     float sigma_t[3], albedo[3], g;
@@ -61,6 +67,10 @@ typedef struct pp_state {
     size_t bin_start_cap, bin_cap;
     float *acc;       /* 8 planes over the rect: tau_t[3], tau_s[3], near, far */
     size_t acc_cap;
+    float *tl;        /* 6 planes over the rect: transmittance[3], added light[3] */
+    size_t tl_cap;
+    float *ray;       /* per rect pixel: origin x, y (ortho), unit direction, surface distance */
+    size_t ray_cap;
     float *X, *Y;     /* per column and row: the ray's view-space x, y at z = -1 (ortho: origin) */
     int32_t xy_cap;
     pp_system sys_table[NACRE_MAX_FOGS];
@@ -69,9 +79,10 @@ typedef struct pp_state {
 /* The frame's camera and lights in view space. */
 typedef struct pp_frame {
     bool ortho;
-    int32_t w, h;
-    int32_t rx0, ry0, rw, rh; /* the rect all particles cover */
-    float ax, bx, ay, by;     /* X[x] = ax x + bx, Y[y] = ay y + by */
+    int32_t W, H;             /* the image */
+    int32_t F, w, h;          /* buffer pixels are F x F image pixels; buffer size */
+    int32_t rx0, ry0, rw, rh; /* the rect of the buffer all particles cover */
+    float ax, bx, ay, by;     /* ray at image pixel coordinate (xf, yf): X = ax xf + bx, Y = ay yf + by */
     const float *depth;
     float bmin[3], bmax[3];   /* view-space bounds of the particles */
     uint32_t suns;
@@ -98,7 +109,7 @@ static void pp_destroy(nacre_context *ctx, void *state)
     if (!st)
         return;
     void *arrays[] = {st->cx, st->cy, st->cz, st->radius, st->column, st->dist, st->sys, st->rect, st->order, st->sort_tmp,
-                      st->lit, st->bin_start, st->bins, st->acc, st->X, st->Y};
+                      st->lit, st->bin_start, st->bins, st->acc, st->tl, st->ray, st->X, st->Y};
     for (size_t i = 0; i < sizeof(arrays) / sizeof(arrays[0]); i++)
         nc_free(ctx, arrays[i]);
     nc_free(ctx, st);
@@ -146,16 +157,17 @@ static nacre_result reserve_particles(nacre_context *ctx, pp_state *st, uint32_t
     return ok ? NACRE_OK : NACRE_ERROR_OUT_OF_MEMORY;
 }
 
-/* Pixel coordinates (continuous, integer = centre) of a view-space point, false behind. */
-static bool project(const nc_mat4 *P, const float p[3], int32_t w, int32_t h, float *px, float *py)
+/* Buffer pixel coordinates (continuous, integer = centre) of a view-space point, false behind. */
+static bool project(const nc_mat4 *P, const float p[3], const pp_frame *fr, float *px, float *py)
 {
     float cx = P->m[0][0] * p[0] + P->m[0][1] * p[1] + P->m[0][2] * p[2] + P->m[0][3];
     float cy = P->m[1][0] * p[0] + P->m[1][1] * p[1] + P->m[1][2] * p[2] + P->m[1][3];
     float cw = P->m[3][0] * p[0] + P->m[3][1] * p[1] + P->m[3][2] * p[2] + P->m[3][3];
     if (!(cw > 1e-6f))
         return false;
-    *px = (cx / cw + 1.0f) * 0.5f * (float)w - 0.5f;
-    *py = (1.0f - cy / cw) * 0.5f * (float)h - 0.5f;
+    float F = (float)fr->F;
+    *px = (cx / cw + 1.0f) * 0.5f * (float)fr->W / F - 0.5f;
+    *py = (1.0f - cy / cw) * 0.5f * (float)fr->H / F - 0.5f;
     return true;
 }
 
@@ -202,7 +214,7 @@ static nacre_result gather(pp_state *st, const nc_post_input *in, pp_frame *fr)
             float x0 = INFINITY, x1 = -INFINITY, y0 = INFINITY, y1 = -INFINITY;
             for (int q = 0; q < 8; q++) {
                 float p[3] = {c.x + ((q & 1) ? R : -R), c.y + ((q & 2) ? R : -R), c.z + ((q & 4) ? R : -R)}, px, py;
-                if (!project(&P, p, w, h, &px, &py)) {
+                if (!project(&P, p, fr, &px, &py)) {
                     x0 = INFINITY;
                     break;
                 }
@@ -241,15 +253,19 @@ static nacre_result frame_setup(pp_state *st, const nc_post_input *in, pp_frame 
 {
     const nc_raster_view *v = in->view;
     fr->ortho = v->orthographic;
-    fr->w = v->width, fr->h = v->height;
+    fr->W = v->width, fr->H = v->height;
+    fr->F = (fr->H + BUFFER_ROWS / 2) / BUFFER_ROWS;
+    if (fr->F < 1)
+        fr->F = 1;
+    fr->w = (fr->W + fr->F - 1) / fr->F, fr->h = (fr->H + fr->F - 1) / fr->F;
     fr->depth = in->depth;
     nc_mat4 ip;
     if (!nc_mat4_inverse(v->proj, &ip))
         return nc_fail(in->ctx, NACRE_ERROR_INVALID_ARGUMENT, "particles: camera projection is singular");
-    /* X(x), Y(y): affine in the pixel for nacre's projections (no shear). */
+    /* X(xf), Y(yf): affine in the pixel for nacre's projections (no shear). */
     float Xv[2], Yv[2];
     for (int k = 0; k < 2; k++) {
-        float nx = (k + 0.5f) * 2.0f / (float)fr->w - 1.0f, ny = 1.0f - (k + 0.5f) * 2.0f / (float)fr->h;
+        float nx = (k + 0.5f) * 2.0f / (float)fr->W - 1.0f, ny = 1.0f - (k + 0.5f) * 2.0f / (float)fr->H;
         float nz = fr->ortho ? 0.0f : 1.0f;
         float qx[4], qy[4];
         for (int r = 0; r < 4; r++) {
@@ -268,9 +284,9 @@ static nacre_result frame_setup(pp_state *st, const nc_post_input *in, pp_frame 
         return NACRE_ERROR_OUT_OF_MEMORY;
     st->xy_cap = m;
     for (int32_t x = 0; x < fr->w; x++)
-        st->X[x] = fr->ax * (float)x + fr->bx;
+        st->X[x] = fr->ax * ((x + 0.5f) * (float)fr->F - 0.5f) + fr->bx;
     for (int32_t y = 0; y < fr->h; y++)
-        st->Y[y] = fr->ay * (float)y + fr->by;
+        st->Y[y] = fr->ay * ((y + 0.5f) * (float)fr->F - 0.5f) + fr->by;
     const nacre_scene *s = in->scene;
     fr->suns = 0;
     for (uint32_t i = 0; i < s->light_count && fr->suns < MAX_SUNS; i++) {
@@ -288,19 +304,38 @@ static nacre_result frame_setup(pp_state *st, const nc_post_input *in, pp_frame 
     return NACRE_OK;
 }
 
-/* Ray of pixel (x, y): origin o, unit direction d; the surface's distance along it. */
-static inline float pixel_ray(const pp_state *st, const pp_frame *fr, int32_t x, int32_t y, float o[3], float d[3])
+/* Rays of the rect's buffer pixels: origin, unit direction and the surface's distance (the
+ * depth buffer read at the image pixel nearest the buffer pixel's centre). */
+static nacre_result make_rays(nacre_context *ctx, pp_state *st, const pp_frame *fr)
 {
-    float dep = fr->depth[(size_t)y * (size_t)fr->w + (size_t)x];
-    if (fr->ortho) {
-        o[0] = st->X[x], o[1] = st->Y[y], o[2] = 0.0f;
-        d[0] = 0.0f, d[1] = 0.0f, d[2] = -1.0f;
-        return dep;
-    }
-    float X = st->X[x], Y = st->Y[y], len = sqrtf(X * X + Y * Y + 1.0f), inv = 1.0f / len;
-    o[0] = o[1] = o[2] = 0.0f;
-    d[0] = X * inv, d[1] = Y * inv, d[2] = -inv;
-    return dep * len; /* INFINITY stays */
+    if (!grow(ctx, (void **)&st->ray, &st->ray_cap, 6 * (size_t)fr->rw * (size_t)fr->rh, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    for (int32_t ry = 0; ry < fr->rh; ry++)
+        for (int32_t rx = 0; rx < fr->rw; rx++) {
+            int32_t x = rx + fr->rx0, y = ry + fr->ry0;
+            int32_t xf = x * fr->F + fr->F / 2, yf = y * fr->F + fr->F / 2;
+            xf = xf < fr->W ? xf : fr->W - 1, yf = yf < fr->H ? yf : fr->H - 1;
+            float dep = fr->depth[(size_t)yf * (size_t)fr->W + (size_t)xf];
+            float *r = st->ray + 6 * ((size_t)ry * (size_t)fr->rw + (size_t)rx);
+            if (fr->ortho) {
+                r[0] = st->X[x], r[1] = st->Y[y], r[2] = 0.0f, r[3] = 0.0f, r[4] = -1.0f, r[5] = dep;
+                continue;
+            }
+            float X = st->X[x], Y = st->Y[y], len = sqrtf(X * X + Y * Y + 1.0f), inv = 1.0f / len;
+            r[0] = r[1] = 0.0f;
+            r[2] = X * inv, r[3] = Y * inv, r[4] = -inv;
+            r[5] = dep * len; /* INFINITY stays */
+        }
+    return NACRE_OK;
+}
+
+/* Ray of rect pixel (rx, ry): origin o, unit direction d; returns the surface's distance. */
+static inline float pixel_ray(const pp_state *st, const pp_frame *fr, int32_t rx, int32_t ry, float o[3], float d[3])
+{
+    const float *r = st->ray + 6 * ((size_t)ry * (size_t)fr->rw + (size_t)rx);
+    o[0] = r[0], o[1] = r[1], o[2] = 0.0f;
+    d[0] = r[2], d[1] = r[3], d[2] = r[4];
+    return r[5];
 }
 
 /* Bin the particles (in the order of `order`, or index order) into bands of BAND rows. */
@@ -361,7 +396,7 @@ static void accumulate(pp_state *st, const pp_frame *fr, uint32_t bands, int thr
                 size_t ri = (size_t)(y - fr->ry0) * (size_t)fr->rw - (size_t)fr->rx0;
                 for (int32_t x = rc[0]; x <= rc[1]; x++) {
                     float o[3], d[3], wgt, tm, hc;
-                    float ts = pixel_ray(st, fr, x, y, o, d);
+                    float ts = pixel_ray(st, fr, x - fr->rx0, y - fr->ry0, o, d);
                     float v[3] = {st->cx[j] - o[0], st->cy[j] - o[1], st->cz[j] - o[2]};
                     if (!nc_billboard_hit(v, d, st->radius[j], &wgt, &tm, &hc) || tm - hc > ts)
                         continue;
@@ -391,7 +426,9 @@ static inline bool sigma_at(const pp_state *st, const pp_frame *fr, const float 
         X = p[0] / -p[2], Y = p[1] / -p[2];
         t = sqrtf(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
     }
-    int32_t x = (int32_t)lrintf((X - fr->bx) / fr->ax) - fr->rx0, y = (int32_t)lrintf((Y - fr->by) / fr->ay) - fr->ry0;
+    const float F = (float)fr->F;
+    int32_t x = (int32_t)lrintf(((X - fr->bx) / fr->ax + 0.5f) / F - 0.5f) - fr->rx0;
+    int32_t y = (int32_t)lrintf(((Y - fr->by) / fr->ay + 0.5f) / F - 0.5f) - fr->ry0;
     if (x < 0 || y < 0 || x >= fr->rw || y >= fr->rh)
         return false;
     const size_t plane = (size_t)fr->rw * (size_t)fr->rh, i = (size_t)y * (size_t)fr->rw + (size_t)x;
@@ -420,21 +457,22 @@ static float bounds_exit(const pp_frame *fr, const float p[3], const float dir[3
 }
 
 /* Pass 2: ray march each pixel of the rect through its reconstruction. */
-static void march(const pp_state *st, const pp_frame *fr, const float g, nacre_image *image, int threads)
+static void march(pp_state *st, const pp_frame *fr, const float g, int threads)
 {
     const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
 #pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
     for (int32_t ry = 0; ry < fr->rh; ry++) {
-        const int32_t y = ry + fr->ry0;
-        float *row = image->pixels + (size_t)y * image->stride;
         for (int32_t rx = 0; rx < fr->rw; rx++) {
             const size_t i = (size_t)ry * (size_t)fr->rw + (size_t)rx;
+            for (int c = 0; c < 3; c++) {
+                st->tl[c * plane + i] = 1.0f;
+                st->tl[(3 + c) * plane + i] = 0.0f;
+            }
             const float nr = st->acc[6 * plane + i], fa = st->acc[7 * plane + i];
             if (!(fa > nr))
                 continue;
-            const int32_t x = rx + fr->rx0;
             float o[3], d[3];
-            const float ts = pixel_ray(st, fr, x, y, o, d);
+            const float ts = pixel_ray(st, fr, rx, ry, o, d);
             const float L = fa - nr, t1 = fminf(fa, ts);
             if (!(t1 > nr))
                 continue;
@@ -457,7 +495,7 @@ static void march(const pp_state *st, const pp_frame *fr, const float g, nacre_i
                 for (int c = 0; c < 3; c++) {
                     /* Environment: the mean transmittance to the chord's two ends. */
                     float tf = front[c] + 0.5f * tau[c] * rr * dt;
-                    S[c] = fr->env[c] * 0.5f * (expf(-tf) + expf(-fmaxf(tau[c] - tf, 0.0f)));
+                    S[c] = fr->env[c] * 0.5f * (nc_fast_exp_neg(-tf) + nc_fast_exp_neg(-fmaxf(tau[c] - tf, 0.0f)));
                 }
                 for (uint32_t l = 0; l < fr->suns; l++) {
                     const float to[3] = {-fr->sun_dir[l][0], -fr->sun_dir[l][1], -fr->sun_dir[l][2]};
@@ -472,18 +510,19 @@ static void march(const pp_state *st, const pp_frame *fr, const float g, nacre_i
                                 tl[c] += sig[c] * ds;
                     }
                     for (int c = 0; c < 3; c++)
-                        S[c] += fr->sun_e[l][c] * phase[l] * expf(-tl[c]);
+                        S[c] += fr->sun_e[l][c] * phase[l] * nc_fast_exp_neg(-tl[c]);
                 }
                 for (int c = 0; c < 3; c++) {
-                    const float st_c = tau[c] * rr, a = expf(-st_c * dt);
+                    const float st_c = tau[c] * rr, a = nc_fast_exp_neg(-st_c * dt);
                     Ls[c] += T[c] * (1.0f - a) * alb[c] * S[c];
                     T[c] *= a;
                     front[c] += st_c * dt;
                 }
             }
-            float *px = row + 3 * (size_t)x;
-            for (int c = 0; c < 3; c++)
-                px[c] = px[c] * T[c] + Ls[c];
+            for (int c = 0; c < 3; c++) {
+                st->tl[c * plane + i] = T[c];
+                st->tl[(3 + c) * plane + i] = Ls[c];
+            }
         }
     }
 }
@@ -509,13 +548,20 @@ static void sort_far_first(uint32_t *ord, uint32_t *tmp, uint32_t n, const float
     }
 }
 
-static void sprites(pp_state *st, const pp_frame *fr, uint32_t bands, nacre_image *image, int threads)
+static void sprites(pp_state *st, const pp_frame *fr, uint32_t bands, int threads)
 {
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
     for (uint32_t b = 0; b < bands; b++) {
         int32_t y0 = fr->ry0 + (int32_t)(b * BAND), y1 = y0 + (int32_t)BAND - 1;
         if (y1 > fr->ry0 + fr->rh - 1)
             y1 = fr->ry0 + fr->rh - 1;
+        for (int32_t y = y0; y <= y1; y++)
+            for (int k = 0; k < 6; k++) {
+                float *row = st->tl + k * plane + (size_t)(y - fr->ry0) * (size_t)fr->rw;
+                for (int32_t x = 0; x < fr->rw; x++)
+                    row[x] = k < 3 ? 1.0f : 0.0f;
+            }
         for (uint32_t e = st->bin_start[b]; e < st->bin_start[b + 1]; e++) {
             const uint32_t j = st->bins[e];
             const int32_t *rc = st->rect + 4 * (size_t)j;
@@ -523,23 +569,64 @@ static void sprites(pp_state *st, const pp_frame *fr, uint32_t bands, nacre_imag
             const float R = st->radius[j], *lit = st->lit + 3 * (size_t)j;
             const int32_t ya = rc[2] > y0 ? rc[2] : y0, yb = rc[3] < y1 ? rc[3] : y1;
             for (int32_t y = ya; y <= yb; y++) {
-                float *row = image->pixels + (size_t)y * image->stride;
+                const size_t ri = (size_t)(y - fr->ry0) * (size_t)fr->rw - (size_t)fr->rx0;
                 for (int32_t x = rc[0]; x <= rc[1]; x++) {
                     float o[3], d[3], wgt, tm, hc;
-                    float ts = pixel_ray(st, fr, x, y, o, d);
+                    float ts = pixel_ray(st, fr, x - fr->rx0, y - fr->ry0, o, d);
                     float v[3] = {st->cx[j] - o[0], st->cy[j] - o[1], st->cz[j] - o[2]};
                     if (!nc_billboard_hit(v, d, R, &wgt, &tm, &hc))
                         continue;
                     float fade = fminf(fmaxf((ts - tm) / R, 0.0f), 1.0f); /* soft particles */
                     if (!(fade > 0.0f))
                         continue;
-                    float col = st->column[j] * wgt * fade, *px = row + 3 * (size_t)x;
+                    const size_t i = ri + (size_t)x;
+                    float col = st->column[j] * wgt * fade;
                     for (int c = 0; c < 3; c++) {
-                        float a = 1.0f - expf(-sy->sigma_t[c] * col);
-                        px[c] = px[c] * (1.0f - a) + a * lit[c];
+                        float keep = nc_fast_exp_neg(-sy->sigma_t[c] * col);
+                        st->tl[c * plane + i] *= keep;
+                        st->tl[(3 + c) * plane + i] = st->tl[(3 + c) * plane + i] * keep + (1.0f - keep) * lit[c];
                     }
                 }
             }
+        }
+    }
+}
+
+/* Each image pixel over the rect: c T + L, bilinear from the buffers (outside: T 1, L 0). */
+static void composite(const pp_state *st, const pp_frame *fr, nacre_image *image, int threads)
+{
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+    const int32_t F = fr->F;
+    int32_t y0 = fr->ry0 * F - F, y1 = (fr->ry0 + fr->rh) * F + F, x0 = fr->rx0 * F - F, x1 = (fr->rx0 + fr->rw) * F + F;
+    y0 = y0 > 0 ? y0 : 0, x0 = x0 > 0 ? x0 : 0;
+    y1 = y1 < fr->H ? y1 : fr->H, x1 = x1 < fr->W ? x1 : fr->W;
+#pragma omp parallel for schedule(static) num_threads(threads)
+    for (int32_t y = y0; y < y1; y++) {
+        float *row = image->pixels + (size_t)y * image->stride;
+        float v = (y + 0.5f) / (float)F - 0.5f - (float)fr->ry0;
+        int32_t j0 = (int32_t)floorf(v);
+        float fy = v - (float)j0;
+        for (int32_t x = x0; x < x1; x++) {
+            float u = (x + 0.5f) / (float)F - 0.5f - (float)fr->rx0;
+            int32_t i0 = (int32_t)floorf(u);
+            float fx = u - (float)i0, T[3] = {0, 0, 0}, L[3] = {0, 0, 0};
+            for (int k = 0; k < 4; k++) {
+                int32_t i = i0 + (k & 1), j = j0 + (k >> 1);
+                float wgt = ((k & 1) ? fx : 1.0f - fx) * ((k >> 1) ? fy : 1.0f - fy);
+                if (i < 0 || j < 0 || i >= fr->rw || j >= fr->rh) {
+                    for (int c = 0; c < 3; c++)
+                        T[c] += wgt;
+                    continue;
+                }
+                size_t n = (size_t)j * (size_t)fr->rw + (size_t)i;
+                for (int c = 0; c < 3; c++) {
+                    T[c] += wgt * st->tl[c * plane + n];
+                    L[c] += wgt * st->tl[(3 + c) * plane + n];
+                }
+            }
+            float *px = row + 3 * (size_t)x;
+            for (int c = 0; c < 3; c++)
+                px[c] = px[c] * T[c] + L[c];
         }
     }
 }
@@ -558,6 +645,13 @@ static nacre_result pp_apply(void *state, const nc_post_input *in, nacre_image *
     const int threads = in->ctx->threads;
     uint32_t bands = 0;
     if (fr.rw > 0 && fr.rh > 0) {
+        size_t plane = (size_t)fr.rw * (size_t)fr.rh;
+        if ((r = nc_memory_check(in->ctx, 20 * plane * sizeof(float), "particle billboard buffers")) != NACRE_OK)
+            return r;
+        if (!grow(in->ctx, (void **)&st->tl, &st->tl_cap, 6 * plane, sizeof(float)))
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        if ((r = make_rays(in->ctx, st, &fr)) != NACRE_OK)
+            return r;
         if (in->settings->particles == NACRE_PARTICLES_DRAW_SPRITES) {
             for (uint32_t j = 0; j < st->count; j++) {
                 const pp_system *sy = &st->sys_table[st->sys[j]];
@@ -580,12 +674,10 @@ static nacre_result pp_apply(void *state, const nc_post_input *in, nacre_image *
             sort_far_first(st->order, st->sort_tmp, st->count, st->dist);
             if ((r = bin(in->ctx, st, &fr, st->order, &bands)) != NACRE_OK)
                 return r;
-            sprites(st, &fr, bands, image, threads);
+            sprites(st, &fr, bands, threads);
         } else {
-            size_t plane = (size_t)fr.rw * (size_t)fr.rh;
-            if ((r = nc_memory_check(in->ctx, 8 * plane * sizeof(float), "particle billboard buffers")) != NACRE_OK ||
-                !grow(in->ctx, (void **)&st->acc, &st->acc_cap, 8 * plane, sizeof(float)))
-                return r != NACRE_OK ? r : NACRE_ERROR_OUT_OF_MEMORY;
+            if (!grow(in->ctx, (void **)&st->acc, &st->acc_cap, 8 * plane, sizeof(float)))
+                return NACRE_ERROR_OUT_OF_MEMORY;
             if ((r = bin(in->ctx, st, &fr, NULL, &bands)) != NACRE_OK)
                 return r;
             accumulate(st, &fr, bands, threads);
@@ -598,8 +690,9 @@ static nacre_result pp_apply(void *state, const nc_post_input *in, nacre_image *
                 gs += m * d->g;
                 ws += m;
             }
-            march(st, &fr, ws > 0 ? (float)(gs / ws) : 0.0f, image, threads);
+            march(st, &fr, ws > 0 ? (float)(gs / ws) : 0.0f, threads);
         }
+        composite(st, &fr, image, threads);
     }
     stats->stage_us[NACRE_STAGE_PARTICLES] += nc_now_us() - t_start;
     stats->stage_ran[NACRE_STAGE_PARTICLES] = true;

@@ -34,7 +34,11 @@ static const char bench_help[] =
     "usage: nacre bench pathtrace [--json] [--runs N]\n"
     "  pathtrace  samples/s and extrapolated time to relative MSE 1e-3 at 512x512: translucent\n"
     "           sphere (index matched, dielectric, layered skin) and the demo scene, N x 30 s each\n"
-    "           (default 1)\n";
+    "           (default 1)\n"
+    "usage: nacre bench particles [--json] [--runs N]\n"
+    "  particles  the smoke plume of examples/particles.json with 10k and 100k particles:\n"
+    "           simulate, splat into 128^3, commit, and the billboards and sprites passes at\n"
+    "           1280x720, median ms per stage\n";
 
 
 
@@ -49,9 +53,10 @@ int nc_cli_bench(int argc, char **argv)
     if (nc_tool_common_flag("bench", argv[0], bench_help, &code))
         return code;
     bool voxelize = strcmp(argv[0], "voxelize") == 0, diffusion = strcmp(argv[0], "diffusion") == 0;
-    bool pathtrace = strcmp(argv[0], "pathtrace") == 0;
-    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace)
-        return nc_tool_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace)", argv[0]);
+    bool pathtrace = strcmp(argv[0], "pathtrace") == 0, particles = strcmp(argv[0], "particles") == 0;
+    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace && !particles)
+        return nc_tool_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace, particles)",
+                             argv[0]);
     bool json = false;
     long runs = pathtrace ? 1 : 15, res_only = 0;
     nc_bench_filter filter = {NULL, 0};
@@ -87,6 +92,8 @@ int nc_cli_bench(int argc, char **argv)
     }
     if (pathtrace)
         return nc_bench_pathtrace(json, 30.0 * (double)runs);
+    if (particles)
+        return nc_bench_particles(json, (int)runs);
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;
