@@ -1,11 +1,14 @@
 /*
  * bench_particles.c: `nacre bench particles`: the smoke plume of examples/particles.json with
  * 10k and 100k particles alive (emission rate 2500 and 25000 per second, 4 s lifetime, t = 5 s),
- * per stage: simulate (nc_particles_simulate), splat into 128^3 (nc_particles_splat, scratch
+ * and 10k small particles (R from 1 growing by 0.25 per second instead of from 4 by 3, which
+ * look like sparse dust), per stage: simulate (nc_particles_simulate), splat into 128^3 (nc_particles_splat, scratch
  * reused as between frames), commit (both, plus the fog the grid becomes), and the post pass of
  * the raster methods at 1280x720 drawing them as volumetric billboards and as sorted sprites
  * (stage "particles" of a phong frame whose other stages are cached). Median of --runs runs
  * after one warm-up, in ms.
+ * The splat's cost is the cells the particles cover (the column "cells": the mean kernel footprint
+ * in grid cells), the passes' the pixels they cover.
  * Targets (2 cores): splat of 10k particles into 128^3 under 2 ms; billboards of 10k under 10 ms.
  */
 #include "bench.h"
@@ -27,7 +30,7 @@ static const char scene_fmt[] =
     " \"objects\": [{\"shape\": {\"type\": \"plane\", \"size\": [600, 600]}, \"material\": \"ground\"}],"
     " \"particles\": [{\"shape\": \"sphere\", \"center\": [0, 6, 0], \"emit_radius\": 5, \"rate\": %d,"
     " \"lifetime\": 4, \"velocity\": [0, 45, 0], \"spread\": 18, \"speed_jitter\": 0.3, \"gravity\": [3, 6, 0],"
-    " \"drag\": 0.35, \"radius\": 4, \"radius_jitter\": 0.3, \"radius_rate\": 3, \"fade\": 0.9, \"seed\": 7,"
+    " \"drag\": 0.35, \"radius\": %g, \"radius_jitter\": 0.3, \"radius_rate\": %g, \"fade\": 0.9, \"seed\": 7,"
     " \"sigma_a\": 0.0004, \"sigma_s\": [0.004, 0.004, 0.0042], \"g\": 0.2}]}";
 
 static double median_of(double *v, int n) { return nc_tool_median(v, n); }
@@ -43,12 +46,17 @@ int nc_bench_particles(bool json, int runs)
         goto out;
     if (!json)
         printf("particles: smoke plume, t = 5 s, grid 128^3, passes at 1280x720, %d threads, median of %d runs (ms)\n"
-               "%-10s %10s %10s %10s %12s %10s\n",
-               nacre_context_threads(ctx), runs, "particles", "simulate", "splat", "commit", "billboards", "sprites");
-    static const int rates[] = {2500, 25000};
-    for (int k = 0; k < 2; k++) {
+               "%-10s %-6s %8s %10s %10s %10s %12s %10s\n",
+               nacre_context_threads(ctx), runs, "particles", "size", "cells", "simulate", "splat", "commit", "billboards",
+               "sprites");
+    static const struct {
+        int rate;
+        double radius, radius_rate;
+        const char *label;
+    } cases[] = {{2500, 4, 3, "smoke"}, {25000, 4, 3, "smoke"}, {2500, 1, 0.25, "dust"}};
+    for (int k = 0; k < 3; k++) {
         char text[2048];
-        snprintf(text, sizeof(text), scene_fmt, rates[k]);
+        snprintf(text, sizeof(text), scene_fmt, cases[k].rate, cases[k].radius, cases[k].radius_rate);
         nacre_scene *scene = NULL;
         nacre_renderer *renderer = NULL;
         nacre_image img = {0};
@@ -90,6 +98,12 @@ int nc_bench_particles(bool json, int runs)
             }
         }
         uint32_t alive = nacre_scene_particles_alive(scene, (nacre_particles){1});
+        double cells = 0.0;
+        for (uint32_t i = 0; i < set.count && grid.range; i++) {
+            const int32_t *rg = grid.range + 6 * (size_t)i;
+            cells += (double)(rg[1] - rg[0] + 1) * (rg[3] - rg[2] + 1) * (rg[5] - rg[4] + 1);
+        }
+        cells /= set.count ? set.count : 1;
         if (r != NACRE_OK) {
             rc = nc_tool_fail(ctx);
         } else {
@@ -100,12 +114,14 @@ int nc_bench_particles(bool json, int runs)
                 med[s] = median_of(col, runs);
             }
             if (json)
-                printf("{\"bench\":\"particles\",\"particles\":%u,\"grid\":128,\"width\":1280,\"height\":720,"
-                       "\"threads\":%d,\"runs\":%d,\"simulate_ms\":%.3f,\"splat_ms\":%.3f,\"commit_ms\":%.3f,"
-                       "\"billboards_ms\":%.3f,\"sprites_ms\":%.3f}\n",
-                       alive, nacre_context_threads(ctx), runs, med[0], med[1], med[2], med[3], med[4]);
+                printf("{\"bench\":\"particles\",\"particles\":%u,\"size\":\"%s\",\"cells_per_particle\":%.0f,"
+                       "\"grid\":128,\"width\":1280,\"height\":720,\"threads\":%d,\"runs\":%d,\"simulate_ms\":%.3f,"
+                       "\"splat_ms\":%.3f,\"commit_ms\":%.3f,\"billboards_ms\":%.3f,\"sprites_ms\":%.3f}\n",
+                       alive, cases[k].label, cells, nacre_context_threads(ctx), runs, med[0], med[1], med[2], med[3],
+                       med[4]);
             else
-                printf("%-10u %10.3f %10.3f %10.3f %12.3f %10.3f\n", alive, med[0], med[1], med[2], med[3], med[4]);
+                printf("%-10u %-6s %8.0f %10.3f %10.3f %10.3f %12.3f %10.3f\n", alive, cases[k].label, cells, med[0],
+                       med[1], med[2], med[3], med[4]);
             rc = 0;
         }
         nc_particle_set_free(ctx, &set);

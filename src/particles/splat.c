@@ -13,6 +13,7 @@
  * sample integrates to the same number. A particle whose kernel misses every sample centre along
  * an axis (R under half a cell) deposits there by linear weights on the two nearest samples.
  */
+#include "particles/billboard.h"
 #include "particles/particles.h"
 
 #include <math.h>
@@ -58,7 +59,7 @@ static float axis_weights(double c, double R, double origin, double h, int32_t n
     float sum = 0.0f;
     for (int32_t i = a; i <= b; i++) {
         float t = (float)((origin + i * h - c) / R);
-        w[i - a] = expf(-NC_PARTICLE_KERNEL_A * t * t);
+        w[i - a] = nc_fast_exp_neg(-NC_PARTICLE_KERNEL_A * t * t);
         sum += w[i - a];
     }
     if (!(sum > 0.0f)) {

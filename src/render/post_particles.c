@@ -567,6 +567,7 @@ static void sprites(pp_state *st, const pp_frame *fr, uint32_t bands, int thread
             const int32_t *rc = st->rect + 4 * (size_t)j;
             const pp_system *sy = &st->sys_table[st->sys[j]];
             const float R = st->radius[j], *lit = st->lit + 3 * (size_t)j;
+            const bool grey = sy->sigma_t[0] == sy->sigma_t[1] && sy->sigma_t[1] == sy->sigma_t[2];
             const int32_t ya = rc[2] > y0 ? rc[2] : y0, yb = rc[3] < y1 ? rc[3] : y1;
             for (int32_t y = ya; y <= yb; y++) {
                 const size_t ri = (size_t)(y - fr->ry0) * (size_t)fr->rw - (size_t)fr->rx0;
@@ -580,11 +581,13 @@ static void sprites(pp_state *st, const pp_frame *fr, uint32_t bands, int thread
                     if (!(fade > 0.0f))
                         continue;
                     const size_t i = ri + (size_t)x;
-                    float col = st->column[j] * wgt * fade;
+                    float col = st->column[j] * wgt * fade, keep[3];
+                    keep[0] = nc_fast_exp_neg(-sy->sigma_t[0] * col);
+                    keep[1] = grey ? keep[0] : nc_fast_exp_neg(-sy->sigma_t[1] * col);
+                    keep[2] = grey ? keep[0] : nc_fast_exp_neg(-sy->sigma_t[2] * col);
                     for (int c = 0; c < 3; c++) {
-                        float keep = nc_fast_exp_neg(-sy->sigma_t[c] * col);
-                        st->tl[c * plane + i] *= keep;
-                        st->tl[(3 + c) * plane + i] = st->tl[(3 + c) * plane + i] * keep + (1.0f - keep) * lit[c];
+                        st->tl[c * plane + i] *= keep[c];
+                        st->tl[(3 + c) * plane + i] = st->tl[(3 + c) * plane + i] * keep[c] + (1.0f - keep[c]) * lit[c];
                     }
                 }
             }

@@ -7,6 +7,7 @@
  */
 #include "test_util.h"
 
+#include "particles/billboard.h"
 #include "particles/particles.h"
 #include "scene/medium.h"
 #include "scene/scene.h"
@@ -302,8 +303,110 @@ static void test_round_trip(void)
     nacre_context_destroy(ctx);
 }
 
+/* r(x) (seed 003 figures 3.5-3.8): the billboard of one particle seen through its centre,
+ * reconstructed over its chord, against the kernel's density along that chord. */
+static void test_remap(void)
+{
+    const float R = 3.0f, d0 = 1.7f, sig = 0.4f;
+    float v[3] = {0.0f, 0.0f, -50.0f}, d[3] = {0.0f, 0.0f, -1.0f}, w, tm, h;
+    CHECK(nc_billboard_hit(v, d, R, &w, &tm, &h));
+    CHECK_NEAR(w, 1.0, 1e-6);
+    CHECK_NEAR(tm, 50.0, 1e-4);
+    CHECK_NEAR(h, R, 1e-5);
+    const double tau = sig * d0 * NC_PARTICLE_KERNEL_K * R * w, near = tm - h, len = 2.0 * h;
+    enum { N = 20000 };
+    double rec = 0.0, exact = 0.0, l1 = 0.0, l1_flat = 0.0, one = 0.0;
+    for (int i = 0; i < N; i++) {
+        double t = near + (i + 0.5) * len / N, x = (t - near) / len;
+        double s_rec = tau / len * nc_billboard_remap((float)x, NC_BILLBOARD_REMAP_T);
+        double u = (t - tm) / R, s_exact = sig * d0 * exp(-4.5 * u * u);
+        rec += s_rec * len / N;
+        exact += s_exact * len / N;
+        l1 += fabs(s_rec - s_exact) * len / N;
+        l1_flat += fabs(tau / len - s_exact) * len / N;
+        one += nc_billboard_remap((float)x, 0.3f) / N;
+    }
+    printf("r(x): optical depth reconstructed %.6f, exact %.6f; L1 error %.3f of it (constant sigma_t: %.3f)\n", rec,
+           exact, l1 / exact, l1_flat / exact);
+    CHECK_NEAR(one, 1.0, 1e-3);      /* r integrates to 1 for any T */
+    CHECK_NEAR(rec, exact, 1e-3 * exact); /* the pixel keeps its optical depth */
+    CHECK(l1 < 0.28 * exact);         /* the tent follows the bell: 0.265 */
+    CHECK(l1 < 0.5 * l1_flat);        /* constant sigma_t over the chord: 0.75 */
+    CHECK(nc_billboard_remap(0.0f, 1.0f) == 0.0f && nc_billboard_remap(1.0f, 1.0f) == 0.0f);
+    /* A ray passing at R / 2: the column is the kernel's there. */
+    v[0] = 0.5f * R;
+    CHECK(nc_billboard_hit(v, d, R, &w, &tm, &h));
+    CHECK_NEAR(w, exp(-4.5 * 0.25), 1e-5);
+    CHECK_NEAR(h, R * sqrt(0.75), 1e-5);
+    v[0] = 1.01f * R;
+    CHECK(!nc_billboard_hit(v, d, R, &w, &tm, &h));
+    double worst = 0.0;
+    for (float x = -80.0f; x <= 0.0f; x += 0.01f)
+        worst = fmax(worst, fabs(nc_fast_exp_neg(x) / exp(x) - 1.0));
+    CHECK(worst < 1e-5);
+}
+
+/* The billboard and sprite passes give the same image with 1 and 2 threads. */
+static void test_pass_threads(void)
+{
+    static const char scene_json[] =
+        "{\"camera\": {\"position\": [0, 20, 90], \"target\": [0, 15, 0], \"fov\": 40},"
+        " \"environment\": [0.2, 0.2, 0.25],"
+        " \"materials\": {\"g\": {\"type\": \"opaque\", \"diffuse\": 0.5}},"
+        " \"lights\": [{\"type\": \"directional\", \"direction\": [-0.4, -1, -0.3], \"irradiance\": 2}],"
+        " \"objects\": [{\"shape\": {\"type\": \"plane\", \"size\": [200, 200]}, \"material\": \"g\"}],"
+        " \"particles\": [{\"rate\": 500, \"lifetime\": 2, \"velocity\": [0, 15, 0], \"spread\": 25,"
+        " \"radius\": 2, \"radius_rate\": 2, \"sigma_s\": 0.05, \"sigma_a\": 0.01, \"grid_resolution\": 32}]}";
+    nacre_image img[2][2];
+    nacre_context *ctxs[2];
+    nacre_scene *scenes[2];
+    nacre_render_settings rs = nacre_render_settings_defaults();
+    rs.method = NACRE_METHOD_PHONG;
+    rs.width = 160;
+    rs.height = 120;
+    for (int k = 0; k < 2; k++) {
+        ctxs[k] = make_ctx(k + 1);
+        scenes[k] = NULL;
+        CHECK(nacre_scene_load_json(ctxs[k], scene_json, sizeof(scene_json) - 1, "t.json", NULL, &scenes[k], NULL) ==
+              NACRE_OK);
+        CHECK(nacre_scene_commit(scenes[k], 3.0) == NACRE_OK);
+        for (int p = 0; p < 2; p++) {
+            memset(&img[k][p], 0, sizeof(img[k][p]));
+            nacre_render_stats st;
+            rs.particles = p ? NACRE_PARTICLES_DRAW_SPRITES : NACRE_PARTICLES_DRAW_BILLBOARDS;
+            CHECK(nacre_render(scenes[k], &rs, &img[k][p], &st) == NACRE_OK);
+            CHECK(st.stage_ran[NACRE_STAGE_PARTICLES]);
+        }
+    }
+    for (int p = 0; p < 2; p++) {
+        bool same = true;
+        for (int32_t y = 0; y < 120; y++)
+            same &= memcmp(img[0][p].pixels + (size_t)y * img[0][p].stride, img[1][p].pixels + (size_t)y * img[1][p].stride,
+                           160 * 3 * sizeof(float)) == 0;
+        CHECK(same);
+    }
+    /* The plume is drawn: the image differs from the voxel setting's (the fog pass). */
+    nacre_image vox = {0};
+    rs.particles = NACRE_PARTICLES_DRAW_VOXEL;
+    CHECK(nacre_render(scenes[1], &rs, &vox, NULL) == NACRE_OK);
+    double diff = 0.0;
+    for (int32_t y = 0; y < 120; y++)
+        for (int32_t x = 0; x < 160 * 3; x++)
+            diff += fabs(vox.pixels[(size_t)y * vox.stride + x] - img[1][0].pixels[(size_t)y * img[1][0].stride + x]);
+    CHECK(diff > 1.0);
+    nacre_image_free(ctxs[1], &vox);
+    for (int k = 0; k < 2; k++) {
+        for (int p = 0; p < 2; p++)
+            nacre_image_free(ctxs[k], &img[k][p]);
+        nacre_scene_destroy(scenes[k]);
+        nacre_context_destroy(ctxs[k]);
+    }
+}
+
 int main(void)
 {
+    test_remap();
+    test_pass_threads();
     test_motion();
     test_splat();
     test_fog_optical_depth();
