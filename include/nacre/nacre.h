@@ -84,7 +84,8 @@
  *   - implement NACRE_METHOD_LAYERED (its issue is open): it returns NACRE_ERROR_UNSUPPORTED;
  *   - light fog with point or spot lights, or shadow it, outside the path tracer: phong and
  *     diffusion draw fog by an analytic post pass (directional lights and the environment);
- *   - animate anything but deformers (time-dependent) and edits between commits.
+ *   - animate anything but deformers and particle systems (time-dependent) and edits between
+ *     commits.
  *
  * HEADERS
  *   This header includes the whole API; each module header also compiles on its own:

@@ -109,6 +109,7 @@ nacre_result nacre_scene_add_particles(nacre_scene *s, const nacre_particles_des
         return r;
     out->id = ++s->particles_count;
     s->particles_version++;
+    s->versions.environment++; /* as a fog edit: renderers see the scene changed until the commit */
     return NACRE_OK;
 }
 
@@ -122,8 +123,10 @@ nacre_result nacre_scene_set_particles(nacre_scene *s, nacre_particles h, const 
     if (r != NACRE_OK)
         return r;
     r = store(s->ctx, &s->particles[h.id - 1], desc);
-    if (r == NACRE_OK)
+    if (r == NACRE_OK) {
         s->particles_version++;
+        s->versions.environment++;
+    }
     return r;
 }
 
