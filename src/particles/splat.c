@@ -1,6 +1,6 @@
 /*
  * splat.c: voxelized particles (seed 003 §3.2.1). The seed rasterizes each particle into a 3D
- * texture with atomic integer adds; on the CPU the grid is cut into slabs of SLAB z layers,
+ * texture with atomic integer adds; on the CPU the grid is cut into slabs of z layers,
  * each slab owned by one thread, and every slab adds its particles in index order. No two
  * threads write one cell and the order of the additions into a cell is fixed, so the grid is the
  * same bit for bit whatever the thread count, without atomics.
@@ -22,7 +22,14 @@
 #include <omp.h>
 #endif
 
-#define SLAB 4u /* z layers per slab: 32 slabs at 128^3, enough to balance two to eight threads */
+/* z layers per slab: about four slabs per thread (at least 4 layers), enough to balance the
+ * threads while a particle's weights are computed once per slab it overlaps. The grid does not
+ * depend on the slab size: every cell sums its particles in index order whatever the slabs. */
+static uint32_t slab_layers(uint32_t res, int threads)
+{
+    uint32_t n = (res + 4u * (uint32_t)threads - 1) / (4u * (uint32_t)threads);
+    return n < 4u ? 4u : n;
+}
 
 void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
 {
@@ -117,7 +124,7 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     }
     const size_t cells = (size_t)res * res * res;
     const int threads = nc_threads(ctx) > 0 ? nc_threads(ctx) : 1;
-    const uint32_t slabs = (res + SLAB - 1) / SLAB;
+    const uint32_t SLAB = slab_layers(res, threads), slabs = (res + SLAB - 1) / SLAB;
     nacre_result r = nc_memory_check(ctx, (uint64_t)cells * sizeof(float), "particle density grid (grid_resolution)");
     if (r != NACRE_OK)
         return r;
@@ -210,7 +217,7 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
             }
         }
         for (size_t c = 0; c < (z1 - z0) * nxy; c++)
-            gmax = fmaxf(gmax, slab[c]);
+            gmax = slab[c] > gmax ? slab[c] : gmax;
     }
     g->max_value = gmax;
     return NACRE_OK;
