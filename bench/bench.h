@@ -40,5 +40,7 @@ int nc_bench_pathtrace(bool json, double seconds);
 int nc_bench_load(bool json, int runs, const char *ply, const char *glb);
 /* The layered method at 640x480 on a scene file, cold and while the light moves (bench/bench_layered.c). */
 int nc_bench_layered(bool json, int runs, const char *scene_path);
+/* Particles: simulate, splat, billboards and sprites passes (bench/bench_particles.c). */
+int nc_bench_particles(bool json, int runs);
 
 #endif /* NACRE_BENCH_H */

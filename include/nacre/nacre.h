@@ -84,7 +84,8 @@
  *   - implement NACRE_METHOD_LAYERED (its issue is open): it returns NACRE_ERROR_UNSUPPORTED;
  *   - light fog with point or spot lights, or shadow it, outside the path tracer: phong and
  *     diffusion draw fog by an analytic post pass (directional lights and the environment);
- *   - animate anything but deformers (time-dependent) and edits between commits.
+ *   - animate anything but deformers and particle systems (time-dependent) and edits between
+ *     commits.
  *
  * HEADERS
  *   This header includes the whole API; each module header also compiles on its own:
@@ -96,6 +97,7 @@
  *     nacre/render.h  methods, render settings, stats, the renderer; scene files (load, save)
  *     nacre/slab.h    slab measurement (validation against exact results)
  *     nacre/voxel.h   voxelization of triangle meshes
+ *     nacre/particles.h  particle systems (emitters, lists) as media: simulation, density grid
  *   Their include guards are NACRE_PUBLIC_<NAME>_H: the library's private headers use
  *   NACRE_<NAME>_H (src/core/core.h, src/scene/scene.h).
  */
@@ -109,5 +111,6 @@
 #include <nacre/render.h>
 #include <nacre/slab.h>
 #include <nacre/voxel.h>
+#include <nacre/particles.h>
 
 #endif /* NACRE_NACRE_H */

@@ -12,6 +12,7 @@
 #include <nacre/core.h>
 #include <nacre/image.h>
 #include <nacre/scene.h>
+#include <nacre/particles.h>
 
 #include <stdbool.h>
 #include <stddef.h>
@@ -140,6 +141,7 @@ typedef struct nacre_render_settings {
      * everything when the buffer, its size, the environment or the method differ from its last
      * frame. Default false. */
     bool reuse_output;
+    nacre_particles_draw particles; /* phong, diffusion: how particles are drawn (particles.h) */
 } nacre_render_settings;
 
 NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
@@ -161,6 +163,8 @@ NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
  *              least-squares planes and uv gradients of seed 001 section 2.2)
  *   march      layered: every frame (single scattering along each translucent pixel's view ray;
  *              runs before shade, which adds the surface layer)
+ *   particles  every frame of a raster method with particles alive, drawn as billboards or
+ *              sprites (the post pass of nacre_render_settings.particles)
  * The path tracer runs none of these; its frames restart or accumulate (pathtrace.accumulate). */
 #define NACRE_STAGE_LIST(X)                                                                    \
     X(NACRE_STAGE_SETUP, "setup")                                                              \
@@ -175,7 +179,8 @@ NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
     X(NACRE_STAGE_SHADE, "shade")                                                              \
     X(NACRE_STAGE_FOG, "fog")                                                                  \
     X(NACRE_STAGE_PLANES, "planes")                                                            \
-    X(NACRE_STAGE_MARCH, "march")
+    X(NACRE_STAGE_MARCH, "march")                                                              \
+    X(NACRE_STAGE_PARTICLES, "particles")
 
 typedef enum nacre_stage {
 #define NACRE_STAGE_ENUM_(name, text) name,

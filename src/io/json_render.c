@@ -48,7 +48,8 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
                                        "pcf_radius", "shadow_bias", "spp", "seed", "time",
                                        "voxel_resolution", "tsm_size", "solver", "source",
                                        "tolerance", "seed_iterations", "time_limit", "max_scatter",
-                                       "layered_samples", "layered_epsilon", "layered_integration"};
+                                       "layered_samples", "layered_epsilon", "layered_integration",
+                                       "particles"};
     /* indexed by the enums' values */
     const char *const solvers[] = {nacre_solver_name(NACRE_SOLVER_MULTIGRID), nacre_solver_name(NACRE_SOLVER_SEED)};
     const char *const sources[] = {nacre_source_name(NACRE_SOURCE_VOLUME), nacre_source_name(NACRE_SOURCE_FACE)};
@@ -96,6 +97,12 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
     choice = nc_json_get_choice(ld, obj, "source", "source", sources, COUNT_OF(sources));
     if (choice >= 0)
         s->diffusion.source = (nacre_diffusion_source)choice;
+    const char *const draws[] = {nacre_particles_draw_name(NACRE_PARTICLES_DRAW_BILLBOARDS),
+                                 nacre_particles_draw_name(NACRE_PARTICLES_DRAW_SPRITES),
+                                 nacre_particles_draw_name(NACRE_PARTICLES_DRAW_VOXEL)};
+    choice = nc_json_get_choice(ld, obj, "particles", "particles drawing", draws, COUNT_OF(draws));
+    if (choice >= 0)
+        s->particles = (nacre_particles_draw)choice;
     static const range tolerance_range = {0.0, 1.0, true, true};
     nc_json_get_number(ld, obj, "tolerance", tolerance_range, &s->diffusion.tolerance);
     if (nc_json_get_integer(ld, obj, "seed_iterations", 0, 1000000, &v))

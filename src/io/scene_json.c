@@ -3,7 +3,8 @@
  * scene-building functions, so a file can express nothing the C API cannot. This file holds the
  * entry points, the reading of the text (size, malformed JSON, nesting, \u0000) and the
  * "Top level" object, whose sections it parses in dependency order; each section lives in its
- * own file (json_render.c, json_camera_lights.c, json_materials.c, json_objects.c, json_fog.c)
+ * own file (json_render.c, json_camera_lights.c, json_materials.c, json_objects.c, json_fog.c,
+ * json_particles.c)
  * over the shared readers of json_read.c, declared in scene_json_internal.h.
  *
  * Conventions: the parse is strict. Every object's keys are checked against the keys that
@@ -33,7 +34,7 @@
 static void parse_scene(loader *ld, const cJSON *root)
 {
     static const char *const keys[] = {"units", "render", "camera", "environment", "materials",
-                                       "lights", "objects", "fog", "import"};
+                                       "lights", "objects", "fog", "import", "particles"};
     if (!cJSON_IsObject(root)) {
         nc_json_fail(ld, NACRE_ERROR_PARSE, "the top level must be an object, got %s",
                      nc_json_type_name(root));
@@ -61,6 +62,8 @@ static void parse_scene(loader *ld, const cJSON *root)
         nc_json_parse_array(ld, item, "objects", nc_json_parse_object);
     if ((item = nc_json_member(root, "fog")) && !ld->err)
         nc_json_parse_array(ld, item, "fog", nc_json_parse_fog);
+    if ((item = nc_json_member(root, "particles")) && !ld->err)
+        nc_json_parse_array(ld, item, "particles", nc_json_parse_particles);
 }
 
 /* ------------------------------------------------------------------------------------------ */

@@ -118,5 +118,6 @@ void nc_json_parse_fog(loader *ld, const cJSON *obj);
 /* json_import.c: "import" (a glTF file), before camera, materials and lights. */
 void nc_json_parse_import(loader *ld, const cJSON *root, bool has_units);
 const material_entry *nc_json_find_imported(const loader *ld, const char *name);
+void nc_json_parse_particles(loader *ld, const cJSON *obj);
 
 #endif

@@ -24,6 +24,7 @@
 #include "io/nrrd.h"
 #include "io/scene_json_internal.h"
 #include "io/tmpfile.h"
+#include <nacre/particles.h>
 
 #include <assimp/cexport.h>
 #include <assimp/material.h>
@@ -442,6 +443,7 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
         {s->layered.epsilon > 0 && s->layered.epsilon < 1, "layered_epsilon"},
         {s->layered.integration == NACRE_LAYERED_ANALYTIC || s->layered.integration == NACRE_LAYERED_SAMPLES,
          "layered_integration"},
+        {(unsigned)s->particles <= NACRE_PARTICLES_DRAW_VOXEL, "particles"},
     };
     for (size_t i = 0; i < COUNT_OF(checks); i++)
         if (!checks[i].ok) {
@@ -475,6 +477,7 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
     add_uint(w, o, "layered_samples", s->layered.samples);
     add_float(w, o, "layered_epsilon", s->layered.epsilon);
     add_string(w, o, "layered_integration", nacre_layered_integration_name(s->layered.integration));
+    add_string(w, o, "particles", nacre_particles_draw_name(s->particles));
     return o;
 }
 
@@ -745,6 +748,61 @@ static cJSON *fog_object(writer *w, const nacre_fog_desc *d)
     return o;
 }
 
+/* One particle system (json_particles.c reads it back). */
+static cJSON *particles_object(writer *w, const nacre_particles_desc *d)
+{
+    static const char *const shapes[] = {"point", "box", "sphere"};
+    cJSON *o = cJSON_CreateObject();
+    if (!o)
+        return NULL;
+    bool list = d->type == NACRE_PARTICLES_LIST;
+    add_string(w, o, "type", list ? "list" : "emitter");
+    if (!list) {
+        add_string(w, o, "shape", shapes[d->shape]);
+        add_floats(w, o, "center", d->center, 3);
+        add_floats(w, o, "size", d->size, 3);
+        add_float(w, o, "emit_radius", d->emit_radius);
+        add_float(w, o, "rate", d->rate);
+        add_float(w, o, "lifetime", d->lifetime);
+        add_floats(w, o, "velocity", d->velocity, 3);
+        add_float(w, o, "spread", d->spread);
+        add_float(w, o, "speed_jitter", d->speed_jitter);
+        add_floats(w, o, "gravity", d->gravity, 3);
+        add_float(w, o, "drag", d->drag);
+        add_float(w, o, "radius_jitter", d->radius_jitter);
+        add_float(w, o, "radius_rate", d->radius_rate);
+        add_float(w, o, "fade", d->fade);
+        add_uint(w, o, "seed", d->seed);
+    }
+    add_float(w, o, "radius", d->radius);
+    add_float(w, o, "density", d->density);
+    if (list) {
+        cJSON *pos = cJSON_CreateArray();
+        for (uint32_t i = 0; i < d->count && pos && w->err == NACRE_OK; i++) {
+            cJSON *p = cJSON_CreateArray();
+            for (int c = 0; c < 3 && p; c++)
+                add(w, p, NULL, raw_float(d->positions[3 * (size_t)i + c]));
+            add(w, pos, NULL, p);
+        }
+        add(w, o, "positions", pos);
+        const float *arrays[2] = {d->radii, d->densities};
+        const char *names[2] = {"radii", "densities"};
+        for (int k = 0; k < 2; k++) {
+            if (!arrays[k])
+                continue;
+            cJSON *a = cJSON_CreateArray();
+            for (uint32_t i = 0; i < d->count && a && w->err == NACRE_OK; i++)
+                add(w, a, NULL, raw_float(arrays[k][i]));
+            add(w, o, names[k], a);
+        }
+    }
+    add_floats(w, o, "sigma_a", d->sigma_a, 3);
+    add_floats(w, o, "sigma_s", d->sigma_s, 3);
+    add_float(w, o, "g", d->g);
+    add_uint(w, o, "grid_resolution", d->grid_resolution);
+    return o;
+}
+
 /* The whole file, in the loader's order of dependencies. */
 static cJSON *scene_object(writer *w, const nacre_scene_file_settings *fs)
 {
@@ -773,8 +831,17 @@ static cJSON *scene_object(writer *w, const nacre_scene_file_settings *fs)
         add(w, objects, NULL, object_object(w, i, &s->objects[i]));
     cJSON *fogs = cJSON_CreateArray();
     add(w, root, "fog", fogs);
-    for (uint32_t i = 0; i < s->fog_count && w->err == NACRE_OK; i++)
+    for (uint32_t i = 0; i < nc_scene_user_fogs(s) && w->err == NACRE_OK; i++)
         add(w, fogs, NULL, fog_object(w, &s->fogs[i].desc));
+    if (nacre_scene_particles_count(s) > 0) {
+        cJSON *systems = cJSON_CreateArray();
+        add(w, root, "particles", systems);
+        for (uint32_t i = 0; i < nacre_scene_particles_count(s) && w->err == NACRE_OK; i++) {
+            nacre_particles_desc d;
+            if (nacre_scene_get_particles(s, (nacre_particles){i + 1}, &d) == NACRE_OK)
+                add(w, systems, NULL, particles_object(w, &d));
+        }
+    }
     if (w->err != NACRE_OK) {
         cJSON_Delete(root);
         return NULL;

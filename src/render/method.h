@@ -80,6 +80,8 @@ typedef struct nc_post_pass {
 
 /* Distance and exponential height fog over a finished frame (post_fog.c). */
 extern const nc_post_pass nc_post_fog;
+/* Particles as volumetric billboards or sprites (post_particles.c). */
+extern const nc_post_pass nc_post_particles;
 
 /* The built-in post passes, in the order they apply (post.c). */
 extern const nc_post_pass *const nc_post_passes[];

@@ -79,10 +79,17 @@ typedef struct fog_state {
     float *points, *eval_sa, *eval_ss; /* MEAN_POINTS x 3 each */
 } fog_state;
 
+/* The fogs this pass draws: the fogs of particle systems only when particles are drawn as
+ * voxels (billboards and sprites have their own pass, post_particles.c); they come last. */
+static uint32_t fogs_drawn(const nacre_scene *scene, const nacre_render_settings *settings)
+{
+    return settings->particles == NACRE_PARTICLES_DRAW_VOXEL ? scene->fog_count : nc_scene_user_fogs(scene);
+}
+
 static bool fog_wanted(const nacre_scene *scene, const nacre_render_settings *settings)
 {
     const nc_method *m = nc_method_get(settings->method);
-    return scene->fog_count > 0 && m && !m->renders_fog;
+    return fogs_drawn(scene, settings) > 0 && m && !m->renders_fog;
 }
 
 static void fog_destroy(nacre_context *ctx, void *state)
@@ -338,6 +345,7 @@ static nacre_result fog_apply(void *state, const nc_post_input *in, nacre_image 
     nacre_result res = fog_setup(st, in->ctx, in->scene);
     if (res != NACRE_OK)
         return res;
+    st->fog_count = fogs_drawn(in->scene, in->settings);
     camera_rays cr;
     camera_setup(in->view, &cr);
     int32_t w = image->width, h = image->height;
@@ -354,7 +362,7 @@ static nacre_result fog_apply(void *state, const nc_post_input *in, nacre_image 
     }
     stats->fog_lights_ignored = in->scene->light_count - st->sun_count;
     stats->fog_patterns_averaged = 0;
-    for (uint32_t i = 0; i < in->scene->fog_count; i++)
+    for (uint32_t i = 0; i < st->fog_count; i++)
         stats->fog_patterns_averaged += nc_medium_heterogeneous(&in->scene->fogs[i].medium);
     stats->stage_us[NACRE_STAGE_FOG] += nc_now_us() - t_start;
     stats->stage_ran[NACRE_STAGE_FOG] = true;

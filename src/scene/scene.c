@@ -434,6 +434,7 @@ void nacre_scene_destroy(nacre_scene *s)
         nc_free(ctx, s->textures[i].source_path);
     }
     nc_free(ctx, s->textures);
+    nc_scene_free_particles(s);
     for (uint32_t i = 0; i < s->input_count; i++)
         nc_free(ctx, s->inputs[i]);
     nc_free(ctx, s->inputs);
@@ -553,6 +554,8 @@ const nacre_material_desc *nc_scene_material(const nacre_scene *s, nacre_materia
 
 const nc_volume_rec *nc_scene_volume(const nacre_scene *s, nacre_volume v)
 {
+    if (v.id & NC_PARTICLE_VOLUME_BIT)
+        return nc_scene_particle_volume(s, v.id & ~NC_PARTICLE_VOLUME_BIT);
     return (v.id >= 1 && v.id <= s->volume_count) ? &s->volumes[v.id - 1] : NULL;
 }
 
@@ -919,7 +922,7 @@ static nacre_result check_fog(const nacre_scene *s, const nacre_fog_desc *d)
     return check_pattern(s, &d->pattern, "fog", true);
 }
 
-static void store_fog(nc_fog_rec *rec, const nacre_fog_desc *d)
+void nc_scene_store_fog(nc_fog_rec *rec, const nacre_fog_desc *d)
 {
     rec->desc = *d;
     nacre_material_desc m = nacre_material_desc_defaults(NACRE_MATERIAL_TRANSLUCENT);
@@ -942,12 +945,15 @@ nacre_result nacre_scene_add_fog(nacre_scene *s, const nacre_fog_desc *desc, nac
     if (!s || !desc || !out)
         return NACRE_ERROR_INVALID_ARGUMENT;
     out->id = 0;
-    if (s->fog_count >= NACRE_MAX_FOGS)
+    if (nc_scene_user_fogs(s) >= NACRE_MAX_FOGS)
         return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: at most %d fogs per scene", NACRE_MAX_FOGS);
     nacre_result r = check_fog(s, desc);
     if (r != NACRE_OK)
         return r;
-    store_fog(&s->fogs[s->fog_count], desc);
+    nc_scene_drop_particle_fogs(s); /* made again at the next commit, after the new fog */
+    if (s->fog_count + s->particles_count >= NACRE_MAX_FOGS)
+        return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: at most %d fogs and particle systems per scene", NACRE_MAX_FOGS);
+    nc_scene_store_fog(&s->fogs[s->fog_count], desc);
     out->id = ++s->fog_count;
     s->versions.environment++;
     return NACRE_OK;
@@ -957,17 +963,17 @@ nacre_result nacre_scene_set_fog(nacre_scene *s, nacre_fog fog, const nacre_fog_
 {
     if (!s || !desc)
         return NACRE_ERROR_INVALID_ARGUMENT;
-    if (fog.id < 1 || fog.id > s->fog_count)
+    if (fog.id < 1 || fog.id > nc_scene_user_fogs(s))
         return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: invalid handle %u", fog.id);
     nacre_result r = check_fog(s, desc);
     if (r != NACRE_OK)
         return r;
-    store_fog(&s->fogs[fog.id - 1], desc);
+    nc_scene_store_fog(&s->fogs[fog.id - 1], desc);
     s->versions.environment++;
     return NACRE_OK;
 }
 
-uint32_t nacre_scene_fog_count(const nacre_scene *s) { return s ? s->fog_count : 0; }
+uint32_t nacre_scene_fog_count(const nacre_scene *s) { return s ? nc_scene_user_fogs(s) : 0; }
 
 nacre_result nacre_scene_set_unit_mm(nacre_scene *s, float unit_mm)
 {
@@ -1190,6 +1196,9 @@ nacre_result nacre_scene_commit(nacre_scene *s, double time)
         memcpy(s->bounds_min, bmin, sizeof(bmin));
         memcpy(s->bounds_max, bmax, sizeof(bmax));
     }
+    nacre_result pr = nc_scene_commit_particles(s, time);
+    if (pr != NACRE_OK)
+        return pr;
     s->time = time;
     s->committed = s->versions;
     s->committed_valid = true;

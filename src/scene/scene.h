@@ -75,6 +75,12 @@ typedef struct nc_versions {
     uint64_t environment; /* and fogs */
 } nc_versions;
 
+struct nc_particles_rec; /* src/particles/scene_particles.c */
+
+/* Volume handles with this bit refer to the density grid of particle system (id & ~bit), made
+ * at commit; they never reach scene files. */
+#define NC_PARTICLE_VOLUME_BIT 0x80000000u
+
 struct nacre_scene {
     nacre_context *ctx;
     uint64_t uid; /* distinguishes scenes for renderer caches (address reuse is possible) */
@@ -93,7 +99,13 @@ struct nacre_scene {
     nc_texture_rec *textures;
     uint32_t texture_count, texture_capacity;
     nc_fog_rec fogs[NACRE_MAX_FOGS];
-    uint32_t fog_count;
+    uint32_t fog_count;         /* the scene's fogs, then particle_fog_count made at commit */
+    uint32_t particle_fog_count; /* one per particle system with particles at the commit time */
+    struct nc_particles_rec *particles;
+    uint32_t particles_count, particles_capacity;
+    uint64_t particles_version;  /* bumped by particle edits */
+    uint64_t particles_built;    /* particles_version the fogs were made from, 0: none */
+    double particles_time;       /* time they were made for */
     nacre_camera_desc camera;
     bool has_camera;
     float environment[3];
@@ -130,6 +142,17 @@ const nacre_material_desc *nc_scene_material(const nacre_scene *scene, nacre_mat
 void nc_scene_view_depth_range(const nacre_scene *scene, const nc_mat4 *view, float *dmin, float *dmax);
 const nc_volume_rec *nc_scene_volume(const nacre_scene *scene, nacre_volume volume);
 const nc_texture_rec *nc_scene_texture(const nacre_scene *scene, nacre_texture texture);
+
+/* Fill a fog record from a checked desc (scene.c; also used for the fogs of particles). */
+void nc_scene_store_fog(nc_fog_rec *rec, const nacre_fog_desc *desc);
+/* The user's fogs: fogs[0 .. nc_scene_user_fogs) (the rest are particle systems'). */
+static inline uint32_t nc_scene_user_fogs(const nacre_scene *s) { return s->fog_count - s->particle_fog_count; }
+/* Particle systems (src/particles/scene_particles.c): simulate and splat them at `time` into
+ * their fogs when they or the time changed; drop those fogs; free them. */
+nacre_result nc_scene_commit_particles(nacre_scene *scene, double time);
+void nc_scene_drop_particle_fogs(nacre_scene *scene);
+void nc_scene_free_particles(nacre_scene *scene);
+const nc_volume_rec *nc_scene_particle_volume(const nacre_scene *scene, uint32_t index);
 
 /* Evaluate the deformer chain at a rest-pose point (exposed for tests and the voxelizer). */
 nc_vec3 nc_deform_point(const nacre_deformer *deformers, uint32_t count, double time, nc_vec3 p);

@@ -517,6 +517,13 @@ static uint64_t committed_vertex_budget(const nacre_scene *s)
         const nacre_mesh_data *m = nacre_scene_mesh_data(s, s->objects[i].desc.mesh);
         total += m ? m->vertex_count : 0;
     }
+    /* Particle systems are simulated and splatted at commit: count their grids' cells. */
+    for (uint32_t i = 0; i < nacre_scene_particles_count(s); i++) {
+        nacre_particles_desc d;
+        if (nacre_scene_get_particles(s, (nacre_particles){i + 1}, &d) == NACRE_OK)
+            total += (uint64_t)d.grid_resolution * d.grid_resolution * d.grid_resolution / 4 +
+                     (d.type == NACRE_PARTICLES_LIST ? d.count : (uint64_t)(d.rate * d.lifetime));
+    }
     return total;
 }
 

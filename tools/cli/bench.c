@@ -40,7 +40,13 @@ static const char bench_help[] =
     "           make it with scripts/ply_to_glb.py), medians and their ratio (target <= 1.5)\n"
     "usage: nacre bench layered [--json] [--runs N] [--scene FILE]\n"
     "  layered  the layered method at 640x480 on FILE (default examples/layered.json): the cold\n"
-    "           frame per stage, then 4, 10, 50, 100 steps of each integration while the light moves\n";
+    "           frame per stage, then 4, 10, 50, 100 steps of each integration while the light moves\n"
+    "usage: nacre bench particles [--json] [--runs N]\n"
+    "  particles  the smoke plume of examples/particles.json with 10k and 100k particles:\n"
+    "           simulate, splat into 128^3, commit, and the billboards and sprites passes at\n"
+    "           1280x720, median ms per stage\n";
+
+
 
 int nc_cli_bench(int argc, char **argv)
 {
@@ -51,11 +57,12 @@ int nc_cli_bench(int argc, char **argv)
         return code;
     bool voxelize = strcmp(argv[0], "voxelize") == 0, diffusion = strcmp(argv[0], "diffusion") == 0;
     bool pathtrace = strcmp(argv[0], "pathtrace") == 0, layered = strcmp(argv[0], "layered") == 0;
-    bool load = strcmp(argv[0], "load") == 0;
+    bool load = strcmp(argv[0], "load") == 0, particles = strcmp(argv[0], "particles") == 0;
     const char *load_ply = NULL, *load_glb = NULL;
     const char *layered_scene = "examples/layered.json";
-    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace && !load && !layered)
-        return nc_tool_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace, load, layered)",
+    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace && !load && !layered && !particles)
+        return nc_tool_usage("bench",
+                             "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace, load, layered, particles)",
                              argv[0]);
     bool json = false;
     long runs = pathtrace ? 1 : 15, res_only = 0;
@@ -102,6 +109,8 @@ int nc_cli_bench(int argc, char **argv)
         return nc_bench_load(json, (int)runs, load_ply, load_glb);
     if (layered)
         return nc_bench_layered(json, (int)runs, layered_scene);
+    if (particles)
+        return nc_bench_particles(json, (int)runs);
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;

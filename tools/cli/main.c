@@ -105,7 +105,8 @@ static const char render_help[] =
     "  --method M          phong | diffusion | layered | pathtrace (default: the scene's, else phong)\n"
     "  --size WxH          image size (default: the scene's)\n"
     "  --exposure EV       PNG exposure in stops (default: the scene's, else 0)\n"
-    "  --time T            time in seconds at which deformers are evaluated (default: the scene's, else 0)\n"
+    "  --time T            time in seconds at which deformers and particles are evaluated (default:\n"
+    "                      the scene's, else 0)\n"
     "  --threads N         worker threads (default: all cores)\n"
     "  --memory-limit SIZE most memory nacre may hold (4G, 512M; default half of RAM)\n"
     "  --exr-float         write 32-bit float EXR instead of half (half holds up to 65504: larger\n"
@@ -116,6 +117,9 @@ static const char render_help[] =
     "  --save-scene FILE   also write the scene as a .json scene file, with this run's settings\n"
     "                      (size, method, time, ...) in its render block, before rendering;\n"
     "                      `nacre render FILE` then renders the same image\n"
+    "  --particles P       phong, diffusion: billboards (default: volumetric billboards) | sprites\n"
+    "                      (sorted alpha-blended) | voxel (the density grid, through the fog pass);\n"
+    "                      the path tracer always renders the density grid\n"
     "diffusion:\n"
     "  --voxel-res N       voxels along each translucent object's longest axis (default 32)\n"
     "  --tsm-size N        translucent shadow map texels per side (default 512)\n"
@@ -208,7 +212,8 @@ static int cmd_render(int argc, char **argv)
 {
     const char *scene_path = NULL, *out_path = "nacre.png", *method_name = NULL, *variance_path = NULL,
                *save_path = NULL;
-    const char *solver_name = NULL, *source_name = NULL, *camera_name = NULL;
+    const char *solver_name = NULL, *source_name = NULL, *camera_name = NULL, *particles_name = NULL;
+    nacre_particles_draw particles_draw = NACRE_PARTICLES_DRAW_BILLBOARDS;
     nacre_diffusion_solver solver = NACRE_SOLVER_MULTIGRID;
     nacre_diffusion_source source = NACRE_SOURCE_VOLUME;
     long width = 0, height = 0, threads = 0, voxel_res = -1, tsm_size = -1, seed_iters = -1, spp = -1, seed = -1,
@@ -264,6 +269,12 @@ static int cmd_render(int argc, char **argv)
             solver_name = argv[++i];
             if (!nacre_solver_from_name(solver_name, &solver))
                 return nc_tool_usage("render", "--solver '%s': expected multigrid or seed", solver_name);
+        } else if (strcmp(a, "--particles") == 0) {
+            if (!has_value)
+                return nc_tool_usage("render", "--particles needs billboards, sprites or voxel");
+            particles_name = argv[++i];
+            if (!nacre_particles_draw_from_name(particles_name, &particles_draw))
+                return nc_tool_usage("render", "--particles '%s': expected billboards, sprites or voxel", particles_name);
         } else if (strcmp(a, "--source") == 0) {
             if (!has_value)
                 return nc_tool_usage("render", "--source needs volume or face");
@@ -404,6 +415,8 @@ static int cmd_render(int argc, char **argv)
         rs.diffusion.solver = solver;
     if (source_name)
         rs.diffusion.source = source;
+    if (particles_name)
+        rs.particles = particles_draw;
     if (!isnan(tolerance))
         rs.diffusion.tolerance = (float)tolerance;
     if (seed_iters > 0)

@@ -1,0 +1,64 @@
+/*
+ * particles.h (private): the particle state at one time (flat SoA arrays) and its splat into a
+ * density grid (seed 003 §3.2.1). The kernel and the units are those of nacre/particles.h.
+ */
+#ifndef NACRE_PARTICLES_H
+#define NACRE_PARTICLES_H
+
+#include "core/core.h"
+
+#include <nacre/particles.h>
+
+/* Particles alive at one time. Arrays are owned and grow; capacity never shrinks, so a system
+ * re-simulated every frame allocates only when it grows. */
+typedef struct nc_particle_set {
+    uint32_t count, capacity;
+    float *x, *y, *z; /* centres, scene units */
+    float *radius;    /* R, scene units, > 0 */
+    float *density;   /* d0, >= 0 */
+} nc_particle_set;
+
+/* A density grid: sample (i, j, k) at origin + (i, j, k) * spacing, x fastest. The two outer
+ * layers of samples on every face are 0, so the trilinear field (clamped outside) integrates to
+ * exactly sum(data) * spacing^3 (each sample's tent integrates to one cell). */
+typedef struct nc_particle_grid {
+    uint32_t dims[3];
+    float origin[3], spacing[3]; /* world, scene units */
+    float *data;                 /* owned, dims product floats */
+    size_t capacity;             /* floats allocated */
+    float max_value;
+    /* Scratch of the splat, kept so that a system splatted every frame reuses it. */
+    int32_t *range;              /* per particle: first and last sample per axis (6) */
+    float *scale;                /* per particle: mass / (kernel sum on the grid * cell volume) */
+    uint32_t *bin_start, *bins;  /* per z slab, the overlapping particles in index order */
+    float *weights;              /* per thread, 3 * res kernel weights */
+    size_t range_capacity, scale_capacity, bin_start_capacity, bin_capacity, weight_capacity;
+} nc_particle_grid;
+
+/* K of the mass formula m = d0 (K R)^3 (nacre/particles.h). */
+#define NC_PARTICLE_KERNEL_K 0.83328696f
+/* The kernel's exponent: exp(-NC_PARTICLE_KERNEL_A t^2), t = offset / R in [-1, 1]. */
+#define NC_PARTICLE_KERNEL_A 4.5f
+
+/* Check a desc (the message names the field). */
+nacre_result nc_particles_check(nacre_context *ctx, const nacre_particles_desc *desc);
+/* The particles of `desc` alive at `time` (seconds) into `set`. Deterministic; parallel. */
+nacre_result nc_particles_simulate(nacre_context *ctx, const nacre_particles_desc *desc, double time,
+                                   nc_particle_set *set);
+void nc_particle_set_free(nacre_context *ctx, nc_particle_set *set);
+/* Splat `set` into `grid` (res samples per axis over the particles' bounds plus two empty
+ * layers): parallel over z slabs, each cell summing its particles in index order, so the grid is
+ * bit for bit the same for any thread count. An empty set gives dims 0. */
+nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *set, uint32_t res,
+                                nc_particle_grid *grid);
+void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *grid);
+/* The state of particle system `index` (0-based) at the scene's last commit, with its desc;
+ * NULL if the scene has no committed particles or no such system. */
+struct nacre_scene;
+const nc_particle_set *nc_scene_particle_set(const struct nacre_scene *scene, uint32_t index,
+                                             const nacre_particles_desc **desc);
+
+/* Sum of the particles' masses, d0 (K R)^3, in double. */
+double nc_particles_mass(const nc_particle_set *set);
+
+#endif /* NACRE_PARTICLES_H */

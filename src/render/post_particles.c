@@ -1,0 +1,712 @@
+/*
+ * post_particles.c: particles over a raster method's image and depth, as screen-space
+ * volumetric billboards (Hubert 2020, seed 003 §3.1) or as sorted alpha-blended sprites
+ * (§2.2.1, the baseline), by nacre_render_settings.particles. The path tracer renders the
+ * particles' density grid instead (src/particles/scene_particles.c), and so does the fog pass
+ * when the setting is "voxel".
+ *
+ * Every particle is a sphere of radius R seen along each pixel's ray (the ray through the pixel
+ * centre, as the fog pass and the path tracer use): particles/billboard.h gives its column
+ * density and the chord it covers. Billboards, two passes:
+ *   1. per pixel, the sum of the particles' optical depths per channel (the seed's product of
+ *      transmittances, in log form), of their scattering depths (for the albedo), and the
+ *      nearest chord start and farthest chord end; a particle whose chord starts behind the
+ *      scene's surface is not drawn (the depth test);
+ *   2. per pixel, sigma_t = tau / (far - near) shaped by r(x) (figures 3.5-3.7), ray marched in
+ *      16 steps from `near` to the nearer of `far` and the surface, so that a plume meeting the
+ *      ground fades out instead of being cut; at each step the light of each directional light
+ *      is attenuated by the optical depth towards it, marched in 8 steps through the same
+ *      reconstruction read at the pixel each point projects to (the seed's "indirect samples by
+ *      projection into the texture"), until the particles' bounds end; the environment adds
+ *      isotropic light, attenuated by the mean transmittance towards the front and the back of
+ *      the pixel's chord. The image becomes c T + L (single scattering).
+ * Sprites: particles sorted far to near (ties by index), each a disc of transmittance
+ * exp(-sigma_t D(rho)) blended over the image, with the colour albedo x (sum of E p(theta) +
+ * environment) of its centre, unshadowed; its opacity fades where the surface is less than R
+ * behind the sprite's centre (soft particles).
+ * Not modelled: point and spot lights, the particles' shadows on the scene, multiple
+ * scattering, particles closer to the camera plane than their radius (dropped).
+ *
+ * Resolution: both draw into buffers of transmittance and added light at 1/F of the image's
+ * size, F = round(height / 180) (at least 1; 4 at 1280x720), as engines draw particles at
+ * reduced resolution; each pixel of the image then takes c T + L bilinearly from them. The cost
+ * of billboards grows with the pixels each particle covers, so this is what keeps a 720p frame
+ * within milliseconds; the surface depth is read at each buffer pixel's centre.
+ * Threads: both passes run over bands of 8 rows, each band adding its particles in a fixed order
+ * (index order, or the sorted order), so the image does not depend on the thread count.
+ * Units: view space in scene units, distances along unit rays, coefficients per scene unit.
+ */
+#include "core/core.h"
+#include "core/optics.h"
+#include "particles/billboard.h"
+#include "particles/particles.h"
+#include "render/method.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define BAND 8u
+#define VIEW_STEPS 16
+#define LIGHT_STEPS 8
+#define MAX_SUNS 8
+#define BUFFER_ROWS 180 /* rows of the particle buffers (see "Resolution") */
+
+typedef struct pp_system {
+    float sigma_t[3], albedo[3], g;
+} pp_system;
+
+typedef struct pp_state {
+    uint32_t cap, count;
+    float *cx, *cy, *cz, *radius, *column, *dist; /* view space; column = d0 K R; dist to eye */
+    uint16_t *sys;
+    int32_t *rect;    /* x0, x1, y0, y1 (inclusive), x0 > x1: not drawn */
+    uint32_t *order, *sort_tmp; /* sprites: far to near, and the merge sort's scratch */
+    float *lit;       /* sprites: 3 per particle */
+    uint32_t *bin_start, *bins;
+    size_t bin_start_cap, bin_cap;
+    float *acc;       /* 8 planes over the rect: tau_t[3], tau_s[3], near, far */
+    size_t acc_cap;
+    float *tl;        /* 6 planes over the rect: transmittance[3], added light[3] */
+    size_t tl_cap;
+    float *ray;       /* per rect pixel: origin x, y (ortho), unit direction, surface distance */
+    size_t ray_cap;
+    float *X, *Y;     /* per column and row: the ray's view-space x, y at z = -1 (ortho: origin) */
+    int32_t xy_cap;
+    pp_system sys_table[NACRE_MAX_FOGS];
+} pp_state;
+
+/* The frame's camera and lights in view space. */
+typedef struct pp_frame {
+    bool ortho;
+    int32_t W, H;             /* the image */
+    int32_t F, w, h;          /* buffer pixels are F x F image pixels; buffer size */
+    int32_t rx0, ry0, rw, rh; /* the rect of the buffer all particles cover */
+    float ax, bx, ay, by;     /* ray at image pixel coordinate (xf, yf): X = ax xf + bx, Y = ay yf + by */
+    const float *depth;
+    float bmin[3], bmax[3];   /* view-space bounds of the particles */
+    uint32_t suns;
+    float sun_dir[MAX_SUNS][3], sun_e[MAX_SUNS][3]; /* view space: the way the light travels */
+    float env[3];
+} pp_frame;
+
+static bool pp_wanted(const nacre_scene *scene, const nacre_render_settings *settings)
+{
+    const nc_method *m = nc_method_get(settings->method);
+    if (!m || m->renders_fog || settings->particles == NACRE_PARTICLES_DRAW_VOXEL)
+        return false;
+    for (uint32_t i = 0; i < scene->particles_count; i++) {
+        const nc_particle_set *s = nc_scene_particle_set(scene, i, NULL);
+        if (s && s->count)
+            return true;
+    }
+    return false;
+}
+
+static void pp_destroy(nacre_context *ctx, void *state)
+{
+    pp_state *st = state;
+    if (!st)
+        return;
+    void *arrays[] = {st->cx, st->cy, st->cz, st->radius, st->column, st->dist, st->sys, st->rect, st->order, st->sort_tmp,
+                      st->lit, st->bin_start, st->bins, st->acc, st->tl, st->ray, st->X, st->Y};
+    for (size_t i = 0; i < sizeof(arrays) / sizeof(arrays[0]); i++)
+        nc_free(ctx, arrays[i]);
+    nc_free(ctx, st);
+}
+
+static nacre_result pp_create(nacre_context *ctx, void **state)
+{
+    pp_state *st = nc_calloc(ctx, 1, sizeof(*st));
+    if (!st)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    *state = st;
+    return NACRE_OK;
+}
+
+static bool grow(nacre_context *ctx, void **p, size_t *cap, size_t n, size_t elem)
+{
+    if (n <= *cap && *p)
+        return true;
+    nc_free(ctx, *p);
+    *p = nc_alloc(ctx, n * elem);
+    *cap = *p ? n : 0;
+    return *p != NULL;
+}
+
+static nacre_result reserve_particles(nacre_context *ctx, pp_state *st, uint32_t n)
+{
+    if (n <= st->cap)
+        return NACRE_OK;
+    size_t c = 0;
+    bool ok = true;
+    void **f[] = {(void **)&st->cx, (void **)&st->cy, (void **)&st->cz, (void **)&st->radius, (void **)&st->column,
+                  (void **)&st->dist};
+    for (size_t i = 0; i < 6; i++, c = 0)
+        ok = ok && grow(ctx, f[i], &c, n, sizeof(float));
+    ok = ok && grow(ctx, (void **)&st->sys, &c, n, sizeof(uint16_t));
+    c = 0;
+    ok = ok && grow(ctx, (void **)&st->rect, &c, 4 * (size_t)n, sizeof(int32_t));
+    c = 0;
+    ok = ok && grow(ctx, (void **)&st->order, &c, n, sizeof(uint32_t));
+    c = 0;
+    ok = ok && grow(ctx, (void **)&st->sort_tmp, &c, n, sizeof(uint32_t));
+    c = 0;
+    ok = ok && grow(ctx, (void **)&st->lit, &c, 3 * (size_t)n, sizeof(float));
+    st->cap = ok ? n : 0;
+    return ok ? NACRE_OK : NACRE_ERROR_OUT_OF_MEMORY;
+}
+
+/* Buffer pixel coordinates (continuous, integer = centre) of a view-space point, false behind. */
+static bool project(const nc_mat4 *P, const float p[3], const pp_frame *fr, float *px, float *py)
+{
+    float cx = P->m[0][0] * p[0] + P->m[0][1] * p[1] + P->m[0][2] * p[2] + P->m[0][3];
+    float cy = P->m[1][0] * p[0] + P->m[1][1] * p[1] + P->m[1][2] * p[2] + P->m[1][3];
+    float cw = P->m[3][0] * p[0] + P->m[3][1] * p[1] + P->m[3][2] * p[2] + P->m[3][3];
+    if (!(cw > 1e-6f))
+        return false;
+    float F = (float)fr->F;
+    *px = (cx / cw + 1.0f) * 0.5f * (float)fr->W / F - 0.5f;
+    *py = (1.0f - cy / cw) * 0.5f * (float)fr->H / F - 0.5f;
+    return true;
+}
+
+/* The particles of every system in view space, their screen rects and the frame's rect. */
+static nacre_result gather(pp_state *st, const nc_post_input *in, pp_frame *fr)
+{
+    const nacre_scene *s = in->scene;
+    uint32_t n = 0;
+    for (uint32_t i = 0; i < s->particles_count; i++) {
+        const nc_particle_set *set = nc_scene_particle_set(s, i, NULL);
+        n += set ? set->count : 0;
+    }
+    nacre_result r = reserve_particles(in->ctx, st, n);
+    if (r != NACRE_OK)
+        return r;
+    const nc_mat4 V = in->view->view, P = in->view->proj;
+    const int32_t w = fr->w, h = fr->h;
+    uint32_t base = 0;
+    for (uint32_t i = 0; i < s->particles_count; i++) {
+        const nacre_particles_desc *d;
+        const nc_particle_set *set = nc_scene_particle_set(s, i, &d);
+        if (!set)
+            continue;
+        pp_system *sy = &st->sys_table[i];
+        for (int c = 0; c < 3; c++) {
+            sy->sigma_t[c] = d->sigma_a[c] + d->sigma_s[c];
+            sy->albedo[c] = sy->sigma_t[c] > 0 ? d->sigma_s[c] / sy->sigma_t[c] : 0.0f;
+        }
+        sy->g = d->g;
+#pragma omp parallel for schedule(static) num_threads(in->ctx->threads)
+        for (uint32_t k = 0; k < set->count; k++) {
+            uint32_t j = base + k;
+            nc_vec3 c = nc_mat4_point(&V, nc_v3(set->x[k], set->y[k], set->z[k]));
+            float R = set->radius[k];
+            st->cx[j] = c.x, st->cy[j] = c.y, st->cz[j] = c.z;
+            st->radius[j] = R;
+            st->column[j] = set->density[k] * NC_PARTICLE_KERNEL_K * R;
+            st->dist[j] = fr->ortho ? -c.z : sqrtf(c.x * c.x + c.y * c.y + c.z * c.z);
+            st->sys[j] = (uint16_t)i;
+            int32_t *rc = st->rect + 4 * (size_t)j;
+            rc[0] = 1, rc[1] = 0, rc[2] = 1, rc[3] = 0;
+            if (!(st->column[j] > 0.0f) || (!fr->ortho && -c.z - R < 1e-4f * R))
+                continue;
+            float x0 = INFINITY, x1 = -INFINITY, y0 = INFINITY, y1 = -INFINITY;
+            for (int q = 0; q < 8; q++) {
+                float p[3] = {c.x + ((q & 1) ? R : -R), c.y + ((q & 2) ? R : -R), c.z + ((q & 4) ? R : -R)}, px, py;
+                if (!project(&P, p, fr, &px, &py)) {
+                    x0 = INFINITY;
+                    break;
+                }
+                x0 = fminf(x0, px), x1 = fmaxf(x1, px), y0 = fminf(y0, py), y1 = fmaxf(y1, py);
+            }
+            if (!(x0 <= x1) || x1 < 0 || y1 < 0 || x0 > (float)(w - 1) || y0 > (float)(h - 1))
+                continue;
+            rc[0] = (int32_t)fmaxf(ceilf(x0), 0.0f);
+            rc[1] = (int32_t)fminf(floorf(x1), (float)(w - 1));
+            rc[2] = (int32_t)fmaxf(ceilf(y0), 0.0f);
+            rc[3] = (int32_t)fminf(floorf(y1), (float)(h - 1));
+        }
+        base += set->count;
+    }
+    st->count = n;
+    int32_t x0 = w, x1 = -1, y0 = h, y1 = -1;
+    float b0 = INFINITY, b1 = INFINITY, b2 = INFINITY, e0 = -INFINITY, e1 = -INFINITY, e2 = -INFINITY;
+    for (uint32_t j = 0; j < n; j++) {
+        const int32_t *rc = st->rect + 4 * (size_t)j;
+        if (rc[0] > rc[1] || rc[2] > rc[3])
+            continue;
+        x0 = rc[0] < x0 ? rc[0] : x0, x1 = rc[1] > x1 ? rc[1] : x1;
+        y0 = rc[2] < y0 ? rc[2] : y0, y1 = rc[3] > y1 ? rc[3] : y1;
+        float R = st->radius[j];
+        b0 = fminf(b0, st->cx[j] - R), b1 = fminf(b1, st->cy[j] - R), b2 = fminf(b2, st->cz[j] - R);
+        e0 = fmaxf(e0, st->cx[j] + R), e1 = fmaxf(e1, st->cy[j] + R), e2 = fmaxf(e2, st->cz[j] + R);
+    }
+    fr->rx0 = x0, fr->ry0 = y0, fr->rw = x1 - x0 + 1, fr->rh = y1 - y0 + 1;
+    fr->bmin[0] = b0, fr->bmin[1] = b1, fr->bmin[2] = b2;
+    fr->bmax[0] = e0, fr->bmax[1] = e1, fr->bmax[2] = e2;
+    return NACRE_OK;
+}
+
+/* The camera's rays and the frame's directional lights in view space. */
+static nacre_result frame_setup(pp_state *st, const nc_post_input *in, pp_frame *fr)
+{
+    const nc_raster_view *v = in->view;
+    fr->ortho = v->orthographic;
+    fr->W = v->width, fr->H = v->height;
+    fr->F = (fr->H + BUFFER_ROWS / 2) / BUFFER_ROWS;
+    if (fr->F < 1)
+        fr->F = 1;
+    fr->w = (fr->W + fr->F - 1) / fr->F, fr->h = (fr->H + fr->F - 1) / fr->F;
+    fr->depth = in->depth;
+    nc_mat4 ip;
+    if (!nc_mat4_inverse(v->proj, &ip))
+        return nc_fail(in->ctx, NACRE_ERROR_INVALID_ARGUMENT, "particles: camera projection is singular");
+    /* X(xf), Y(yf): affine in the pixel for nacre's projections (no shear). */
+    float Xv[2], Yv[2];
+    for (int k = 0; k < 2; k++) {
+        float nx = (k + 0.5f) * 2.0f / (float)fr->W - 1.0f, ny = 1.0f - (k + 0.5f) * 2.0f / (float)fr->H;
+        float nz = fr->ortho ? 0.0f : 1.0f;
+        float qx[4], qy[4];
+        for (int r = 0; r < 4; r++) {
+            qx[r] = ip.m[r][0] * nx + ip.m[r][2] * nz + ip.m[r][3];
+            qy[r] = ip.m[r][1] * ny + ip.m[r][2] * nz + ip.m[r][3];
+        }
+        Xv[k] = fr->ortho ? qx[0] / qx[3] : qx[0] / -qx[2];
+        Yv[k] = fr->ortho ? qy[1] / qy[3] : qy[1] / -qy[2];
+    }
+    fr->ax = Xv[1] - Xv[0], fr->bx = Xv[0];
+    fr->ay = Yv[1] - Yv[0], fr->by = Yv[0];
+    size_t cap = (size_t)(st->xy_cap > 0 ? st->xy_cap : 0), cap2 = cap;
+    int32_t m = fr->w > fr->h ? fr->w : fr->h;
+    if (!grow(in->ctx, (void **)&st->X, &cap, (size_t)m, sizeof(float)) ||
+        !grow(in->ctx, (void **)&st->Y, &cap2, (size_t)m, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    st->xy_cap = m;
+    for (int32_t x = 0; x < fr->w; x++)
+        st->X[x] = fr->ax * ((x + 0.5f) * (float)fr->F - 0.5f) + fr->bx;
+    for (int32_t y = 0; y < fr->h; y++)
+        st->Y[y] = fr->ay * ((y + 0.5f) * (float)fr->F - 0.5f) + fr->by;
+    const nacre_scene *s = in->scene;
+    fr->suns = 0;
+    for (uint32_t i = 0; i < s->light_count && fr->suns < MAX_SUNS; i++) {
+        const nacre_light_desc *ld = &s->lights[i].desc;
+        if (ld->type != NACRE_LIGHT_DIRECTIONAL)
+            continue;
+        nc_vec3 d = nc_mat4_dir(&v->view, nc_v3a(ld->direction));
+        float len = sqrtf(d.x * d.x + d.y * d.y + d.z * d.z);
+        fr->sun_dir[fr->suns][0] = d.x / len, fr->sun_dir[fr->suns][1] = d.y / len;
+        fr->sun_dir[fr->suns][2] = d.z / len;
+        memcpy(fr->sun_e[fr->suns], ld->strength, sizeof(fr->sun_e[0]));
+        fr->suns++;
+    }
+    memcpy(fr->env, s->environment, sizeof(fr->env));
+    return NACRE_OK;
+}
+
+/* Rays of the rect's buffer pixels: origin, unit direction and the surface's distance (the
+ * depth buffer read at the image pixel nearest the buffer pixel's centre). */
+static nacre_result make_rays(nacre_context *ctx, pp_state *st, const pp_frame *fr)
+{
+    if (!grow(ctx, (void **)&st->ray, &st->ray_cap, 6 * (size_t)fr->rw * (size_t)fr->rh, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    for (int32_t ry = 0; ry < fr->rh; ry++)
+        for (int32_t rx = 0; rx < fr->rw; rx++) {
+            int32_t x = rx + fr->rx0, y = ry + fr->ry0;
+            int32_t xf = x * fr->F + fr->F / 2, yf = y * fr->F + fr->F / 2;
+            xf = xf < fr->W ? xf : fr->W - 1, yf = yf < fr->H ? yf : fr->H - 1;
+            float dep = fr->depth[(size_t)yf * (size_t)fr->W + (size_t)xf];
+            float *r = st->ray + 6 * ((size_t)ry * (size_t)fr->rw + (size_t)rx);
+            if (fr->ortho) {
+                r[0] = st->X[x], r[1] = st->Y[y], r[2] = 0.0f, r[3] = 0.0f, r[4] = -1.0f, r[5] = dep;
+                continue;
+            }
+            float X = st->X[x], Y = st->Y[y], len = sqrtf(X * X + Y * Y + 1.0f), inv = 1.0f / len;
+            r[0] = r[1] = 0.0f;
+            r[2] = X * inv, r[3] = Y * inv, r[4] = -inv;
+            r[5] = dep * len; /* INFINITY stays */
+        }
+    return NACRE_OK;
+}
+
+/* Ray of rect pixel (rx, ry): origin o, unit direction d; returns the surface's distance. */
+static inline float pixel_ray(const pp_state *st, const pp_frame *fr, int32_t rx, int32_t ry, float o[3], float d[3])
+{
+    const float *r = st->ray + 6 * ((size_t)ry * (size_t)fr->rw + (size_t)rx);
+    o[0] = r[0], o[1] = r[1], o[2] = 0.0f;
+    d[0] = r[2], d[1] = r[3], d[2] = r[4];
+    return r[5];
+}
+
+/* Bin the particles (in the order of `order`, or index order) into bands of BAND rows. */
+static nacre_result bin(nacre_context *ctx, pp_state *st, const pp_frame *fr, const uint32_t *order, uint32_t *bands)
+{
+    uint32_t nb = ((uint32_t)fr->rh + BAND - 1) / BAND;
+    *bands = nb;
+    if (!grow(ctx, (void **)&st->bin_start, &st->bin_start_cap, nb + 1, sizeof(uint32_t)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    memset(st->bin_start, 0, (nb + 1) * sizeof(uint32_t));
+    for (uint32_t k = 0; k < st->count; k++) {
+        const int32_t *rc = st->rect + 4 * (size_t)(order ? order[k] : k);
+        if (rc[0] > rc[1] || rc[2] > rc[3])
+            continue;
+        for (uint32_t b = (uint32_t)(rc[2] - fr->ry0) / BAND; b <= (uint32_t)(rc[3] - fr->ry0) / BAND; b++)
+            st->bin_start[b + 1]++;
+    }
+    for (uint32_t b = 0; b < nb; b++)
+        st->bin_start[b + 1] += st->bin_start[b];
+    if (!grow(ctx, (void **)&st->bins, &st->bin_cap, st->bin_start[nb] + 1, sizeof(uint32_t)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    for (uint32_t k = 0; k < st->count; k++) {
+        uint32_t j = order ? order[k] : k;
+        const int32_t *rc = st->rect + 4 * (size_t)j;
+        if (rc[0] > rc[1] || rc[2] > rc[3])
+            continue;
+        for (uint32_t b = (uint32_t)(rc[2] - fr->ry0) / BAND; b <= (uint32_t)(rc[3] - fr->ry0) / BAND; b++)
+            st->bins[st->bin_start[b]++] = j;
+    }
+    for (uint32_t b = nb; b > 0; b--)
+        st->bin_start[b] = st->bin_start[b - 1];
+    st->bin_start[0] = 0;
+    return NACRE_OK;
+}
+
+/* Pass 1: per pixel of the rect, optical depths and the chord ends (planes of `acc`). */
+static void accumulate(pp_state *st, const pp_frame *fr, uint32_t bands, int threads)
+{
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+    for (uint32_t b = 0; b < bands; b++) {
+        int32_t y0 = fr->ry0 + (int32_t)(b * BAND), y1 = y0 + (int32_t)BAND - 1;
+        if (y1 > fr->ry0 + fr->rh - 1)
+            y1 = fr->ry0 + fr->rh - 1;
+        for (int32_t y = y0; y <= y1; y++)
+            for (int k = 0; k < 8; k++) {
+                float *row = st->acc + k * plane + (size_t)(y - fr->ry0) * (size_t)fr->rw;
+                float v = k < 6 ? 0.0f : (k == 6 ? INFINITY : -INFINITY);
+                for (int32_t x = 0; x < fr->rw; x++)
+                    row[x] = v;
+            }
+        for (uint32_t e = st->bin_start[b]; e < st->bin_start[b + 1]; e++) {
+            const uint32_t j = st->bins[e];
+            const int32_t *rc = st->rect + 4 * (size_t)j;
+            const pp_system *sy = &st->sys_table[st->sys[j]];
+            const int32_t ya = rc[2] > y0 ? rc[2] : y0, yb = rc[3] < y1 ? rc[3] : y1;
+            for (int32_t y = ya; y <= yb; y++) {
+                size_t ri = (size_t)(y - fr->ry0) * (size_t)fr->rw - (size_t)fr->rx0;
+                for (int32_t x = rc[0]; x <= rc[1]; x++) {
+                    float o[3], d[3], wgt, tm, hc;
+                    float ts = pixel_ray(st, fr, x - fr->rx0, y - fr->ry0, o, d);
+                    float v[3] = {st->cx[j] - o[0], st->cy[j] - o[1], st->cz[j] - o[2]};
+                    if (!nc_billboard_hit(v, d, st->radius[j], &wgt, &tm, &hc) || tm - hc > ts)
+                        continue;
+                    size_t i = ri + (size_t)x;
+                    float col = st->column[j] * wgt;
+                    for (int c = 0; c < 3; c++) {
+                        st->acc[c * plane + i] += sy->sigma_t[c] * col;
+                        st->acc[(3 + c) * plane + i] += sy->sigma_t[c] * sy->albedo[c] * col;
+                    }
+                    st->acc[6 * plane + i] = fminf(st->acc[6 * plane + i], tm - hc);
+                    st->acc[7 * plane + i] = fmaxf(st->acc[7 * plane + i], tm + hc);
+                }
+            }
+        }
+    }
+}
+
+/* Reconstructed sigma_t (3) at view-space point p, read at the pixel p projects to. */
+static inline bool sigma_at(const pp_state *st, const pp_frame *fr, const float p[3], float sig[3])
+{
+    float X, Y, t;
+    if (fr->ortho) {
+        X = p[0], Y = p[1], t = -p[2];
+    } else {
+        if (!(p[2] < 0.0f))
+            return false;
+        X = p[0] / -p[2], Y = p[1] / -p[2];
+        t = sqrtf(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
+    }
+    const float F = (float)fr->F;
+    int32_t x = (int32_t)lrintf(((X - fr->bx) / fr->ax + 0.5f) / F - 0.5f) - fr->rx0;
+    int32_t y = (int32_t)lrintf(((Y - fr->by) / fr->ay + 0.5f) / F - 0.5f) - fr->ry0;
+    if (x < 0 || y < 0 || x >= fr->rw || y >= fr->rh)
+        return false;
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh, i = (size_t)y * (size_t)fr->rw + (size_t)x;
+    float nr = st->acc[6 * plane + i], fa = st->acc[7 * plane + i];
+    if (!(fa > nr))
+        return false;
+    float L = fa - nr, r = nc_billboard_remap((t - nr) / L, NC_BILLBOARD_REMAP_T) / L;
+    if (!(r > 0.0f))
+        return false;
+    for (int c = 0; c < 3; c++)
+        sig[c] = st->acc[c * plane + i] * r;
+    return true;
+}
+
+/* Length of the ray p + s dir (s >= 0) inside the particles' bounds. */
+static float bounds_exit(const pp_frame *fr, const float p[3], const float dir[3])
+{
+    float t1 = INFINITY;
+    for (int k = 0; k < 3; k++) {
+        if (dir[k] == 0.0f)
+            continue;
+        float ta = (fr->bmin[k] - p[k]) / dir[k], tb = (fr->bmax[k] - p[k]) / dir[k];
+        t1 = fminf(t1, fmaxf(ta, tb));
+    }
+    return isfinite(t1) && t1 > 0.0f ? t1 : 0.0f;
+}
+
+/* Pass 2: ray march each pixel of the rect through its reconstruction. */
+static void march(pp_state *st, const pp_frame *fr, const float g, int threads)
+{
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+#pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
+    for (int32_t ry = 0; ry < fr->rh; ry++) {
+        for (int32_t rx = 0; rx < fr->rw; rx++) {
+            const size_t i = (size_t)ry * (size_t)fr->rw + (size_t)rx;
+            for (int c = 0; c < 3; c++) {
+                st->tl[c * plane + i] = 1.0f;
+                st->tl[(3 + c) * plane + i] = 0.0f;
+            }
+            const float nr = st->acc[6 * plane + i], fa = st->acc[7 * plane + i];
+            if (!(fa > nr))
+                continue;
+            float o[3], d[3];
+            const float ts = pixel_ray(st, fr, rx, ry, o, d);
+            const float L = fa - nr, t1 = fminf(fa, ts);
+            if (!(t1 > nr))
+                continue;
+            float tau[3], alb[3], phase[MAX_SUNS];
+            for (int c = 0; c < 3; c++) {
+                tau[c] = st->acc[c * plane + i];
+                alb[c] = tau[c] > 0.0f ? st->acc[(3 + c) * plane + i] / tau[c] : 0.0f;
+            }
+            for (uint32_t l = 0; l < fr->suns; l++)
+                phase[l] = (float)nc_hg_phase(-(d[0] * fr->sun_dir[l][0] + d[1] * fr->sun_dir[l][1] +
+                                                d[2] * fr->sun_dir[l][2]), g);
+            const float dt = (t1 - nr) / VIEW_STEPS;
+            float T[3] = {1, 1, 1}, Ls[3] = {0, 0, 0}, front[3] = {0, 0, 0};
+            for (int k = 0; k < VIEW_STEPS; k++) {
+                const float t = nr + (k + 0.5f) * dt, rr = nc_billboard_remap((t - nr) / L, NC_BILLBOARD_REMAP_T) / L;
+                if (!(rr > 0.0f))
+                    continue;
+                const float p[3] = {o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]};
+                float S[3];
+                for (int c = 0; c < 3; c++) {
+                    /* Environment: the mean transmittance to the chord's two ends. */
+                    float tf = front[c] + 0.5f * tau[c] * rr * dt;
+                    S[c] = fr->env[c] * 0.5f * (nc_fast_exp_neg(-tf) + nc_fast_exp_neg(-fmaxf(tau[c] - tf, 0.0f)));
+                }
+                for (uint32_t l = 0; l < fr->suns; l++) {
+                    const float to[3] = {-fr->sun_dir[l][0], -fr->sun_dir[l][1], -fr->sun_dir[l][2]};
+                    const float len = bounds_exit(fr, p, to), ds = len / LIGHT_STEPS;
+                    float tl[3] = {0, 0, 0};
+                    for (int m = 0; m < LIGHT_STEPS && ds > 0.0f; m++) {
+                        const float q[3] = {p[0] + (m + 0.5f) * ds * to[0], p[1] + (m + 0.5f) * ds * to[1],
+                                            p[2] + (m + 0.5f) * ds * to[2]};
+                        float sig[3];
+                        if (sigma_at(st, fr, q, sig))
+                            for (int c = 0; c < 3; c++)
+                                tl[c] += sig[c] * ds;
+                    }
+                    for (int c = 0; c < 3; c++)
+                        S[c] += fr->sun_e[l][c] * phase[l] * nc_fast_exp_neg(-tl[c]);
+                }
+                for (int c = 0; c < 3; c++) {
+                    const float st_c = tau[c] * rr, a = nc_fast_exp_neg(-st_c * dt);
+                    Ls[c] += T[c] * (1.0f - a) * alb[c] * S[c];
+                    T[c] *= a;
+                    front[c] += st_c * dt;
+                }
+            }
+            for (int c = 0; c < 3; c++) {
+                st->tl[c * plane + i] = T[c];
+                st->tl[(3 + c) * plane + i] = Ls[c];
+            }
+        }
+    }
+}
+
+/* Sprites: sort far to near (ties by index) with a merge sort (qsort_r is not C11). */
+static void sort_far_first(uint32_t *ord, uint32_t *tmp, uint32_t n, const float *dist)
+{
+    for (uint32_t width = 1; width < n; width *= 2) {
+        for (uint32_t lo = 0; lo < n; lo += 2 * width) {
+            uint32_t mid = lo + width < n ? lo + width : n, hi = lo + 2 * width < n ? lo + 2 * width : n;
+            uint32_t a = lo, b = mid, k = lo;
+            while (a < mid && b < hi) {
+                uint32_t ia = ord[a], ib = ord[b];
+                bool take_b = dist[ib] > dist[ia] || (dist[ib] == dist[ia] && ib < ia);
+                tmp[k++] = take_b ? ord[b++] : ord[a++];
+            }
+            while (a < mid)
+                tmp[k++] = ord[a++];
+            while (b < hi)
+                tmp[k++] = ord[b++];
+        }
+        memcpy(ord, tmp, n * sizeof(uint32_t));
+    }
+}
+
+static void sprites(pp_state *st, const pp_frame *fr, uint32_t bands, int threads)
+{
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+    for (uint32_t b = 0; b < bands; b++) {
+        int32_t y0 = fr->ry0 + (int32_t)(b * BAND), y1 = y0 + (int32_t)BAND - 1;
+        if (y1 > fr->ry0 + fr->rh - 1)
+            y1 = fr->ry0 + fr->rh - 1;
+        for (int32_t y = y0; y <= y1; y++)
+            for (int k = 0; k < 6; k++) {
+                float *row = st->tl + k * plane + (size_t)(y - fr->ry0) * (size_t)fr->rw;
+                for (int32_t x = 0; x < fr->rw; x++)
+                    row[x] = k < 3 ? 1.0f : 0.0f;
+            }
+        for (uint32_t e = st->bin_start[b]; e < st->bin_start[b + 1]; e++) {
+            const uint32_t j = st->bins[e];
+            const int32_t *rc = st->rect + 4 * (size_t)j;
+            const pp_system *sy = &st->sys_table[st->sys[j]];
+            const float R = st->radius[j], *lit = st->lit + 3 * (size_t)j;
+            const bool grey = sy->sigma_t[0] == sy->sigma_t[1] && sy->sigma_t[1] == sy->sigma_t[2];
+            const int32_t ya = rc[2] > y0 ? rc[2] : y0, yb = rc[3] < y1 ? rc[3] : y1;
+            for (int32_t y = ya; y <= yb; y++) {
+                const size_t ri = (size_t)(y - fr->ry0) * (size_t)fr->rw - (size_t)fr->rx0;
+                for (int32_t x = rc[0]; x <= rc[1]; x++) {
+                    float o[3], d[3], wgt, tm, hc;
+                    float ts = pixel_ray(st, fr, x - fr->rx0, y - fr->ry0, o, d);
+                    float v[3] = {st->cx[j] - o[0], st->cy[j] - o[1], st->cz[j] - o[2]};
+                    if (!nc_billboard_hit(v, d, R, &wgt, &tm, &hc))
+                        continue;
+                    float fade = fminf(fmaxf((ts - tm) / R, 0.0f), 1.0f); /* soft particles */
+                    if (!(fade > 0.0f))
+                        continue;
+                    const size_t i = ri + (size_t)x;
+                    float col = st->column[j] * wgt * fade, keep[3];
+                    keep[0] = nc_fast_exp_neg(-sy->sigma_t[0] * col);
+                    keep[1] = grey ? keep[0] : nc_fast_exp_neg(-sy->sigma_t[1] * col);
+                    keep[2] = grey ? keep[0] : nc_fast_exp_neg(-sy->sigma_t[2] * col);
+                    for (int c = 0; c < 3; c++) {
+                        st->tl[c * plane + i] *= keep[c];
+                        st->tl[(3 + c) * plane + i] = st->tl[(3 + c) * plane + i] * keep[c] + (1.0f - keep[c]) * lit[c];
+                    }
+                }
+            }
+        }
+    }
+}
+
+/* Each image pixel over the rect: c T + L, bilinear from the buffers (outside: T 1, L 0). */
+static void composite(const pp_state *st, const pp_frame *fr, nacre_image *image, int threads)
+{
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+    const int32_t F = fr->F;
+    int32_t y0 = fr->ry0 * F - F, y1 = (fr->ry0 + fr->rh) * F + F, x0 = fr->rx0 * F - F, x1 = (fr->rx0 + fr->rw) * F + F;
+    y0 = y0 > 0 ? y0 : 0, x0 = x0 > 0 ? x0 : 0;
+    y1 = y1 < fr->H ? y1 : fr->H, x1 = x1 < fr->W ? x1 : fr->W;
+#pragma omp parallel for schedule(static) num_threads(threads)
+    for (int32_t y = y0; y < y1; y++) {
+        float *row = image->pixels + (size_t)y * image->stride;
+        float v = (y + 0.5f) / (float)F - 0.5f - (float)fr->ry0;
+        int32_t j0 = (int32_t)floorf(v);
+        float fy = v - (float)j0;
+        for (int32_t x = x0; x < x1; x++) {
+            float u = (x + 0.5f) / (float)F - 0.5f - (float)fr->rx0;
+            int32_t i0 = (int32_t)floorf(u);
+            float fx = u - (float)i0, T[3] = {0, 0, 0}, L[3] = {0, 0, 0};
+            for (int k = 0; k < 4; k++) {
+                int32_t i = i0 + (k & 1), j = j0 + (k >> 1);
+                float wgt = ((k & 1) ? fx : 1.0f - fx) * ((k >> 1) ? fy : 1.0f - fy);
+                if (i < 0 || j < 0 || i >= fr->rw || j >= fr->rh) {
+                    for (int c = 0; c < 3; c++)
+                        T[c] += wgt;
+                    continue;
+                }
+                size_t n = (size_t)j * (size_t)fr->rw + (size_t)i;
+                for (int c = 0; c < 3; c++) {
+                    T[c] += wgt * st->tl[c * plane + n];
+                    L[c] += wgt * st->tl[(3 + c) * plane + n];
+                }
+            }
+            float *px = row + 3 * (size_t)x;
+            for (int c = 0; c < 3; c++)
+                px[c] = px[c] * T[c] + L[c];
+        }
+    }
+}
+
+static nacre_result pp_apply(void *state, const nc_post_input *in, nacre_image *image, nacre_render_stats *stats)
+{
+    pp_state *st = state;
+    uint64_t t_start = nc_now_us();
+    pp_frame fr;
+    memset(&fr, 0, sizeof(fr));
+    nacre_result r = frame_setup(st, in, &fr);
+    if (r == NACRE_OK)
+        r = gather(st, in, &fr);
+    if (r != NACRE_OK)
+        return r;
+    const int threads = in->ctx->threads;
+    uint32_t bands = 0;
+    if (fr.rw > 0 && fr.rh > 0) {
+        size_t plane = (size_t)fr.rw * (size_t)fr.rh;
+        if ((r = nc_memory_check(in->ctx, 20 * plane * sizeof(float), "particle billboard buffers")) != NACRE_OK)
+            return r;
+        if (!grow(in->ctx, (void **)&st->tl, &st->tl_cap, 6 * plane, sizeof(float)))
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        if ((r = make_rays(in->ctx, st, &fr)) != NACRE_OK)
+            return r;
+        if (in->settings->particles == NACRE_PARTICLES_DRAW_SPRITES) {
+            for (uint32_t j = 0; j < st->count; j++) {
+                const pp_system *sy = &st->sys_table[st->sys[j]];
+                float len = st->dist[j] > 0.0f ? st->dist[j] : 1.0f, *lit = st->lit + 3 * (size_t)j;
+                float d[3] = {st->cx[j] / len, st->cy[j] / len, st->cz[j] / len};
+                if (fr.ortho)
+                    d[0] = d[1] = 0.0f, d[2] = -1.0f;
+                for (int c = 0; c < 3; c++)
+                    lit[c] = fr.env[c];
+                for (uint32_t l = 0; l < fr.suns; l++) {
+                    float p = (float)nc_hg_phase(-(d[0] * fr.sun_dir[l][0] + d[1] * fr.sun_dir[l][1] +
+                                                   d[2] * fr.sun_dir[l][2]), sy->g);
+                    for (int c = 0; c < 3; c++)
+                        lit[c] += fr.sun_e[l][c] * p;
+                }
+                for (int c = 0; c < 3; c++)
+                    lit[c] *= sy->albedo[c];
+                st->order[j] = j;
+            }
+            sort_far_first(st->order, st->sort_tmp, st->count, st->dist);
+            if ((r = bin(in->ctx, st, &fr, st->order, &bands)) != NACRE_OK)
+                return r;
+            sprites(st, &fr, bands, threads);
+        } else {
+            if (!grow(in->ctx, (void **)&st->acc, &st->acc_cap, 8 * plane, sizeof(float)))
+                return NACRE_ERROR_OUT_OF_MEMORY;
+            if ((r = bin(in->ctx, st, &fr, NULL, &bands)) != NACRE_OK)
+                return r;
+            accumulate(st, &fr, bands, threads);
+            /* One phase function: the scattering-weighted mean g of the systems. */
+            double gs = 0.0, ws = 0.0;
+            for (uint32_t i = 0; i < in->scene->particles_count; i++) {
+                const nacre_particles_desc *d;
+                const nc_particle_set *set = nc_scene_particle_set(in->scene, i, &d);
+                double m = set ? nc_particles_mass(set) * (d->sigma_s[0] + d->sigma_s[1] + d->sigma_s[2]) : 0.0;
+                gs += m * d->g;
+                ws += m;
+            }
+            march(st, &fr, ws > 0 ? (float)(gs / ws) : 0.0f, threads);
+        }
+        composite(st, &fr, image, threads);
+    }
+    stats->stage_us[NACRE_STAGE_PARTICLES] += nc_now_us() - t_start;
+    stats->stage_ran[NACRE_STAGE_PARTICLES] = true;
+    stats->stage_runs[NACRE_STAGE_PARTICLES] = 1;
+    return NACRE_OK;
+}
+
+const nc_post_pass nc_post_particles = {
+    .name = "particles",
+    .wanted = pp_wanted,
+    .create = pp_create,
+    .apply = pp_apply,
+    .destroy = pp_destroy,
+};
