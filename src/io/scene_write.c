@@ -438,6 +438,12 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
         {s->diffusion.tolerance > 0 && s->diffusion.tolerance < 1, "tolerance"},
         {s->diffusion.seed_iterations <= 1000000, "seed_iterations"},
         {s->pathtrace.time_limit >= 0 && s->pathtrace.time_limit <= FLT_MAX, "time_limit"},
+        {(unsigned)s->volumetrics.mode <= NACRE_VOLUMETRICS_RAYMARCH, "volumetrics"},
+        {s->volumetrics.froxel_width >= 1 && s->volumetrics.froxel_width <= 1024, "froxel_width"},
+        {s->volumetrics.froxel_height >= 1 && s->volumetrics.froxel_height <= 1024, "froxel_height"},
+        {s->volumetrics.froxel_slices >= 1 && s->volumetrics.froxel_slices <= 1024, "froxel_slices"},
+        {s->volumetrics.raymarch_steps >= 1 && s->volumetrics.raymarch_steps <= 4096, "raymarch_steps"},
+        {s->volumetrics.shadow_steps >= 1 && s->volumetrics.shadow_steps <= 256, "shadow_steps"},
     };
     for (size_t i = 0; i < COUNT_OF(checks); i++)
         if (!checks[i].ok) {
@@ -468,6 +474,12 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
     add_uint(w, o, "seed", s->pathtrace.seed);
     add_double(w, o, "time_limit", s->pathtrace.time_limit);
     add_uint(w, o, "max_scatter", s->pathtrace.max_scatter);
+    add_string(w, o, "volumetrics", nacre_volumetrics_name(s->volumetrics.mode));
+    add_uint(w, o, "froxel_width", s->volumetrics.froxel_width);
+    add_uint(w, o, "froxel_height", s->volumetrics.froxel_height);
+    add_uint(w, o, "froxel_slices", s->volumetrics.froxel_slices);
+    add_uint(w, o, "raymarch_steps", s->volumetrics.raymarch_steps);
+    add_uint(w, o, "shadow_steps", s->volumetrics.shadow_steps);
     return o;
 }
 

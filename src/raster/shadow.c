@@ -706,3 +706,33 @@ void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, co
         }
     }
 }
+
+float nc_shadow_lookup_volume(const nc_shadow_map *sm, nc_vec3 p, float pcf_radius, float bias)
+{
+    if (!sm || !sm->depth || sm->size < 1)
+        return 1.0f;
+    nc_vec3 l = nc_v3a(sm->light_pos), travel;
+    int face = 0;
+    if (sm->kind == NC_SHADOW_CUBE) {
+        nc_vec3 d = nc_sub(p, l);
+        float ax = fabsf(d.x), ay = fabsf(d.y), az = fabsf(d.z);
+        face = ax >= ay && ax >= az ? (d.x >= 0.0f ? 0 : 1) : ay >= az ? (d.y >= 0.0f ? 2 : 3) : (d.z >= 0.0f ? 4 : 5);
+    }
+    const nc_raster_view *v = &sm->views[face];
+    bool ortho = v->orthographic;
+    travel = ortho ? nc_v3a(sm->light_dir) : nc_normalize(nc_sub(p, l));
+    /* The map's far plane bounds every caster: a point beyond it is in shadow when its texel
+     * holds any caster, which the lookup sees from a point moved back along the light's ray to
+     * just before that plane (the same texel). */
+    float d = -nc_mat4_point(&v->view, p).z, far_d = linear_depth(v, 1.0f);
+    if (d > far_d) {
+        float back = d - far_d * 0.999f;
+        if (!ortho) {
+            /* Depth along the view axis scales with the distance along the ray. */
+            float dist = nc_length(nc_sub(p, l));
+            back = dist * (1.0f - far_d * 0.999f / d);
+        }
+        p = nc_sub(p, nc_scale(travel, back));
+    }
+    return nc_shadow_lookup(sm, p, nc_scale(travel, -1.0f), pcf_radius, bias);
+}

@@ -64,6 +64,9 @@ typedef struct nc_post_input {
     const nacre_render_settings *settings;
     const nc_raster_view *view; /* camera matrices the depth was made with */
     const float *depth;         /* width * height view-axis depths, INFINITY: background */
+    /* The frame's lights with their shadow maps (a rasterizing method's; NULL otherwise). */
+    const nc_shade_light *lights;
+    uint32_t light_count;
 } nc_post_input;
 
 /* A pass over a finished frame (the fog and froxel volumetrics of seed 003 are such passes). */
@@ -80,6 +83,8 @@ typedef struct nc_post_pass {
 
 /* Distance and exponential height fog over a finished frame (post_fog.c). */
 extern const nc_post_pass nc_post_fog;
+/* Volumetric fog: froxels and the per-pixel march (post_volumetrics.c). */
+extern const nc_post_pass nc_post_froxel, nc_post_raymarch;
 
 /* The built-in post passes, in the order they apply (post.c). */
 extern const nc_post_pass *const nc_post_passes[];

@@ -82,7 +82,7 @@ typedef struct fog_state {
 static bool fog_wanted(const nacre_scene *scene, const nacre_render_settings *settings)
 {
     const nc_method *m = nc_method_get(settings->method);
-    return scene->fog_count > 0 && m && !m->renders_fog;
+    return scene->fog_count > 0 && m && !m->renders_fog && settings->volumetrics.mode == NACRE_VOLUMETRICS_OFF;
 }
 
 static void fog_destroy(nacre_context *ctx, void *state)

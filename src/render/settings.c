@@ -23,11 +23,18 @@ nacre_render_settings nacre_render_settings_defaults(void)
     s.diffusion.solver = NACRE_SOLVER_MULTIGRID;
     s.diffusion.source = NACRE_SOURCE_VOLUME;
     s.diffusion.tolerance = 1e-4f;
+    s.volumetrics.mode = NACRE_VOLUMETRICS_OFF;
+    s.volumetrics.froxel_width = 160;
+    s.volumetrics.froxel_height = 90;
+    s.volumetrics.froxel_slices = 64;
+    s.volumetrics.raymarch_steps = 64;
+    s.volumetrics.shadow_steps = 8;
     return s;
 }
 
 static const char *const solver_names[] = {"multigrid", "seed"};
 static const char *const source_names[] = {"volume", "face"};
+static const char *const volumetrics_names[] = {"off", "froxel", "raymarch"};
 
 const char *nacre_solver_name(nacre_diffusion_solver solver)
 {
@@ -60,6 +67,19 @@ bool nacre_source_from_name(const char *name, nacre_diffusion_source *out)
     int i = name_index(name, source_names, 2);
     if (i >= 0)
         *out = (nacre_diffusion_source)i;
+    return i >= 0;
+}
+
+const char *nacre_volumetrics_name(nacre_volumetrics_mode mode)
+{
+    return (unsigned)mode < 3 ? volumetrics_names[mode] : "unknown";
+}
+
+bool nacre_volumetrics_from_name(const char *name, nacre_volumetrics_mode *out)
+{
+    int i = name_index(name, volumetrics_names, 3);
+    if (i >= 0)
+        *out = (nacre_volumetrics_mode)i;
     return i >= 0;
 }
 
