@@ -21,10 +21,11 @@
  * environment taken as unshadowed isotropic ambient light, as in the analytic fog pass.
  *
  * Depth slices: with a perspective camera slice 0 runs from the eye to z0 and slices 1 .. D-1
- * are spaced exponentially from z0 to the far plane zf (boundaries z0 (zf / z0)^(k / (D - 1))),
- * z0 = max(near / 2, zf / 1000): fine slices where the scene begins, as many as possible over
- * it. Orthographic cameras get D equal slices from the near to the far plane. Beyond the far
- * plane (the background, at infinite depth), each column ray's remaining fog is added in closed
+ * are spaced exponentially from z0 to zf (boundaries z0 (zf / z0)^(k / (D - 1))), zf the
+ * farther of the camera's far plane and the farthest corner of a box fog, z0 = max(near / 2,
+ * zf / 1000): fine slices where the scene begins, as many as possible over it. Orthographic
+ * cameras get D equal slices from the near plane to zf. Beyond zf (the background, at
+ * infinite depth), each column ray's remaining fog is added in closed
  * form as in the analytic pass: the optical depth of every fog to infinity (height integral;
  * patterns at the segment's start), lit by the directional lights with the fog's transmittance
  * towards them at that start and by the environment; point and spot lights add nothing there.
@@ -207,6 +208,25 @@ static nacre_result vol_setup(vol_state *st, const nc_post_input *in, uint32_t b
     st->pcf = in->settings->shadow.pcf_radius;
     st->bias = in->settings->shadow.bias;
     camera_setup(in->view, &st->cam);
+    /* The grid reaches past the camera's far plane (fitted to the objects) to the far corners
+     * of the box fogs, so that lights shine on all of them; only global fog beyond that is left
+     * to the closed-form tail. */
+    const nc_mat4 *vm = &in->view->view;
+    for (uint32_t i = 0; i < s->fog_count; i++) {
+        const nc_fog_rec *rec = &s->fogs[i];
+        if (rec->desc.shape != NACRE_FOG_BOX)
+            continue;
+        nc_mat4 l2w;
+        if (!nc_mat4_inverse(rec->world_to_local, &l2w))
+            continue;
+        for (int c = 0; c < 8; c++) {
+            nc_vec3 q = nc_v3((c & 1 ? 0.5f : -0.5f) * rec->desc.size[0], (c & 2 ? 0.5f : -0.5f) * rec->desc.size[1],
+                              (c & 4 ? 0.5f : -0.5f) * rec->desc.size[2]);
+            double z = -nc_mat4_point(vm, nc_mat4_point(&l2w, q)).z;
+            if (isfinite(z) && z > st->cam.far)
+                st->cam.far = z;
+        }
+    }
     size_t per = 13u * batch + NC_FOG_EVAL_SCRATCH(batch) + NC_FOG_TAU_SCRATCH(vs->shadow_steps);
     size_t total = per * (size_t)(ctx->threads > 0 ? ctx->threads : 1);
     if (total > st->scratch_capacity) {
