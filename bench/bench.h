@@ -35,5 +35,7 @@ int nc_bench_diffusion_pipeline(bool json, int runs, const nc_bench_filter *filt
 int nc_bench_diffusion_solver(bool json, int runs);
 /* Samples/s and time to relative MSE 1e-3 (bench/bench_pathtrace.c). */
 int nc_bench_pathtrace(bool json, double seconds);
+/* The froxel stages, the per-pixel march and the analytic fog pass (bench/bench_volumetrics.c). */
+int nc_bench_volumetrics(bool json, int runs);
 
 #endif /* NACRE_BENCH_H */

@@ -75,6 +75,11 @@ typedef struct vol_state {
     float *acc_l, *acc_t; /* per column D + 1 boundaries (1 .. D, then infinity) x 3 */
     double *bound;        /* D + 1 view-axis depths of the slice boundaries */
     size_t grid_capacity;
+    /* Optical depth towards each light at the froxels of even indices (Wc x Hc x Dc nodes,
+     * column-major in depth), x 3 channels, per light */
+    uint32_t Wc, Hc, Dc;
+    float *tau_grid;
+    size_t tau_capacity;
     /* per-thread scratch */
     float *scratch;
     size_t scratch_per_thread, scratch_capacity;
@@ -94,6 +99,7 @@ static void vol_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->acc_l);
     nc_free(ctx, st->acc_t);
     nc_free(ctx, st->bound);
+    nc_free(ctx, st->tau_grid);
     nc_free(ctx, st->scratch);
     nc_free(ctx, st);
 }
@@ -205,7 +211,9 @@ static nacre_result vol_setup(vol_state *st, const nc_post_input *in, uint32_t b
         l->shadow = in->lights && i < in->light_count ? in->lights[i].shadow : NULL;
     }
     memcpy(st->env, s->environment, sizeof(st->env));
-    st->pcf = in->settings->shadow.pcf_radius;
+    /* A point in the air has no surface to soften: the smallest window (shafts stay sharp at
+     * the map's resolution, and a lookup costs a quarter). */
+    st->pcf = 0.5f;
     st->bias = in->settings->shadow.bias;
     camera_setup(in->view, &st->cam);
     /* The grid reaches past the camera's far plane (fitted to the objects) to the far corners
@@ -227,7 +235,8 @@ static nacre_result vol_setup(vol_state *st, const nc_post_input *in, uint32_t b
                 st->cam.far = z;
         }
     }
-    size_t per = 13u * batch + NC_FOG_EVAL_SCRATCH(batch) + NC_FOG_TAU_SCRATCH(vs->shadow_steps);
+    size_t per = 13u * batch + NC_FOG_EVAL_SCRATCH(batch) + NC_FOG_TAU_SCRATCH(vs->shadow_steps) +
+                 3u * (size_t)batch * st->light_count;
     size_t total = per * (size_t)(ctx->threads > 0 ? ctx->threads : 1);
     if (total > st->scratch_capacity) {
         float *grown = nc_alloc(ctx, total * sizeof(float));
@@ -252,10 +261,49 @@ static float *thread_scratch(const vol_state *st)
 
 /* ---- lighting of fog points ---------------------------------------------------------------- */
 
+/* Henyey-Greenstein phase (core/optics.h's nc_hg_phase) in float, without pow: per froxel and
+ * light it was a tenth of the lighting's time. */
+static inline float hg_phase(float cos_theta, float g)
+{
+    float x = 1.0f + g * g - 2.0f * g * cos_theta;
+    return (1.0f - g * g) / (4.0f * (float)NC_PI * x * sqrtf(x));
+}
+
+/* Where light l reaches point x: the way it travels (wi), the distance (INFINITY for
+ * directional lights) and the factor of its strength there (1 / d^2, spot falloff); false if
+ * it does not. */
+static inline bool light_at(const vlight *li, const float x[3], float wi[3], float *dist, float *scale)
+{
+    *dist = INFINITY;
+    *scale = 1.0f;
+    if (li->type == NACRE_LIGHT_DIRECTIONAL) {
+        memcpy(wi, li->dir, 3 * sizeof(float));
+        return true;
+    }
+    float v[3] = {x[0] - li->pos[0], x[1] - li->pos[1], x[2] - li->pos[2]};
+    float d2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+    if (!(d2 > 0.0f))
+        return false;
+    *dist = sqrtf(d2);
+    for (int c = 0; c < 3; c++)
+        wi[c] = v[c] / *dist;
+    *scale = 1.0f / d2;
+    if (li->type == NACRE_LIGHT_SPOT) {
+        float cs = wi[0] * li->dir[0] + wi[1] * li->dir[1] + wi[2] * li->dir[2];
+        *scale *= nc_spot_falloff(li->falloff, cs, li->co, li->ci);
+    }
+    return *scale > 0.0f;
+}
+
+/* Optical depths beyond this are stored as this (e^-80: no light), so that infinite ones
+ * interpolate. */
+#define TAU_MAX 80.0f
+
 /* The source (sigma_s x in-scattered radiance) at n points p seen along direction d (eye to
- * point): src[3k + c] from ss[3k + c] and g[k]. src may alias ss. */
+ * point): src[3k + c] from ss[3k + c] and g[k]. src may alias ss. tau_pre: the optical depth
+ * towards light l at point k at [3 (l n + k) + c], or NULL to integrate it here. */
 static void light_points(const vol_state *st, uint32_t n, const float *p, const float d[3], const float *ss,
-                         const float *g, float *src, float *tau_scratch)
+                         const float *g, float *src, const float *tau_pre, float *tau_scratch)
 {
     for (uint32_t k = 0; k < n; k++) {
         const float *x = p + 3 * (size_t)k;
@@ -267,38 +315,26 @@ static void light_points(const vol_state *st, uint32_t n, const float *p, const 
         double acc[3] = {st->env[0], st->env[1], st->env[2]};
         for (uint32_t l = 0; l < st->light_count; l++) {
             const vlight *li = &st->lights[l];
-            float wi[3], dist = INFINITY, scale = 1.0f;
-            if (li->type == NACRE_LIGHT_DIRECTIONAL) {
-                memcpy(wi, li->dir, sizeof(wi));
-            } else {
-                float v[3] = {x[0] - li->pos[0], x[1] - li->pos[1], x[2] - li->pos[2]};
-                float d2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
-                if (!(d2 > 0.0f))
-                    continue;
-                dist = sqrtf(d2);
-                for (int c = 0; c < 3; c++)
-                    wi[c] = v[c] / dist;
-                scale = 1.0f / d2;
-                if (li->type == NACRE_LIGHT_SPOT) {
-                    float cs = wi[0] * li->dir[0] + wi[1] * li->dir[1] + wi[2] * li->dir[2];
-                    scale *= nc_spot_falloff(li->falloff, cs, li->co, li->ci);
-                }
-            }
-            if (!(scale > 0.0f))
+            float wi[3], dist, scale;
+            if (!light_at(li, x, wi, &dist, &scale))
                 continue;
-            float w[3] = {-wi[0], -wi[1], -wi[2]};
             float vis = 1.0f;
             if (li->shadow) {
                 vis = nc_shadow_lookup_volume(li->shadow, nc_v3a(x), st->pcf, st->bias);
                 if (!(vis > 0.0f))
                     continue;
             }
-            double tau[3];
-            nc_fog_field_optical_depth(&st->field, x, w, dist, tau, tau_scratch);
-            double ph = nc_hg_phase(-(d[0] * wi[0] + d[1] * wi[1] + d[2] * wi[2]), g[k]) * vis * scale;
+            float tau[3], w[3] = {-wi[0], -wi[1], -wi[2]};
+            double td[3];
+            nc_fog_field_optical_depth(&st->field, x, w, dist, tau_pre ? NC_FOG_ANALYTIC : NC_FOG_ALL, td, tau_scratch);
+            for (int c = 0; c < 3; c++) {
+                if (tau_pre)
+                    td[c] += tau_pre[3 * ((size_t)l * n + k) + c];
+                tau[c] = td[c] < TAU_MAX ? (float)td[c] : TAU_MAX;
+            }
+            float ph = hg_phase(-(d[0] * wi[0] + d[1] * wi[1] + d[2] * wi[2]), g[k]) * vis * scale;
             for (int c = 0; c < 3; c++)
-                if (isfinite(tau[c]))
-                    acc[c] += li->e[c] * ph * exp(-tau[c]);
+                acc[c] += li->e[c] * ph * expf(-tau[c]);
         }
         for (int c = 0; c < 3; c++)
             src[3 * k + c] = (float)(s[c] * acc[c]);
@@ -338,7 +374,7 @@ static void tail(const vol_state *st, const float o[3], const float d[3], double
                 continue;
             float w[3] = {-li->dir[0], -li->dir[1], -li->dir[2]};
             double tl[3];
-            nc_fog_field_optical_depth(f, x, w, INFINITY, tl, tau_scratch);
+            nc_fog_field_optical_depth(f, x, w, INFINITY, NC_FOG_ALL, tl, tau_scratch);
             double ph = nc_hg_phase(-(d[0] * li->dir[0] + d[1] * li->dir[1] + d[2] * li->dir[2]), fo->g);
             for (int c = 0; c < 3; c++)
                 if (isfinite(tl[c]))
@@ -447,19 +483,103 @@ static void froxel_fill(vol_state *st, int threads)
     }
 }
 
-static void froxel_light(vol_state *st, int threads, uint32_t batch)
+/* The coarse grid of the patterned fogs' optical depths towards the lights (nodes at the
+ * froxels of even indices): their march towards every light is most of the lighting's cost, and
+ * their shadow on themselves varies slowly next to the opaque shadows, so it is integrated at
+ * 1/8 of the froxels and interpolated in optical depth. Fogs without pattern stay exact per
+ * froxel (closed form, and a box's walls are sharp). */
+static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads, uint32_t batch)
 {
-    int64_t cols = (int64_t)st->W * st->H;
-#pragma omp parallel for schedule(dynamic, 16) num_threads(threads)
-    for (int64_t col = 0; col < cols; col++) {
+    st->Wc = (st->W + 1) / 2;
+    st->Hc = (st->H + 1) / 2;
+    st->Dc = (st->D + 1) / 2;
+    size_t nodes = (size_t)st->Wc * st->Hc * st->Dc, need = nodes * 3 * st->light_count;
+    if (need > st->tau_capacity) {
+        float *grown = nc_alloc(ctx, need * sizeof(float));
+        if (!grown)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        nc_free(ctx, st->tau_grid);
+        st->tau_grid = grown;
+        st->tau_capacity = need;
+    }
+    int64_t cols = (int64_t)st->Wc * st->Hc;
+#pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
+    for (int64_t cc = 0; cc < cols; cc++) {
         float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
         float o[3], d[3];
         double scale, offset;
-        column_ray(st, (uint32_t)(col % st->W), (uint32_t)(col / st->W), o, d, &scale, &offset);
+        column_ray(st, 2 * (uint32_t)(cc % st->Wc), 2 * (uint32_t)(cc / st->Wc), o, d, &scale, &offset);
+        column_points(st, o, d, scale, offset, p);
+        for (uint32_t l = 0; l < st->light_count; l++) {
+            float *out = st->tau_grid + 3 * ((size_t)l * nodes + (size_t)cc * st->Dc);
+            for (uint32_t c = 0; c < st->Dc; c++) {
+                const float *x = p + 3 * (size_t)(2 * c);
+                float wi[3], dist, sf;
+                double td[3] = {0, 0, 0};
+                if (light_at(&st->lights[l], x, wi, &dist, &sf)) {
+                    float w[3] = {-wi[0], -wi[1], -wi[2]};
+                    nc_fog_field_optical_depth(&st->field, x, w, dist, NC_FOG_PATTERNED, td, tau);
+                }
+                for (int ch = 0; ch < 3; ch++)
+                    out[3 * c + ch] = td[ch] < TAU_MAX ? (float)td[ch] : TAU_MAX;
+            }
+        }
+    }
+    return NACRE_OK;
+}
+
+/* Froxel index i on the coarse grid of n nodes: nodes a0, a1 and the weight of a1. */
+static inline void coarse(uint32_t i, uint32_t n, uint32_t *a0, uint32_t *a1, float *w)
+{
+    *a0 = i / 2;
+    *a1 = *a0 + 1 < n ? *a0 + 1 : *a0;
+    *w = (i & 1) && *a1 != *a0 ? 0.5f : 0.0f;
+}
+
+static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads, uint32_t batch)
+{
+    bool patterned = nc_fog_field_patterned(&st->field);
+    nacre_result res = patterned ? tau_grid_fill(st, ctx, threads, batch) : NACRE_OK;
+    if (res != NACRE_OK)
+        return res;
+    int64_t cols = (int64_t)st->W * st->H;
+    size_t nodes = (size_t)st->Wc * st->Hc * st->Dc;
+#pragma omp parallel for schedule(dynamic, 16) num_threads(threads)
+    for (int64_t col = 0; col < cols; col++) {
+        float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
+        float *pre = tau + NC_FOG_TAU_SCRATCH(st->field.shadow_steps);
+        uint32_t i = (uint32_t)(col % st->W), j = (uint32_t)(col / st->W);
+        uint32_t a0, a1, b0, b1;
+        float wa, wb;
+        coarse(i, st->Wc, &a0, &a1, &wa);
+        coarse(j, st->Hc, &b0, &b1, &wb);
+        const size_t cn[4] = {(size_t)b0 * st->Wc + a0, (size_t)b0 * st->Wc + a1, (size_t)b1 * st->Wc + a0,
+                              (size_t)b1 * st->Wc + a1};
+        const float cw[4] = {(1 - wa) * (1 - wb), wa * (1 - wb), (1 - wa) * wb, wa * wb};
+        for (uint32_t l = 0; patterned && l < st->light_count; l++) {
+            const float *grid = st->tau_grid + 3 * (size_t)l * nodes;
+            for (uint32_t k = 0; k < st->D; k++) {
+                uint32_t c0, c1;
+                float wc;
+                coarse(k, st->Dc, &c0, &c1, &wc);
+                float t[3] = {0, 0, 0};
+                for (int q = 0; q < 4; q++) {
+                    const float *n0 = grid + 3 * (cn[q] * st->Dc + c0), *n1 = grid + 3 * (cn[q] * st->Dc + c1);
+                    for (int ch = 0; ch < 3; ch++)
+                        t[ch] += cw[q] * ((1 - wc) * n0[ch] + wc * n1[ch]);
+                }
+                memcpy(pre + 3 * ((size_t)l * st->D + k), t, sizeof(t));
+            }
+        }
+        float o[3], d[3];
+        double scale, offset;
+        column_ray(st, i, j, o, d, &scale, &offset);
         column_points(st, o, d, scale, offset, p);
         size_t base = (size_t)col * st->D;
-        light_points(st, st->D, p, d, st->src + 3 * base, st->g + base, st->src + 3 * base, tau);
+        light_points(st, st->D, p, d, st->src + 3 * base, st->g + base, st->src + 3 * base, patterned ? pre : NULL,
+                     tau);
     }
+    return NACRE_OK;
 }
 
 static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
@@ -614,7 +734,8 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
     froxel_fill(st, threads);
     stage_done(stats, NACRE_STAGE_FROXEL_FILL, t0);
     t0 = nc_now_us();
-    froxel_light(st, threads, batch);
+    if ((res = froxel_light(st, in->ctx, threads, batch)) != NACRE_OK)
+        return res;
     stage_done(stats, NACRE_STAGE_FROXEL_LIGHT, t0);
     t0 = nc_now_us();
     froxel_integrate(st, threads, batch);
@@ -661,7 +782,7 @@ static nacre_result raymarch_apply(void *state, const nc_post_input *in, nacre_i
                     p[3 * k + c] = o[c] + t * d[c];
             }
             nc_fog_field_eval(&st->field, n, p, sig_t, src, g, ev);
-            light_points(st, n, p, d, src, g, src, tau);
+            light_points(st, n, p, d, src, g, src, NULL, tau);
             nc_vol_march m[3] = {nc_vol_march_begin(), nc_vol_march_begin(), nc_vol_march_begin()};
             for (uint32_t k = 0; k < n; k++)
                 for (int c = 0; c < 3; c++)

@@ -144,12 +144,22 @@ static double bounds_exit(const nc_fog_field *f, const float p[3], const float w
     return b > a ? b : 0.0;
 }
 
-void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const float w[3], float tmax, double tau[3],
-                                float *scratch)
+bool nc_fog_field_patterned(const nc_fog_field *f)
+{
+    for (uint32_t i = 0; i < f->count; i++)
+        if (f->fogs[i].patterned)
+            return true;
+    return false;
+}
+
+void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const float w[3], float tmax, unsigned which,
+                                double tau[3], float *scratch)
 {
     tau[0] = tau[1] = tau[2] = 0.0;
     for (uint32_t i = 0; i < f->count; i++) {
         const nc_fog_one *o = &f->fogs[i];
+        if (!(which & (o->patterned ? NC_FOG_PATTERNED : NC_FOG_ANALYTIC)))
+            continue;
         double a = 0.0, b = tmax;
         if (!nc_fog_field_segment(o, p, w, &a, &b))
             continue;

@@ -50,10 +50,18 @@ void nc_fog_field_init(nc_fog_field *f, const nacre_scene *s, uint32_t shadow_st
 void nc_fog_field_eval(const nc_fog_field *f, uint32_t n, const float *p, float *sigma_t, float *sigma_s, float *g,
                        float *scratch);
 
-/* Optical depth per channel of all fogs along p + t w, t in [0, tmax] (tmax may be INFINITY; the
- * result may be INFINITY: a global fog without falloff towards a directional light). */
-void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const float w[3], float tmax, double tau[3],
-                                float *scratch);
+/* Which fogs nc_fog_field_optical_depth integrates. */
+#define NC_FOG_ANALYTIC 1u  /* fogs without pattern (closed form) */
+#define NC_FOG_PATTERNED 2u /* patterned fogs (marched) */
+#define NC_FOG_ALL 3u
+
+/* Optical depth per channel of the fogs of `which` along p + t w, t in [0, tmax] (tmax may be
+ * INFINITY; the result may be INFINITY: a global fog without falloff towards a directional
+ * light). */
+void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const float w[3], float tmax, unsigned which,
+                                double tau[3], float *scratch);
+/* Whether any fog has a pattern. */
+bool nc_fog_field_patterned(const nc_fog_field *f);
 
 /* Ray [t0, t1] inside fog i's box (global: [t0, t1] itself); false if empty. */
 bool nc_fog_field_segment(const nc_fog_one *fog, const float o[3], const float d[3], double *t0, double *t1);

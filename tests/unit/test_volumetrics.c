@@ -308,7 +308,7 @@ static void field_transmittance(void)
         float a = (float)i * 0.37f, b = (float)i * 0.11f;
         float w[3] = {cosf(a) * sinf(b), cosf(b), sinf(a) * sinf(b)};
         double tau[3];
-        nc_fog_field_optical_depth(&f, p, w, i % 2 ? INFINITY : 3.0f, tau, scratch);
+        nc_fog_field_optical_depth(&f, p, w, i % 2 ? INFINITY : 3.0f, NC_FOG_ALL, tau, scratch);
         for (int c = 0; c < 3; c++) {
             double T = exp(-tau[c]);
             in_range = in_range && tau[c] >= 0 && T >= 0 && T <= 1;
@@ -319,7 +319,7 @@ static void field_transmittance(void)
      * + the global fog's 0.01 integral_-1^inf e^(-2 y) dy. */
     float p[3] = {0, -1, 0}, up[3] = {0, 1, 0};
     double tau[3];
-    nc_fog_field_optical_depth(&f, p, up, INFINITY, tau, scratch);
+    nc_fog_field_optical_depth(&f, p, up, INFINITY, NC_FOG_ALL, tau, scratch);
     const double ss[3] = {0.5, 1, 2};
     for (int c = 0; c < 3; c++) {
         double expect = (0.1 + ss[c]) * (1 - exp(-1.4)) / 0.7 + 0.01 * exp(2.0) / 2;

@@ -34,7 +34,11 @@ static const char bench_help[] =
     "usage: nacre bench pathtrace [--json] [--runs N]\n"
     "  pathtrace  samples/s and extrapolated time to relative MSE 1e-3 at 512x512: translucent\n"
     "           sphere (index matched, dielectric, layered skin) and the demo scene, N x 30 s each\n"
-    "           (default 1)\n";
+    "           (default 1)\n"
+    "usage: nacre bench volumetrics [--json] [--runs N]\n"
+    "  volumetrics  froxel stages (fill, light, integrate, apply at 160x90x64), the per-pixel\n"
+    "           march and the analytic fog pass over the demo at 1280x720 with a shadowed sun,\n"
+    "           four point lights, height fog and a 128^3 cloud (bench/bench_volumetrics.c)\n";
 
 
 
@@ -50,8 +54,10 @@ int nc_cli_bench(int argc, char **argv)
         return code;
     bool voxelize = strcmp(argv[0], "voxelize") == 0, diffusion = strcmp(argv[0], "diffusion") == 0;
     bool pathtrace = strcmp(argv[0], "pathtrace") == 0;
-    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace)
-        return nc_tool_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace)", argv[0]);
+    bool volumetrics = strcmp(argv[0], "volumetrics") == 0;
+    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace && !volumetrics)
+        return nc_tool_usage("bench", "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace, volumetrics)",
+                             argv[0]);
     bool json = false;
     long runs = pathtrace ? 1 : 15, res_only = 0;
     nc_bench_filter filter = {NULL, 0};
@@ -87,6 +93,8 @@ int nc_cli_bench(int argc, char **argv)
     }
     if (pathtrace)
         return nc_bench_pathtrace(json, 30.0 * (double)runs);
+    if (volumetrics)
+        return nc_bench_volumetrics(json, (int)runs);
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;
