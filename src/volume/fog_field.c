@@ -65,7 +65,34 @@ void nc_fog_field_eval(const nc_fog_field *f, uint32_t n, const float *p, float 
         const nc_fog_one *o = &f->fogs[i];
         for (uint32_t k = 0; k < n; k++)
             to_local(o, p + 3 * (size_t)k, local + 3 * (size_t)k);
-        if (o->patterned) {
+        if (o->patterned && o->box) {
+            /* The pattern only where the box is: inside points packed in front, evaluated,
+             * then spread back (most froxels miss a small cloud). */
+            uint32_t m = 0;
+            for (uint32_t k = 0; k < n; k++)
+                if (inside(o, local + 3 * (size_t)k)) {
+                    memmove(local + 3 * (size_t)m, local + 3 * (size_t)k, 3 * sizeof(float));
+                    m++;
+                }
+            if (m == 0)
+                continue;
+            nc_medium_eval(f->scene, o->medium, local, m, sa, ss);
+            for (uint32_t k = n; k-- > 0;) {
+                const float *pk = p + 3 * (size_t)k;
+                float q[3];
+                to_local(o, pk, q);
+                if (inside(o, q)) {
+                    m--;
+                    for (int c = 0; c < 3; c++) {
+                        sa[3 * k + c] = sa[3 * m + c];
+                        ss[3 * k + c] = ss[3 * m + c];
+                    }
+                    memcpy(local + 3 * (size_t)k, q, sizeof(q));
+                } else {
+                    local[3 * k] = 2.0f * o->half[0] + 1.0f; /* outside: skipped below */
+                }
+            }
+        } else if (o->patterned) {
             nc_medium_eval(f->scene, o->medium, local, n, sa, ss);
         } else {
             for (uint32_t k = 0; k < n; k++)
