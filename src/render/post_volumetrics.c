@@ -73,6 +73,8 @@ typedef struct vol_state {
     uint32_t W, H, D;
     float *st, *src, *g; /* 3N, 3N (sigma_s after fill, the source after light), N */
     float *acc_l, *acc_t; /* per column D + 1 boundaries (1 .. D, then infinity) x 3 */
+    float *col_depth;     /* per column: the farthest depth of the pixels that read it */
+    size_t col_capacity;
     double *bound;        /* D + 1 view-axis depths of the slice boundaries */
     size_t grid_capacity;
     /* Optical depth towards each light at the froxels of even indices (Wc x Hc x Dc nodes,
@@ -100,6 +102,7 @@ static void vol_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->acc_t);
     nc_free(ctx, st->bound);
     nc_free(ctx, st->tau_grid);
+    nc_free(ctx, st->col_depth);
     nc_free(ctx, st->scratch);
     nc_free(ctx, st);
 }
@@ -536,6 +539,63 @@ static inline void coarse(uint32_t i, uint32_t n, uint32_t *a0, uint32_t *a1, fl
     *w = (i & 1) && *a1 != *a0 ? 0.5f : 0.0f;
 }
 
+/* Pixel coordinate x of an image n wide on a grid of m columns: the two columns its bilinear
+ * lookup reads (froxel_apply_pixels) and the weight of the second. */
+static inline void pixel_columns(int32_t x, int32_t n, uint32_t m, int32_t *i0, int32_t *i1, float *w)
+{
+    float f = (x + 0.5f) * (float)m / (float)n - 0.5f;
+    *i0 = (int32_t)floorf(f);
+    *w = f - (float)*i0;
+    if (*i0 < 0)
+        *i0 = 0, *w = 0.0f;
+    *i1 = *i0 + 1 < (int32_t)m ? *i0 + 1 : *i0;
+    if (*i1 == *i0)
+        *w = 0.0f;
+}
+
+/* The farthest depth that any pixel reads from each column: froxels behind it are never seen
+ * (a column behind a wall is integrated, but no pixel looks past the wall), so they are not lit. */
+static nacre_result column_depths(vol_state *st, nacre_context *ctx, const float *depth, int32_t w, int32_t h,
+                                  int threads)
+{
+    size_t cols = (size_t)st->W * st->H;
+    if (cols > st->col_capacity) {
+        float *grown = nc_alloc(ctx, cols * sizeof(float));
+        if (!grown)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        nc_free(ctx, st->col_depth);
+        st->col_depth = grown;
+        st->col_capacity = cols;
+    }
+    /* One row of columns per iteration: only it writes there, and a maximum does not depend on
+     * the order. */
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+    for (int32_t j = 0; j < (int32_t)st->H; j++) {
+        float *row = st->col_depth + (size_t)j * st->W;
+        for (uint32_t i = 0; i < st->W; i++)
+            row[i] = 0.0f;
+        for (int32_t y = 0; y < h; y++) {
+            int32_t j0, j1;
+            float wy;
+            pixel_columns(y, h, st->H, &j0, &j1, &wy);
+            if (j0 != j && j1 != j)
+                continue;
+            const float *dr = depth + (size_t)y * (size_t)w;
+            for (int32_t x = 0; x < w; x++) {
+                int32_t i0, i1;
+                float wx;
+                pixel_columns(x, w, st->W, &i0, &i1, &wx);
+                float z = dr[x];
+                if (!(z <= row[i0]))
+                    row[i0] = z;
+                if (!(z <= row[i1]))
+                    row[i1] = z;
+            }
+        }
+    }
+    return NACRE_OK;
+}
+
 static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads, uint32_t batch)
 {
     bool patterned = nc_fog_field_patterned(&st->field);
@@ -556,9 +616,13 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
         const size_t cn[4] = {(size_t)b0 * st->Wc + a0, (size_t)b0 * st->Wc + a1, (size_t)b1 * st->Wc + a0,
                               (size_t)b1 * st->Wc + a1};
         const float cw[4] = {(1 - wa) * (1 - wb), wa * (1 - wb), (1 - wa) * wb, wa * wb};
+        /* Froxels that a pixel reads: slices that begin at or before the column's depth. */
+        uint32_t n = 0;
+        while (n < st->D && st->bound[n] <= st->col_depth[col])
+            n++;
         for (uint32_t l = 0; patterned && l < st->light_count; l++) {
             const float *grid = st->tau_grid + 3 * (size_t)l * nodes;
-            for (uint32_t k = 0; k < st->D; k++) {
+            for (uint32_t k = 0; k < n; k++) {
                 uint32_t c0, c1;
                 float wc;
                 coarse(k, st->Dc, &c0, &c1, &wc);
@@ -568,7 +632,7 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
                     for (int ch = 0; ch < 3; ch++)
                         t[ch] += cw[q] * ((1 - wc) * n0[ch] + wc * n1[ch]);
                 }
-                memcpy(pre + 3 * ((size_t)l * st->D + k), t, sizeof(t));
+                memcpy(pre + 3 * ((size_t)l * n + k), t, sizeof(t));
             }
         }
         float o[3], d[3];
@@ -576,8 +640,8 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
         column_ray(st, i, j, o, d, &scale, &offset);
         column_points(st, o, d, scale, offset, p);
         size_t base = (size_t)col * st->D;
-        light_points(st, st->D, p, d, st->src + 3 * base, st->g + base, st->src + 3 * base, patterned ? pre : NULL,
-                     tau);
+        light_points(st, n, p, d, st->src + 3 * base, st->g + base, st->src + 3 * base, patterned ? pre : NULL, tau);
+        memset(st->src + 3 * (base + n), 0, 3 * (size_t)(st->D - n) * sizeof(float));
     }
     return NACRE_OK;
 }
@@ -671,24 +735,14 @@ static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_i
     int32_t w = image->width, h = image->height;
 #pragma omp parallel for schedule(static) num_threads(threads)
     for (int32_t y = 0; y < h; y++) {
-        float fy = (y + 0.5f) * (float)st->H / (float)h - 0.5f;
-        int32_t j0 = (int32_t)floorf(fy);
-        float wy = fy - (float)j0;
-        if (j0 < 0)
-            j0 = 0, wy = 0.0f;
-        int32_t j1 = j0 + 1 < (int32_t)st->H ? j0 + 1 : j0;
-        if (j1 == j0)
-            wy = 0.0f;
+        int32_t j0, j1;
+        float wy;
+        pixel_columns(y, h, st->H, &j0, &j1, &wy);
         float *row = image->pixels + (size_t)y * image->stride;
         for (int32_t x = 0; x < w; x++) {
-            float fx = (x + 0.5f) * (float)st->W / (float)w - 0.5f;
-            int32_t i0 = (int32_t)floorf(fx);
-            float wx = fx - (float)i0;
-            if (i0 < 0)
-                i0 = 0, wx = 0.0f;
-            int32_t i1 = i0 + 1 < (int32_t)st->W ? i0 + 1 : i0;
-            if (i1 == i0)
-                wx = 0.0f;
+            int32_t i0, i1;
+            float wx;
+            pixel_columns(x, w, st->W, &i0, &i1, &wx);
             uint32_t b;
             float fz;
             depth_slot(st, depth[(size_t)y * (size_t)w + (size_t)x], &b, &fz);
@@ -739,7 +793,8 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
     froxel_fill(st, threads);
     stage_done(stats, NACRE_STAGE_FROXEL_FILL, t0);
     t0 = nc_now_us();
-    if ((res = froxel_light(st, in->ctx, threads, batch)) != NACRE_OK)
+    if ((res = column_depths(st, in->ctx, in->depth, image->width, image->height, threads)) != NACRE_OK ||
+        (res = froxel_light(st, in->ctx, threads, batch)) != NACRE_OK)
         return res;
     stage_done(stats, NACRE_STAGE_FROXEL_LIGHT, t0);
     t0 = nc_now_us();
