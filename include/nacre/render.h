@@ -126,6 +126,31 @@ typedef struct nacre_pathtrace_settings {
     bool accumulate;
 } nacre_pathtrace_settings;
 
+/* Volumetric fog over the rasterizing methods (phong, diffusion; Hubert 2020, seed 003 §2.3).
+ * The path tracer renders fog itself and ignores these. docs/scene-format.md "Volumetrics". */
+typedef enum nacre_volumetrics_mode {
+    NACRE_VOLUMETRICS_OFF = 0, /* the analytic fog pass (§2.1): directional lights and ambient,
+                                  unshadowed, patterns by their mean (the default) */
+    NACRE_VOLUMETRICS_FROXEL,  /* a frustum-aligned grid (§2.3.2): every fog per froxel, every light
+                                  with shadow maps and the fog's own shadow, integrated per column */
+    NACRE_VOLUMETRICS_RAYMARCH /* the same lighting marched along each pixel's ray (§2.3.1) */
+} nacre_volumetrics_mode;
+
+/* "off", "froxel", "raymarch"; from_name returns false if unknown. */
+NACRE_API const char *nacre_volumetrics_name(nacre_volumetrics_mode mode);
+NACRE_API bool nacre_volumetrics_from_name(const char *name, nacre_volumetrics_mode *out);
+
+typedef struct nacre_volumetrics_settings {
+    nacre_volumetrics_mode mode; /* default OFF */
+    uint32_t froxel_width;       /* froxel columns across the image, default 160 (1..1024) */
+    uint32_t froxel_height;      /* froxel rows, default 90 (1..1024) */
+    uint32_t froxel_slices;      /* depth slices, exponentially spaced, default 64 (1..1024) */
+    uint32_t raymarch_steps;     /* RAYMARCH: steps along each pixel's ray, default 64 (1..4096) */
+    uint32_t shadow_steps;       /* steps of the march towards a light through patterned fog
+                                    (homogeneous and height fog are integrated in closed form),
+                                    default 8 (1..256) */
+} nacre_volumetrics_settings;
+
 typedef struct nacre_render_settings {
     nacre_method method;
     int32_t width, height;    /* default 640 x 480; 1..16384 each, at most 2^26 pixels */
@@ -142,6 +167,7 @@ typedef struct nacre_render_settings {
      * frame. Default false. */
     bool reuse_output;
     nacre_particles_draw particles; /* phong, diffusion: how particles are drawn (particles.h) */
+    nacre_volumetrics_settings volumetrics; /* phong, diffusion: how fog is drawn */
 } nacre_render_settings;
 
 NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
@@ -165,6 +191,9 @@ NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
  *              runs before shade, which adds the surface layer)
  *   particles  every frame of a raster method with particles alive, drawn as billboards or
  *              sprites (the post pass of nacre_render_settings.particles)
+ *   froxel_fill, froxel_light, froxel_integrate, froxel_apply   instead of fog with
+ *              volumetrics FROXEL: fogs sampled per froxel, lit, integrated per column, applied
+ *   raymarch   instead of fog with volumetrics RAYMARCH: the per-pixel march
  * The path tracer runs none of these; its frames restart or accumulate (pathtrace.accumulate). */
 #define NACRE_STAGE_LIST(X)                                                                    \
     X(NACRE_STAGE_SETUP, "setup")                                                              \
@@ -180,7 +209,12 @@ NACRE_API nacre_render_settings nacre_render_settings_defaults(void);
     X(NACRE_STAGE_FOG, "fog")                                                                  \
     X(NACRE_STAGE_PLANES, "planes")                                                            \
     X(NACRE_STAGE_MARCH, "march")                                                              \
-    X(NACRE_STAGE_PARTICLES, "particles")
+    X(NACRE_STAGE_PARTICLES, "particles")                                                      \
+    X(NACRE_STAGE_FROXEL_FILL, "froxel_fill")                                                  \
+    X(NACRE_STAGE_FROXEL_LIGHT, "froxel_light")                                                \
+    X(NACRE_STAGE_FROXEL_INTEGRATE, "froxel_integrate")                                        \
+    X(NACRE_STAGE_FROXEL_APPLY, "froxel_apply")                                                \
+    X(NACRE_STAGE_RAYMARCH, "raymarch")
 
 typedef enum nacre_stage {
 #define NACRE_STAGE_ENUM_(name, text) name,
@@ -218,7 +252,8 @@ typedef struct nacre_render_stats {
                                     sample, filled with their 8x8 block's mean (0 if none) */
     bool accumulated;            /* this frame added to the previous frames' samples */
     /* fog post pass (methods that do not render fog themselves; docs/scene-format.md "fog") */
-    uint32_t fog_lights_ignored; /* point and spot lights, which light no fog in the pass */
+    uint32_t fog_lights_ignored; /* lights that add no light to the fog: with volumetrics OFF the
+                                    point and spot lights; with FROXEL or RAYMARCH none (0) */
     uint32_t fog_patterns_averaged; /* patterned fogs drawn with their mean coefficients */
 } nacre_render_stats;
 

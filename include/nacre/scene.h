@@ -288,9 +288,11 @@ NACRE_API nacre_camera_desc nacre_camera_desc_defaults(void);
  *   height(p) = exp(-height_falloff * (p.y - height_base)) (world y is up), its exponent capped
  *   at 60 so that the density stays finite far below.
  * The path tracer renders fog exactly. Phong and diffusion draw it by a post pass over their
- * image and depth (docs/scene-format.md "fog"): analytic transmittance and single scattering of
- * directional lights and the environment, without shadows in the fog or point and spot lights
- * (nacre_render_stats.fog_lights_ignored), patterns by their mean coefficients. */
+ * image and depth (docs/scene-format.md "fog"): by default analytic transmittance and single
+ * scattering of directional lights and the environment, without shadows in the fog or point and
+ * spot lights (nacre_render_stats.fog_lights_ignored), patterns by their mean coefficients; with
+ * nacre_render_settings.volumetrics FROXEL or RAYMARCH, single scattering of every light with
+ * shadow maps and the fog's own shadow, patterns evaluated where they are. */
 typedef enum nacre_fog_shape { NACRE_FOG_GLOBAL = 0, NACRE_FOG_BOX } nacre_fog_shape;
 
 typedef struct { uint32_t id; } nacre_fog;

@@ -49,7 +49,8 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
                                        "voxel_resolution", "tsm_size", "solver", "source",
                                        "tolerance", "seed_iterations", "time_limit", "max_scatter",
                                        "layered_samples", "layered_epsilon", "layered_integration",
-                                       "particles"};
+                                       "particles", "volumetrics", "froxel_width", "froxel_height",
+                                       "froxel_slices", "raymarch_steps", "shadow_steps"};
     /* indexed by the enums' values */
     const char *const solvers[] = {nacre_solver_name(NACRE_SOLVER_MULTIGRID), nacre_solver_name(NACRE_SOLVER_SEED)};
     const char *const sources[] = {nacre_source_name(NACRE_SOURCE_VOLUME), nacre_source_name(NACRE_SOURCE_FACE)};
@@ -120,5 +121,21 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
     choice = nc_json_get_choice(ld, obj, "layered_integration", "integration", integrations, COUNT_OF(integrations));
     if (choice >= 0)
         s->layered.integration = (nacre_layered_integration)choice;
+    const char *const volumetrics[] = {nacre_volumetrics_name(NACRE_VOLUMETRICS_OFF),
+                                       nacre_volumetrics_name(NACRE_VOLUMETRICS_FROXEL),
+                                       nacre_volumetrics_name(NACRE_VOLUMETRICS_RAYMARCH)};
+    choice = nc_json_get_choice(ld, obj, "volumetrics", "volumetrics mode", volumetrics, COUNT_OF(volumetrics));
+    if (choice >= 0)
+        s->volumetrics.mode = (nacre_volumetrics_mode)choice;
+    if (nc_json_get_integer(ld, obj, "froxel_width", 1, 1024, &v))
+        s->volumetrics.froxel_width = (uint32_t)v;
+    if (nc_json_get_integer(ld, obj, "froxel_height", 1, 1024, &v))
+        s->volumetrics.froxel_height = (uint32_t)v;
+    if (nc_json_get_integer(ld, obj, "froxel_slices", 1, 1024, &v))
+        s->volumetrics.froxel_slices = (uint32_t)v;
+    if (nc_json_get_integer(ld, obj, "raymarch_steps", 1, 4096, &v))
+        s->volumetrics.raymarch_steps = (uint32_t)v;
+    if (nc_json_get_integer(ld, obj, "shadow_steps", 1, 256, &v))
+        s->volumetrics.shadow_steps = (uint32_t)v;
     nc_json_pop(ld, mark);
 }

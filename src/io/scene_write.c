@@ -444,6 +444,12 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
         {s->layered.integration == NACRE_LAYERED_ANALYTIC || s->layered.integration == NACRE_LAYERED_SAMPLES,
          "layered_integration"},
         {(unsigned)s->particles <= NACRE_PARTICLES_DRAW_VOXEL, "particles"},
+        {(unsigned)s->volumetrics.mode <= NACRE_VOLUMETRICS_RAYMARCH, "volumetrics"},
+        {s->volumetrics.froxel_width >= 1 && s->volumetrics.froxel_width <= 1024, "froxel_width"},
+        {s->volumetrics.froxel_height >= 1 && s->volumetrics.froxel_height <= 1024, "froxel_height"},
+        {s->volumetrics.froxel_slices >= 1 && s->volumetrics.froxel_slices <= 1024, "froxel_slices"},
+        {s->volumetrics.raymarch_steps >= 1 && s->volumetrics.raymarch_steps <= 4096, "raymarch_steps"},
+        {s->volumetrics.shadow_steps >= 1 && s->volumetrics.shadow_steps <= 256, "shadow_steps"},
     };
     for (size_t i = 0; i < COUNT_OF(checks); i++)
         if (!checks[i].ok) {
@@ -478,6 +484,12 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
     add_float(w, o, "layered_epsilon", s->layered.epsilon);
     add_string(w, o, "layered_integration", nacre_layered_integration_name(s->layered.integration));
     add_string(w, o, "particles", nacre_particles_draw_name(s->particles));
+    add_string(w, o, "volumetrics", nacre_volumetrics_name(s->volumetrics.mode));
+    add_uint(w, o, "froxel_width", s->volumetrics.froxel_width);
+    add_uint(w, o, "froxel_height", s->volumetrics.froxel_height);
+    add_uint(w, o, "froxel_slices", s->volumetrics.froxel_slices);
+    add_uint(w, o, "raymarch_steps", s->volumetrics.raymarch_steps);
+    add_uint(w, o, "shadow_steps", s->volumetrics.shadow_steps);
     return o;
 }
 

@@ -151,6 +151,11 @@ static inline int nc_shadow_face_count(nacre_light_type type) { return type == N
  * Perspective maps keep far/near <= 1000: casters closer to a point or spot light than
  * far/1000 do not shadow. Thread-safe (reads only). */
 float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_radius, float bias);
+/* Fraction of light reaching a point in the air (fog): no surface, so no receiver plane; a
+ * 2 x 2 bilinear depth comparison with `bias` texels (pcf_radius unused), a quarter of
+ * nc_shadow_lookup's cost. Points beyond the map's far plane (behind every caster) are shadowed
+ * where the map holds a caster, where surfaces beyond the scene bounds count as lit. */
+float nc_shadow_lookup_volume(const nc_shadow_map *sm, nc_vec3 p, float pcf_radius, float bias);
 /* nc_shadow_lookup for n points (positions p, normals n as SoA arrays) into out[0 .. n), with the
  * next lookups' texels prefetched. An orthographic map (directional light) does the per-point
  * set-up of many points at once in vectorized loops; the values are nc_shadow_lookup's up to

@@ -706,3 +706,48 @@ void nc_shadow_lookup_n(const nc_shadow_map *sm, uint32_t n, const float *px, co
         }
     }
 }
+
+float nc_shadow_lookup_volume(const nc_shadow_map *sm, nc_vec3 p, float pcf_radius, float bias)
+{
+    (void)pcf_radius;
+    if (!sm || !sm->depth || sm->size < 1)
+        return 1.0f;
+    int face = 0;
+    if (sm->kind == NC_SHADOW_CUBE) {
+        nc_vec3 d = nc_sub(p, nc_v3a(sm->light_pos));
+        float ax = fabsf(d.x), ay = fabsf(d.y), az = fabsf(d.z);
+        face = ax >= ay && ax >= az ? (d.x >= 0.0f ? 0 : 1) : ay >= az ? (d.y >= 0.0f ? 2 : 3) : (d.z >= 0.0f ? 4 : 5);
+    }
+    const nc_raster_view *v = &sm->views[face];
+    nc_vec3 pv = nc_mat4_point(&v->view, p);
+    float d = -pv.z, near_d = linear_depth(v, 0.0f);
+    if (!(d >= near_d))
+        return 1.0f; /* nothing in the map can be in front of it */
+    /* Beyond the far plane the point is behind every caster: its texels decide alone (the
+     * comparison below against a depth past the far plane). */
+    float w = v->orthographic ? 1.0f : d;
+    const nc_mat4 *pm = &v->proj;
+    float ndc_x = (pm->m[0][0] * pv.x + pm->m[0][2] * pv.z + pm->m[0][3]) / w;
+    float ndc_y = (pm->m[1][1] * pv.y + pm->m[1][2] * pv.z + pm->m[1][3]) / w;
+    int size = sm->size;
+    float u = (ndc_x * 0.5f + 0.5f) * (float)size - 0.5f, vv = (0.5f - ndc_y * 0.5f) * (float)size - 0.5f;
+    if (!(u > -1.0f && u < (float)size && vv > -1.0f && vv < (float)size))
+        return 1.0f;
+    /* Bias: `bias` texels of world size at the point. */
+    float texel = 2.0f * w / (pm->m[0][0] * (float)size);
+    float limit = d - fmax_fast(bias, 0.0f) * texel;
+    int x0 = (int)floorf(u), y0 = (int)floorf(vv);
+    float fx = u - (float)x0, fy = vv - (float)y0;
+    const float *map = sm->depth + (size_t)face * (size_t)size * (size_t)size;
+    float lit = 0.0f;
+    /* 2 x 2 bilinear comparison: shafts with smooth edges at one texel's scale. */
+    for (int k = 0; k < 4; k++) {
+        int x = x0 + (k & 1), y = y0 + (k >> 1);
+        float wt = ((k & 1) ? fx : 1.0f - fx) * ((k >> 1) ? fy : 1.0f - fy);
+        bool in = x >= 0 && y >= 0 && x < size && y < size;
+        float z = in ? map[(size_t)y * (size_t)size + (size_t)x] : 1.0f;
+        if (z >= 1.0f || linear_depth(v, z) >= limit) /* 1: cleared, no caster */
+            lit += wt;
+    }
+    return lit;
+}

@@ -64,6 +64,9 @@ typedef struct nc_post_input {
     const nacre_render_settings *settings;
     const nc_raster_view *view; /* camera matrices the depth was made with */
     const float *depth;         /* width * height view-axis depths, INFINITY: background */
+    /* The frame's lights with their shadow maps (a rasterizing method's; NULL otherwise). */
+    const nc_shade_light *lights;
+    uint32_t light_count;
 } nc_post_input;
 
 /* A pass over a finished frame (the fog and froxel volumetrics of seed 003 are such passes). */
@@ -82,6 +85,15 @@ typedef struct nc_post_pass {
 extern const nc_post_pass nc_post_fog;
 /* Particles as volumetric billboards or sprites (post_particles.c). */
 extern const nc_post_pass nc_post_particles;
+/* Volumetric fog: froxels and the per-pixel march (post_volumetrics.c). */
+extern const nc_post_pass nc_post_froxel, nc_post_raymarch;
+
+/* How many of the scene's fogs the fog passes draw: the user's, and the particle systems' density
+ * grids only when particles are drawn as voxels (otherwise the particles pass draws them). */
+static inline uint32_t nc_post_fogs_drawn(const nacre_scene *scene, const nacre_render_settings *settings)
+{
+    return settings->particles == NACRE_PARTICLES_DRAW_VOXEL ? scene->fog_count : nc_scene_user_fogs(scene);
+}
 
 /* The built-in post passes, in the order they apply (post.c). */
 extern const nc_post_pass *const nc_post_passes[];

@@ -81,15 +81,11 @@ typedef struct fog_state {
 
 /* The fogs this pass draws: the fogs of particle systems only when particles are drawn as
  * voxels (billboards and sprites have their own pass, post_particles.c); they come last. */
-static uint32_t fogs_drawn(const nacre_scene *scene, const nacre_render_settings *settings)
-{
-    return settings->particles == NACRE_PARTICLES_DRAW_VOXEL ? scene->fog_count : nc_scene_user_fogs(scene);
-}
 
 static bool fog_wanted(const nacre_scene *scene, const nacre_render_settings *settings)
 {
     const nc_method *m = nc_method_get(settings->method);
-    return fogs_drawn(scene, settings) > 0 && m && !m->renders_fog;
+    return nc_post_fogs_drawn(scene, settings) > 0 && m && !m->renders_fog && settings->volumetrics.mode == NACRE_VOLUMETRICS_OFF;
 }
 
 static void fog_destroy(nacre_context *ctx, void *state)
@@ -345,7 +341,7 @@ static nacre_result fog_apply(void *state, const nc_post_input *in, nacre_image 
     nacre_result res = fog_setup(st, in->ctx, in->scene);
     if (res != NACRE_OK)
         return res;
-    st->fog_count = fogs_drawn(in->scene, in->settings);
+    st->fog_count = nc_post_fogs_drawn(in->scene, in->settings);
     camera_rays cr;
     camera_setup(in->view, &cr);
     int32_t w = image->width, h = image->height;

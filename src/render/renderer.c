@@ -102,6 +102,22 @@ static nacre_result check_settings(nacre_context *ctx, const nacre_render_settin
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: pcf_radius: must be in [0, 64]");
     if (!(isfinite(s->shadow.bias) && s->shadow.bias >= 0))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: shadow_bias: must be finite and >= 0");
+    const nacre_volumetrics_settings *v = &s->volumetrics;
+    if ((unsigned)v->mode > NACRE_VOLUMETRICS_RAYMARCH)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: volumetrics: must be off, froxel or raymarch");
+    if (v->froxel_width < 1 || v->froxel_width > 1024)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: froxel_width: must be 1..1024");
+    if (v->froxel_height < 1 || v->froxel_height > 1024)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: froxel_height: must be 1..1024");
+    if (v->froxel_slices < 1 || v->froxel_slices > 1024)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: froxel_slices: must be 1..1024");
+    if ((uint64_t)v->froxel_width * v->froxel_height * v->froxel_slices > (1u << 24))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                       "render: froxel_width: froxel_width x froxel_height x froxel_slices must be at most 2^24");
+    if (v->raymarch_steps < 1 || v->raymarch_steps > 4096)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: raymarch_steps: must be 1..4096");
+    if (v->shadow_steps < 1 || v->shadow_steps > 256)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: shadow_steps: must be 1..256");
     *out = m;
     return m->check ? m->check(ctx, s) : NACRE_OK;
 }
@@ -126,6 +142,11 @@ static nacre_result post_passes(nacre_renderer *r, nc_frame *f)
             return res;
         nc_post_input in = {.ctx = r->ctx, .scene = f->scene, .settings = f->settings, .view = &r->raster.view,
                             .depth = f->depth};
+        const nc_method *m = nc_method_get(f->settings->method);
+        if (m && m->uses_raster) {
+            in.lights = r->raster.shade_lights;
+            in.light_count = f->scene->light_count;
+        }
         if ((res = p->apply(r->post_state[i], &in, f->out, f->stats)) != NACRE_OK)
             return res;
         /* The pass changed background pixels too: the next frame cannot keep them

@@ -26,11 +26,18 @@ nacre_render_settings nacre_render_settings_defaults(void)
     s.layered.samples = 16;
     s.layered.epsilon = 0.01f;
     s.layered.integration = NACRE_LAYERED_ANALYTIC;
+    s.volumetrics.mode = NACRE_VOLUMETRICS_OFF;
+    s.volumetrics.froxel_width = 160;
+    s.volumetrics.froxel_height = 90;
+    s.volumetrics.froxel_slices = 64;
+    s.volumetrics.raymarch_steps = 64;
+    s.volumetrics.shadow_steps = 8;
     return s;
 }
 
 static const char *const solver_names[] = {"multigrid", "seed"};
 static const char *const source_names[] = {"volume", "face"};
+static const char *const volumetrics_names[] = {"off", "froxel", "raymarch"};
 
 const char *nacre_solver_name(nacre_diffusion_solver solver)
 {
@@ -78,6 +85,19 @@ bool nacre_layered_integration_from_name(const char *name, nacre_layered_integra
     int i = name_index(name, integration_names, 2);
     if (i >= 0)
         *out = (nacre_layered_integration)i;
+    return i >= 0;
+}
+
+const char *nacre_volumetrics_name(nacre_volumetrics_mode mode)
+{
+    return (unsigned)mode < 3 ? volumetrics_names[mode] : "unknown";
+}
+
+bool nacre_volumetrics_from_name(const char *name, nacre_volumetrics_mode *out)
+{
+    int i = name_index(name, volumetrics_names, 3);
+    if (i >= 0)
+        *out = (nacre_volumetrics_mode)i;
     return i >= 0;
 }
 

@@ -44,7 +44,13 @@ static const char bench_help[] =
     "usage: nacre bench particles [--json] [--runs N]\n"
     "  particles  the smoke plume of examples/particles.json with 10k and 100k particles:\n"
     "           simulate, splat into 128^3, commit, and the billboards and sprites passes at\n"
-    "           1280x720, median ms per stage\n";
+    "           1280x720, median ms per stage\n"
+    "usage: nacre bench volumetrics [--json] [--runs N]\n"
+    "  volumetrics  froxel stages (fill, light, integrate, apply at 160x90x64), the per-pixel\n"
+    "           march and the analytic fog pass over the demo at 1280x720 with a shadowed sun,\n"
+    "           four point lights, height fog and a 128^3 cloud (bench/bench_volumetrics.c)\n";
+
+
 
 
 
@@ -58,11 +64,14 @@ int nc_cli_bench(int argc, char **argv)
     bool voxelize = strcmp(argv[0], "voxelize") == 0, diffusion = strcmp(argv[0], "diffusion") == 0;
     bool pathtrace = strcmp(argv[0], "pathtrace") == 0, layered = strcmp(argv[0], "layered") == 0;
     bool load = strcmp(argv[0], "load") == 0, particles = strcmp(argv[0], "particles") == 0;
+    bool volumetrics = strcmp(argv[0], "volumetrics") == 0;
     const char *load_ply = NULL, *load_glb = NULL;
     const char *layered_scene = "examples/layered.json";
-    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace && !load && !layered && !particles)
+    if (strcmp(argv[0], "raster") != 0 && !voxelize && !diffusion && !pathtrace && !load && !layered && !particles &&
+        !volumetrics)
         return nc_tool_usage("bench",
-                             "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace, load, layered, particles)",
+                             "unknown benchmark '%s' (raster, voxelize, diffusion, pathtrace, load, layered, particles, "
+                             "volumetrics)",
                              argv[0]);
     bool json = false;
     long runs = pathtrace ? 1 : 15, res_only = 0;
@@ -111,6 +120,8 @@ int nc_cli_bench(int argc, char **argv)
         return nc_bench_layered(json, (int)runs, layered_scene);
     if (particles)
         return nc_bench_particles(json, (int)runs);
+    if (volumetrics)
+        return nc_bench_volumetrics(json, (int)runs);
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;

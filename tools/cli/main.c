@@ -141,6 +141,13 @@ static const char render_help[] =
     "                      closed form) | samples (the seed: one point sample per step)\n"
     "  --epsilon E         negligible attenuation in (0, 1) (default 0.01): radius of the fitted\n"
     "                      planes, -log(E) / sigma_t, and the depth where marching stops\n"
+    "fog over phong and diffusion (docs/scene-format.md, \"Volumetrics\"):\n"
+    "  --volumetrics V     off (default: analytic fog, directional lights and ambient, unshadowed)\n"
+    "                      | froxel (frustum grid: every fog and light, shadow maps, the fog's own\n"
+    "                      shadows) | raymarch (the same lighting marched per pixel; slow, a check)\n"
+    "  --froxel-grid WxHxD froxel columns, rows and depth slices (default 160x90x64, each 1..1024)\n"
+    "  --raymarch-steps N  steps per pixel ray for raymarch (default 64)\n"
+    "  --shadow-steps N    steps towards each light through patterned fog (default 8)\n"
     "  --help, --version\n";
 
 static void print_stats(const char *scene_name, const nacre_render_settings *rs, const nacre_render_stats *st,
@@ -217,10 +224,11 @@ static int cmd_render(int argc, char **argv)
     nacre_diffusion_solver solver = NACRE_SOLVER_MULTIGRID;
     nacre_diffusion_source source = NACRE_SOURCE_VOLUME;
     long width = 0, height = 0, threads = 0, voxel_res = -1, tsm_size = -1, seed_iters = -1, spp = -1, seed = -1,
-         max_scatter = -1, layered_samples = -1;
+         max_scatter = -1, layered_samples = -1, froxel[3] = {-1, -1, -1}, raymarch_steps = -1, shadow_steps = -1;
     double exposure = NAN, time = NAN, tolerance = NAN, time_limit = NAN, layered_epsilon = NAN;
-    const char *integration_name = NULL;
+    const char *integration_name = NULL, *volumetrics_name = NULL;
     nacre_layered_integration integration = NACRE_LAYERED_ANALYTIC;
+    nacre_volumetrics_mode volumetrics = NACRE_VOLUMETRICS_OFF;
     bool stats = false, exr_float = false;
     int code;
     for (int i = 0; i < argc; i++) {
@@ -310,6 +318,34 @@ static int cmd_render(int argc, char **argv)
             if (!has_value || !nacre_layered_integration_from_name(argv[i + 1], &integration))
                 return nc_tool_usage("render", "--integration needs analytic or samples");
             integration_name = argv[++i];
+        } else if (strcmp(a, "--volumetrics") == 0) {
+            if (!has_value)
+                return nc_tool_usage("render", "--volumetrics needs off, froxel or raymarch");
+            volumetrics_name = argv[++i];
+            if (!nacre_volumetrics_from_name(volumetrics_name, &volumetrics))
+                return nc_tool_usage("render", "--volumetrics '%s': expected off, froxel or raymarch", volumetrics_name);
+        } else if (strcmp(a, "--froxel-grid") == 0) {
+            if (!has_value)
+                return nc_tool_usage("render", "--froxel-grid needs WxHxD");
+            const char *v = argv[++i];
+            char buf[3][32];
+            const char *p = v;
+            for (int k = 0; k < 3; k++) {
+                const char *x = k < 2 ? strchr(p, 'x') : p + strlen(p);
+                if (!x || (size_t)(x - p) >= sizeof(buf[k]))
+                    return nc_tool_usage("render", "--froxel-grid '%s': expected WxHxD, e.g. 160x90x64", v);
+                memcpy(buf[k], p, (size_t)(x - p));
+                buf[k][x - p] = '\0';
+                if (!nc_tool_parse_int(buf[k], 1, 1024, &froxel[k]))
+                    return nc_tool_usage("render", "--froxel-grid '%s': each of W, H, D must be an integer in 1..1024", v);
+                p = x + 1;
+            }
+        } else if (strcmp(a, "--raymarch-steps") == 0) {
+            if (!has_value || !nc_tool_parse_int(argv[++i], 1, 4096, &raymarch_steps))
+                return nc_tool_usage("render", "--raymarch-steps needs an integer in 1..4096");
+        } else if (strcmp(a, "--shadow-steps") == 0) {
+            if (!has_value || !nc_tool_parse_int(argv[++i], 1, 256, &shadow_steps))
+                return nc_tool_usage("render", "--shadow-steps needs an integer in 1..256");
         } else if (strcmp(a, "--variance") == 0) {
             if (!has_value)
                 return nc_tool_usage("render", "--variance needs a file name");
@@ -435,6 +471,17 @@ static int cmd_render(int argc, char **argv)
         rs.layered.epsilon = (float)layered_epsilon;
     if (integration_name)
         rs.layered.integration = integration;
+    if (volumetrics_name)
+        rs.volumetrics.mode = volumetrics;
+    if (froxel[0] > 0) {
+        rs.volumetrics.froxel_width = (uint32_t)froxel[0];
+        rs.volumetrics.froxel_height = (uint32_t)froxel[1];
+        rs.volumetrics.froxel_slices = (uint32_t)froxel[2];
+    }
+    if (raymarch_steps > 0)
+        rs.volumetrics.raymarch_steps = (uint32_t)raymarch_steps;
+    if (shadow_steps > 0)
+        rs.volumetrics.shadow_steps = (uint32_t)shadow_steps;
     nacre_method_info_get(rs.method, &info);
     if (variance_path && !info.stochastic) {
         nc_tool_error("--variance needs --method pathtrace");
@@ -481,15 +528,16 @@ static int cmd_render(int argc, char **argv)
         fprintf(stderr, "nacre: note: %llu paths reached the path-length or collision cap and were ended there "
                         "(see README: the path tracer's caps)\n",
                 (unsigned long long)st.paths_capped);
-    /* Raster methods draw fog by the fog post pass; say what it leaves out. */
+    /* Raster methods draw fog by the fog post pass; say what it leaves out (with volumetrics
+     * froxel or raymarch both counts are 0). */
     if (st.fog_lights_ignored > 0)
         fprintf(stderr, "nacre: note: method '%s' lights fog with directional lights and the environment only; "
-                        "%u point or spot light%s add%s no light to the fog (--method pathtrace does)\n",
+                        "%u point or spot light%s add%s no light to the fog (--method pathtrace and --volumetrics froxel do)\n",
                 nacre_method_name(rs.method), st.fog_lights_ignored, st.fog_lights_ignored == 1 ? "" : "s",
                 st.fog_lights_ignored == 1 ? "s" : "");
     if (st.fog_patterns_averaged > 0)
         fprintf(stderr, "nacre: note: method '%s' draws %u patterned fog%s with %s mean coefficients "
-                        "(--method pathtrace renders the pattern)\n",
+                        "(--method pathtrace and --volumetrics froxel render the pattern)\n",
                 nacre_method_name(rs.method), st.fog_patterns_averaged, st.fog_patterns_averaged == 1 ? "" : "s",
                 st.fog_patterns_averaged == 1 ? "its" : "their");
     if (!image_finite(&img, &rs, "image")) /* nothing is written */

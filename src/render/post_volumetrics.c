@@ -1,0 +1,879 @@
+/*
+ * post_volumetrics.c: volumetric fog over the image and depth of a rasterizing method (Hubert
+ * 2020, seed 003 §2.3), by two post passes that share one lighting of fog points:
+ *   froxel    (§2.3.2; Wronski 2014, Hillaire 2015) a frustum-aligned grid of W x H columns and
+ *             D depth slices. fill: every fog's sigma_t, sigma_s and phase g at each froxel's
+ *             centre (fog_field.h: global and box fogs, height falloff, the pattern at the point);
+ *             light: the in-scattered source per froxel; integrate: front to back along each
+ *             column with the segment integral of §1.2.10 (exact for a homogeneous slice with a
+ *             constant source); apply: c Tr + L (figure 2.18) with Tr and L read trilinearly at
+ *             the pixel's depth, for opaque and translucent surfaces and the background alike.
+ *   raymarch  (§2.3.1) the same lighting at the midpoints of raymarch_steps equal steps along
+ *             each pixel's ray, integrated with the same segment integral: the froxels' check
+ *             and the choice for close-ups (no grid to resolve).
+ * Lighting of a point (§1.2.8 - 1.2.9): the source is sigma_s (sum over lights of E p(cos) V Tr
+ * + L_env), E the light's irradiance there (directional: its strength; point and spot:
+ * intensity / distance^2 with the spot's falloff of scene/lights.h), p the Henyey-Greenstein
+ * phase with the froxel's sigma_s-weighted g, V the opaque shadow from the light's shadow map
+ * (the phong pass's maps; none when shadows are off), Tr the transmittance from the point
+ * towards the light through every fog (§2.2.3, the fog's own shadow: closed form for fogs
+ * without pattern, a march of shadow_steps through patterned ones, fog_field.h), and L_env the
+ * environment taken as unshadowed isotropic ambient light, as in the analytic fog pass.
+ *
+ * Depth slices: with a perspective camera slice 0 runs from the eye to z0 and slices 1 .. D-1
+ * are spaced exponentially from z0 to zf (boundaries z0 (zf / z0)^(k / (D - 1))), zf the
+ * farther of the camera's far plane and the farthest corner of a box fog, z0 = max(near / 2,
+ * zf / 1000): fine slices where the scene begins, as many as possible over it. Orthographic
+ * cameras get D equal slices from the near plane to zf. Beyond zf (the background, at
+ * infinite depth), each column ray's remaining fog is added in closed
+ * form as in the analytic pass: the optical depth of every fog to infinity (height integral;
+ * patterns at the segment's start), lit by the directional lights with the fog's transmittance
+ * towards them at that start and by the environment; point and spot lights add nothing there.
+ *
+ * Results do not depend on the thread count: every column and pixel is computed alone.
+ * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
+ */
+#include "core/core.h"
+#include "render/method.h"
+#include "scene/lights.h"
+#include "scene/medium.h"
+#include "volume/fog_field.h"
+
+#include <math.h>
+#include <string.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
+/* A light as the fog points need it. */
+typedef struct vlight {
+    nacre_light_type type;
+    float pos[3], dir[3], e[3];
+    float co, ci; /* spot: cos of the outer and inner half-angles */
+    nacre_spot_falloff falloff;
+    const nc_shadow_map *shadow;
+} vlight;
+
+/* The camera rays of the frame (as the analytic fog pass and the path tracer shoot them). */
+typedef struct camera_rays {
+    double inv_proj[4][4];
+    double cam_to_world[3][4];
+    bool ortho;
+    double near, far; /* view-axis depths of the near and far planes */
+} camera_rays;
+
+typedef struct vol_state {
+    nc_fog_field field;
+    vlight *lights;
+    uint32_t light_capacity, light_count;
+    float env[3];
+    float pcf, bias;
+    camera_rays cam;
+    /* froxel grid: W x H columns of D froxels, column-major in depth (index col * D + k) */
+    uint32_t W, H, D;
+    float *st, *src, *g; /* 3N, 3N (sigma_s after fill, the source after light), N */
+    float *acc_l, *acc_t; /* per column D + 1 boundaries (1 .. D, then infinity) x 3 */
+    float *col_depth;     /* per column: the farthest depth of the pixels that read it */
+    size_t col_capacity;
+    double *bound;        /* D + 1 view-axis depths of the slice boundaries */
+    size_t grid_capacity;
+    /* Optical depth towards each light at the froxels of even indices (Wc x Hc x Dc nodes,
+     * column-major in depth), x 3 channels, per light */
+    uint32_t Wc, Hc, Dc;
+    float *tau_grid;
+    size_t tau_capacity;
+    /* per-thread scratch */
+    float *scratch;
+    size_t scratch_per_thread, scratch_capacity;
+} vol_state;
+
+/* ---- set-up ------------------------------------------------------------------------------ */
+
+static void vol_destroy(nacre_context *ctx, void *state)
+{
+    vol_state *st = state;
+    if (!st)
+        return;
+    nc_free(ctx, st->lights);
+    nc_free(ctx, st->st);
+    nc_free(ctx, st->src);
+    nc_free(ctx, st->g);
+    nc_free(ctx, st->acc_l);
+    nc_free(ctx, st->acc_t);
+    nc_free(ctx, st->bound);
+    nc_free(ctx, st->tau_grid);
+    nc_free(ctx, st->col_depth);
+    nc_free(ctx, st->scratch);
+    nc_free(ctx, st);
+}
+
+static nacre_result vol_create(nacre_context *ctx, void **state)
+{
+    vol_state *st = nc_calloc(ctx, 1, sizeof(*st));
+    if (!st)
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    *state = st;
+    return NACRE_OK;
+}
+
+static bool froxel_wanted(const nacre_scene *scene, const nacre_render_settings *settings)
+{
+    const nc_method *m = nc_method_get(settings->method);
+    return nc_post_fogs_drawn(scene, settings) > 0 && m && !m->renders_fog &&
+           settings->volumetrics.mode == NACRE_VOLUMETRICS_FROXEL;
+}
+
+static bool raymarch_wanted(const nacre_scene *scene, const nacre_render_settings *settings)
+{
+    const nc_method *m = nc_method_get(settings->method);
+    return nc_post_fogs_drawn(scene, settings) > 0 && m && !m->renders_fog &&
+           settings->volumetrics.mode == NACRE_VOLUMETRICS_RAYMARCH;
+}
+
+static void camera_setup(const nc_raster_view *v, camera_rays *cr)
+{
+    nc_mat4 inv_proj, inv_view;
+    nc_mat4_inverse(v->proj, &inv_proj);
+    nc_mat4_inverse(v->view, &inv_view);
+    for (int r = 0; r < 4; r++)
+        for (int c = 0; c < 4; c++) {
+            cr->inv_proj[r][c] = inv_proj.m[r][c];
+            if (r < 3)
+                cr->cam_to_world[r][c] = inv_view.m[r][c];
+        }
+    cr->ortho = v->orthographic;
+    /* The planes' depths from NDC z = 0 and 1 on the axis. */
+    for (int k = 0; k < 2; k++) {
+        double z = -(cr->inv_proj[2][2] * k + cr->inv_proj[2][3]) / (cr->inv_proj[3][2] * k + cr->inv_proj[3][3]);
+        if (k == 0)
+            cr->near = z;
+        else
+            cr->far = z;
+    }
+}
+
+/* The camera ray through NDC (nx, ny): world origin o and unit direction d, and (scale, offset)
+ * such that a view-axis depth z lies at ray distance z scale + offset. */
+static void camera_ray(const camera_rays *cr, double nx, double ny, float o[3], float d[3], double *scale,
+                       double *offset)
+{
+    double ov[3] = {0, 0, 0}, dv[3] = {0, 0, -1}, q[4];
+    double nz = cr->ortho ? 0.0 : 1.0;
+    for (int r = 0; r < 4; r++)
+        q[r] = cr->inv_proj[r][0] * nx + cr->inv_proj[r][1] * ny + cr->inv_proj[r][2] * nz + cr->inv_proj[r][3];
+    if (cr->ortho) {
+        for (int k = 0; k < 3; k++)
+            ov[k] = q[k] / q[3];
+        *scale = 1.0;
+        *offset = ov[2]; /* the ray starts on the near plane, at view z = ov[2] */
+    } else {
+        double sg = q[3] < 0 ? -1.0 : 1.0, len = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+        for (int k = 0; k < 3; k++)
+            dv[k] = q[k] * sg / len;
+        *scale = 1.0 / -dv[2];
+        *offset = 0.0;
+    }
+    for (int r = 0; r < 3; r++) {
+        const double *m = cr->cam_to_world[r];
+        o[r] = (float)(m[0] * ov[0] + m[1] * ov[1] + m[2] * ov[2] + m[3]);
+        d[r] = (float)(m[0] * dv[0] + m[1] * dv[1] + m[2] * dv[2]);
+    }
+}
+
+static inline double ray_t(double z, double scale, double offset)
+{
+    double t = z * scale + offset;
+    return t > 0.0 ? t : 0.0;
+}
+
+/* Lights, fogs, environment and camera of the frame; per-thread scratch for batches of up to
+ * `batch` points. */
+static nacre_result vol_setup(vol_state *st, const nc_post_input *in, uint32_t batch)
+{
+    nacre_context *ctx = in->ctx;
+    const nacre_scene *s = in->scene;
+    const nacre_volumetrics_settings *vs = &in->settings->volumetrics;
+    nc_fog_field_init(&st->field, s, nc_post_fogs_drawn(s, in->settings), vs->shadow_steps);
+    if (s->light_count > st->light_capacity) {
+        vlight *grown = nc_alloc(ctx, s->light_count * sizeof(*grown));
+        if (!grown)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        nc_free(ctx, st->lights);
+        st->lights = grown;
+        st->light_capacity = s->light_count;
+    }
+    st->light_count = 0;
+    for (uint32_t i = 0; i < s->light_count; i++) {
+        const nacre_light_desc *ld = &s->lights[i].desc;
+        vlight *l = &st->lights[st->light_count++];
+        l->type = ld->type;
+        memcpy(l->pos, ld->position, sizeof(l->pos));
+        memcpy(l->dir, ld->direction, sizeof(l->dir));
+        memcpy(l->e, ld->strength, sizeof(l->e));
+        l->co = cosf(ld->outer_angle * (float)NC_DEG2RAD);
+        l->ci = cosf(ld->inner_angle * (float)NC_DEG2RAD);
+        l->falloff = ld->falloff;
+        l->shadow = in->lights && i < in->light_count ? in->lights[i].shadow : NULL;
+    }
+    memcpy(st->env, s->environment, sizeof(st->env));
+    /* A point in the air has no surface to soften: the smallest window (shafts stay sharp at
+     * the map's resolution, and a lookup costs a quarter). */
+    st->pcf = 0.5f;
+    st->bias = in->settings->shadow.bias;
+    camera_setup(in->view, &st->cam);
+    /* The grid reaches past the camera's far plane (fitted to the objects) to the far corners
+     * of the box fogs, so that lights shine on all of them; only global fog beyond that is left
+     * to the closed-form tail. */
+    const nc_mat4 *vm = &in->view->view;
+    for (uint32_t i = 0; i < st->field.count; i++) {
+        const nc_fog_rec *rec = &s->fogs[i];
+        if (rec->desc.shape != NACRE_FOG_BOX)
+            continue;
+        nc_mat4 l2w;
+        if (!nc_mat4_inverse(rec->world_to_local, &l2w))
+            continue;
+        for (int c = 0; c < 8; c++) {
+            nc_vec3 q = nc_v3((c & 1 ? 0.5f : -0.5f) * rec->desc.size[0], (c & 2 ? 0.5f : -0.5f) * rec->desc.size[1],
+                              (c & 4 ? 0.5f : -0.5f) * rec->desc.size[2]);
+            double z = -nc_mat4_point(vm, nc_mat4_point(&l2w, q)).z;
+            if (isfinite(z) && z > st->cam.far)
+                st->cam.far = z;
+        }
+    }
+    size_t per = 13u * batch + NC_FOG_EVAL_SCRATCH(batch) + NC_FOG_TAU_SCRATCH(vs->shadow_steps) +
+                 3u * (size_t)batch * st->light_count;
+    size_t total = per * (size_t)(ctx->threads > 0 ? ctx->threads : 1);
+    if (total > st->scratch_capacity) {
+        float *grown = nc_alloc(ctx, total * sizeof(float));
+        if (!grown)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        nc_free(ctx, st->scratch);
+        st->scratch = grown;
+        st->scratch_capacity = total;
+    }
+    st->scratch_per_thread = per;
+    return NACRE_OK;
+}
+
+static float *thread_scratch(const vol_state *st)
+{
+    int tid = 0;
+#ifdef _OPENMP
+    tid = omp_get_thread_num();
+#endif
+    return st->scratch + (size_t)tid * st->scratch_per_thread;
+}
+
+/* ---- lighting of fog points ---------------------------------------------------------------- */
+
+/* Henyey-Greenstein phase (core/optics.h's nc_hg_phase) in float, without pow: per froxel and
+ * light it was a tenth of the lighting's time. */
+static inline float hg_phase(float cos_theta, float g)
+{
+    float x = 1.0f + g * g - 2.0f * g * cos_theta;
+    return (1.0f - g * g) / (4.0f * (float)NC_PI * x * sqrtf(x));
+}
+
+/* Where light l reaches point x: the way it travels (wi), the distance (INFINITY for
+ * directional lights) and the factor of its strength there (1 / d^2, spot falloff); false if
+ * it does not. */
+static inline bool light_at(const vlight *li, const float x[3], float wi[3], float *dist, float *scale)
+{
+    *dist = INFINITY;
+    *scale = 1.0f;
+    if (li->type == NACRE_LIGHT_DIRECTIONAL) {
+        memcpy(wi, li->dir, 3 * sizeof(float));
+        return true;
+    }
+    float v[3] = {x[0] - li->pos[0], x[1] - li->pos[1], x[2] - li->pos[2]};
+    float d2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+    if (!(d2 > 0.0f))
+        return false;
+    *dist = sqrtf(d2);
+    for (int c = 0; c < 3; c++)
+        wi[c] = v[c] / *dist;
+    *scale = 1.0f / d2;
+    if (li->type == NACRE_LIGHT_SPOT) {
+        float cs = wi[0] * li->dir[0] + wi[1] * li->dir[1] + wi[2] * li->dir[2];
+        *scale *= nc_spot_falloff(li->falloff, cs, li->co, li->ci);
+    }
+    return *scale > 0.0f;
+}
+
+/* Optical depths beyond this are stored as this (e^-80: no light), so that infinite ones
+ * interpolate. */
+#define TAU_MAX 80.0f
+
+/* The source (sigma_s x in-scattered radiance) at n points p seen along direction d (eye to
+ * point): src[3k + c] from ss[3k + c] and g[k]. src may alias ss. tau_pre: the optical depth
+ * towards light l at point k at [3 (l n + k) + c], or NULL to integrate it here. */
+static void light_points(const vol_state *st, uint32_t n, const float *p, const float d[3], const float *ss,
+                         const float *g, float *src, const float *tau_pre, float *tau_scratch)
+{
+    for (uint32_t k = 0; k < n; k++) {
+        const float *x = p + 3 * (size_t)k;
+        float s[3] = {ss[3 * k], ss[3 * k + 1], ss[3 * k + 2]};
+        if (!(s[0] > 0.0f || s[1] > 0.0f || s[2] > 0.0f)) {
+            src[3 * k] = src[3 * k + 1] = src[3 * k + 2] = 0.0f;
+            continue;
+        }
+        double acc[3] = {st->env[0], st->env[1], st->env[2]};
+        for (uint32_t l = 0; l < st->light_count; l++) {
+            const vlight *li = &st->lights[l];
+            float wi[3], dist, scale;
+            if (!light_at(li, x, wi, &dist, &scale))
+                continue;
+            float vis = 1.0f;
+            if (li->shadow) {
+                vis = nc_shadow_lookup_volume(li->shadow, nc_v3a(x), st->pcf, st->bias);
+                if (!(vis > 0.0f))
+                    continue;
+            }
+            float tau[3], w[3] = {-wi[0], -wi[1], -wi[2]};
+            double td[3];
+            nc_fog_field_optical_depth(&st->field, x, w, dist, tau_pre ? NC_FOG_ANALYTIC : NC_FOG_ALL, td, tau_scratch);
+            for (int c = 0; c < 3; c++) {
+                if (tau_pre)
+                    td[c] += tau_pre[3 * ((size_t)l * n + k) + c];
+                tau[c] = td[c] < TAU_MAX ? (float)td[c] : TAU_MAX;
+            }
+            float ph = hg_phase(-(d[0] * wi[0] + d[1] * wi[1] + d[2] * wi[2]), g[k]) * vis * scale;
+            for (int c = 0; c < 3; c++)
+                acc[c] += li->e[c] * ph * expf(-tau[c]);
+        }
+        for (int c = 0; c < 3; c++)
+            src[3 * k + c] = (float)(s[c] * acc[c]);
+    }
+}
+
+/* The fog beyond ray distance t0 along (o, d) to infinity, in closed form (see the top of the
+ * file): radiance L and transmittance T per channel. */
+static void tail(const vol_state *st, const float o[3], const float d[3], double t0, double L[3], double T[3],
+                 float *tau_scratch)
+{
+    const nc_fog_field *f = &st->field;
+    double tau[3] = {0, 0, 0}, acc[3] = {0, 0, 0}, tau_inf[3] = {0, 0, 0}, acc_inf[3] = {0, 0, 0};
+    for (uint32_t i = 0; i < f->count; i++) {
+        const nc_fog_one *fo = &f->fogs[i];
+        double a = t0, b = INFINITY;
+        if (!nc_fog_field_segment(fo, o, d, &a, &b))
+            continue;
+        double G = nc_vol_height_integral(&fo->h, o[1], d[1], a, b);
+        if (!(G > 0.0))
+            continue;
+        float x[3] = {o[0] + (float)a * d[0], o[1] + (float)a * d[1], o[2] + (float)a * d[2]};
+        float sa[3], ss[3];
+        if (fo->patterned) {
+            float q[3];
+            for (int r = 0; r < 3; r++)
+                q[r] = fo->w2l[r][0] * x[0] + fo->w2l[r][1] * x[1] + fo->w2l[r][2] * x[2] + fo->w2l[r][3];
+            nc_medium_eval(f->scene, fo->medium, q, 1, sa, ss);
+        } else {
+            memcpy(sa, fo->sigma_a, sizeof(sa));
+            memcpy(ss, fo->sigma_s, sizeof(ss));
+        }
+        double S[3] = {st->env[0], st->env[1], st->env[2]};
+        for (uint32_t l = 0; l < st->light_count; l++) {
+            const vlight *li = &st->lights[l];
+            if (li->type != NACRE_LIGHT_DIRECTIONAL)
+                continue;
+            float w[3] = {-li->dir[0], -li->dir[1], -li->dir[2]};
+            double tl[3];
+            nc_fog_field_optical_depth(f, x, w, INFINITY, NC_FOG_ALL, tl, tau_scratch);
+            double ph = nc_hg_phase(-(d[0] * li->dir[0] + d[1] * li->dir[1] + d[2] * li->dir[2]), fo->g);
+            for (int c = 0; c < 3; c++)
+                if (isfinite(tl[c]))
+                    S[c] += li->e[c] * ph * exp(-tl[c]);
+        }
+        bool diverges = isinf(G);
+        for (int c = 0; c < 3; c++) {
+            double sig_t = (double)sa[c] + ss[c];
+            if (!(sig_t > 0.0))
+                continue;
+            if (diverges) {
+                tau_inf[c] += sig_t;
+                acc_inf[c] += ss[c] * S[c];
+            } else {
+                tau[c] += sig_t * G;
+                acc[c] += ss[c] * G * S[c];
+            }
+        }
+    }
+    for (int c = 0; c < 3; c++) {
+        if (tau_inf[c] > 0.0) {
+            L[c] = acc_inf[c] / tau_inf[c];
+            T[c] = 0.0;
+            continue;
+        }
+        T[c] = exp(-tau[c]);
+        L[c] = acc[c] * nc_vol_exp_ratio_t(tau[c], T[c]);
+    }
+}
+
+/* ---- froxels ----------------------------------------------------------------------------- */
+
+static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_volumetrics_settings *vs)
+{
+    st->W = vs->froxel_width;
+    st->H = vs->froxel_height;
+    st->D = vs->froxel_slices;
+    size_t cols = (size_t)st->W * st->H, n = cols * st->D;
+    /* Columns never outnumber froxels: the accumulated boundaries (n + cols) fit in 2n. */
+    if (n > st->grid_capacity) {
+        nc_free(ctx, st->st);
+        nc_free(ctx, st->src);
+        nc_free(ctx, st->g);
+        nc_free(ctx, st->acc_l);
+        nc_free(ctx, st->acc_t);
+        nc_free(ctx, st->bound);
+        st->st = nc_alloc(ctx, 3 * n * sizeof(float));
+        st->src = nc_alloc(ctx, 3 * n * sizeof(float));
+        st->g = nc_alloc(ctx, n * sizeof(float));
+        st->acc_l = nc_alloc(ctx, 6 * n * sizeof(float));
+        st->acc_t = nc_alloc(ctx, 6 * n * sizeof(float));
+        st->bound = nc_alloc(ctx, (n + 1) * sizeof(double));
+        st->grid_capacity = 0;
+        if (!st->st || !st->src || !st->g || !st->acc_l || !st->acc_t || !st->bound)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        st->grid_capacity = n;
+    }
+    const camera_rays *cr = &st->cam;
+    uint32_t D = st->D;
+    if (cr->ortho) {
+        for (uint32_t k = 0; k <= D; k++)
+            st->bound[k] = cr->near + (cr->far - cr->near) * k / D;
+    } else {
+        double zf = cr->far, z0 = fmax(0.5 * cr->near, 1e-3 * zf);
+        st->bound[0] = 0.0;
+        if (D == 1) {
+            st->bound[1] = zf;
+        } else {
+            for (uint32_t k = 1; k <= D; k++)
+                st->bound[k] = z0 * pow(zf / z0, (double)(k - 1) / (D - 1));
+        }
+    }
+    return NACRE_OK;
+}
+
+/* Column (i, j)'s ray through its centre. */
+static void column_ray(const vol_state *st, uint32_t i, uint32_t j, float o[3], float d[3], double *scale,
+                       double *offset)
+{
+    double nx = (i + 0.5) / st->W * 2.0 - 1.0, ny = 1.0 - (j + 0.5) / st->H * 2.0;
+    camera_ray(&st->cam, nx, ny, o, d, scale, offset);
+}
+
+static void column_points(const vol_state *st, const float o[3], const float d[3], double scale, double offset,
+                          float *p)
+{
+    for (uint32_t k = 0; k < st->D; k++) {
+        float t = (float)ray_t(0.5 * (st->bound[k] + st->bound[k + 1]), scale, offset);
+        for (int c = 0; c < 3; c++)
+            p[3 * k + c] = o[c] + t * d[c];
+    }
+}
+
+static void froxel_fill(vol_state *st, int threads)
+{
+    int64_t cols = (int64_t)st->W * st->H;
+#pragma omp parallel for schedule(static) num_threads(threads)
+    for (int64_t col = 0; col < cols; col++) {
+        float *sc = thread_scratch(st), *p = sc, *ev = sc + 13u * st->D;
+        float o[3], d[3];
+        double scale, offset;
+        column_ray(st, (uint32_t)(col % st->W), (uint32_t)(col / st->W), o, d, &scale, &offset);
+        column_points(st, o, d, scale, offset, p);
+        size_t base = (size_t)col * st->D;
+        nc_fog_field_eval(&st->field, st->D, p, st->st + 3 * base, st->src + 3 * base, st->g + base, ev);
+    }
+}
+
+/* The coarse grid of the patterned fogs' optical depths towards the lights (nodes at the
+ * froxels of even indices): their march towards every light is most of the lighting's cost, and
+ * their shadow on themselves varies slowly next to the opaque shadows, so it is integrated at
+ * 1/8 of the froxels and interpolated in optical depth. Fogs without pattern stay exact per
+ * froxel (closed form, and a box's walls are sharp). */
+static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads, uint32_t batch)
+{
+    st->Wc = (st->W + 1) / 2;
+    st->Hc = (st->H + 1) / 2;
+    st->Dc = (st->D + 1) / 2;
+    size_t nodes = (size_t)st->Wc * st->Hc * st->Dc, need = nodes * 3 * st->light_count;
+    if (need > st->tau_capacity) {
+        float *grown = nc_alloc(ctx, need * sizeof(float));
+        if (!grown)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        nc_free(ctx, st->tau_grid);
+        st->tau_grid = grown;
+        st->tau_capacity = need;
+    }
+    int64_t cols = (int64_t)st->Wc * st->Hc;
+#pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
+    for (int64_t cc = 0; cc < cols; cc++) {
+        float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
+        float o[3], d[3];
+        double scale, offset;
+        column_ray(st, 2 * (uint32_t)(cc % st->Wc), 2 * (uint32_t)(cc / st->Wc), o, d, &scale, &offset);
+        column_points(st, o, d, scale, offset, p);
+        for (uint32_t l = 0; l < st->light_count; l++) {
+            float *out = st->tau_grid + 3 * ((size_t)l * nodes + (size_t)cc * st->Dc);
+            for (uint32_t c = 0; c < st->Dc; c++) {
+                const float *x = p + 3 * (size_t)(2 * c);
+                float wi[3], dist, sf;
+                double td[3] = {0, 0, 0};
+                if (light_at(&st->lights[l], x, wi, &dist, &sf)) {
+                    float w[3] = {-wi[0], -wi[1], -wi[2]};
+                    nc_fog_field_optical_depth(&st->field, x, w, dist, NC_FOG_PATTERNED, td, tau);
+                }
+                for (int ch = 0; ch < 3; ch++)
+                    out[3 * c + ch] = td[ch] < TAU_MAX ? (float)td[ch] : TAU_MAX;
+            }
+        }
+    }
+    return NACRE_OK;
+}
+
+/* Froxel index i on the coarse grid of n nodes: nodes a0, a1 and the weight of a1. */
+static inline void coarse(uint32_t i, uint32_t n, uint32_t *a0, uint32_t *a1, float *w)
+{
+    *a0 = i / 2;
+    *a1 = *a0 + 1 < n ? *a0 + 1 : *a0;
+    *w = (i & 1) && *a1 != *a0 ? 0.5f : 0.0f;
+}
+
+/* Pixel coordinate x of an image n wide on a grid of m columns: the two columns its bilinear
+ * lookup reads (froxel_apply_pixels) and the weight of the second. */
+static inline void pixel_columns(int32_t x, int32_t n, uint32_t m, int32_t *i0, int32_t *i1, float *w)
+{
+    float f = (x + 0.5f) * (float)m / (float)n - 0.5f;
+    *i0 = (int32_t)floorf(f);
+    *w = f - (float)*i0;
+    if (*i0 < 0)
+        *i0 = 0, *w = 0.0f;
+    *i1 = *i0 + 1 < (int32_t)m ? *i0 + 1 : *i0;
+    if (*i1 == *i0)
+        *w = 0.0f;
+}
+
+/* The farthest depth that any pixel reads from each column: froxels behind it are never seen
+ * (a column behind a wall is integrated, but no pixel looks past the wall), so they are not lit. */
+static nacre_result column_depths(vol_state *st, nacre_context *ctx, const float *depth, int32_t w, int32_t h,
+                                  int threads)
+{
+    size_t cols = (size_t)st->W * st->H;
+    if (cols > st->col_capacity) {
+        float *grown = nc_alloc(ctx, cols * sizeof(float));
+        if (!grown)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        nc_free(ctx, st->col_depth);
+        st->col_depth = grown;
+        st->col_capacity = cols;
+    }
+    /* One row of columns per iteration: only it writes there, and a maximum does not depend on
+     * the order. */
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+    for (int32_t j = 0; j < (int32_t)st->H; j++) {
+        float *row = st->col_depth + (size_t)j * st->W;
+        for (uint32_t i = 0; i < st->W; i++)
+            row[i] = 0.0f;
+        for (int32_t y = 0; y < h; y++) {
+            int32_t j0, j1;
+            float wy;
+            pixel_columns(y, h, st->H, &j0, &j1, &wy);
+            if (j0 != j && j1 != j)
+                continue;
+            const float *dr = depth + (size_t)y * (size_t)w;
+            for (int32_t x = 0; x < w; x++) {
+                int32_t i0, i1;
+                float wx;
+                pixel_columns(x, w, st->W, &i0, &i1, &wx);
+                float z = dr[x];
+                if (!(z <= row[i0]))
+                    row[i0] = z;
+                if (!(z <= row[i1]))
+                    row[i1] = z;
+            }
+        }
+    }
+    return NACRE_OK;
+}
+
+static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads, uint32_t batch)
+{
+    bool patterned = nc_fog_field_patterned(&st->field);
+    nacre_result res = patterned ? tau_grid_fill(st, ctx, threads, batch) : NACRE_OK;
+    if (res != NACRE_OK)
+        return res;
+    int64_t cols = (int64_t)st->W * st->H;
+    size_t nodes = (size_t)st->Wc * st->Hc * st->Dc;
+#pragma omp parallel for schedule(dynamic, 16) num_threads(threads)
+    for (int64_t col = 0; col < cols; col++) {
+        float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
+        float *pre = tau + NC_FOG_TAU_SCRATCH(st->field.shadow_steps);
+        uint32_t i = (uint32_t)(col % st->W), j = (uint32_t)(col / st->W);
+        uint32_t a0, a1, b0, b1;
+        float wa, wb;
+        coarse(i, st->Wc, &a0, &a1, &wa);
+        coarse(j, st->Hc, &b0, &b1, &wb);
+        const size_t cn[4] = {(size_t)b0 * st->Wc + a0, (size_t)b0 * st->Wc + a1, (size_t)b1 * st->Wc + a0,
+                              (size_t)b1 * st->Wc + a1};
+        const float cw[4] = {(1 - wa) * (1 - wb), wa * (1 - wb), (1 - wa) * wb, wa * wb};
+        /* Froxels that a pixel reads: slices that begin at or before the column's depth. */
+        uint32_t n = 0;
+        while (n < st->D && st->bound[n] <= st->col_depth[col])
+            n++;
+        for (uint32_t l = 0; patterned && l < st->light_count; l++) {
+            const float *grid = st->tau_grid + 3 * (size_t)l * nodes;
+            for (uint32_t k = 0; k < n; k++) {
+                uint32_t c0, c1;
+                float wc;
+                coarse(k, st->Dc, &c0, &c1, &wc);
+                float t[3] = {0, 0, 0};
+                for (int q = 0; q < 4; q++) {
+                    const float *n0 = grid + 3 * (cn[q] * st->Dc + c0), *n1 = grid + 3 * (cn[q] * st->Dc + c1);
+                    for (int ch = 0; ch < 3; ch++)
+                        t[ch] += cw[q] * ((1 - wc) * n0[ch] + wc * n1[ch]);
+                }
+                memcpy(pre + 3 * ((size_t)l * n + k), t, sizeof(t));
+            }
+        }
+        float o[3], d[3];
+        double scale, offset;
+        column_ray(st, i, j, o, d, &scale, &offset);
+        column_points(st, o, d, scale, offset, p);
+        size_t base = (size_t)col * st->D;
+        light_points(st, n, p, d, st->src + 3 * base, st->g + base, st->src + 3 * base, patterned ? pre : NULL, tau);
+        memset(st->src + 3 * (base + n), 0, 3 * (size_t)(st->D - n) * sizeof(float));
+    }
+    return NACRE_OK;
+}
+
+static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
+{
+    int64_t cols = (int64_t)st->W * st->H;
+    uint32_t D = st->D;
+#pragma omp parallel for schedule(static) num_threads(threads)
+    for (int64_t col = 0; col < cols; col++) {
+        float *tau = thread_scratch(st) + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
+        float o[3], d[3];
+        double scale, offset;
+        column_ray(st, (uint32_t)(col % st->W), (uint32_t)(col / st->W), o, d, &scale, &offset);
+        size_t base = (size_t)col * D, out = (size_t)col * (D + 1);
+        /* nc_vol_march_step in float with one exponential per channel (the double form, with
+         * two, was most of this stage): the same segment integral, (1 - T) / sigma_t. */
+        float ml[3] = {0, 0, 0}, mt[3] = {1, 1, 1};
+        for (uint32_t k = 0; k < D; k++) {
+            float len = (float)(ray_t(st->bound[k + 1], scale, offset) - ray_t(st->bound[k], scale, offset));
+            for (int c = 0; c < 3; c++) {
+                float sig = st->st[3 * (base + k) + c], x = sig * len, T = expf(-x);
+                float w = x < 1e-3f ? len * (1.0f - 0.5f * x) : (1.0f - T) / sig;
+                ml[c] += mt[c] * st->src[3 * (base + k) + c] * w;
+                mt[c] *= T;
+                st->acc_l[3 * (out + k) + c] = ml[c];
+                st->acc_t[3 * (out + k) + c] = mt[c];
+            }
+        }
+        double L[3], T[3];
+        tail(st, o, d, ray_t(st->bound[D], scale, offset), L, T, tau);
+        for (int c = 0; c < 3; c++) {
+            st->acc_l[3 * (out + D) + c] = (float)(ml[c] + mt[c] * L[c]);
+            st->acc_t[3 * (out + D) + c] = (float)(mt[c] * T[c]);
+        }
+    }
+}
+
+/* Boundary b (0: the eye, 1 .. D, D + 1: infinity) of a column into l, t (accumulated by w). */
+static inline void boundary_add(const vol_state *st, size_t col, uint32_t b, float w, float l[3], float t[3])
+{
+    if (b == 0) {
+        t[0] += w, t[1] += w, t[2] += w;
+        return;
+    }
+    const float *pl = st->acc_l + 3 * (col * (st->D + 1) + b - 1), *pt = st->acc_t + 3 * (col * (st->D + 1) + b - 1);
+    for (int c = 0; c < 3; c++) {
+        l[c] += w * pl[c];
+        t[c] += w * pt[c];
+    }
+}
+
+/* The slice boundaries around depth z: b0 and the weight of b0 + 1. */
+static inline void depth_slot(const vol_state *st, float z, uint32_t *b0, float *frac)
+{
+    uint32_t D = st->D;
+    if (isinf(z)) {
+        *b0 = D + 1;
+        *frac = 0.0f;
+        return;
+    }
+    if (!(z < st->bound[D])) {
+        *b0 = D;
+        *frac = 0.0f;
+        return;
+    }
+    uint32_t k;
+    if (st->cam.ortho) {
+        double u = (z - st->bound[0]) / (st->bound[D] - st->bound[0]) * D;
+        k = u > 0.0 ? (uint32_t)u : 0;
+    } else if (D == 1 || z < st->bound[1]) {
+        k = 0;
+    } else {
+        double u = 1.0 + log(z / st->bound[1]) / log(st->bound[D] / st->bound[1]) * (D - 1);
+        k = (uint32_t)u;
+    }
+    if (k >= D)
+        k = D - 1;
+    /* Rounding of the logarithm: step to the slice that holds z. */
+    while (k > 0 && z < st->bound[k])
+        k--;
+    while (k + 1 < D && z >= st->bound[k + 1])
+        k++;
+    double f = (z - st->bound[k]) / (st->bound[k + 1] - st->bound[k]);
+    *b0 = k;
+    *frac = (float)(f < 0.0 ? 0.0 : f > 1.0 ? 1.0 : f);
+}
+
+static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_image *image, int threads)
+{
+    int32_t w = image->width, h = image->height;
+#pragma omp parallel for schedule(static) num_threads(threads)
+    for (int32_t y = 0; y < h; y++) {
+        int32_t j0, j1;
+        float wy;
+        pixel_columns(y, h, st->H, &j0, &j1, &wy);
+        float *row = image->pixels + (size_t)y * image->stride;
+        for (int32_t x = 0; x < w; x++) {
+            int32_t i0, i1;
+            float wx;
+            pixel_columns(x, w, st->W, &i0, &i1, &wx);
+            uint32_t b;
+            float fz;
+            depth_slot(st, depth[(size_t)y * (size_t)w + (size_t)x], &b, &fz);
+            float l[3] = {0, 0, 0}, t[3] = {0, 0, 0};
+            size_t cols[4] = {(size_t)j0 * st->W + (size_t)i0, (size_t)j0 * st->W + (size_t)i1,
+                              (size_t)j1 * st->W + (size_t)i0, (size_t)j1 * st->W + (size_t)i1};
+            float wc[4] = {(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy};
+            for (int q = 0; q < 4; q++) {
+                if (wc[q] == 0.0f)
+                    continue;
+                boundary_add(st, cols[q], b, wc[q] * (1.0f - fz), l, t);
+                if (fz > 0.0f)
+                    boundary_add(st, cols[q], b + 1, wc[q] * fz, l, t);
+            }
+            float *px = row + 3 * (size_t)x;
+            for (int c = 0; c < 3; c++)
+                px[c] = px[c] * t[c] + l[c];
+        }
+    }
+}
+
+static void volumetric_stats(const nacre_scene *s, nacre_render_stats *stats)
+{
+    (void)s;
+    stats->fog_lights_ignored = 0;
+    stats->fog_patterns_averaged = 0;
+}
+
+static void stage_done(nacre_render_stats *stats, nacre_stage stage, uint64_t t0)
+{
+    stats->stage_us[stage] += nc_now_us() - t0;
+    stats->stage_ran[stage] = true;
+    stats->stage_runs[stage] = 1;
+}
+
+static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_image *image, nacre_render_stats *stats)
+{
+    vol_state *st = state;
+    const nacre_volumetrics_settings *vs = &in->settings->volumetrics;
+    uint64_t t0 = nc_now_us();
+    uint32_t batch = vs->froxel_slices;
+    nacre_result res = vol_setup(st, in, batch);
+    if (res == NACRE_OK)
+        res = grid_setup(st, in->ctx, vs);
+    if (res != NACRE_OK)
+        return res;
+    int threads = in->ctx->threads;
+    froxel_fill(st, threads);
+    stage_done(stats, NACRE_STAGE_FROXEL_FILL, t0);
+    t0 = nc_now_us();
+    if ((res = column_depths(st, in->ctx, in->depth, image->width, image->height, threads)) != NACRE_OK ||
+        (res = froxel_light(st, in->ctx, threads, batch)) != NACRE_OK)
+        return res;
+    stage_done(stats, NACRE_STAGE_FROXEL_LIGHT, t0);
+    t0 = nc_now_us();
+    froxel_integrate(st, threads, batch);
+    stage_done(stats, NACRE_STAGE_FROXEL_INTEGRATE, t0);
+    t0 = nc_now_us();
+    froxel_apply_pixels(st, in->depth, image, threads);
+    stage_done(stats, NACRE_STAGE_FROXEL_APPLY, t0);
+    volumetric_stats(in->scene, stats);
+    return NACRE_OK;
+}
+
+/* ---- ray marching ------------------------------------------------------------------------ */
+
+static nacre_result raymarch_apply(void *state, const nc_post_input *in, nacre_image *image,
+                                   nacre_render_stats *stats)
+{
+    vol_state *st = state;
+    const nacre_volumetrics_settings *vs = &in->settings->volumetrics;
+    uint64_t t0 = nc_now_us();
+    uint32_t n = vs->raymarch_steps;
+    nacre_result res = vol_setup(st, in, n);
+    if (res != NACRE_OK)
+        return res;
+    /* The far plane as the froxels see it: the march stops there, the tail goes on. */
+    double far = st->cam.far;
+    int32_t w = image->width, h = image->height;
+    const float *depth = in->depth;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(in->ctx->threads)
+    for (int32_t y = 0; y < h; y++) {
+        float *sc = thread_scratch(st);
+        float *p = sc, *sig_t = sc + 3u * n, *src = sc + 6u * n, *g = sc + 9u * n, *ev = sc + 13u * n;
+        float *tau = ev + NC_FOG_EVAL_SCRATCH(n);
+        float *row = image->pixels + (size_t)y * image->stride;
+        for (int32_t x = 0; x < w; x++) {
+            float o[3], d[3];
+            double scale, offset;
+            camera_ray(&st->cam, (x + 0.5) * 2.0 / w - 1.0, 1.0 - (y + 0.5) * 2.0 / h, o, d, &scale, &offset);
+            float z = depth[(size_t)y * (size_t)w + (size_t)x];
+            bool background = isinf(z);
+            double tend = ray_t(z < far ? z : far, scale, offset), dt = tend / n;
+            for (uint32_t k = 0; k < n; k++) {
+                float t = (float)((k + 0.5) * dt);
+                for (int c = 0; c < 3; c++)
+                    p[3 * k + c] = o[c] + t * d[c];
+            }
+            nc_fog_field_eval(&st->field, n, p, sig_t, src, g, ev);
+            light_points(st, n, p, d, src, g, src, NULL, tau);
+            nc_vol_march m[3] = {nc_vol_march_begin(), nc_vol_march_begin(), nc_vol_march_begin()};
+            for (uint32_t k = 0; k < n; k++)
+                for (int c = 0; c < 3; c++)
+                    nc_vol_march_step(&m[c], sig_t[3 * k + c], src[3 * k + c], dt);
+            double L[3] = {0, 0, 0}, T[3] = {1, 1, 1};
+            if (background)
+                tail(st, o, d, tend, L, T, tau);
+            float *px = row + 3 * (size_t)x;
+            for (int c = 0; c < 3; c++)
+                px[c] = (float)(px[c] * m[c].transmittance * T[c] + m[c].radiance + m[c].transmittance * L[c]);
+        }
+    }
+    stage_done(stats, NACRE_STAGE_RAYMARCH, t0);
+    volumetric_stats(in->scene, stats);
+    return NACRE_OK;
+}
+
+const nc_post_pass nc_post_froxel = {
+    .name = "froxel",
+    .wanted = froxel_wanted,
+    .create = vol_create,
+    .apply = froxel_apply,
+    .destroy = vol_destroy,
+};
+
+const nc_post_pass nc_post_raymarch = {
+    .name = "raymarch",
+    .wanted = raymarch_wanted,
+    .create = vol_create,
+    .apply = raymarch_apply,
+    .destroy = vol_destroy,
+};

@@ -1,0 +1,238 @@
+/*
+ * fog_field.c: point evaluation and light-ray optical depth of the scene's fogs (fog_field.h;
+ * seed 003 §1.2.7.1 products of homogeneous steps, §2.1.2 height fog, §2.2.3 volumetric shadow).
+ */
+#include "volume/fog_field.h"
+
+#include "scene/medium.h"
+
+#include <math.h>
+#include <string.h>
+
+void nc_fog_field_init(nc_fog_field *f, const nacre_scene *s, uint32_t count, uint32_t shadow_steps)
+{
+    memset(f, 0, sizeof(*f));
+    f->scene = s;
+    f->count = count < s->fog_count ? count : s->fog_count;
+    f->shadow_steps = shadow_steps ? shadow_steps : 1;
+    memcpy(f->bounds_min, s->bounds_min, sizeof(f->bounds_min));
+    memcpy(f->bounds_max, s->bounds_max, sizeof(f->bounds_max));
+    for (uint32_t i = 0; i < f->count; i++) {
+        const nc_fog_rec *rec = &s->fogs[i];
+        nc_fog_one *o = &f->fogs[i];
+        o->box = rec->desc.shape == NACRE_FOG_BOX;
+        o->patterned = nc_medium_heterogeneous(&rec->medium);
+        for (int r = 0; r < 3; r++) {
+            for (int c = 0; c < 4; c++)
+                o->w2l[r][c] = rec->world_to_local.m[r][c];
+            o->half[r] = 0.5f * rec->desc.size[r];
+            o->sigma_a[r] = rec->desc.sigma_a[r];
+            o->sigma_s[r] = rec->desc.sigma_s[r];
+        }
+        /* The density cap exactly as the path tracer and the fog pass apply it. */
+        float mx[3];
+        nc_medium_max_sigma_t(s, &rec->medium, mx);
+        o->height = rec->desc.height_falloff > 0;
+        o->hf_falloff = o->height ? rec->desc.height_falloff : 0.0f;
+        o->hf_base = rec->desc.height_base;
+        o->hf_cap = nc_vol_height_exp_cap(o->height, fmaxf(mx[0], fmaxf(mx[1], mx[2])));
+        o->h = (nc_vol_height){.falloff = o->hf_falloff, .base = o->hf_base, .cap = o->hf_cap};
+        o->g = rec->desc.g;
+        o->medium = &rec->medium;
+    }
+}
+
+static inline void to_local(const nc_fog_one *o, const float p[3], float q[3])
+{
+    for (int r = 0; r < 3; r++)
+        q[r] = o->w2l[r][0] * p[0] + o->w2l[r][1] * p[1] + o->w2l[r][2] * p[2] + o->w2l[r][3];
+}
+
+static inline bool inside(const nc_fog_one *o, const float q[3])
+{
+    return fabsf(q[0]) <= o->half[0] && fabsf(q[1]) <= o->half[1] && fabsf(q[2]) <= o->half[2];
+}
+
+void nc_fog_field_eval(const nc_fog_field *f, uint32_t n, const float *p, float *sigma_t, float *sigma_s, float *g,
+                       float *scratch)
+{
+    float *local = scratch, *sa = scratch + 3 * (size_t)n, *ss = scratch + 6 * (size_t)n;
+    memset(sigma_t, 0, 3 * (size_t)n * sizeof(float));
+    memset(sigma_s, 0, 3 * (size_t)n * sizeof(float));
+    /* g accumulates sigma_s x g (channel mean) first, then is divided by the channel-mean sigma_s. */
+    memset(g, 0, (size_t)n * sizeof(float));
+    for (uint32_t i = 0; i < f->count; i++) {
+        const nc_fog_one *o = &f->fogs[i];
+        for (uint32_t k = 0; k < n; k++)
+            to_local(o, p + 3 * (size_t)k, local + 3 * (size_t)k);
+        if (o->patterned && o->box) {
+            /* The pattern only where the box is: inside points packed in front, evaluated,
+             * then spread back (most froxels miss a small cloud). */
+            uint32_t m = 0;
+            for (uint32_t k = 0; k < n; k++)
+                if (inside(o, local + 3 * (size_t)k)) {
+                    memmove(local + 3 * (size_t)m, local + 3 * (size_t)k, 3 * sizeof(float));
+                    m++;
+                }
+            if (m == 0)
+                continue;
+            nc_medium_eval(f->scene, o->medium, local, m, sa, ss);
+            for (uint32_t k = n; k-- > 0;) {
+                const float *pk = p + 3 * (size_t)k;
+                float q[3];
+                to_local(o, pk, q);
+                if (inside(o, q)) {
+                    m--;
+                    for (int c = 0; c < 3; c++) {
+                        sa[3 * k + c] = sa[3 * m + c];
+                        ss[3 * k + c] = ss[3 * m + c];
+                    }
+                    memcpy(local + 3 * (size_t)k, q, sizeof(q));
+                } else {
+                    local[3 * k] = 2.0f * o->half[0] + 1.0f; /* outside: skipped below */
+                }
+            }
+        } else if (o->patterned) {
+            nc_medium_eval(f->scene, o->medium, local, n, sa, ss);
+        } else {
+            for (uint32_t k = 0; k < n; k++)
+                for (int c = 0; c < 3; c++) {
+                    sa[3 * k + c] = o->sigma_a[c];
+                    ss[3 * k + c] = o->sigma_s[c];
+                }
+        }
+        for (uint32_t k = 0; k < n; k++) {
+            if (o->box && !inside(o, local + 3 * (size_t)k))
+                continue;
+            float hf = nc_vol_height_factor(o->height, o->hf_falloff, o->hf_base, o->hf_cap, p[3 * (size_t)k + 1]);
+            float m = 0.0f;
+            for (int c = 0; c < 3; c++) {
+                float a = sa[3 * k + c] * hf, s = ss[3 * k + c] * hf;
+                sigma_t[3 * k + c] += a + s;
+                sigma_s[3 * k + c] += s;
+                m += s;
+            }
+            g[k] += m * o->g;
+        }
+    }
+    for (uint32_t k = 0; k < n; k++) {
+        float m = sigma_s[3 * k] + sigma_s[3 * k + 1] + sigma_s[3 * k + 2];
+        g[k] = m > 0.0f ? g[k] / m : 0.0f;
+    }
+}
+
+bool nc_fog_field_segment(const nc_fog_one *o, const float p[3], const float w[3], double *t0, double *t1)
+{
+    if (!o->box)
+        return *t1 > *t0;
+    double a = *t0, b = *t1;
+    for (int k = 0; k < 3; k++) {
+        const float *m = o->w2l[k];
+        double ol = (double)m[0] * p[0] + (double)m[1] * p[1] + (double)m[2] * p[2] + m[3];
+        double dl = (double)m[0] * w[0] + (double)m[1] * w[1] + (double)m[2] * w[2];
+        if (dl == 0.0) {
+            if (fabs(ol) > o->half[k])
+                return false;
+            continue;
+        }
+        double ta = (-o->half[k] - ol) / dl, tb = (o->half[k] - ol) / dl;
+        if (ta > tb) {
+            double u = ta;
+            ta = tb;
+            tb = u;
+        }
+        a = ta > a ? ta : a;
+        b = tb < b ? tb : b;
+    }
+    *t0 = a;
+    *t1 = b;
+    return a < b;
+}
+
+/* Where the ray p + t w leaves the scene bounds (0 if it starts outside and never enters). */
+static double bounds_exit(const nc_fog_field *f, const float p[3], const float w[3])
+{
+    double a = 0.0, b = INFINITY;
+    for (int k = 0; k < 3; k++) {
+        if (w[k] == 0.0f) {
+            if (p[k] < f->bounds_min[k] || p[k] > f->bounds_max[k])
+                return 0.0;
+            continue;
+        }
+        double ta = (f->bounds_min[k] - p[k]) / w[k], tb = (f->bounds_max[k] - p[k]) / w[k];
+        if (ta > tb) {
+            double u = ta;
+            ta = tb;
+            tb = u;
+        }
+        a = ta > a ? ta : a;
+        b = tb < b ? tb : b;
+    }
+    return b > a ? b : 0.0;
+}
+
+bool nc_fog_field_patterned(const nc_fog_field *f)
+{
+    for (uint32_t i = 0; i < f->count; i++)
+        if (f->fogs[i].patterned)
+            return true;
+    return false;
+}
+
+void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const float w[3], float tmax, unsigned which,
+                                double tau[3], float *scratch)
+{
+    tau[0] = tau[1] = tau[2] = 0.0;
+    for (uint32_t i = 0; i < f->count; i++) {
+        const nc_fog_one *o = &f->fogs[i];
+        if (!(which & (o->patterned ? NC_FOG_PATTERNED : NC_FOG_ANALYTIC)))
+            continue;
+        double a = 0.0, b = tmax;
+        if (!nc_fog_field_segment(o, p, w, &a, &b))
+            continue;
+        if (!o->patterned) {
+            double G = nc_vol_height_integral(&o->h, p[1], w[1], a, b);
+            if (!(G > 0.0))
+                continue;
+            for (int c = 0; c < 3; c++) {
+                double st = (double)o->sigma_a[c] + o->sigma_s[c];
+                if (st > 0.0)
+                    tau[c] += st * G; /* inf stays inf */
+            }
+            continue;
+        }
+        /* Patterned: march [a, bm] (a global fog within the scene bounds), each step's pattern at
+         * its midpoint times the step's height integral; what lies beyond bm gets the mean of the
+         * marched pattern. */
+        double bm = b;
+        if (!o->box) {
+            double e = bounds_exit(f, p, w);
+            bm = e < b ? e : b;
+        }
+        uint32_t n = f->shadow_steps;
+        double len = bm > a ? bm - a : 0.0, dt = len / n;
+        float *local = scratch, *sa = scratch + 3 * (size_t)n, *ss = scratch + 6 * (size_t)n;
+        for (uint32_t k = 0; k < n; k++) {
+            float t = (float)(a + (k + 0.5) * dt);
+            float q[3] = {p[0] + t * w[0], p[1] + t * w[1], p[2] + t * w[2]};
+            to_local(o, q, local + 3 * (size_t)k);
+        }
+        nc_medium_eval(f->scene, o->medium, local, n, sa, ss);
+        double mean[3] = {0, 0, 0};
+        for (uint32_t k = 0; k < n; k++) {
+            double G = len > 0.0 ? nc_vol_height_integral(&o->h, p[1], w[1], a + k * dt, a + (k + 1) * dt) : 0.0;
+            for (int c = 0; c < 3; c++) {
+                double st = (double)sa[3 * k + c] + ss[3 * k + c];
+                mean[c] += st / n;
+                if (st > 0.0)
+                    tau[c] += st * G;
+            }
+        }
+        if (b > bm) {
+            double G = nc_vol_height_integral(&o->h, p[1], w[1], bm, b);
+            for (int c = 0; c < 3; c++)
+                if (mean[c] > 0.0 && G > 0.0)
+                    tau[c] += mean[c] * G;
+        }
+    }
+}

@@ -1,0 +1,465 @@
+/*
+ * test_volumetrics.c: the volumetric fog passes (src/render/post_volumetrics.c, froxels and the
+ * per-pixel march; src/volume/fog_field.c) against closed forms and the path tracer:
+ *   - a box of homogeneous fog under a delta sun from straight above, seen sideways through an
+ *     orthographic camera, no occluders: every pixel against the closed-form single scattering
+ *     sigma_s p(90) E e^(-sigma_t (1 - y)) (1 - e^(-2 sigma_t)) / sigma_t (within 2%; the froxel
+ *     grid coarser than the image, so the columns are interpolated), and against the path tracer
+ *     with max_scatter 1 per band of rows (its noise plus 2%);
+ *   - a global homogeneous fog lit by the environment alone (a constant source): froxels, the
+ *     march and the analytic pass agree (0.5%) on objects and background; the march does not
+ *     depend on its step count nor the froxels' background on the slice count (segment
+ *     integral); 1 and 2 threads give the same bits; transmittance stays in [0, 1] (fog_field);
+ *   - volumetric shadows: a black box under a spot light in fog casts a shaft; its contrast
+ *     (1 - shaft / lit beside it) by froxels and by the march against the path tracer
+ *     (max_scatter 1) within 5% of the contrast;
+ *   - settings: bad values give errors naming the field; scene-file keys load and save.
+ */
+#include "test_util.h"
+
+#include "volume/fog_field.h"
+
+#include <nacre/nacre.h>
+
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+static nacre_context *ctx;
+static const double PI = 3.14159265358979323846;
+
+static nacre_scene *load(nacre_context *c, const char *json, nacre_render_settings *rs)
+{
+    nacre_scene *s = NULL;
+    nacre_scene_file_settings fs;
+    nacre_result r = nacre_scene_load_json(c, json, strlen(json), "vol.json", ".", &s, &fs);
+    CHECK(r == NACRE_OK);
+    if (r != NACRE_OK) {
+        printf("  %s\n", nacre_context_last_error(c));
+        return NULL;
+    }
+    if (rs)
+        *rs = fs.render;
+    CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
+    return s;
+}
+
+/* Render json with the given settings (method, size, volumetrics already set in rs, other fields
+ * from the file's defaults). */
+static bool render(nacre_context *c, const char *json, const nacre_render_settings *want, nacre_image *img,
+                   nacre_image *var)
+{
+    nacre_render_settings rs;
+    nacre_scene *s = load(c, json, &rs);
+    if (!s)
+        return false;
+    rs.method = want->method;
+    rs.width = want->width;
+    rs.height = want->height;
+    rs.volumetrics = want->volumetrics;
+    rs.pathtrace = want->pathtrace;
+    nacre_renderer *r = NULL;
+    CHECK(nacre_renderer_create(c, &r) == NACRE_OK);
+    nacre_result res = nacre_renderer_render(r, s, &rs, img, NULL);
+    CHECK(res == NACRE_OK);
+    if (res != NACRE_OK)
+        printf("  %s\n", nacre_context_last_error(c));
+    if (res == NACRE_OK && var)
+        CHECK(nacre_renderer_variance(r, var) == NACRE_OK);
+    nacre_renderer_destroy(r);
+    nacre_scene_destroy(s);
+    return res == NACRE_OK;
+}
+
+static float px(const nacre_image *img, int x, int y, int c)
+{
+    return img->pixels[(size_t)y * img->stride + 3 * (size_t)x + (size_t)c];
+}
+
+static void region(const nacre_image *img, const nacre_image *var, int x0, int x1, int y0, int y1, double m[3],
+                   double se[3])
+{
+    double s[3] = {0, 0, 0}, v[3] = {0, 0, 0};
+    int n = 0;
+    for (int y = y0; y < y1; y++)
+        for (int x = x0; x < x1; x++, n++)
+            for (int c = 0; c < 3; c++) {
+                s[c] += px(img, x, y, c);
+                v[c] += var ? px(var, x, y, c) : 0.0;
+            }
+    for (int c = 0; c < 3; c++) {
+        m[c] = s[c] / n;
+        se[c] = sqrt(v[c]) / n;
+    }
+}
+
+static nacre_render_settings settings(nacre_method method, nacre_volumetrics_mode mode, int w, int h)
+{
+    nacre_render_settings rs = nacre_render_settings_defaults();
+    rs.method = method;
+    rs.width = w;
+    rs.height = h;
+    rs.volumetrics.mode = mode;
+    return rs;
+}
+
+/* ---- a box of fog under a sun, no occluders ------------------------------------------------ */
+
+/* Orthographic camera at z = 5 looking down -z over [-2, 2]^2; near 1 and far 9, so that 64
+ * equal slices (or march steps) of 1/8 put boundaries on the box's faces at depths 4 and 6. A
+ * black sphere behind the camera, casting no shadow, is the object the raster methods need. */
+#define SUN_SCENE                                                                                   \
+    "{\"camera\": {\"type\": \"orthographic\", \"position\": [0, 0, 5], \"target\": [0, 0, 0], "    \
+    "\"height\": 4, \"near\": 1, \"far\": 9}, \"environment\": 0,"                                  \
+    "\"materials\": {\"black\": {\"type\": \"opaque\", \"diffuse\": 0, \"specular\": 0}},"          \
+    "\"objects\": [{\"shape\": {\"type\": \"sphere\", \"radius\": 0.1}, \"material\": \"black\","   \
+    "\"transform\": {\"translate\": [0, 0, 20]}, \"shadows\": false}],"                             \
+    "\"lights\": [{\"type\": \"directional\", \"direction\": [0, -1, 0], \"irradiance\": 2, "      \
+    "\"angular_radius\": 0}],"                                                                      \
+    "\"fog\": [{\"shape\": \"box\", \"size\": 2, \"sigma_a\": 0.3, \"sigma_s\": [0.9, 0.6, 0.3], \"g\": 0.4}]}"
+
+static double sun_exact(double y, int c)
+{
+    const double g = 0.4, ss[3] = {0.9, 0.6, 0.3};
+    double p90 = (1 - g * g) / (4 * PI * pow(1 + g * g, 1.5)), st = 0.3 + ss[c];
+    if (fabs(y) >= 1)
+        return 0;
+    return ss[c] * p90 * 2 * exp(-st * (1 - y)) * (1 - exp(-2 * st)) / st;
+}
+
+static void sun_closed_form(void)
+{
+    const int W = 32, H = 32;
+    nacre_image img[2] = {{0}, {0}};
+    for (int k = 0; k < 2; k++) {
+        nacre_render_settings rs =
+            settings(NACRE_METHOD_PHONG, k ? NACRE_VOLUMETRICS_RAYMARCH : NACRE_VOLUMETRICS_FROXEL, W, H);
+        rs.volumetrics.froxel_width = 16; /* half the image: pixels between column centres */
+        rs.volumetrics.froxel_height = 16;
+        if (!render(ctx, SUN_SCENE, &rs, &img[k], NULL))
+            return;
+    }
+    double worst[2] = {0, 0};
+    /* Rows and columns well inside the box (|x|, |y| < 0.9), where the closed form is smooth;
+     * the box's top and bottom edges fall between froxel rows. */
+    for (int y = 2; y < 30; y++)
+        for (int x = 2; x < 30; x++)
+            for (int c = 0; c < 3; c++) {
+                double yy = 2 - (y + 0.5) / 8, xx = (x + 0.5) / 8 - 2;
+                if (fabs(yy) > 0.85 || fabs(xx) > 0.85)
+                    continue;
+                double e = sun_exact(yy, c);
+                for (int k = 0; k < 2; k++) {
+                    double err = fabs(px(&img[k], x, y, c) - e) / e;
+                    worst[k] = err > worst[k] ? err : worst[k];
+                }
+            }
+    printf("  sun over a fog box: largest relative error froxel %.4f, raymarch %.4f\n", worst[0], worst[1]);
+    CHECK(worst[0] < 0.02);
+    CHECK(worst[1] < 0.02);
+
+    /* The path tracer (single scattering) on the same scene, per band of 4 rows. */
+    nacre_render_settings rs = settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
+    rs.pathtrace.spp = 256;
+    rs.pathtrace.seed = 3;
+    rs.pathtrace.max_scatter = 1;
+    nacre_image ref = {0}, var = {0};
+    if (render(ctx, SUN_SCENE, &rs, &ref, &var)) {
+        for (int y0 = 2; y0 < 30; y0 += 4) {
+            double m[3], se[3], f[3], r[3], dummy[3];
+            region(&ref, &var, 4, 28, y0, y0 + 4, m, se);
+            region(&img[0], NULL, 4, 28, y0, y0 + 4, f, dummy);
+            region(&img[1], NULL, 4, 28, y0, y0 + 4, r, dummy);
+            printf("  rows %2d-%2d: path tracer %.5f +- %.5f, froxel %.5f, raymarch %.5f\n", y0, y0 + 3, m[0], se[0],
+                   f[0], r[0]);
+            for (int c = 0; c < 3; c++) {
+                CHECK_NEAR(f[c], m[c], 4 * se[c] + 0.02 * m[c]);
+                CHECK_NEAR(r[c], m[c], 4 * se[c] + 0.02 * m[c]);
+            }
+        }
+    }
+    nacre_image_free(ctx, &ref);
+    nacre_image_free(ctx, &var);
+    nacre_image_free(ctx, &img[0]);
+    nacre_image_free(ctx, &img[1]);
+}
+
+/* ---- a constant source: environment light in a global fog ---------------------------------- */
+
+#define AMBIENT_SCENE                                                                               \
+    "{\"camera\": {\"position\": [0, 1, 6], \"target\": [0, 0, 0], \"fov\": 50}, \"environment\": 0.5," \
+    "\"materials\": {\"m\": {\"type\": \"opaque\", \"diffuse\": [0.8, 0.5, 0.2]}},"                 \
+    "\"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"},"                       \
+    "{\"shape\": {\"type\": \"plane\", \"size\": [6, 6]}, \"material\": \"m\","                     \
+    "\"transform\": {\"translate\": [0, -1, -2]}}],"                                                \
+    "\"fog\": [{\"shape\": \"global\", \"sigma_a\": [0.02, 0.05, 0.1], \"sigma_s\": [0.2, 0.1, 0.05]}]}"
+
+static double max_rel_diff(const nacre_image *a, const nacre_image *b)
+{
+    double worst = 0;
+    for (int y = 0; y < a->height; y++)
+        for (int x = 0; x < a->width; x++)
+            for (int c = 0; c < 3; c++) {
+                double u = px(a, x, y, c), v = px(b, x, y, c), d = fabs(u - v) / fmax(fabs(v), 1e-6);
+                worst = d > worst ? d : worst;
+            }
+    return worst;
+}
+
+static void constant_source(void)
+{
+    const int W = 48, H = 36;
+    nacre_image off = {0}, fx = {0}, rm = {0}, rm4 = {0}, fx8 = {0};
+    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_OFF, W, H);
+    bool ok = render(ctx, AMBIENT_SCENE, &rs, &off, NULL);
+    rs.volumetrics.mode = NACRE_VOLUMETRICS_FROXEL;
+    ok = ok && render(ctx, AMBIENT_SCENE, &rs, &fx, NULL);
+    rs.volumetrics.froxel_slices = 8;
+    ok = ok && render(ctx, AMBIENT_SCENE, &rs, &fx8, NULL);
+    rs.volumetrics.mode = NACRE_VOLUMETRICS_RAYMARCH;
+    ok = ok && render(ctx, AMBIENT_SCENE, &rs, &rm, NULL);
+    rs.volumetrics.raymarch_steps = 4;
+    ok = ok && render(ctx, AMBIENT_SCENE, &rs, &rm4, NULL);
+    if (ok) {
+        double d_fx = max_rel_diff(&fx, &off), d_rm = max_rel_diff(&rm, &off), d_rm4 = max_rel_diff(&rm4, &rm);
+        printf("  ambient in global fog vs the analytic pass: froxel %.2e, raymarch %.2e; 4 vs 64 steps %.2e\n",
+               d_fx, d_rm, d_rm4);
+        CHECK(d_fx < 0.005);
+        CHECK(d_rm < 0.005);
+        CHECK(d_rm4 < 1e-4);
+        /* Background (the top row sees only sky through the fog): any slice count. */
+        double bg = 0;
+        for (int x = 0; x < W; x++)
+            for (int c = 0; c < 3; c++)
+                bg = fmax(bg, fabs(px(&fx8, x, 0, c) - px(&fx, x, 0, c)) / px(&fx, x, 0, c));
+        printf("  background with 8 vs 64 slices: %.2e\n", bg);
+        CHECK(bg < 1e-4);
+    }
+    nacre_image_free(ctx, &off);
+    nacre_image_free(ctx, &fx);
+    nacre_image_free(ctx, &fx8);
+    nacre_image_free(ctx, &rm);
+    nacre_image_free(ctx, &rm4);
+}
+
+/* The same froxel and march frames from 1 and 2 threads. */
+static void thread_count(void)
+{
+    const char *json = "{\"camera\": {\"position\": [0, 3, 6], \"target\": [0, 0, 0]}, \"environment\": 0.1,"
+                       "\"materials\": {\"m\": {\"type\": \"opaque\"}},"
+                       "\"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"},"
+                       "{\"shape\": {\"type\": \"plane\", \"size\": [8, 8]}, \"material\": \"m\","
+                       "\"transform\": {\"translate\": [0, -1, 0]}}],"
+                       "\"lights\": [{\"type\": \"spot\", \"position\": [0, 3, 0], \"direction\": [0, -1, 0],"
+                       "\"intensity\": 20, \"outer_angle\": 30, \"inner_angle\": 20},"
+                       "{\"type\": \"directional\", \"direction\": [1, -1, 0], \"irradiance\": 1}],"
+                       "\"fog\": [{\"shape\": \"box\", \"size\": [6, 4, 6], \"sigma_s\": 0.2, \"height_falloff\": 0.3,"
+                       "\"pattern\": {\"type\": \"noise\", \"cell_size\": 0.5, \"sigma_a2\": 0, \"sigma_s2\": 0}}]}";
+    for (int mode = NACRE_VOLUMETRICS_FROXEL; mode <= NACRE_VOLUMETRICS_RAYMARCH; mode++) {
+        nacre_image img[2] = {{0}, {0}};
+        for (int k = 0; k < 2; k++) {
+            nacre_context_desc cd = {0};
+            cd.threads = k + 1;
+            nacre_context *c = NULL;
+            CHECK(nacre_context_create(&cd, &c) == NACRE_OK);
+            if (!c)
+                return;
+            nacre_render_settings rs = settings(NACRE_METHOD_PHONG, (nacre_volumetrics_mode)mode, 40, 30);
+            rs.volumetrics.froxel_width = 20;
+            rs.volumetrics.froxel_height = 15;
+            rs.volumetrics.raymarch_steps = 16;
+            nacre_image tmp = {0};
+            if (render(c, json, &rs, &tmp, NULL)) {
+                CHECK(nacre_image_alloc(ctx, 40, 30, 3, &img[k]) == NACRE_OK);
+                memcpy(img[k].pixels, tmp.pixels, 40 * 30 * 3 * sizeof(float));
+                nacre_image_free(c, &tmp);
+            }
+            nacre_context_destroy(c);
+        }
+        CHECK(img[0].pixels && img[1].pixels &&
+              memcmp(img[0].pixels, img[1].pixels, 40 * 30 * 3 * sizeof(float)) == 0);
+        bool finite = img[0].pixels != NULL;
+        for (size_t i = 0; finite && i < 40 * 30 * 3; i++)
+            finite = isfinite(img[0].pixels[i]) && img[0].pixels[i] >= 0;
+        CHECK(finite);
+        nacre_image_free(ctx, &img[0]);
+        nacre_image_free(ctx, &img[1]);
+    }
+}
+
+/* Transmittance towards lights from the fog field: in [0, 1], and the closed form for a
+ * homogeneous box and for height fog (against the march through the same fog as a pattern). */
+static void field_transmittance(void)
+{
+    const char *json = "{\"materials\": {\"m\": {\"type\": \"opaque\"}},"
+                       "\"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"}],"
+                       "\"fog\": [{\"shape\": \"box\", \"size\": [4, 2, 4], \"sigma_a\": 0.1, \"sigma_s\": [0.5, 1, 2],"
+                       "\"height_falloff\": 0.7, \"height_base\": -1},"
+                       "{\"shape\": \"global\", \"sigma_s\": 0.01, \"height_falloff\": 2}]}";
+    nacre_scene *s = load(ctx, json, NULL);
+    if (!s)
+        return;
+    nc_fog_field f;
+    nc_fog_field_init(&f, s, s->fog_count, 8);
+    float scratch[NC_FOG_TAU_SCRATCH(8)];
+    bool in_range = true;
+    for (int i = 0; i < 200; i++) {
+        float p[3] = {(float)(i % 7) - 3.0f, (float)(i % 5) * 0.6f - 1.5f, (float)(i % 3) - 1.0f};
+        float a = (float)i * 0.37f, b = (float)i * 0.11f;
+        float w[3] = {cosf(a) * sinf(b), cosf(b), sinf(a) * sinf(b)};
+        double tau[3];
+        nc_fog_field_optical_depth(&f, p, w, i % 2 ? INFINITY : 3.0f, NC_FOG_ALL, tau, scratch);
+        for (int c = 0; c < 3; c++) {
+            double T = exp(-tau[c]);
+            in_range = in_range && tau[c] >= 0 && T >= 0 && T <= 1;
+        }
+    }
+    CHECK(in_range);
+    /* Straight up from (0, -1, 0) to the box top at y = 1: sigma_t integral e^(-0.7 (y + 1)) dy
+     * + the global fog's 0.01 integral_-1^inf e^(-2 y) dy. */
+    float p[3] = {0, -1, 0}, up[3] = {0, 1, 0};
+    double tau[3];
+    nc_fog_field_optical_depth(&f, p, up, INFINITY, NC_FOG_ALL, tau, scratch);
+    const double ss[3] = {0.5, 1, 2};
+    for (int c = 0; c < 3; c++) {
+        double expect = (0.1 + ss[c]) * (1 - exp(-1.4)) / 0.7 + 0.01 * exp(2.0) / 2;
+        CHECK_NEAR(tau[c], expect, 1e-5 * expect);
+    }
+    nacre_scene_destroy(s);
+}
+
+/* ---- volumetric shadows ------------------------------------------------------------------- */
+
+/* A spot light straight down into a box of fog; a thin black slab beside its axis (x in
+ * [0.1, 0.7], |z| < 0.25) casts a shaft into the cone below it. The camera looks at it from the
+ * side, so the rays through the shaft also cross lit fog in front of and behind it. */
+#define SHAFT_SCENE                                                                                 \
+    "{\"camera\": {\"position\": [0, 0, 7], \"target\": [0, 0, 0], \"fov\": 45}, \"environment\": 0," \
+    "\"materials\": {\"black\": {\"type\": \"opaque\", \"diffuse\": 0, \"specular\": 0}},"          \
+    "\"objects\": [{\"shape\": {\"type\": \"box\", \"size\": [0.6, 0.05, 0.5]}, \"material\": \"black\"," \
+    "\"transform\": {\"translate\": [0.4, 1.2, 0]}}],"                                             \
+    "\"lights\": [{\"type\": \"spot\", \"position\": [0, 2, 0], \"direction\": [0, -1, 0],"         \
+    "\"intensity\": 30, \"outer_angle\": 35, \"inner_angle\": 30}],"                                \
+    "\"fog\": [{\"shape\": \"box\", \"size\": [5, 5, 5], \"sigma_a\": 0.05, \"sigma_s\": 0.25, \"g\": 0.2}]}"
+
+/* Shaft and lit regions (pixel boxes on a 64 x 48 image): below the slab on the right (x > 0)
+ * and their mirror image on the left. */
+static void shaft_regions(const nacre_image *img, const nacre_image *var, double *shaft, double *lit, double *se)
+{
+    double m[3], s[3], m2[3], s2[3];
+    region(img, var, 35, 42, 24, 36, m, s);
+    region(img, var, 22, 29, 24, 36, m2, s2);
+    *shaft = m[1];
+    *lit = m2[1];
+    *se = var ? sqrt(s[1] * s[1] + s2[1] * s2[1]) : 0;
+}
+
+static void volumetric_shadow(void)
+{
+    const int W = 64, H = 48;
+    nacre_image fx = {0}, rm = {0}, ref = {0}, var = {0};
+    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_FROXEL, W, H);
+    bool ok = render(ctx, SHAFT_SCENE, &rs, &fx, NULL);
+    rs.volumetrics.mode = NACRE_VOLUMETRICS_RAYMARCH;
+    ok = ok && render(ctx, SHAFT_SCENE, &rs, &rm, NULL);
+    rs = settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
+    rs.pathtrace.spp = 512;
+    rs.pathtrace.seed = 5;
+    rs.pathtrace.max_scatter = 1;
+    ok = ok && render(ctx, SHAFT_SCENE, &rs, &ref, &var);
+    if (ok) {
+        double s_pt, l_pt, se, s_fx, l_fx, s_rm, l_rm, dummy;
+        shaft_regions(&ref, &var, &s_pt, &l_pt, &se);
+        shaft_regions(&fx, NULL, &s_fx, &l_fx, &dummy);
+        shaft_regions(&rm, NULL, &s_rm, &l_rm, &dummy);
+        double c_pt = 1 - s_pt / l_pt, c_fx = 1 - s_fx / l_fx, c_rm = 1 - s_rm / l_rm;
+        printf("  shaft: path tracer shaft %.5f lit %.5f (se %.5f) contrast %.4f; froxel %.5f %.5f contrast %.4f; "
+               "raymarch %.5f %.5f contrast %.4f\n",
+               s_pt, l_pt, se, c_pt, s_fx, l_fx, c_fx, s_rm, l_rm, c_rm);
+        CHECK(c_pt > 0.2 && c_pt < 0.9); /* a shaft, seen through lit fog */
+        CHECK_NEAR(c_fx, c_pt, 0.05 * c_pt);
+        CHECK_NEAR(c_rm, c_pt, 0.05 * c_pt);
+        /* The lit fog itself: the path tracer's noise plus 3%. */
+        CHECK_NEAR(l_fx, l_pt, 4 * se + 0.03 * l_pt);
+        CHECK_NEAR(l_rm, l_pt, 4 * se + 0.03 * l_pt);
+    }
+    nacre_image_free(ctx, &fx);
+    nacre_image_free(ctx, &rm);
+    nacre_image_free(ctx, &ref);
+    nacre_image_free(ctx, &var);
+}
+
+/* ---- settings ---------------------------------------------------------------------------- */
+
+static void bad_settings(void)
+{
+    nacre_scene *s = load(ctx, AMBIENT_SCENE, NULL);
+    if (!s)
+        return;
+    nacre_renderer *r = NULL;
+    CHECK(nacre_renderer_create(ctx, &r) == NACRE_OK);
+    const char *fields[] = {"froxel_slices", "froxel_slices", "froxel_width", "raymarch_steps", "shadow_steps",
+                            "volumetrics"};
+    for (int k = 0; k < 6; k++) {
+        nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_FROXEL, 16, 16);
+        switch (k) {
+        case 0: rs.volumetrics.froxel_slices = 0; break;
+        case 1: rs.volumetrics.froxel_slices = 100000; break;
+        case 2: rs.volumetrics.froxel_width = 0; break;
+        case 3: rs.volumetrics.raymarch_steps = 0; break;
+        case 4: rs.volumetrics.shadow_steps = 1000; break;
+        default: rs.volumetrics.mode = (nacre_volumetrics_mode)7; break;
+        }
+        nacre_image img = {0};
+        CHECK(nacre_renderer_render(r, s, &rs, &img, NULL) == NACRE_ERROR_INVALID_ARGUMENT);
+        CHECK(img.pixels == NULL);
+        CHECK(strstr(nacre_context_last_error(ctx), fields[k]) != NULL);
+    }
+    nacre_renderer_destroy(r);
+    nacre_scene_destroy(s);
+
+    /* Scene-file keys: read, range-checked, saved and read back. */
+    const char *json = "{\"render\": {\"volumetrics\": \"raymarch\", \"froxel_width\": 80, \"froxel_height\": 45,"
+                       "\"froxel_slices\": 32, \"raymarch_steps\": 100, \"shadow_steps\": 4}}";
+    nacre_scene_file_settings fs;
+    s = NULL;
+    CHECK(nacre_scene_load_json(ctx, json, strlen(json), "v.json", ".", &s, &fs) == NACRE_OK);
+    const nacre_volumetrics_settings *v = &fs.render.volumetrics;
+    CHECK(v->mode == NACRE_VOLUMETRICS_RAYMARCH && v->froxel_width == 80 && v->froxel_height == 45 &&
+          v->froxel_slices == 32 && v->raymarch_steps == 100 && v->shadow_steps == 4);
+    char *text = NULL;
+    if (s && nacre_scene_save_json(s, &fs, NULL, &text, NULL) == NACRE_OK) {
+        nacre_scene *s2 = NULL;
+        nacre_scene_file_settings fs2;
+        CHECK(nacre_scene_load_json(ctx, text, strlen(text), "v2.json", ".", &s2, &fs2) == NACRE_OK);
+        CHECK(memcmp(&fs2.render.volumetrics, v, sizeof(*v)) == 0);
+        nacre_scene_destroy(s2);
+        nacre_free(ctx, text);
+    } else {
+        CHECK(false);
+    }
+    nacre_scene_destroy(s);
+    const char *bad[] = {"{\"render\": {\"volumetrics\": \"voxels\"}}", "{\"render\": {\"froxel_slices\": 0}}",
+                         "{\"render\": {\"froxel_slices\": 100000}}"};
+    const char *named[] = {"render.volumetrics", "render.froxel_slices", "render.froxel_slices"};
+    for (int k = 0; k < 3; k++) {
+        s = NULL;
+        CHECK(nacre_scene_load_json(ctx, bad[k], strlen(bad[k]), "v.json", ".", &s, &fs) ==
+              NACRE_ERROR_INVALID_ARGUMENT);
+        CHECK(strstr(nacre_context_last_error(ctx), named[k]) != NULL);
+        nacre_scene_destroy(s);
+    }
+}
+
+int main(void)
+{
+    CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
+    field_transmittance();
+    bad_settings();
+    constant_source();
+    thread_count();
+    sun_closed_form();
+    volumetric_shadow();
+    nacre_context_destroy(ctx);
+    return TEST_MAIN_END();
+}
