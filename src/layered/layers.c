@@ -29,6 +29,13 @@ static inline int32_t wrap(int32_t i, int32_t n)
 
 float nc_texture_sample(const nc_texture_rec *tex, int c, float u, float v)
 {
+    float out[4];
+    nc_texture_sample_n(tex, c, 1, u, v, out);
+    return out[0];
+}
+
+void nc_texture_sample_n(const nc_texture_rec *tex, int c, int n, float u, float v, float *out)
+{
     /* Texel (x, y) is centred at u = (x + 0.5) / w, v = 1 - (y + 0.5) / h (row 0 on top). The
      * coordinates are reduced to one period first so that huge uvs cannot overflow the floor. */
     double fu = (double)u - floor((double)u), fv = (double)v - floor((double)v);
@@ -43,9 +50,10 @@ float nc_texture_sample(const nc_texture_rec *tex, int c, float u, float v)
     int32_t ya = wrap((int32_t)y0, tex->height), yb = wrap((int32_t)y0 + 1, tex->height);
     size_t ch = (size_t)tex->channels, w = (size_t)tex->width;
     const float *d = tex->data + c;
-    float t00 = d[ch * (xa + w * (size_t)ya)], t10 = d[ch * (xb + w * (size_t)ya)];
-    float t01 = d[ch * (xa + w * (size_t)yb)], t11 = d[ch * (xb + w * (size_t)yb)];
-    return (1 - ay) * ((1 - ax) * t00 + ax * t10) + ay * ((1 - ax) * t01 + ax * t11);
+    const float *p00 = d + ch * (xa + w * (size_t)ya), *p10 = d + ch * (xb + w * (size_t)ya);
+    const float *p01 = d + ch * (xa + w * (size_t)yb), *p11 = d + ch * (xb + w * (size_t)yb);
+    for (int k = 0; k < n; k++)
+        out[k] = (1 - ay) * ((1 - ax) * p00[k] + ax * p10[k]) + ay * ((1 - ax) * p01[k] + ax * p11[k]);
 }
 
 /* ---- layer stacks ---------------------------------------------------------------------------- */
@@ -70,10 +78,13 @@ void nc_layers_init(const nacre_scene *scene, const nacre_layering *l, nc_layer_
 
 void nc_layers_bottoms(const nc_layer_stack *s, float u, float v, float bottom[NACRE_MAX_LAYERS])
 {
+    /* One bilinear footprint for every layer's channel (the march calls this per sample). */
+    float mapv[NACRE_MAX_LAYERS] = {1.0f, 1.0f, 1.0f, 1.0f};
+    if (s->map && s->count)
+        nc_texture_sample_n(s->map, 0, (int)s->count, u, v, mapv);
     float run = 0;
     for (uint32_t j = 0; j < s->count; j++) {
-        float b = s->depth[j] * (s->map ? nc_texture_sample(s->map, (int)j, u, v) : 1.0f);
-        run = fmaxf(run, b);
+        run = fmaxf(run, s->depth[j] * mapv[j]);
         bottom[j] = run;
     }
 }

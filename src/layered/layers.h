@@ -28,6 +28,8 @@ void nc_layers_bottoms(const nc_layer_stack *stack, float u, float v, float bott
 uint32_t nc_layers_touching(const nc_layer_stack *stack, float d0, float d1);
 /* Bilinear lookup (repeat) of channel c of a texture at (u, v), see nacre_scene_add_texture. */
 float nc_texture_sample(const nc_texture_rec *tex, int c, float u, float v);
+/* Channels c .. c + n - 1 of the same lookup at once (n <= the texture's channels - c). */
+void nc_texture_sample_n(const nc_texture_rec *tex, int c, int n, float u, float v, float *out);
 
 #ifdef NACRE_HAVE_EMBREE
 #include <embree3/rtcore.h>

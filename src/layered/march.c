@@ -112,54 +112,6 @@ float nc_layer_medium_first_sigma_t(const nc_layer_medium *m)
     return fminf(m->st[j][0], fminf(m->st[j][1], m->st[j][2]));
 }
 
-/* nc_layers_bottoms with one bilinear fetch of all the map's channels (float arithmetic; the
- * same texel convention as nc_texture_sample): the march reads bottoms a few hundred times per
- * pixel. */
-static inline void bottoms_at(const nc_layer_stack *s, float u, float v, float bottom[NACRE_MAX_LAYERS])
-{
-    float mapv[NACRE_MAX_LAYERS] = {1, 1, 1, 1};
-    const nc_texture_rec *t = s->map;
-    if (t) {
-        float fu = u - floorf(u), fv = v - floorf(v);
-        if (!(fu >= 0.0f && fu <= 1.0f))
-            fu = 0.0f;
-        if (!(fv >= 0.0f && fv <= 1.0f))
-            fv = 0.0f;
-        float fx = fu * (float)t->width - 0.5f, fy = (1.0f - fv) * (float)t->height - 0.5f;
-        float x0 = floorf(fx), y0 = floorf(fy);
-        float ax = fx - x0, ay = fy - y0;
-        int32_t xa = (int32_t)x0, ya = (int32_t)y0, xb = xa + 1, yb = ya + 1;
-        xa = xa < 0 ? xa + t->width : xa >= t->width ? xa - t->width : xa;
-        xb = xb < 0 ? xb + t->width : xb >= t->width ? xb - t->width : xb;
-        ya = ya < 0 ? ya + t->height : ya >= t->height ? ya - t->height : ya;
-        yb = yb < 0 ? yb + t->height : yb >= t->height ? yb - t->height : yb;
-        const size_t ch = (size_t)t->channels, w = (size_t)t->width;
-        const float *t00 = t->data + ch * ((size_t)xa + w * (size_t)ya), *t10 = t->data + ch * ((size_t)xb + w * (size_t)ya);
-        const float *t01 = t->data + ch * ((size_t)xa + w * (size_t)yb), *t11 = t->data + ch * ((size_t)xb + w * (size_t)yb);
-        for (uint32_t j = 0; j < s->count; j++)
-            mapv[j] = (1 - ay) * ((1 - ax) * t00[j] + ax * t10[j]) + ay * ((1 - ax) * t01[j] + ax * t11[j]);
-    }
-    float run = 0;
-    for (uint32_t j = 0; j < s->count; j++) {
-        run = maxf(run, s->depth[j] * mapv[j]);
-        bottom[j] = run;
-    }
-}
-
-/* nc_layers_find through bottoms_at. */
-static inline uint32_t find_layer(const nc_layer_stack *s, float d, float u, float v)
-{
-    uint32_t j = 0;
-    while (j < s->count && d >= s->hi[j])
-        j++;
-    if (j == s->count || d < s->lo[j])
-        return j;
-    float bottom[NACRE_MAX_LAYERS];
-    bottoms_at(s, u, v, bottom);
-    while (j < s->count && d >= bottom[j])
-        j++;
-    return j;
-}
 
 /* The view ray inside: M(s) = P + s d; depth(s) = s dz; uv(s) = uv_P + s duv. */
 typedef struct ray_ctx {
@@ -171,7 +123,7 @@ typedef struct ray_ctx {
 
 static inline uint32_t layer_at(const ray_ctx *r, float s)
 {
-    return r->m->count ? find_layer(&r->m->stack, s * r->dz, r->pt->uv[0] + s * r->du, r->pt->uv[1] + s * r->dv)
+    return r->m->count ? nc_layers_find(&r->m->stack, s * r->dz, r->pt->uv[0] + s * r->du, r->pt->uv[1] + s * r->dv)
                        : 0;
 }
 
@@ -262,8 +214,8 @@ static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, fl
     } else {
         float bm[NACRE_MAX_LAYERS], bk[NACRE_MAX_LAYERS];
         float dpk[3] = {out->k[0] - pt->p[0], out->k[1] - pt->p[1], out->k[2] - pt->p[2]};
-        bottoms_at(&m->stack, pt->uv[0] + s * r->du, pt->uv[1] + s * r->dv, bm);
-        bottoms_at(&m->stack, pt->uv[0] + dot3(pt->gu, dpk), pt->uv[1] + dot3(pt->gv, dpk), bk);
+        nc_layers_bottoms(&m->stack, pt->uv[0] + s * r->du, pt->uv[1] + s * r->dv, bm);
+        nc_layers_bottoms(&m->stack, pt->uv[0] + dot3(pt->gu, dpk), pt->uv[1] + dot3(pt->gv, dpk), bk);
         float above = 0, prev_m = 0, prev_k = 0;
         for (uint32_t j = 0; j < m->count; j++) {
             float dj = 0.5f * ((bm[j] - prev_m) + (bk[j] - prev_k));
@@ -332,9 +284,9 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
             const uint32_t jb = layer_at(r, b);
             const uint32_t edge = jb > jl ? jl : jl - 1; /* the bottom crossed */
             float bot[NACRE_MAX_LAYERS] = {0, 0, 0, 0};
-            bottoms_at(&m->stack, r->pt->uv[0] + a * r->du, r->pt->uv[1] + a * r->dv, bot);
+            nc_layers_bottoms(&m->stack, r->pt->uv[0] + a * r->du, r->pt->uv[1] + a * r->dv, bot);
             const float fa = a * r->dz - bot[edge];
-            bottoms_at(&m->stack, r->pt->uv[0] + b * r->du, r->pt->uv[1] + b * r->dv, bot);
+            nc_layers_bottoms(&m->stack, r->pt->uv[0] + b * r->du, r->pt->uv[1] + b * r->dv, bot);
             const float fb = b * r->dz - bot[edge];
             float cut = fa != fb ? a + (b - a) * fa / (fa - fb) : b;
             cut = cut >= a && cut <= b ? cut : b;
