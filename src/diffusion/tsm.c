@@ -67,9 +67,7 @@
 #define TEXELS_PER_CELL 4.0f
 /* Most mesh triangles per map texel for which the map takes the light's entry from the mesh
  * (mesh_band); finer meshes keep the voxel staircase's entry. */
-#define MESH_PER_TEXEL 2.0
-/* Meshes up to this many triangles always do (about a millisecond). */
-#define MESH_ALWAYS 65536u
+#define MESH_PER_TEXEL 4.0
 /* Smallest adapted map side. */
 #define MIN_TSM_SIZE 16
 /* Volume injection from a rasterized (orthographic, parallel-ray) map marches one refracted ray
@@ -458,7 +456,8 @@ static void render_band(const nc_diff_object *o, const tsm_view *w, const tsm_li
  * map's plane (perspective maps: the plane at unit distance, where triangles stay triangles
  * while in front of the light), and the distance along each texel's ray is exact (ray and
  * triangle plane). Cube maps (a light inside or next to the object's box) and meshes of more
- * than MESH_ALWAYS triangles and MESH_PER_TEXEL per texel (the pass's cost) keep the staircase.
+ * than MESH_PER_TEXEL triangles per texel of the map the grid asks for (the pass's cost) keep
+ * the staircase.
  */
 
 /* Map coordinates of every vertex (grid units or tangents), and whether it is in front. */
@@ -1079,10 +1078,19 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
         if (!band->raster_capacity)
             return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
     }
-    /* The object's mesh in its committed (deformed) pose, for the true surface (mesh_band). */
+    /* The object's mesh in its committed (deformed) pose, for the true surface (mesh_band).
+     * The pass reads every triangle (~25 ns each); past MESH_PER_TEXEL triangles per texel of
+     * the map the grid asks for (TEXELS_PER_CELL per cell of its longest side, whatever the
+     * tsm_size cap) it would cost more than the rest of the map and the injection together
+     * (Suzanne's 15.7k triangles at a 4^3 grid: 0.4 ms against 0.02 ms), so such meshes keep
+     * the staircase at such grids. */
     const nc_object_rec *obj = &scene->objects[o->index];
     const nacre_mesh_data *mesh = &scene->meshes[obj->desc.mesh.id - 1].data;
     const bool have_mesh = mesh->triangle_count > 0 && obj->world_positions;
+    const uint32_t longest = o->dims[0] > o->dims[1] ? (o->dims[0] > o->dims[2] ? o->dims[0] : o->dims[2])
+                                                     : (o->dims[1] > o->dims[2] ? o->dims[1] : o->dims[2]);
+    const double mesh_side = TEXELS_PER_CELL * (double)longest;
+    const double mesh_budget = MESH_PER_TEXEL * mesh_side * mesh_side;
     if (have_mesh && band->mesh_capacity < band_texels) {
         nc_free(ctx, band->mesh_t);
         nc_free(ctx, band->mesh_n);
@@ -1154,12 +1162,8 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
                 for (int k = 0; k < 3; k++)
                     ft[k] = (float)(1.0 - nc_fresnel_dielectric(fabs((double)d3[k]), o->eta));
             }
-            /* The mesh pass reads every triangle (memory-bound: ~30 ns each); past MESH_PER_TEXEL
-             * triangles per texel of the map it would cost more than the rest of the map and
-             * the injection together, so such fine meshes keep the staircase. */
-            const bool use_mesh = have_mesh && nviews[li] == 1 &&
-                                  (mesh->triangle_count <= MESH_ALWAYS ||
-                                   (double)mesh->triangle_count <= MESH_PER_TEXEL * (double)w->size * (double)w->size);
+
+            const bool use_mesh = have_mesh && nviews[li] == 1 && (double)mesh->triangle_count <= mesh_budget;
             if (use_mesh)
                 project_vertices(o, w, obj->world_positions, mesh->vertex_count, band->vproj, threads);
             *tsm_us += nc_now_us() - tf;
