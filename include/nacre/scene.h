@@ -130,6 +130,10 @@ typedef struct nacre_material_desc {
     float eta;         /* relative index of refraction, in [NACRE_ETA_MIN, NACRE_ETA_MAX] */
     nacre_medium_pattern pattern; /* translucent: heterogeneity (default NONE); of the core when layered */
     nacre_layering layering;      /* translucent: layers above the core (default count 0) */
+    nacre_texture diffuse_map;    /* opaque, optional (id 0: none): linear albedo texture multiplying
+                                     `diffuse`, read bilinearly at the surface uv, repeating (RGB
+                                     from channels 0-2; a 1- or 2-channel texture is grey from
+                                     channel 0); objects using it need a mesh with uvs */
 } nacre_material_desc;
 
 /* Defaults: opaque grey 0.8, specular 0.04, shininess 64; translucent: the "jade" preset

@@ -48,6 +48,16 @@ float nc_texture_sample(const nc_texture_rec *tex, int c, float u, float v)
     return (1 - ay) * ((1 - ax) * t00 + ax * t10) + ay * ((1 - ax) * t01 + ax * t11);
 }
 
+void nc_texture_rgb(const nc_texture_rec *tex, float u, float v, float out[3])
+{
+    if (tex->channels < 3) {
+        out[0] = out[1] = out[2] = nc_texture_sample(tex, 0, u, v);
+        return;
+    }
+    for (int c = 0; c < 3; c++)
+        out[c] = nc_texture_sample(tex, c, u, v);
+}
+
 /* ---- layer stacks ---------------------------------------------------------------------------- */
 
 void nc_layers_init(const nacre_scene *scene, const nacre_layering *l, nc_layer_stack *out)

@@ -28,6 +28,9 @@ void nc_layers_bottoms(const nc_layer_stack *stack, float u, float v, float bott
 uint32_t nc_layers_touching(const nc_layer_stack *stack, float d0, float d1);
 /* Bilinear lookup (repeat) of channel c of a texture at (u, v), see nacre_scene_add_texture. */
 float nc_texture_sample(const nc_texture_rec *tex, int c, float u, float v);
+/* A colour texture (a material's diffuse_map) at (u, v): channels 0-2, or channel 0 as grey for
+ * a 1- or 2-channel texture. */
+void nc_texture_rgb(const nc_texture_rec *tex, float u, float v, float out[3]);
 
 #ifdef NACRE_HAVE_EMBREE
 #include <embree3/rtcore.h>
