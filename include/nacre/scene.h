@@ -186,7 +186,8 @@ NACRE_API void nacre_volume_data_free(nacre_context *ctx, nacre_volume_data *vol
  * scene is destroyed). Row 0 is the top of the image and v = 0 its bottom row (v grows upwards,
  * the OBJ/glTF-flipped convention of most mesh exporters: texel (x, y) is centred at
  * u = (x + 0.5) / width, v = 1 - (y + 0.5) / height). Layer depth maps are data: read PNG depth
- * maps with nacre_image_read_data, not the sRGB-decoding nacre_image_read. */
+ * maps with nacre_image_read_data, not the sRGB-decoding nacre_image_read; diffuse maps are
+ * colours: read them with nacre_image_read (sRGB PNG to linear). */
 NACRE_API nacre_result nacre_scene_add_texture(nacre_scene *scene, const nacre_image *image,
                                                nacre_texture *out);
 

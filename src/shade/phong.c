@@ -156,7 +156,8 @@ static void material_constants(const nacre_material_desc *m, mat_k *k)
  * computed on every lane and conditions only select. A shadowed light's lanes that need a lookup
  * are collected over the batch and looked up together. */
 static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, const mat_k *mk,
-                        const float kd[3][NC_SHADE_BATCH], float lambert, const nc_shade_batch *b, const nc_gbuffer *gb, size_t first, const nc_shade_params *params,
+                        const float kl[3][NC_SHADE_BATCH], float lambert, const nc_shade_batch *b,
+                        const nc_gbuffer *gb, size_t first, const nc_shade_params *params,
                         float acc[3][NC_SHADE_BATCH])
 {
     const nacre_light_desc *l = sl->desc;
@@ -178,8 +179,7 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
     for (uint32_t g = 0; g < count; g += 8) {
         const uint32_t n = count - g < 8 ? count - g : 8;
         const nc_v8f nx = nc_v8_load(b->nx + g), ny = nc_v8_load(b->ny + g), nz = nc_v8_load(b->nz + g);
-        const nc_v8f kl0 = nc_v8_load(kd[0] + g) * lambert, kl1 = nc_v8_load(kd[1] + g) * lambert,
-                     kl2 = nc_v8_load(kd[2] + g) * lambert;
+        const nc_v8f kl0 = nc_v8_load(kl[0] + g), kl1 = nc_v8_load(kl[1] + g), kl2 = nc_v8_load(kl[2] + g);
         /* Direction to the light and its strength factor (distance, spot cone) */
         nc_v8f wx, wy, wz, scale;
         nc_v8i ok = nc_v8_first(n);
@@ -278,7 +278,7 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
         if (!(scale > 0))
             continue;
         const float e = scale * C[i];
-        const float kl0 = kd[0][i] * lambert, kl1 = kd[1][i] * lambert, kl2 = kd[2][i] * lambert;
+        const float kl0 = kl[0][i], kl1 = kl[1][i], kl2 = kl[2][i];
         acc[0][i] += s0 * e * (kl0 + ks0 * P[i]);
         acc[1][i] += s1 * e * (kl1 + ks1 * P[i]);
         acc[2][i] += s2 * e * (kl2 + ks2 * P[i]);
@@ -408,8 +408,15 @@ static void shade_run(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
                 acc[c][i] += sub[c][i];
         lambert = 0.0f;
     }
+    /* The Lambert factor kd / pi per lane, computed here and read back from memory by the
+     * lights: formed inside their arithmetic, the product would be fused into an FMA with the
+     * specular term and round differently from an untextured material's constant. */
+    float kl[3][NC_SHADE_BATCH];
+    for (int c = 0; c < 3; c++)
+        for (uint32_t i = 0; i < padded; i++)
+            kl[c][i] = kd[c][i] * lambert;
     for (uint32_t li = 0; li < light_count; li++)
-        shade_light(&lights[li], m, mk, (const float(*)[NC_SHADE_BATCH])kd, lambert, &b, gb, first, params, acc);
+        shade_light(&lights[li], m, mk, (const float(*)[NC_SHADE_BATCH])kl, lambert, &b, gb, first, params, acc);
     for (uint32_t i = 0; i < count; i++) {
         out[3 * i] = acc[0][i];
         out[3 * i + 1] = acc[1][i];

@@ -488,6 +488,25 @@ static void test_textured(void)
         CHECK(len > 0 && json && strstr(json, "\"diffuse_map\"") && strstr(json, "gltf_textured.png"));
         free(json);
     }
+    /* The GLB's embedded texture is written as <name>_texture<id>.exr and loads back to the
+     * same image */
+    {
+        CHECK(nacre_scene_save_file(g, NULL, TMP "/glb_saved.json") == NACRE_OK);
+        struct stat st;
+        CHECK(stat(TMP "/glb_saved_texture1.exr", &st) == 0);
+        nacre_scene *back = load(ctx, TMP "/glb_saved.json", NULL);
+        nacre_image e = {0};
+        if (back && nacre_scene_commit(back, 0) == NACRE_OK && nacre_render(back, &fs.render, &e, NULL) == NACRE_OK &&
+            a.pixels) {
+            compare(&e, &a, &max_rel, &mean_rel);
+            printf("textured glb saved and loaded: max relative difference %.3g\n", max_rel);
+            CHECK(max_rel < 1e-5);
+        } else {
+            CHECK(!"saved textured glb renders");
+        }
+        nacre_image_free(ctx, &e);
+        nacre_scene_destroy(back);
+    }
 out:
     nacre_image_free(ctx, &a);
     nacre_image_free(ctx, &b);
