@@ -12,6 +12,12 @@ gltf_demo.glb      examples/demo.json as glTF: the same shapes (nacre's generato
                    below), the torus's transform as its node's matrix, the column's twist baked
                    into its vertices, in metres; gltf_demo.json imports it in millimetres and
                    overrides jade and marble with the presets (glTF has no scattering)
+gltf_textured.glb  two quads under an orthographic camera and a sun: one with a base colour
+                   texture (an 8x8 sRGB PNG in the GLB's BIN chunk) times baseColorFactor, one
+                   whose texture is a JPEG (nacre warns and ignores it: only its factor shows)
+gltf_textured.gltf the textured quad alone, its image a file beside it (gltf_textured.png) and its
+                   buffer a data: URI
+gltf_textured.json both as a nacre scene file: PLY quads with uvs, "diffuse_map" on the PNG
 gltf_misc.gltf     one root node over a two-primitive mesh (a metal, and no material: the default),
                    a spot light and an orthographic camera; its buffer is a base64 data: URI
 bad_*.gl*          malformed files: truncated GLB, a missing buffer, an out-of-range accessor,
@@ -400,10 +406,106 @@ def write_misc():
     open(os.path.join(OUT, "gltf_misc.gltf"), "w").write(json.dumps(doc, separators=(",", ":")))
 
 
+# ---- base colour textures ----------------------------------------------------------------
+
+def png_rgb(w, h, rows):
+    """A minimal 8-bit RGB PNG (no filtering) of rows of (r, g, b) bytes."""
+    import zlib
+    raw = b"".join(b"\0" + bytes(c for px in row for c in px) for row in rows)
+    chunk = lambda t, d: struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d) & 0xffffffff)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)) +
+            chunk(b"IDAT", zlib.compress(raw, 9)) + chunk(b"IEND", b""))
+
+
+TEX_N = 8
+TEX_FACTOR = [0.9, 0.8, 0.7]
+JPEG_FACTOR = [0.3, 0.6, 0.9]
+TEX_QUAD = quad(1.0)
+JPEG_QUAD = ([(x + 1.1, y, z) for x, y, z in TEX_QUAD[0]], TEX_QUAD[1], TEX_QUAD[2], TEX_QUAD[3])
+
+
+def texture_rows():
+    """8x8 texels of distinct colours: red across, green down, blue a checker."""
+    return [[(32 * i + 16, 255 - 30 * j, 200 if (i + j) % 2 else 40) for i in range(TEX_N)] for j in range(TEX_N)]
+
+
+def write_textured():
+    png = png_rgb(TEX_N, TEX_N, texture_rows())
+    jpeg = b"\xff\xd8\xff\xe0\x00\x10JFIF\x00\x01\x01\x00\x00\x01\x00\x01\x00\x00\xff\xd9"
+    cam = {"name": "top", "camera": 0, "translation": [0.55, 2.0, 0.0],
+           "rotation": quat_look([0, -1, 0], [0, 0, -1])}
+    sun = {"name": "sun", "rotation": quat_look([-0.3, -1.0, -0.2], [0, 1, 0]),
+           "extensions": {"KHR_lights_punctual": {"light": 0}}}
+
+    def doc_for(b, meshes, images, textures, mats, nodes):
+        return {"asset": {"version": "2.0", "generator": "nacre scripts/make_gltf_tests.py"},
+                "extensionsUsed": ["KHR_lights_punctual"], "scenes": [{"nodes": list(range(len(nodes)))}],
+                "nodes": nodes,
+                "cameras": [{"type": "orthographic", "orthographic": {"xmag": 1.1, "ymag": 0.55, "znear": 0.1,
+                                                                      "zfar": 10}}],
+                "extensions": {"KHR_lights_punctual": {"lights": [
+                    {"type": "directional", "color": [1, 1, 1], "intensity": 2.0 * LUMENS_PER_WATT}]}},
+                "materials": mats, "meshes": meshes, "textures": textures, "images": images,
+                "samplers": [{"wrapS": 10497, "wrapT": 10497}],
+                "accessors": b.accessors, "bufferViews": b.views}
+
+    def material(name, factor, tex):
+        return {"name": name, "pbrMetallicRoughness": {"baseColorFactor": factor + [1], "metallicFactor": 0,
+                                                       "roughnessFactor": 0.5, "baseColorTexture": {"index": tex}}}
+
+    # The GLB: both quads, both images in the BIN chunk
+    b = Builder()
+    meshes = [b.mesh(TEX_QUAD, 0, "textured"), b.mesh(JPEG_QUAD, 1, "jpeg")]
+    views = []
+    for data in (png, jpeg):
+        while len(b.bin) % 4:
+            b.bin.append(0)
+        b.views.append({"buffer": 0, "byteOffset": len(b.bin), "byteLength": len(data)})
+        views.append(len(b.views) - 1)
+        b.bin += data
+    doc = doc_for(b, meshes, [{"bufferView": views[0], "mimeType": "image/png"},
+                              {"bufferView": views[1], "mimeType": "image/jpeg"}],
+                  [{"source": 0, "sampler": 0}, {"source": 1, "sampler": 0}],
+                  [material("textured", TEX_FACTOR, 0), material("jpeg", JPEG_FACTOR, 1)],
+                  [{"mesh": 0}, {"mesh": 1}, cam, sun])
+    doc["buffers"] = [{"byteLength": len(b.bin)}]
+    open(os.path.join(OUT, "gltf_textured.glb"), "wb").write(glb(doc, b.bin))
+
+    # The .gltf: the textured quad, its image a file
+    import base64
+    b2 = Builder()
+    doc2 = doc_for(b2, [b2.mesh(TEX_QUAD, 0, "textured")], [{"uri": "gltf_textured.png"}],
+                   [{"source": 0, "sampler": 0}], [material("textured", TEX_FACTOR, 0)], [{"mesh": 0}, cam, sun])
+    doc2["buffers"] = [{"byteLength": len(b2.bin),
+                        "uri": "data:application/octet-stream;base64," + base64.b64encode(bytes(b2.bin)).decode()}]
+    open(os.path.join(OUT, "gltf_textured.png"), "wb").write(png)
+    open(os.path.join(OUT, "gltf_textured.gltf"), "w").write(json.dumps(doc2, separators=(",", ":")))
+
+    # The same as a nacre scene: roughness 0.5 -> shininess 2 / 0.25^2 - 2 = 30, F0 0.04
+    write_ply(os.path.join(OUT, "gltf_textured_quad.ply"), TEX_QUAD)
+    write_ply(os.path.join(OUT, "gltf_textured_jpeg.ply"), JPEG_QUAD)
+    sun_dir = [-0.3, -1.0, -0.2]
+    scene = {
+        "units": "m",
+        "render": {"method": "phong", "width": 128, "height": 64},
+        "environment": [0.1, 0.1, 0.1],
+        "camera": {"type": "orthographic", "position": cam["translation"], "target": [0.55, 0.0, 0.0],
+                   "up": [0, 0, -1], "height": 1.1, "near": 0.1, "far": 10},
+        "materials": {"textured": {"type": "opaque", "diffuse": TEX_FACTOR, "specular": 0.04, "shininess": 30,
+                                   "diffuse_map": "gltf_textured.png"},
+                      "jpeg": {"type": "opaque", "diffuse": JPEG_FACTOR, "specular": 0.04, "shininess": 30}},
+        "lights": [{"type": "directional", "direction": sun_dir, "irradiance": 2.0}],
+        "objects": [{"name": "textured", "mesh": "gltf_textured_quad.ply", "material": "textured"},
+                    {"name": "jpeg", "mesh": "gltf_textured_jpeg.ply", "material": "jpeg"}],
+    }
+    open(os.path.join(OUT, "gltf_textured.json"), "w").write(json.dumps(scene, indent=1) + "\n")
+
+
 def main():
     os.makedirs(OUT, exist_ok=True)
     write_demo()
     write_misc()
+    write_textured()
     b = Builder()
     doc = gltf_doc(b)
     open(os.path.join(OUT, "gltf_pair.glb"), "wb").write(glb(doc, b.bin))

@@ -323,11 +323,12 @@ NACRE_API nacre_result nacre_scene_load_json(nacre_context *ctx, const char *jso
 /* Save a scene's current state (edits included) as a scene file that nacre_scene_load_file reads
  * back to the same descs, bit for bit: units, the "render" block from `settings` (NULL: the
  * defaults, time 0, exposure 0; accumulate and reuse_output are not part of the format), camera,
- * environment, every material, lights, objects and fogs. Meshes, depth maps and volumes loaded
- * from files are referred to by path (relative to the scene file's folder when they lie in it or
- * below, else absolute), shapes by their desc; those built from raw arrays through this API are
- * written beside the scene file as <name>_mesh<id>.ply, <name>_depth<id>.exr and
- * <name>_volume<id>.nrrd (lossless). Materials keep the names of their scene file; others are
+ * environment, every material, lights, objects and fogs. Meshes, depth and diffuse maps and
+ * volumes loaded from files are referred to by path (relative to the scene file's folder when
+ * they lie in it or below, else absolute), shapes by their desc; those built from raw arrays
+ * through this API are written beside the scene file as <name>_mesh<id>.ply,
+ * <name>_depth<id>.exr, <name>_texture<id>.exr (diffuse maps) and <name>_volume<id>.nrrd
+ * (lossless). Materials keep the names of their scene file; others are
  * named "material<id>". Every file is written under a temporary name and renamed; on failure no
  * file of this save is left behind. Refuses to write over a file the scene reads
  * (nacre_scene_input_path, and the sources above), and values the format cannot express (a

@@ -130,6 +130,10 @@ typedef struct nacre_material_desc {
     float eta;         /* relative index of refraction, in [NACRE_ETA_MIN, NACRE_ETA_MAX] */
     nacre_medium_pattern pattern; /* translucent: heterogeneity (default NONE); of the core when layered */
     nacre_layering layering;      /* translucent: layers above the core (default count 0) */
+    nacre_texture diffuse_map;    /* opaque, optional (id 0: none): linear albedo texture multiplying
+                                     `diffuse`, read bilinearly at the surface uv, repeating (RGB
+                                     from channels 0-2; a 1- or 2-channel texture is grey from
+                                     channel 0); objects using it need a mesh with uvs */
 } nacre_material_desc;
 
 /* Defaults: opaque grey 0.8, specular 0.04, shininess 64; translucent: the "jade" preset
@@ -182,7 +186,8 @@ NACRE_API void nacre_volume_data_free(nacre_context *ctx, nacre_volume_data *vol
  * scene is destroyed). Row 0 is the top of the image and v = 0 its bottom row (v grows upwards,
  * the OBJ/glTF-flipped convention of most mesh exporters: texel (x, y) is centred at
  * u = (x + 0.5) / width, v = 1 - (y + 0.5) / height). Layer depth maps are data: read PNG depth
- * maps with nacre_image_read_data, not the sRGB-decoding nacre_image_read. */
+ * maps with nacre_image_read_data, not the sRGB-decoding nacre_image_read; diffuse maps are
+ * colours: read them with nacre_image_read (sRGB PNG to linear). */
 NACRE_API nacre_result nacre_scene_add_texture(nacre_scene *scene, const nacre_image *image,
                                                nacre_texture *out);
 

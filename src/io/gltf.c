@@ -4,7 +4,8 @@
  * part per node x primitive, node transform applied); what assimp does not expose reliably
  * (materials with their extensions, punctual lights in glTF's photometric units, cameras by
  * name, extensionsRequired) is read from the file's own JSON with cJSON, for a .glb from the
- * JSON chunk of its container. Nothing here reads vertex data.
+ * JSON chunk of its container. Nothing here reads vertex data; the PNG images of base colour
+ * textures are read here (from a file, a data: URI or a buffer view) and decoded by io/.
  *
  * Before assimp sees the file, its structure is checked against the JSON: the GLB header and
  * chunk lengths against the file size, every buffer against its byteLength (GLB chunk, external
@@ -20,6 +21,7 @@
  * documented in docs/scene-format.md ("glTF 2.0 scenes").
  */
 #include "io/gltf.h"
+#include "io/image_private.h"
 #include "io/scene_json_internal.h"
 
 #include "core/math.h"
@@ -63,6 +65,9 @@ typedef struct gltf_state {
     float scale;        /* scene units per metre */
     bool glb;
     uint64_t bin_length; /* GLB BIN chunk, 0 if none */
+    uint64_t bin_offset; /* where its bytes start in the file */
+    nacre_texture *image_textures; /* per glTF image: its scene texture once read (id 0: not yet) */
+    int image_count;
     int node_count;
     nc_mat4 *world;     /* per node; valid where `reached` */
     bool *reached;
@@ -153,6 +158,7 @@ static nacre_result read_json(gltf_state *g, char **text_out, size_t *len_out)
                                     "%s: truncated GLB: the BIN chunk of %u bytes ends past the file", g->path,
                                     le32(ch));
                     g->bin_length = le32(ch);
+                    g->bin_offset = next + 8;
                 }
             } else if (next < size && next + 8 > size) {
                 r = nc_fail(g->ctx, NACRE_ERROR_PARSE, "%s: truncated GLB: a partial chunk header at its end",
@@ -658,6 +664,220 @@ static nacre_material_desc map_material(const gltf_state *g, const cJSON *m, boo
     return d;
 }
 
+/* ------------------------------------------------------------------------------------------ */
+/* Base colour textures                                                                       */
+/* ------------------------------------------------------------------------------------------ */
+
+static int base64_value(char c)
+{
+    if (c >= 'A' && c <= 'Z')
+        return c - 'A';
+    if (c >= 'a' && c <= 'z')
+        return c - 'a' + 26;
+    if (c >= '0' && c <= '9')
+        return c - '0' + 52;
+    return c == '+' ? 62 : c == '/' ? 63 : -1;
+}
+
+/* The bytes of a base64 data: URI (checked by data_uri_size for buffers; images are checked
+ * here), allocated; NULL with *size 0 if it is not base64. */
+static unsigned char *data_uri_bytes(gltf_state *g, const char *uri, size_t *size)
+{
+    *size = 0;
+    const char *comma = strchr(uri, ',');
+    if (!comma || comma - uri < 7 || memcmp(comma - 7, ";base64", 7) != 0)
+        return NULL;
+    const char *p = comma + 1;
+    size_t n = strlen(p);
+    unsigned char *out = nc_alloc(g->ctx, n / 4 * 3 + 3);
+    if (!out)
+        return NULL;
+    uint32_t acc = 0;
+    int bits = 0;
+    for (size_t i = 0; i < n && p[i] != '='; i++) {
+        int v = base64_value(p[i]);
+        if (v < 0) {
+            nc_free(g->ctx, out);
+            return NULL;
+        }
+        acc = (acc << 6) | (uint32_t)v;
+        bits += 6;
+        if (bits >= 8) {
+            bits -= 8;
+            out[(*size)++] = (unsigned char)(acc >> bits);
+        }
+    }
+    return out;
+}
+
+/* Bytes [offset, offset + len) of a file, allocated. */
+static unsigned char *file_bytes(gltf_state *g, const char *path, uint64_t offset, uint64_t len)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        nc_fail(g->ctx, NACRE_ERROR_IO, "%s: cannot open: %s", path, strerror(errno));
+        return NULL;
+    }
+    unsigned char *b = len > 0 && len < ((uint64_t)1 << 31) ? nc_alloc(g->ctx, (size_t)len) : NULL;
+    if (b && (fseek(f, (long)offset, SEEK_SET) != 0 || fread(b, 1, (size_t)len, f) != (size_t)len)) {
+        nc_fail(g->ctx, NACRE_ERROR_IO, "%s: cannot read %llu bytes at %llu", path, (unsigned long long)len,
+                (unsigned long long)offset);
+        nc_free(g->ctx, b);
+        b = NULL;
+    }
+    fclose(f);
+    return b;
+}
+
+/* A file name relative to the glTF's folder, allocated. */
+static char *sibling_path(gltf_state *g, const char *name)
+{
+    const char *slash = strrchr(g->path, '/');
+    size_t dir_len = slash ? (size_t)(slash - g->path) + 1 : 0, n = strlen(name);
+    char *p = nc_alloc(g->ctx, dir_len + n + 1);
+    if (p) {
+        memcpy(p, g->path, dir_len);
+        memcpy(p + dir_len, name, n + 1);
+    }
+    return p;
+}
+
+/* The bytes of images[i]: its file (a relative uri), data: URI, or buffer view (whose buffer the
+ * structure checks have validated: the GLB's BIN chunk, a file or a data: URI). *path gets the
+ * image's own file when it has one (allocated), for the scene to refer to when saved. NULL on
+ * failure (the context holds the message). */
+static unsigned char *image_bytes(gltf_state *g, int i, size_t *size, char **path)
+{
+    const cJSON *img = cJSON_GetArrayItem(get(g->root, "images"), i);
+    const cJSON *uri = get(img, "uri"), *view = get(img, "bufferView");
+    *size = 0;
+    *path = NULL;
+    if (nonempty_string(uri)) {
+        const char *u = uri->valuestring;
+        if (strncmp(u, "data:", 5) == 0) {
+            unsigned char *b = data_uri_bytes(g, u, size);
+            if (!b)
+                nc_fail(g->ctx, NACRE_ERROR_PARSE, "%s: images[%d].uri: a data: URI that is not base64", g->path, i);
+            return b;
+        }
+        if (strstr(u, "://") || strchr(u, '%')) {
+            nc_fail(g->ctx, NACRE_ERROR_UNSUPPORTED, "%s: images[%d].uri: \"%.64s\": only relative file names are read",
+                    g->path, i, u);
+            return NULL;
+        }
+        *path = sibling_path(g, u);
+        struct stat st;
+        if (!*path || stat(*path, &st) != 0) {
+            if (*path)
+                nc_fail(g->ctx, NACRE_ERROR_IO, "%s: images[%d]: cannot open \"%.64s\": %s", g->path, i, u,
+                        strerror(errno));
+            return NULL;
+        }
+        *size = (size_t)st.st_size;
+        return file_bytes(g, *path, 0, (uint64_t)st.st_size);
+    }
+    const cJSON *views = get(g->root, "bufferViews");
+    if (!cJSON_IsNumber(view) || view->valuedouble < 0 || view->valuedouble >= array_size(views) ||
+        view->valuedouble != floor(view->valuedouble)) {
+        nc_fail(g->ctx, NACRE_ERROR_PARSE, "%s: images[%d]: neither a uri nor a valid bufferView", g->path, i);
+        return NULL;
+    }
+    const cJSON *v = cJSON_GetArrayItem(views, (int)view->valuedouble);
+    int bi = (int)get(v, "buffer")->valuedouble;
+    uint64_t off = (uint64_t)num(v, "byteOffset", 0), len = (uint64_t)get(v, "byteLength")->valuedouble;
+    const cJSON *buf_uri = get(cJSON_GetArrayItem(get(g->root, "buffers"), bi), "uri");
+    unsigned char *b = NULL;
+    if (!buf_uri) { /* the GLB's BIN chunk */
+        b = file_bytes(g, g->path, g->bin_offset + off, len);
+    } else if (strncmp(buf_uri->valuestring, "data:", 5) == 0) {
+        size_t n = 0;
+        unsigned char *all = data_uri_bytes(g, buf_uri->valuestring, &n);
+        if (all && off + len <= n && (b = nc_alloc(g->ctx, (size_t)len)))
+            memcpy(b, all + off, (size_t)len);
+        nc_free(g->ctx, all);
+    } else {
+        char *bp = sibling_path(g, buf_uri->valuestring);
+        b = bp ? file_bytes(g, bp, off, len) : NULL;
+        nc_free(g->ctx, bp);
+    }
+    if (b)
+        *size = (size_t)len;
+    else if (nacre_context_last_result(g->ctx) == NACRE_OK)
+        nc_fail(g->ctx, NACRE_ERROR_PARSE, "%s: images[%d]: cannot read its bufferView", g->path, i);
+    return b;
+}
+
+/* The scene texture of material `mi`'s pbrMetallicRoughness.baseColorTexture (sRGB PNG decoded to
+ * linear), in *out; id 0 when it has none or it cannot be used here, which is warned about (a
+ * JPEG, which nacre does not decode; texCoord other than 0, nacre keeps TEXCOORD_0 only). */
+static nacre_result base_color_texture(gltf_state *g, const cJSON *m, int mi, nacre_texture *out)
+{
+    out->id = 0;
+    const cJSON *info = get(get(m, "pbrMetallicRoughness"), "baseColorTexture");
+    if (!info)
+        return NACRE_OK;
+    const cJSON *tex_index = get(info, "index");
+    const cJSON *textures = get(g->root, "textures");
+    if (!cJSON_IsNumber(tex_index) || tex_index->valuedouble < 0 || tex_index->valuedouble >= array_size(textures) ||
+        tex_index->valuedouble != floor(tex_index->valuedouble))
+        return nc_fail(g->ctx, NACRE_ERROR_PARSE,
+                       "%s: materials[%d].pbrMetallicRoughness.baseColorTexture.index: out of range (%d textures)",
+                       g->path, mi, array_size(textures));
+    if (num(info, "texCoord", 0) != 0) {
+        nc_warn(g->ctx, "%s: materials[%d]: baseColorTexture uses TEXCOORD_%g; nacre keeps TEXCOORD_0 only, the "
+                        "texture was ignored", g->path, mi, (double)num(info, "texCoord", 0));
+        return NACRE_OK;
+    }
+    int ti = (int)tex_index->valuedouble;
+    const cJSON *source = get(cJSON_GetArrayItem(textures, ti), "source");
+    if (!cJSON_IsNumber(source)) {
+        nc_warn(g->ctx, "%s: textures[%d]: no source image nacre can read (only PNG is decoded); the base colour "
+                        "texture of materials[%d] was ignored", g->path, ti, mi);
+        return NACRE_OK;
+    }
+    int ii = (int)source->valuedouble;
+    if (ii < 0 || ii >= g->image_count || source->valuedouble != floor(source->valuedouble))
+        return nc_fail(g->ctx, NACRE_ERROR_PARSE, "%s: textures[%d].source: out of range (%d images)", g->path, ti,
+                       g->image_count);
+    if (g->image_textures[ii].id != 0) {
+        *out = g->image_textures[ii];
+        return NACRE_OK;
+    }
+    size_t size = 0;
+    char *path = NULL;
+    unsigned char *bytes = image_bytes(g, ii, &size, &path);
+    if (!bytes) {
+        nc_free(g->ctx, path);
+        nacre_result r = nacre_context_last_result(g->ctx);
+        return r != NACRE_OK ? r : NACRE_ERROR_OUT_OF_MEMORY;
+    }
+    static const unsigned char png_sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+    nacre_result r = NACRE_OK;
+    if (size < 8 || memcmp(bytes, png_sig, 8) != 0) {
+        bool jpeg = size >= 3 && bytes[0] == 0xFF && bytes[1] == 0xD8 && bytes[2] == 0xFF;
+        nc_warn(g->ctx, "%s: images[%d]: %s; the base colour texture of materials[%d] was ignored", g->path, ii,
+                jpeg ? "a JPEG image, which nacre does not decode" : "not a PNG image", mi);
+    } else {
+        char name[600];
+        snprintf(name, sizeof(name), "%s: images[%d]", g->path, ii);
+        nacre_image img = {0};
+        r = nc_image_read_png_memory(g->ctx, name, bytes, size, true, &img);
+        if (r == NACRE_OK)
+            r = nacre_scene_add_texture(g->scene, &img, out);
+        nacre_image_free(g->ctx, &img);
+        if (r == NACRE_OK && path) {
+            char *absolute = nc_absolute_path(g->ctx, path);
+            r = absolute ? nc_scene_set_texture_source(g->scene, *out, absolute) : NACRE_ERROR_OUT_OF_MEMORY;
+            nc_free(g->ctx, absolute);
+        }
+        if (r == NACRE_OK)
+            g->image_textures[ii] = *out;
+    }
+    nc_free(g->ctx, bytes);
+    nc_free(g->ctx, path);
+    return r;
+}
+
 static nacre_result add_materials(gltf_state *g, nacre_material **handles_out, int *count_out)
 {
     const cJSON *mats = get(g->root, "materials");
@@ -668,12 +888,20 @@ static nacre_result add_materials(gltf_state *g, nacre_material **handles_out, i
         return NACRE_ERROR_OUT_OF_MEMORY;
     *handles_out = h;
     *count_out = n;
+    g->image_count = array_size(get(g->root, "images"));
+    g->image_textures = nc_calloc(g->ctx, (size_t)(g->image_count > 0 ? g->image_count : 1), sizeof(nacre_texture));
+    if (!g->image_textures)
+        return NACRE_ERROR_OUT_OF_MEMORY;
     nacre_gltf_report *rep = g->report;
     for (int i = 0; i < n; i++) {
         const cJSON *m = cJSON_GetArrayItem(mats, i);
         bool translucent = false;
         nacre_material_desc d = map_material(g, m, &translucent);
-        nacre_result r = nacre_scene_add_material(g->scene, &d, &h[i]);
+        /* The base colour texture multiplies the opaque diffuse colour; a translucent material
+         * has none (its colour is its medium's) */
+        nacre_result r = translucent ? NACRE_OK : base_color_texture(g, m, i, &d.diffuse_map);
+        if (r == NACRE_OK)
+            r = nacre_scene_add_material(g->scene, &d, &h[i]);
         if (r != NACRE_OK)
             return r;
         char name[NACRE_GLTF_NAME_MAX];
@@ -958,6 +1186,7 @@ out:
     nc_free(ctx, g.world);
     nc_free(ctx, g.reached);
     nc_free(ctx, g.order);
+    nc_free(ctx, g.image_textures);
     return r;
 }
 

@@ -206,11 +206,33 @@ static nacre_result png_read_error(nacre_context *ctx, const char *path, FILE *f
     return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: invalid PNG: %s", path, spng_strerror(e));
 }
 
+/* Decode the PNG of stream fp (closed here); `path` names it in messages. */
+static nacre_result read_png_stream(nacre_context *ctx, const char *path, FILE *fp, int64_t file_size, bool srgb,
+                                    nacre_image *out);
+
 nacre_result nc_image_read_png(nacre_context *ctx, const char *path, bool srgb, nacre_image *out)
 {
     FILE *fp = fopen(path, "rb");
     if (!fp)
         return nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot open: %s", path, strerror(errno));
+    struct stat st;
+    return read_png_stream(ctx, path, fp, fstat(fileno(fp), &st) == 0 ? (int64_t)st.st_size : -1, srgb, out);
+}
+
+nacre_result nc_image_read_png_memory(nacre_context *ctx, const char *name, const void *bytes, size_t size, bool srgb,
+                                      nacre_image *out)
+{
+    if (size == 0)
+        return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: invalid PNG: no bytes", name);
+    FILE *fp = fmemopen((void *)(uintptr_t)bytes, size, "rb");
+    if (!fp)
+        return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "%s: cannot open the PNG's bytes: %s", name, strerror(errno));
+    return read_png_stream(ctx, name, fp, (int64_t)size, srgb, out);
+}
+
+static nacre_result read_png_stream(nacre_context *ctx, const char *path, FILE *fp, int64_t file_size, bool srgb,
+                                    nacre_image *out)
+{
     nacre_result r = NACRE_OK;
     uint8_t *data = NULL;
     float *table16 = NULL;
@@ -230,13 +252,9 @@ nacre_result nc_image_read_png(nacre_context *ctx, const char *path, bool srgb, 
         r = png_read_error(ctx, path, fp, e);
         goto out_free_dec;
     }
-    {
-        /* Deflate expands at most ~1032:1; a pixel holds at least bit_depth bits (1 for the
-         * smallest grey or palette images). */
-        struct stat st;
-        int64_t file_size = fstat(fileno(fp), &st) == 0 ? (int64_t)st.st_size : -1;
-        r = nc_image_check_file_size(ctx, path, ihdr.width, ihdr.height, file_size, ihdr.bit_depth, 1032.0);
-    }
+    /* Deflate expands at most ~1032:1; a pixel holds at least bit_depth bits (1 for the
+     * smallest grey or palette images). */
+    r = nc_image_check_file_size(ctx, path, ihdr.width, ihdr.height, file_size, ihdr.bit_depth, 1032.0);
     if (r != NACRE_OK)
         goto out_free_dec;
 

@@ -78,6 +78,9 @@ static inline uint8_t nc_srgb8_encode(const nc_srgb8_table *tb, float v)
 /* Format readers and writers; paths and images are already validated by the callers. */
 /* srgb: decode 8/16-bit samples as sRGB to linear; else value / max (data images). */
 nacre_result nc_image_read_png(nacre_context *ctx, const char *path, bool srgb, nacre_image *out);
+/* The same from bytes in memory (a PNG embedded in a glTF); `name` names it in messages. */
+nacre_result nc_image_read_png_memory(nacre_context *ctx, const char *name, const void *bytes, size_t size, bool srgb,
+                                      nacre_image *out);
 nacre_result nc_image_read_exr(nacre_context *ctx, const char *path, nacre_image *out);
 
 #endif /* NACRE_IMAGE_PRIVATE_H */

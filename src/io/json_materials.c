@@ -211,10 +211,35 @@ static void parse_layering(loader *ld, const cJSON *obj, nacre_layering *l)
     nc_json_pop(ld, mark);
 }
 
+/* "diffuse_map" of an opaque material: a colour image relative to the scene file (PNG decoded
+ * from sRGB to linear, EXR as it is) that multiplies "diffuse". */
+static void parse_diffuse_map(loader *ld, const cJSON *obj, nacre_texture *out)
+{
+    const char *rel = nc_json_get_string(ld, obj, "diffuse_map");
+    if (ld->err || !rel)
+        return;
+    size_t mark = nc_json_push_key(ld, "diffuse_map");
+    char *path = nc_json_resolve_path(ld, rel);
+    nacre_image img = {0};
+    nacre_result r = path ? nacre_image_read(ld->ctx, path, &img) : NACRE_ERROR_OUT_OF_MEMORY;
+    if (r == NACRE_OK)
+        r = nacre_scene_add_texture(ld->scene, &img, out);
+    if (r == NACRE_OK) {
+        char *absolute = nc_absolute_path(ld->ctx, path);
+        r = absolute ? nc_scene_set_texture_source(ld->scene, *out, absolute) : NACRE_ERROR_OUT_OF_MEMORY;
+        nc_free(ld->ctx, absolute);
+    }
+    if (r != NACRE_OK)
+        nc_json_fail_inner(ld, r);
+    nacre_image_free(ld->ctx, &img);
+    nc_free(ld->ctx, path);
+    nc_json_pop(ld, mark);
+}
+
 /* `replace`: an imported material of the same name, which this entry overrides. */
 static void parse_material(loader *ld, const cJSON *obj, const nacre_material *replace, nacre_material *out)
 {
-    static const char *const opaque_keys[] = {"type", "diffuse", "specular", "shininess"};
+    static const char *const opaque_keys[] = {"type", "diffuse", "specular", "shininess", "diffuse_map"};
     static const char *const translucent_keys[] = {"type", "preset", "sigma_a", "sigma_s", "g",
                                                    "eta", "specular", "shininess", "pattern",
                                                    "layers", "depth_map"};
@@ -263,6 +288,8 @@ static void parse_material(loader *ld, const cJSON *obj, const nacre_material *r
         nc_json_parse_pattern(ld, pattern, &d.pattern);
     if (type == 1 && !ld->err)
         parse_layering(ld, obj, &d.layering);
+    if (type == 0 && !ld->err)
+        parse_diffuse_map(ld, obj, &d.diffuse_map);
     if (ld->err)
         return;
     nacre_result r;

@@ -350,9 +350,9 @@ static const char *mesh_reference(writer *w, nacre_mesh handle)
 }
 
 /* Textures without a file become float EXRs with 3 or 4 channels (the EXR reader gives 3 or 4:
- * a 1- or 2-channel texture is padded with zero channels, so the channels layers read keep
- * their values). */
-static const char *texture_reference(writer *w, nacre_texture handle)
+ * a 1- or 2-channel depth map is padded with zero channels, so the channels layers read keep
+ * their values; a 1- or 2-channel colour map, `kind` "texture", repeats its grey channel 0). */
+static const char *texture_reference(writer *w, nacre_texture handle, const char *kind)
 {
     const nc_texture_rec *t = nc_scene_texture(w->scene, handle);
     char **ref = &w->texture_refs[handle.id - 1];
@@ -362,18 +362,22 @@ static const char *texture_reference(writer *w, nacre_texture handle)
         *ref = reference_to(w, t->source_path);
         return *ref;
     }
-    char *path = generated_path(w, "depth", handle.id, "exr", ref);
+    char *path = generated_path(w, kind, handle.id, "exr", ref);
     if (!path)
         return NULL;
     nacre_image img = {0};
     int32_t channels = t->channels < 3 ? 3 : t->channels;
+    const bool colour = strcmp(kind, "texture") == 0;
     nacre_result r = nacre_image_alloc(w->ctx, t->width, t->height, channels, &img);
     if (r == NACRE_OK) {
         size_t pixels = (size_t)t->width * (size_t)t->height;
         for (size_t i = 0; i < pixels; i++)
-            for (int32_t c = 0; c < t->channels; c++)
+            for (int32_t c = 0; c < channels; c++) {
+                /* A grey colour map stays grey; a depth map's missing layers are 0 */
+                int32_t from = c < t->channels ? c : colour ? 0 : -1;
                 img.pixels[i * (size_t)channels + (size_t)c] =
-                    t->data[i * (size_t)t->channels + (size_t)c];
+                    from < 0 ? 0.0f : t->data[i * (size_t)t->channels + (size_t)from];
+            }
         nacre_image_write_options opt = {.exr_type = NACRE_EXR_FLOAT};
         r = nacre_image_write(w->ctx, &img, path, &opt);
     }
@@ -564,7 +568,7 @@ static void add_layering(writer *w, cJSON *o, const nacre_layering *l)
         add_float(w, y, "depth", l->layers[j].depth);
     }
     if (l->depth_map.id != 0) {
-        const char *ref = texture_reference(w, l->depth_map);
+        const char *ref = texture_reference(w, l->depth_map, "depth");
         if (ref)
             add_string(w, o, "depth_map", ref);
     }
@@ -589,6 +593,11 @@ static cJSON *material_object(writer *w, uint32_t i, const nacre_material_desc *
         add_floats(w, o, "diffuse", d->diffuse, 3);
     add_floats(w, o, "specular", d->specular, 3);
     add_float(w, o, "shininess", d->shininess);
+    if (opaque && d->diffuse_map.id != 0) {
+        const char *ref = texture_reference(w, d->diffuse_map, "texture");
+        if (ref)
+            add_string(w, o, "diffuse_map", ref);
+    }
     if (opaque)
         return o;
     add_floats(w, o, "sigma_a", d->sigma_a, 3);

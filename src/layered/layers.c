@@ -56,6 +56,15 @@ void nc_texture_sample_n(const nc_texture_rec *tex, int c, int n, float u, float
         out[k] = (1 - ay) * ((1 - ax) * p00[k] + ax * p10[k]) + ay * ((1 - ax) * p01[k] + ax * p11[k]);
 }
 
+void nc_texture_rgb(const nc_texture_rec *tex, float u, float v, float out[3])
+{
+    if (tex->channels < 3) {
+        out[0] = out[1] = out[2] = nc_texture_sample(tex, 0, u, v);
+        return;
+    }
+    nc_texture_sample_n(tex, 0, 3, u, v, out);
+}
+
 /* ---- layer stacks ---------------------------------------------------------------------------- */
 
 void nc_layers_init(const nacre_scene *scene, const nacre_layering *l, nc_layer_stack *out)

@@ -30,6 +30,9 @@ uint32_t nc_layers_touching(const nc_layer_stack *stack, float d0, float d1);
 float nc_texture_sample(const nc_texture_rec *tex, int c, float u, float v);
 /* Channels c .. c + n - 1 of the same lookup at once (n <= the texture's channels - c). */
 void nc_texture_sample_n(const nc_texture_rec *tex, int c, int n, float u, float v, float *out);
+/* A colour texture (a material's diffuse_map) at (u, v): channels 0-2, or channel 0 as grey for
+ * a 1- or 2-channel texture. */
+void nc_texture_rgb(const nc_texture_rec *tex, float u, float v, float out[3]);
 
 #ifdef NACRE_HAVE_EMBREE
 #include <embree3/rtcore.h>

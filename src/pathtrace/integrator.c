@@ -438,7 +438,8 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
                 ng = nc_scale(ng, -1.0f);
             if (nc_dot(ns, ng) < 0)
                 ns = nc_scale(ns, -1.0f);
-            const nacre_material_desc *m = ob->mat;
+            nacre_material_desc textured;
+            const nacre_material_desc *m = nc_pt_material_at(ps, ob, &h, &textured);
             L = nc_add(L, nc_mul(beta, nc_pt_direct_light(ps, p, ng, true, m, ns, wo, 0, medium, 1.0f, NULL, rng)));
             nc_vec3 wi = bsdf_sample(m, ns, wo, rng);
             float pdf;

@@ -48,6 +48,7 @@ typedef struct pt_object {
     const float *pos;       /* world positions */
     const float *nrm;       /* world normals */
     const uint32_t *idx;
+    const float *uv;         /* the mesh's uvs, or NULL (read for an opaque diffuse_map) */
     bool heterogeneous;
     float sigma_a[3], sigma_s[3]; /* homogeneous media */
     float g, eta;
@@ -263,6 +264,10 @@ nc_vec3 nc_pt_bsdf_eval(const nacre_material_desc *m, nc_vec3 n, nc_vec3 wo, nc_
 
 /* scene_setup.c */
 void nc_pt_surface_at(const pt_object *o, const pt_hit *h, nc_vec3 *p, nc_vec3 *ng, nc_vec3 *ns);
+/* The opaque material of object o at hit h: o->mat, or with a diffuse_map a copy in *tmp whose
+ * diffuse is multiplied by the texture at the hit's uv. */
+const nacre_material_desc *nc_pt_material_at(const pt_scene *ps, const pt_object *o, const pt_hit *h,
+                                             nacre_material_desc *tmp);
 float nc_pt_clearance(const pt_object *o, nc_vec3 p);
 void nc_pt_release_scene(nc_pathtracer *pt);
 nacre_result nc_pt_build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scene *ps);

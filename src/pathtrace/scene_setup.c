@@ -42,6 +42,28 @@ void nc_pt_surface_at(const pt_object *o, const pt_hit *h, nc_vec3 *p, nc_vec3 *
     *ns = nc_normalize(nc_add(nc_add(nc_scale(na, w), nc_scale(nb, h->u)), nc_scale(nc, h->v)));
 }
 
+const nacre_material_desc *nc_pt_material_at(const pt_scene *ps, const pt_object *o, const pt_hit *h,
+                                             nacre_material_desc *tmp)
+{
+    const nacre_material_desc *m = o->mat;
+    if (m->diffuse_map.id == 0 || !o->uv)
+        return m;
+    const nc_texture_rec *tex = nc_scene_texture(ps->scene, m->diffuse_map);
+    if (!tex)
+        return m;
+    const uint32_t *tri = o->idx + 3 * (size_t)h->prim;
+    float w = 1.0f - h->u - h->v;
+    float u = w * o->uv[2 * (size_t)tri[0]] + h->u * o->uv[2 * (size_t)tri[1]] + h->v * o->uv[2 * (size_t)tri[2]];
+    float v = w * o->uv[2 * (size_t)tri[0] + 1] + h->u * o->uv[2 * (size_t)tri[1] + 1] +
+              h->v * o->uv[2 * (size_t)tri[2] + 1];
+    float t[3];
+    nc_texture_rgb(tex, u, v, t);
+    *tmp = *m;
+    for (int c = 0; c < 3; c++)
+        tmp->diffuse[c] *= t[c];
+    return tmp;
+}
+
 /* ---- clearance grids ---------------------------------------------------------------------
  *
  * In a dense medium (marble: a mean free path of 0.4 mm in a 60 mm block) a path scatters
@@ -560,6 +582,7 @@ nacre_result nc_pt_build_scene(nc_pathtracer *pt, const nacre_scene *s, pt_scene
         o->pos = rec->world_positions;
         o->nrm = rec->world_normals;
         o->idx = md->indices;
+        o->uv = md->uvs;
         o->tri_count = md->triangle_count;
         o->g = m->g;
         o->eta = m->eta;

@@ -264,6 +264,14 @@ static nacre_result check_material(const nacre_scene *s, const nacre_material_de
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: specular: must be finite and >= 0");
     if (!(isfinite(d->shininess) && d->shininess >= 0))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: shininess: must be finite and >= 0");
+    if (d->diffuse_map.id != 0) {
+        if (d->type != NACRE_MATERIAL_OPAQUE)
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                           "material: diffuse_map: only opaque materials have a diffuse colour");
+        if (!nc_scene_texture(s, d->diffuse_map))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: diffuse_map: invalid handle %u",
+                           d->diffuse_map.id);
+    }
     if (d->type == NACRE_MATERIAL_TRANSLUCENT) {
         if (!nonneg3(d->sigma_a))
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: sigma_a: must be finite and >= 0");
@@ -1171,6 +1179,17 @@ nacre_result nacre_scene_commit(nacre_scene *s, double time)
     if (!isfinite(time))
         return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "commit: time must be finite");
     s->committed_valid = false;
+    /* A diffuse map is read at the surface's uvs: a mesh without them would show one texel. */
+    for (uint32_t i = 0; i < s->object_count; i++) {
+        const nc_object_rec *o = &s->objects[i];
+        uint32_t mi = o->desc.material.id, me = o->desc.mesh.id;
+        if (mi == 0 || mi > s->material_count || me == 0 || me > s->mesh_count)
+            continue;
+        if (s->materials[mi - 1].diffuse_map.id != 0 && !s->meshes[me - 1].data.uvs)
+            return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                           "object '%s': its material has a diffuse_map but its mesh has no uvs",
+                           o->name ? o->name : "(unnamed)");
+    }
     /* Geometry is recomputed only when it or the deformation time changed. */
     bool animated = false;
     for (uint32_t i = 0; i < s->object_count; i++) {

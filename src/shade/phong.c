@@ -36,6 +36,7 @@
 #include "shade/shade.h"
 #include "core/optics.h"
 #include "core/simd.h"
+#include "layered/layers.h"
 #include "scene/lights.h"
 
 #include <math.h>
@@ -154,8 +155,9 @@ static void material_constants(const nacre_material_desc *m, mat_k *k)
  * not depend on how rows are cut into batches), 8 lanes at a time (core/simd.h): every value is
  * computed on every lane and conditions only select. A shadowed light's lanes that need a lookup
  * are collected over the batch and looked up together. */
-static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, const mat_k *mk, float lambert,
-                        const nc_shade_batch *b, const nc_gbuffer *gb, size_t first, const nc_shade_params *params,
+static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, const mat_k *mk,
+                        const float kl[3][NC_SHADE_BATCH], float lambert, const nc_shade_batch *b,
+                        const nc_gbuffer *gb, size_t first, const nc_shade_params *params,
                         float acc[3][NC_SHADE_BATCH])
 {
     const nacre_light_desc *l = sl->desc;
@@ -169,7 +171,6 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
     const float nh_cut = mk->nh_cut, spec_norm = mk->spec_norm;
     const nc_v8i has_lambert = (nc_v8i){0} - (int32_t)(lambert != 0.0f);
     const float s0 = l->strength[0], s1 = l->strength[1], s2 = l->strength[2];
-    const float kl0 = mk->kd[0] * lambert, kl1 = mk->kd[1] * lambert, kl2 = mk->kd[2] * lambert;
     const float ks0 = m->specular[0], ks1 = m->specular[1], ks2 = m->specular[2];
     const nc_v8f zero = {0}, one = nc_v8_splat(1.0f);
     /* A shadowed light's lanes to look up, and their scale, cos_i and spec */
@@ -178,6 +179,7 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
     for (uint32_t g = 0; g < count; g += 8) {
         const uint32_t n = count - g < 8 ? count - g : 8;
         const nc_v8f nx = nc_v8_load(b->nx + g), ny = nc_v8_load(b->ny + g), nz = nc_v8_load(b->nz + g);
+        const nc_v8f kl0 = nc_v8_load(kl[0] + g), kl1 = nc_v8_load(kl[1] + g), kl2 = nc_v8_load(kl[2] + g);
         /* Direction to the light and its strength factor (distance, spot cone) */
         nc_v8f wx, wy, wz, scale;
         nc_v8i ok = nc_v8_first(n);
@@ -276,6 +278,7 @@ static void shade_light(const nc_shade_light *sl, const nacre_material_desc *m, 
         if (!(scale > 0))
             continue;
         const float e = scale * C[i];
+        const float kl0 = kl[0][i], kl1 = kl[1][i], kl2 = kl[2][i];
         acc[0][i] += s0 * e * (kl0 + ks0 * P[i]);
         acc[1][i] += s1 * e * (kl1 + ks1 * P[i]);
         acc[2][i] += s2 * e * (kl2 + ks2 * P[i]);
@@ -377,11 +380,24 @@ static void shade_run(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
             nc_v8_store(b.vz + g, nc_v8_sel(pos, z * inv, z));
         }
     }
-    for (int c = 0; c < 3; c++) {
-        const float a = mk->kd[c] * env[c];
+    /* Lambert albedo per lane: the material's, times its diffuse map at the pixel's uv */
+    float kd[3][NC_SHADE_BATCH];
+    for (int c = 0; c < 3; c++)
         for (uint32_t i = 0; i < padded; i++) /* the 8-lane groups read the padding */
-            acc[c][i] = a;
+            kd[c][i] = mk->kd[c];
+    if (m->type == NACRE_MATERIAL_OPAQUE && m->diffuse_map.id != 0) {
+        const nc_texture_rec *tex = nc_scene_texture(scene, m->diffuse_map);
+        const float *uv = gb->uv + 2 * first;
+        for (uint32_t i = 0; tex && i < count; i++) {
+            float t[3];
+            nc_texture_rgb(tex, uv[2 * i], uv[2 * i + 1], t);
+            for (int c = 0; c < 3; c++)
+                kd[c][i] *= t[c];
+        }
     }
+    for (int c = 0; c < 3; c++)
+        for (uint32_t i = 0; i < padded; i++)
+            acc[c][i] = kd[c][i] * env[c];
     /* Diffusion method: the light that enters and leaves the medium replaces Lambert. */
     float lambert = 1.0f / NC_PI;
     if (params->subsurface_object && params->subsurface_object[object]) {
@@ -392,8 +408,15 @@ static void shade_run(const nacre_scene *scene, const nc_gbuffer *gb, const nc_s
                 acc[c][i] += sub[c][i];
         lambert = 0.0f;
     }
+    /* The Lambert factor kd / pi per lane, computed here and read back from memory by the
+     * lights: formed inside their arithmetic, the product would be fused into an FMA with the
+     * specular term and round differently from an untextured material's constant. */
+    float kl[3][NC_SHADE_BATCH];
+    for (int c = 0; c < 3; c++)
+        for (uint32_t i = 0; i < padded; i++)
+            kl[c][i] = kd[c][i] * lambert;
     for (uint32_t li = 0; li < light_count; li++)
-        shade_light(&lights[li], m, mk, lambert, &b, gb, first, params, acc);
+        shade_light(&lights[li], m, mk, (const float(*)[NC_SHADE_BATCH])kl, lambert, &b, gb, first, params, acc);
     for (uint32_t i = 0; i < count; i++) {
         out[3 * i] = acc[0][i];
         out[3 * i + 1] = acc[1][i];

@@ -3,7 +3,8 @@
  * scripts/make_gltf_tests.py writes: the glTF scene renders the same image as the same scene
  * written as a nacre scene file (phong; the KHR_materials_volume sphere also by diffusion), the
  * material, light and camera mappings of docs/scene-format.md, units, a scene file's "import"
- * with overrides, the extension report, and malformed files through the CLI (one line, exit 2,
+ * with overrides, the extension report, base colour textures (PNG in a GLB or beside a .gltf; a
+ * JPEG warned about and ignored), and malformed files through the CLI (one line, exit 2,
  * nothing written).
  */
 #include "test_util.h"
@@ -417,6 +418,105 @@ static void test_malformed_cli(void)
     CHECK(strstr(buf, "{\"name\":\"ball\",\"type\":\"translucent\"}") != NULL);
 }
 
+/* Base colour textures: the GLB (PNG in its BIN chunk, and a JPEG texture that is warned about
+ * and ignored) renders as the nacre scene with "diffuse_map"; the .gltf with the PNG as a file
+ * beside it renders the same textured quad, and saving it refers to that PNG. */
+static void test_textured(void)
+{
+    nacre_context_desc d = {0};
+    d.threads = 2;
+    d.log_fn = count_warning;
+    nacre_context *ctx = NULL;
+    CHECK(nacre_context_create(&d, &ctx) == NACRE_OK);
+    nacre_image a = {0}, b = {0}, c = {0};
+    warnings = 0;
+    nacre_scene *g = load(ctx, DATA "/gltf_textured.glb", NULL);
+    CHECK(warnings == 1 && strstr(last_warning, "JPEG") != NULL && strstr(last_warning, "materials[1]") != NULL);
+    printf("warning: %s\n", last_warning);
+    nacre_scene_file_settings fs;
+    nacre_scene *n = load(ctx, DATA "/gltf_textured.json", &fs);
+    nacre_scene *f = load(ctx, DATA "/gltf_textured.gltf", NULL);
+    if (!g || !n || !f)
+        goto out;
+    const float env[3] = {0.1f, 0.1f, 0.1f};
+    CHECK(nacre_scene_set_environment(g, env) == NACRE_OK);
+    CHECK(nacre_scene_set_environment(f, env) == NACRE_OK);
+    nacre_material_desc m0, m1;
+    CHECK(nacre_scene_get_material(g, (nacre_material){1}, &m0) == NACRE_OK && m0.diffuse_map.id != 0);
+    CHECK(nacre_scene_get_material(g, (nacre_material){2}, &m1) == NACRE_OK && m1.diffuse_map.id == 0);
+    CHECK(nacre_scene_commit(g, 0) == NACRE_OK && nacre_render(g, &fs.render, &a, NULL) == NACRE_OK);
+    CHECK(nacre_scene_commit(n, 0) == NACRE_OK && nacre_render(n, &fs.render, &b, NULL) == NACRE_OK);
+    CHECK(nacre_scene_commit(f, 0) == NACRE_OK && nacre_render(f, &fs.render, &c, NULL) == NACRE_OK);
+    double max_rel = 1, mean_rel = 1;
+    if (a.pixels && b.pixels) {
+        compare(&a, &b, &max_rel, &mean_rel);
+        printf("textured glb: max relative difference %.3g, mean %.3g\n", max_rel, mean_rel);
+        CHECK(max_rel < 2e-3 && mean_rel < 1e-5);
+        /* The texture shows: the textured quad's pixels vary (8 texels across 58 pixels) */
+        float lo = INFINITY, hi = 0;
+        for (int x = 10; x < 50; x++) {
+            float v = a.pixels[(size_t)(32 * a.width + x) * 3];
+            lo = fminf(lo, v);
+            hi = fmaxf(hi, v);
+        }
+        CHECK(hi > 2 * lo);
+    }
+    /* The .gltf holds only the textured quad: it matches the left half */
+    if (c.pixels && b.pixels) {
+        double worst = 0;
+        for (int y = 0; y < c.height; y++)
+            for (int x = 0; x < 55; x++)
+                for (int k = 0; k < 3; k++) {
+                    size_t i = ((size_t)y * (size_t)c.width + (size_t)x) * 3 + (size_t)k;
+                    worst = fmax(worst, fabs(c.pixels[i] - b.pixels[i]) / fmax(fabs(b.pixels[i]), 1e-3));
+                }
+        printf("textured gltf: max relative difference %.3g on the textured quad\n", worst);
+        CHECK(worst < 2e-3);
+    }
+    /* Saved, the .gltf's texture is its PNG file */
+    {
+        char *json = NULL;
+        size_t len = 0;
+        mkdir(TMP, 0755);
+        CHECK(nacre_scene_save_file(f, NULL, TMP "/textured_saved.json") == NACRE_OK);
+        FILE *fp = fopen(TMP "/textured_saved.json", "rb");
+        if (fp) {
+            json = calloc(1, 1 << 16);
+            len = fread(json, 1, (1 << 16) - 1, fp);
+            fclose(fp);
+        }
+        CHECK(len > 0 && json && strstr(json, "\"diffuse_map\"") && strstr(json, "gltf_textured.png"));
+        free(json);
+    }
+    /* The GLB's embedded texture is written as <name>_texture<id>.exr and loads back to the
+     * same image */
+    {
+        CHECK(nacre_scene_save_file(g, NULL, TMP "/glb_saved.json") == NACRE_OK);
+        struct stat st;
+        CHECK(stat(TMP "/glb_saved_texture1.exr", &st) == 0);
+        nacre_scene *back = load(ctx, TMP "/glb_saved.json", NULL);
+        nacre_image e = {0};
+        if (back && nacre_scene_commit(back, 0) == NACRE_OK && nacre_render(back, &fs.render, &e, NULL) == NACRE_OK &&
+            a.pixels) {
+            compare(&e, &a, &max_rel, &mean_rel);
+            printf("textured glb saved and loaded: max relative difference %.3g\n", max_rel);
+            CHECK(max_rel < 1e-5);
+        } else {
+            CHECK(!"saved textured glb renders");
+        }
+        nacre_image_free(ctx, &e);
+        nacre_scene_destroy(back);
+    }
+out:
+    nacre_image_free(ctx, &a);
+    nacre_image_free(ctx, &b);
+    nacre_image_free(ctx, &c);
+    nacre_scene_destroy(g);
+    nacre_scene_destroy(n);
+    nacre_scene_destroy(f);
+    nacre_context_destroy(ctx);
+}
+
 int main(void)
 {
     mkdir(NACRE_TEST_TMP, 0755);
@@ -426,6 +526,7 @@ int main(void)
     test_mapping();
     test_misc();
     test_split_and_ignored();
+    test_textured();
     test_import();
     test_malformed_cli();
     return TEST_MAIN_END();
