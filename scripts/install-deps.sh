@@ -12,6 +12,10 @@ packages+=(clang libclang-rt-dev libomp-dev llvm)
 # its SDL2 + SDL_Renderer backends for the panel, and Xvfb (with xauth, which xvfb-run needs) so
 # the viewer's test runs without a display. Without SDL2 the build leaves the viewer out.
 packages+=(libsdl2-dev libimgui-dev libgl-dev xvfb xauth)
+# OpenVDB volumes (.vdb): libopenvdb-dev 10, whose headers also include Boost's (header-only
+# parts, libboost-dev). Without them the build leaves .vdb reading out. python3-openvdb is not
+# needed: the test files are committed (scripts/make_vdb_tests.py regenerates them).
+packages+=(libopenvdb-dev libboost-dev)
 
 missing=()
 for p in "${packages[@]}"; do

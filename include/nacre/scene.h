@@ -179,6 +179,17 @@ NACRE_API nacre_result nacre_scene_add_volume(nacre_scene *scene, const nacre_vo
  * rejected. The library allocates `out->data`; free with nacre_volume_data_free. */
 NACRE_API nacre_result nacre_volume_load_nrrd(nacre_context *ctx, const char *path, uint32_t channel,
                                               nacre_volume_data *out);
+/* Read one scalar grid of an OpenVDB file (.vdb; float or double values): `grid_name`, or
+ * when NULL the grid "density", or else the file's first float grid. The result covers the
+ * grid's active bounding box padded by one voxel on each side, so that outside it the clamped
+ * density is the grid's background; voxel centres keep the file's placement (origin = world
+ * position of the box's first voxel, spacing = voxel size). Transforms must be linear and
+ * axis-aligned with positive scales (rotated, sheared, flipped and frustum grids are refused);
+ * level sets, non-float grids and negative or non-finite values are refused. The dense copy is
+ * checked against the context's memory limit before it is made. Built without OpenVDB, returns
+ * NACRE_ERROR_UNSUPPORTED. The library allocates `out->data`; free with nacre_volume_data_free. */
+NACRE_API nacre_result nacre_volume_load_vdb(nacre_context *ctx, const char *path, const char *grid_name,
+                                             nacre_volume_data *out);
 /* Free data allocated by the library and zero the struct. */
 NACRE_API void nacre_volume_data_free(nacre_context *ctx, nacre_volume_data *volume);
 

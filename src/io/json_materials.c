@@ -1,7 +1,7 @@
 /*
  * json_materials.c: the "materials" section of a JSON scene (docs/scene-format.md, "materials"
  * with "pattern" and "layers"): material types, presets, layers and depth maps, heterogeneous
- * patterns and NRRD volumes, and the name table that objects look materials up in.
+ * patterns and NRRD or OpenVDB volumes, and the name table that objects look materials up in.
  * Coefficients written in the file are per scene unit; presets are per millimetre and are
  * converted with the scene's "units".
  */
@@ -37,22 +37,45 @@ static bool preset_per_unit(loader *ld, const char *key, const char *name, nacre
     return true;
 }
 
-/* "volume": an NRRD file (relative to the scene file) scaled by "density_scale", added to the
- * scene; the handle goes into the pattern. */
+/* True when `path` ends in ".vdb" (any case): OpenVDB, otherwise NRRD. */
+static bool is_vdb_path(const char *path)
+{
+    size_t n = strlen(path);
+    return n >= 4 && path[n - 4] == '.' && (path[n - 3] | 0x20) == 'v' && (path[n - 2] | 0x20) == 'd' &&
+           (path[n - 1] | 0x20) == 'b';
+}
+
+/* "volume": an NRRD file, or an OpenVDB file (".vdb", its "grid"), relative to the scene file,
+ * scaled by "density_scale", added to the scene; the handle goes into the pattern. */
 static void load_volume(loader *ld, const cJSON *obj, nacre_medium_pattern *p)
 {
     const char *rel = nc_json_get_string(ld, obj, "volume");
     int64_t channel = 0;
     nc_json_get_integer(ld, obj, "channel", 0, 255, &channel);
+    const char *grid = nc_json_get_string(ld, obj, "grid");
     float scale = 1.0f;
     nc_json_get_number(ld, obj, "density_scale", R_NONNEG, &scale);
     if (ld->err || !rel)
         return;
+    bool vdb = is_vdb_path(rel);
+    if (vdb && nc_json_member(obj, "channel")) {
+        size_t m = nc_json_push_key(ld, "channel");
+        nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "NRRD volumes only (a .vdb file names its \"grid\")");
+        nc_json_pop(ld, m);
+        return;
+    }
+    if (!vdb && grid) {
+        size_t m = nc_json_push_key(ld, "grid");
+        nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "OpenVDB (.vdb) volumes only");
+        nc_json_pop(ld, m);
+        return;
+    }
     size_t mark = nc_json_push_key(ld, "volume");
     char *path = nc_json_resolve_path(ld, rel);
     nacre_volume_data vol = {0};
-    nacre_result r = path ? nacre_volume_load_nrrd(ld->ctx, path, (uint32_t)channel, &vol)
-                          : NACRE_ERROR_OUT_OF_MEMORY;
+    nacre_result r = !path ? NACRE_ERROR_OUT_OF_MEMORY
+                     : vdb ? nacre_volume_load_vdb(ld->ctx, path, grid, &vol)
+                           : nacre_volume_load_nrrd(ld->ctx, path, (uint32_t)channel, &vol);
     if (r == NACRE_OK) {
         size_t n = (size_t)vol.dims[0] * vol.dims[1] * vol.dims[2];
         for (size_t i = 0; i < n; i++)
@@ -65,6 +88,8 @@ static void load_volume(loader *ld, const cJSON *obj, nacre_medium_pattern *p)
                      : NACRE_ERROR_OUT_OF_MEMORY;
         nc_free(ld->ctx, absolute);
     }
+    if (r == NACRE_OK && grid)
+        r = nc_scene_set_volume_grid(ld->scene, p->volume, grid);
     if (r != NACRE_OK)
         nc_json_fail_inner(ld, r);
     nacre_volume_data_free(ld->ctx, &vol);
@@ -82,7 +107,7 @@ void nc_json_parse_pattern(loader *ld, const cJSON *obj, nacre_medium_pattern *p
     static const char *const checker_keys[] = {"type", "preset2", "sigma_a2", "sigma_s2", "cell_size"};
     static const char *const noise_keys[] = {"type", "preset2", "sigma_a2", "sigma_s2", "cell_size",
                                              "seed", "octaves"};
-    static const char *const volume_keys[] = {"type", "volume", "channel", "density_scale"};
+    static const char *const volume_keys[] = {"type", "volume", "channel", "grid", "density_scale"};
     size_t mark = nc_json_push_key(ld, "pattern");
     if (!nc_json_expect_object(ld, obj) || !nc_json_require(ld, obj, "type")) {
         nc_json_pop(ld, mark);

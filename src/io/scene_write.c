@@ -386,7 +386,7 @@ static const char *texture_reference(writer *w, nacre_texture handle, const char
     return w->err == NACRE_OK ? *ref : NULL;
 }
 
-/* Adds "volume" (and "channel", "density_scale" for a source file) to a pattern object. */
+/* Adds "volume" (and "channel" or "grid", "density_scale" for a source file) to a pattern object. */
 static void add_volume_reference(writer *w, cJSON *obj, nacre_volume handle)
 {
     const nc_volume_rec *v = nc_scene_volume(w->scene, handle);
@@ -406,10 +406,12 @@ static void add_volume_reference(writer *w, cJSON *obj, nacre_volume handle)
     if (w->err != NACRE_OK)
         return;
     add_string(w, obj, "volume", *ref);
-    if (from_file) {
+    if (from_file && v->source_grid)
+        add_string(w, obj, "grid", v->source_grid);
+    else if (from_file && v->source_channel) /* 0 is the default, and .vdb files take none */
         add_uint(w, obj, "channel", v->source_channel);
+    if (from_file)
         add_float(w, obj, "density_scale", v->source_scale);
-    }
 }
 
 /* ------------------------------------------------------------------------------------------ */

@@ -435,6 +435,7 @@ void nacre_scene_destroy(nacre_scene *s)
     for (uint32_t i = 0; i < s->volume_count; i++) {
         nc_free(ctx, s->volumes[i].data);
         nc_free(ctx, s->volumes[i].source_path);
+        nc_free(ctx, s->volumes[i].source_grid);
     }
     nc_free(ctx, s->volumes);
     for (uint32_t i = 0; i < s->texture_count; i++) {
@@ -504,6 +505,13 @@ nacre_result nc_scene_set_volume_source(nacre_scene *s, nacre_volume volume, con
     v->source_channel = channel;
     v->source_scale = density_scale;
     return set_string(s->ctx, &v->source_path, path);
+}
+
+nacre_result nc_scene_set_volume_grid(nacre_scene *s, nacre_volume volume, const char *grid)
+{
+    if (!nc_scene_volume(s, volume))
+        return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "volume: invalid handle %u", volume.id);
+    return set_string(s->ctx, &s->volumes[volume.id - 1].source_grid, grid);
 }
 
 nacre_result nc_scene_set_texture_source(nacre_scene *s, nacre_texture texture, const char *path)

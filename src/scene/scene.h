@@ -43,6 +43,7 @@ typedef struct nc_volume_rec {
     char *source_path;    /* owned, absolute: the NRRD file it was read from, or NULL */
     uint32_t source_channel; /* the file's channel that was read */
     float source_scale;   /* density_scale the file's samples were multiplied by */
+    char *source_grid;    /* owned: the OpenVDB grid named in the scene file, or NULL */
 } nc_volume_rec;
 
 /* A texture (nacre_scene_add_texture): tightly packed rows, top row first. */
@@ -129,6 +130,8 @@ nacre_result nc_scene_set_mesh_source(nacre_scene *scene, nacre_mesh mesh, const
                                       const nacre_shape_desc *shape);
 nacre_result nc_scene_set_volume_source(nacre_scene *scene, nacre_volume volume, const char *path,
                                         uint32_t channel, float density_scale);
+/* The grid a .vdb volume was read from when the scene file named it (copied). */
+nacre_result nc_scene_set_volume_grid(nacre_scene *scene, nacre_volume volume, const char *grid);
 nacre_result nc_scene_set_texture_source(nacre_scene *scene, nacre_texture texture, const char *path);
 /* A material's name in its scene file (copied); nc_scene_material_name is NULL when unnamed. */
 nacre_result nc_scene_set_material_name(nacre_scene *scene, nacre_material material, const char *name);
