@@ -72,7 +72,7 @@ void stage_chart(const nc_view *v)
         snprintf(label, sizeof(label), ran ? "%.2f ms x%u" : "cached", v->stats.stage_us[i] * 1e-3,
                  v->stats.stage_runs[i]);
         ImGui::Text("%-16s", nacre_stage_name((nacre_stage)i));
-        ImGui::SameLine(118);
+        ImGui::SameLine(136);
         ImGui::PushStyleColor(ImGuiCol_PlotHistogram, ran ? ImVec4(0.9f, 0.6f, 0.1f, 1) : ImVec4(0.4f, 0.4f, 0.4f, 1));
         ImGui::ProgressBar(ran ? (float)v->stats.stage_us[i] / (float)most : 0.0f, ImVec2(-1, 0), label);
         ImGui::PopStyleColor();
