@@ -103,8 +103,6 @@ bool nc_view_solver(nc_view *v, nacre_diffusion_solver solver);
  * shadow_steps, particles. `value` is the text as in a script ("froxel", "8", "0.01"); the same
  * ranges as the scene loader. */
 bool nc_view_render_setting(nc_view *v, const char *name, const char *value, bool check_only);
-/* The names above, NULL-terminated, for messages and the help. */
-extern const char *const nc_view_render_setting_names[];
 void nc_view_set_time(nc_view *v, double time);
 void nc_view_set_mode(nc_view *v, nc_view_mode mode);
 bool nc_view_resize(nc_view *v, int32_t width, int32_t height, bool check_only);

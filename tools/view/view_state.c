@@ -322,10 +322,6 @@ bool nc_view_solver(nc_view *v, nacre_diffusion_solver solver)
     return true;
 }
 
-const char *const nc_view_render_setting_names[] = {
-    "layered_samples", "layered_epsilon", "layered_integration", "volumetrics", "froxel_width", "froxel_height",
-    "froxel_slices",   "raymarch_steps",  "shadow_steps",        "particles",   NULL};
-
 /* An integer in lo..hi into *out; false with the reason in v->message. */
 static bool setting_uint(nc_view *v, const char *name, const char *text, uint32_t lo, uint32_t hi, uint32_t *out)
 {
@@ -368,7 +364,8 @@ bool nc_view_render_setting(nc_view *v, const char *name, const char *value, boo
                                                      strcmp(name + 7, "height") == 0 || strcmp(name + 7, "slices") == 0)) {
         uint32_t *dst = name[7] == 'w' ? &vol->froxel_width : name[7] == 'h' ? &vol->froxel_height : &vol->froxel_slices;
         ok = setting_uint(v, name, value, 1, 1024, dst);
-        /* The loader's bound on the grid: its buffers are a few floats per froxel. */
+        /* The renderer's bound on the grid (docs/scene-format.md), checked here so that a
+         * script line fails before the window opens rather than at the frame. */
         if (ok && (uint64_t)vol->froxel_width * vol->froxel_height * vol->froxel_slices > (1u << 24)) {
             snprintf(v->message, sizeof(v->message), "%s %s: the froxel grid %ux%ux%u exceeds 2^24 froxels", name, value,
                      vol->froxel_width, vol->froxel_height, vol->froxel_slices);
