@@ -3,7 +3,9 @@
 # orbits, changes a material, moves the light and switches method; the JSON line's stage_runs
 # must show that only the invalidated stages ran, and the screenshot must match `nacre render`
 # of the scene the viewer saved. Also: a scene that fails to load and invalid script lines end
-# with one clear message (exit 2), picking, and the error view against the path tracer.
+# with one clear message (exit 2), picking, and the error view against the path tracer. The
+# layered method, volumetric fog and particles: switched and set by script lines, saved and
+# reproduced by nacre render.
 # Skipped (exit 77) without xvfb-run or in a build without the viewer.
 # usage: view_test.sh NACRE TMPDIR
 set -u
@@ -51,6 +53,13 @@ check_bad "2 material 0 preset unobtainium" "unknown material preset"
 check_bad "2 method froxel" "expected phong, diffusion, layered or pathtrace"
 check_bad "9 orbit 1 1" "past the run's last frame"
 check_bad "3 key F13" "unknown key"
+check_bad "2 set volumetrics fog" "volumetrics 'fog': expected off, froxel or raymarch"
+check_bad "2 set layered_samples 0" "layered_samples '0': expected an integer in 1..4096"
+check_bad "2 set layered_epsilon 1" "expected a number in (0, 1)"
+check_bad "2 set particles smoke" "expected billboards, sprites or voxel"
+check_bad "2 set froxel_slices 1024.5" "froxel_slices '1024.5': expected an integer"
+check_bad "2 set frobs 3" "unknown setting 'frobs'"
+check_bad "2 set volumetrics" "expected a setting and its value"
 
 # --- camera-only frames run no diffusion stage --------------------------------------------
 printf '1 orbit 10 0\n2 orbit 0 5\n3 pan 10 -4\n4 zoom 0.9\n' >"$tmp/camera.txt"
@@ -86,6 +95,54 @@ for final in phong diffusion; do
             fail "diffusion: the screenshot differs from nacre render: $cmp"
     fi
 done
+
+# --- the layered method, volumetric fog and particles: switched and set by the script, the
+# screenshot equals nacre render of the saved scene (these methods are deterministic and do not
+# iterate from the previous frame, so exactly). Small images keep the sanitized build quick.
+examples=$(cd "$(dirname "$0")/../examples" && pwd)
+same_as_render() { # NAME: view_NAME.png against nacre render of saved_NAME.json
+    "$nacre" render "$tmp/saved_$1.json" -o "$tmp/render_$1.png" --threads 2 || { fail "$1: nacre render of the saved scene"; return; }
+    cmp=$("$nacre" compare "$tmp/view_$1.png" "$tmp/render_$1.png" --json)
+    [ "$(json_num "$cmp" max_abs_err)" = 0 ] || fail "$1: the screenshot differs from nacre render: $cmp"
+}
+saved_setting() { grep -o "\"$2\":[^,}]*" "$tmp/saved_$1.json" | head -1 | cut -d: -f2 | tr -d ' \t"'; }
+
+# layered.json opens with the path tracer; frame 1 switches to layered, 2-3 set its settings
+# (the planes refit only for epsilon), 4 orbits.
+printf '1 method layered\n2 set layered_samples 8\n3 set layered_integration samples\n3 set layered_epsilon 0.02\n4 orbit 10 0\n' \
+    >"$tmp/layered.txt"
+out=$(windowed "$examples/layered.json" --size 160x120 --frames 5 --script "$tmp/layered.txt" \
+    --screenshot "$tmp/view_layered.png" --save-scene "$tmp/saved_layered.json" --threads 2) || fail "layered run failed: $out"
+echo "$out"
+grep -q '"method":"layered"' <<<"$out" && [ "$(json_int "$out" planes)" = 2 ] && [ "$(json_int "$out" march)" = 4 ] ||
+    fail "layered: method or stage_runs in '$out'"
+[ "$(saved_setting layered method)" = layered ] && [ "$(saved_setting layered layered_samples)" = 8 ] &&
+    [ "$(saved_setting layered layered_integration)" = samples ] || fail "layered: the saved render block"
+same_as_render layered
+
+# volumetrics.json opens with froxels: off (the analytic pass), raymarch, then froxel with a
+# coarser grid; the stages of each mode run in the frames it is on.
+printf '1 set volumetrics off\n2 set volumetrics raymarch\n2 set raymarch_steps 32\n3 set volumetrics froxel\n3 set froxel_slices 48\n4 orbit 5 0\n' \
+    >"$tmp/froxel.txt"
+out=$(windowed "$examples/volumetrics.json" --size 160x90 --frames 5 --script "$tmp/froxel.txt" \
+    --screenshot "$tmp/view_froxel.png" --save-scene "$tmp/saved_froxel.json" --threads 2) || fail "froxel run failed: $out"
+echo "$out"
+[ "$(json_int "$out" fog)" = 1 ] && [ "$(json_int "$out" raymarch)" = 1 ] && [ "$(json_int "$out" froxel_fill)" = 3 ] &&
+    [ "$(json_int "$out" froxel_apply)" = 3 ] || fail "froxel: stage_runs in '$out'"
+[ "$(saved_setting froxel volumetrics)" = froxel ] && [ "$(saved_setting froxel froxel_slices)" = 48 ] &&
+    [ "$(saved_setting froxel raymarch_steps)" = 32 ] || fail "froxel: the saved render block"
+same_as_render froxel
+
+# particles.json by phong: sprites, then the timeline moves the plume (the scene is committed at
+# the timeline's time); the saved time reproduces it.
+printf '1 set particles sprites\n2 time 1.5\n3 play\n' >"$tmp/particles.txt"
+out=$(windowed "$examples/particles.json" --method phong --size 160x120 --frames 5 --script "$tmp/particles.txt" \
+    --screenshot "$tmp/view_particles.png" --save-scene "$tmp/saved_particles.json" --threads 2) ||
+    fail "particles run failed: $out"
+echo "$out"
+[ "$(json_int "$out" particles)" = 5 ] && grep -q '"time":1.5666' <<<"$out" || fail "particles: stage_runs or time in '$out'"
+[ "$(saved_setting particles particles)" = sprites ] || fail "particles: the saved render block"
+same_as_render particles
 
 # --- picking and the error view against the path tracer (small, the path tracer is slow) ----
 printf '1 pick 80 75\n2 view error\n' >"$tmp/truth.txt"

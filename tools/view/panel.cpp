@@ -2,8 +2,9 @@
  * panel.cpp: the viewer's panel and frame display, the only C++ in nacre (Dear ImGui is C++).
  * It draws the rendered frame as one OpenGL texture filling the window and, over it, a panel
  * whose controls call the same nc_view_* edits as the mouse, the keys and the script
- * (view.h): method, view mode, lights, materials, diffusion settings, timeline, exposure, files,
- * and the current method's stage timings as a bar chart. Which backends and why: panel.h.
+ * (view.h): method, view mode, lights, materials, layered and diffusion settings, fog
+ * (volumetrics), particles, timeline, exposure, files, and the current method's stage timings as
+ * a bar chart. Which backends and why: panel.h.
  */
 #include "panel.h"
 
@@ -61,14 +62,17 @@ void stage_chart(const nc_view *v)
         return;
     }
     for (int i = 0; i < NACRE_STAGE_COUNT; i++) {
-        if (!(info.stages & (1u << i)))
+        /* The method's own stages always (cached ones in grey); the passes over its image (fog,
+         * froxel_*, raymarch, particles) run by the scene and the settings rather than the
+         * method, so they show when they ran. */
+        if (!(info.stages & (1u << i)) && !v->stats.stage_ran[i])
             continue;
         char label[64];
         bool ran = v->stats.stage_ran[i];
         snprintf(label, sizeof(label), ran ? "%.2f ms x%u" : "cached", v->stats.stage_us[i] * 1e-3,
                  v->stats.stage_runs[i]);
-        ImGui::Text("%-9s", nacre_stage_name((nacre_stage)i));
-        ImGui::SameLine(80);
+        ImGui::Text("%-16s", nacre_stage_name((nacre_stage)i));
+        ImGui::SameLine(136);
         ImGui::PushStyleColor(ImGuiCol_PlotHistogram, ran ? ImVec4(0.9f, 0.6f, 0.1f, 1) : ImVec4(0.4f, 0.4f, 0.4f, 1));
         ImGui::ProgressBar(ran ? (float)v->stats.stage_us[i] / (float)most : 0.0f, ImVec2(-1, 0), label);
         ImGui::PopStyleColor();
@@ -163,6 +167,81 @@ void material_controls(nc_view *v)
     x = m->base.eta;
     if (ImGui::SliderFloat("eta", &x, 1.0f, 2.5f))
         nc_view_material_field(v, v->material, "eta", x, false);
+}
+
+/* An integer render setting through nc_view_render_setting, applied when the slider is
+ * released: each step of a drag would otherwise rebuild the stage's buffers. */
+void setting_slider(nc_view *v, const char *label, const char *name, uint32_t current, int lo, int hi)
+{
+    int x = (int)current;
+    ImGui::SliderInt(label, &x, lo, hi, "%d", ImGuiSliderFlags_Logarithmic);
+    if ((ImGui::IsItemDeactivatedAfterEdit() || !ImGui::IsItemActive()) && x != (int)current) {
+        char text[16];
+        snprintf(text, sizeof(text), "%d", x);
+        nc_view_render_setting(v, name, text, false);
+    }
+}
+
+/* A choice among names (radio buttons) through nc_view_render_setting. */
+void setting_choice(nc_view *v, const char *name, const char *const *choices, const char *current)
+{
+    for (int i = 0; choices[i]; i++) {
+        if (i)
+            ImGui::SameLine();
+        char label[64];
+        snprintf(label, sizeof(label), "%s##%s", choices[i], name);
+        if (ImGui::RadioButton(label, strcmp(choices[i], current) == 0) && strcmp(choices[i], current) != 0)
+            nc_view_render_setting(v, name, choices[i], false);
+    }
+}
+
+void layered_controls(nc_view *v)
+{
+    if (v->fs.render.method != NACRE_METHOD_LAYERED ||
+        !ImGui::CollapsingHeader("layered", ImGuiTreeNodeFlags_DefaultOpen))
+        return;
+    nacre_layered_settings *ly = &v->fs.render.layered;
+    setting_slider(v, "samples", "layered_samples", ly->samples, 1, 256);
+    static const char *const integrations[] = {"analytic", "samples", nullptr};
+    ImGui::Text("integration");
+    ImGui::SameLine();
+    setting_choice(v, "layered_integration", integrations, nacre_layered_integration_name(ly->integration));
+    float e = ly->epsilon;
+    ImGui::SliderFloat("epsilon", &e, 0.001f, 0.5f, "%.4f", ImGuiSliderFlags_Logarithmic);
+    /* On release: epsilon refits the planes (stage planes). */
+    if ((ImGui::IsItemDeactivatedAfterEdit() || !ImGui::IsItemActive()) && e != ly->epsilon) {
+        char text[32];
+        snprintf(text, sizeof(text), "%.9g", e);
+        nc_view_render_setting(v, "layered_epsilon", text, false);
+    }
+}
+
+void media_controls(nc_view *v)
+{
+    nacre_method_info info;
+    nacre_method_info_get(v->fs.render.method, &info);
+    if (nacre_scene_fog_count(v->scene) > 0 && ImGui::CollapsingHeader("fog", ImGuiTreeNodeFlags_DefaultOpen)) {
+        nacre_volumetrics_settings *vol = &v->fs.render.volumetrics;
+        static const char *const modes[] = {"off", "froxel", "raymarch", nullptr};
+        setting_choice(v, "volumetrics", modes, nacre_volumetrics_name(vol->mode));
+        if (vol->mode == NACRE_VOLUMETRICS_FROXEL) {
+            setting_slider(v, "froxels x", "froxel_width", vol->froxel_width, 8, 1024);
+            setting_slider(v, "froxels y", "froxel_height", vol->froxel_height, 8, 1024);
+            setting_slider(v, "slices", "froxel_slices", vol->froxel_slices, 8, 1024);
+        } else if (vol->mode == NACRE_VOLUMETRICS_RAYMARCH) {
+            setting_slider(v, "steps", "raymarch_steps", vol->raymarch_steps, 1, 4096);
+        }
+        if (vol->mode != NACRE_VOLUMETRICS_OFF)
+            setting_slider(v, "shadow steps", "shadow_steps", vol->shadow_steps, 1, 256);
+        if (info.renders_fog)
+            ImGui::TextDisabled("the path tracer renders the fog itself");
+    }
+    if (nacre_scene_particles_count(v->scene) > 0 &&
+        ImGui::CollapsingHeader("particles", ImGuiTreeNodeFlags_DefaultOpen)) {
+        static const char *const draws[] = {"billboards", "sprites", "voxel", nullptr};
+        setting_choice(v, "particles", draws, nacre_particles_draw_name(v->fs.render.particles));
+        ImGui::TextDisabled("the timeline's time moves them");
+    }
 }
 
 void settings_controls(nc_view *v)
@@ -267,6 +346,8 @@ extern "C" void nc_panel_draw(nc_view *v, const uint8_t *rgba, int width, int he
             stage_chart(v);
         light_controls(v);
         material_controls(v);
+        layered_controls(v);
+        media_controls(v);
         settings_controls(v);
         if (v->object != UINT32_MAX)
             ImGui::Text("selected object %u", v->object);

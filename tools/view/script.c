@@ -15,6 +15,11 @@
  *   FRAME method NAME              phong, diffusion, layered, pathtrace
  *   FRAME voxel_res N              diffusion voxel resolution (2..512)
  *   FRAME solver NAME              multigrid, seed
+ *   FRAME set NAME VALUE           a render setting by its scene-file name (nc_view_render_setting):
+ *                                  layered_samples N, layered_epsilon E, layered_integration
+ *                                  analytic|samples, volumetrics off|froxel|raymarch,
+ *                                  froxel_width|froxel_height|froxel_slices N, raymarch_steps N,
+ *                                  shadow_steps N, particles billboards|sprites|voxel
  *   FRAME exposure EV              display and PNG exposure (stops)
  *   FRAME time T                   timeline time (seconds, deformers)
  *   FRAME play | pause             timeline playback (1/30 s per frame in headless runs)
@@ -259,14 +264,20 @@ static bool run_event(const nc_script *s, const nc_script_event *ev, nc_view *v,
             v->playing = cmd[1] == 'l';
         return true;
     }
+    if (strcmp(cmd, "set") == 0) {
+        if (ev->argc != 3)
+            return fail(err, size, s, ev->line, "set: expected a setting and its value (set volumetrics froxel)");
+        return nc_view_render_setting(v, ev->argv[1], ev->argv[2], check) ? true
+                                                                          : fail(err, size, s, ev->line, "%s", v->message);
+    }
     static const char *const one_arg[] = {"method", "solver", "voxel_res", "view", "key", "pick", "resize", NULL};
     bool known = false;
     for (int i = 0; one_arg[i]; i++)
         known = known || strcmp(cmd, one_arg[i]) == 0;
     if (!known)
         return fail(err, size, s, ev->line,
-                    "unknown command '%s' (orbit, pan, zoom, light, material, method, voxel_res, solver, exposure, "
-                    "time, play, pause, view, wipe, pick, key, resize)",
+                    "unknown command '%s' (orbit, pan, zoom, light, material, method, voxel_res, solver, set, "
+                    "exposure, time, play, pause, view, wipe, pick, key, resize)",
                     cmd);
     if (ev->argc != 2 && strcmp(cmd, "pick") && strcmp(cmd, "resize"))
         return fail(err, size, s, ev->line, "%s: expected one argument", cmd);

@@ -97,6 +97,12 @@ bool nc_view_material_preset(nc_view *v, uint32_t material, const char *preset, 
 bool nc_view_material_field(nc_view *v, uint32_t material, const char *field, float value, bool check_only);
 bool nc_view_voxel_resolution(nc_view *v, uint32_t res, bool check_only);
 bool nc_view_solver(nc_view *v, nacre_diffusion_solver solver);
+/* Render settings of the layered method, the volumetric fog and the particles, by the names of
+ * the scene file's render block (docs/scene-format.md): layered_samples, layered_epsilon,
+ * layered_integration, volumetrics, froxel_width, froxel_height, froxel_slices, raymarch_steps,
+ * shadow_steps, particles. `value` is the text as in a script ("froxel", "8", "0.01"); the same
+ * ranges as the scene loader. */
+bool nc_view_render_setting(nc_view *v, const char *name, const char *value, bool check_only);
 void nc_view_set_time(nc_view *v, double time);
 void nc_view_set_mode(nc_view *v, nc_view_mode mode);
 bool nc_view_resize(nc_view *v, int32_t width, int32_t height, bool check_only);

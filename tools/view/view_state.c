@@ -6,6 +6,7 @@
  */
 #include "view.h"
 
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -316,6 +317,79 @@ bool nc_view_solver(nc_view *v, nacre_diffusion_solver solver)
 {
     if (v->fs.render.diffusion.solver != solver) {
         v->fs.render.diffusion.solver = solver;
+        v->need_render = true;
+    }
+    return true;
+}
+
+/* An integer in lo..hi into *out; false with the reason in v->message. */
+static bool setting_uint(nc_view *v, const char *name, const char *text, uint32_t lo, uint32_t hi, uint32_t *out)
+{
+    char *end = NULL;
+    errno = 0;
+    long x = strtol(text, &end, 10);
+    if (errno || end == text || *end || x < (long)lo || x > (long)hi) {
+        snprintf(v->message, sizeof(v->message), "%s '%s': expected an integer in %u..%u", name, text, lo, hi);
+        return false;
+    }
+    *out = (uint32_t)x;
+    return true;
+}
+
+bool nc_view_render_setting(nc_view *v, const char *name, const char *value, bool check_only)
+{
+    nacre_render_settings rs = v->fs.render;
+    nacre_layered_settings *ly = &rs.layered;
+    nacre_volumetrics_settings *vol = &rs.volumetrics;
+    bool ok;
+    if (strcmp(name, "layered_samples") == 0) {
+        ok = setting_uint(v, name, value, 1, 4096, &ly->samples);
+    } else if (strcmp(name, "layered_epsilon") == 0) {
+        char *end = NULL;
+        errno = 0;
+        double e = strtod(value, &end);
+        ok = !errno && end != value && !*end && e > 0.0 && e < 1.0;
+        if (!ok)
+            snprintf(v->message, sizeof(v->message), "layered_epsilon '%s': expected a number in (0, 1)", value);
+        ly->epsilon = (float)e;
+    } else if (strcmp(name, "layered_integration") == 0) {
+        ok = nacre_layered_integration_from_name(value, &ly->integration);
+        if (!ok)
+            snprintf(v->message, sizeof(v->message), "layered_integration '%s': expected analytic or samples", value);
+    } else if (strcmp(name, "volumetrics") == 0) {
+        ok = nacre_volumetrics_from_name(value, &vol->mode);
+        if (!ok)
+            snprintf(v->message, sizeof(v->message), "volumetrics '%s': expected off, froxel or raymarch", value);
+    } else if (strncmp(name, "froxel_", 7) == 0 && (strcmp(name + 7, "width") == 0 ||
+                                                     strcmp(name + 7, "height") == 0 || strcmp(name + 7, "slices") == 0)) {
+        uint32_t *dst = name[7] == 'w' ? &vol->froxel_width : name[7] == 'h' ? &vol->froxel_height : &vol->froxel_slices;
+        ok = setting_uint(v, name, value, 1, 1024, dst);
+        /* The renderer's bound on the grid (docs/scene-format.md), checked here so that a
+         * script line fails before the window opens rather than at the frame. */
+        if (ok && (uint64_t)vol->froxel_width * vol->froxel_height * vol->froxel_slices > (1u << 24)) {
+            snprintf(v->message, sizeof(v->message), "%s %s: the froxel grid %ux%ux%u exceeds 2^24 froxels", name, value,
+                     vol->froxel_width, vol->froxel_height, vol->froxel_slices);
+            ok = false;
+        }
+    } else if (strcmp(name, "raymarch_steps") == 0) {
+        ok = setting_uint(v, name, value, 1, 4096, &vol->raymarch_steps);
+    } else if (strcmp(name, "shadow_steps") == 0) {
+        ok = setting_uint(v, name, value, 1, 256, &vol->shadow_steps);
+    } else if (strcmp(name, "particles") == 0) {
+        ok = nacre_particles_draw_from_name(value, &rs.particles);
+        if (!ok)
+            snprintf(v->message, sizeof(v->message), "particles '%s': expected billboards, sprites or voxel", value);
+    } else {
+        snprintf(v->message, sizeof(v->message),
+                 "unknown setting '%s' (layered_samples, layered_epsilon, layered_integration, volumetrics, "
+                 "froxel_width, froxel_height, froxel_slices, raymarch_steps, shadow_steps, particles)",
+                 name);
+        return false;
+    }
+    if (!ok || check_only)
+        return ok;
+    if (memcmp(&rs, &v->fs.render, sizeof(rs)) != 0) {
+        v->fs.render = rs;
         v->need_render = true;
     }
     return true;
