@@ -292,6 +292,26 @@ nacre_result nc_memory_check(nacre_context *ctx, uint64_t bytes, const char *wha
                    limit_hint);
 }
 
+bool nc_reserve(nacre_context *ctx, void *slot, size_t *capacity, size_t count, size_t size)
+{
+    if (count <= *capacity)
+        return true;
+    if (size && count > SIZE_MAX / size) {
+        nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "out of memory: %zu elements of %zu bytes", count, size);
+        return false;
+    }
+    void *grown = nc_alloc(ctx, count * size);
+    if (!grown)
+        return false;
+    /* The slot holds some T *; its bytes are moved as a void * (same representation). */
+    void *old;
+    memcpy(&old, slot, sizeof(old));
+    nc_free(ctx, old);
+    memcpy(slot, &grown, sizeof(grown));
+    *capacity = count;
+    return true;
+}
+
 void *nc_alloc(nacre_context *ctx, size_t size)
 {
     char a[32], b[32];

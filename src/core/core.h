@@ -57,6 +57,11 @@ void nc_free(nacre_context *ctx, void *ptr);
 /* Grow or shrink: copies min(old_size, new_size) bytes. */
 void *nc_realloc(nacre_context *ctx, void *ptr, size_t old_size, size_t new_size);
 char *nc_strdup(nacre_context *ctx, const char *s);
+/* Scratch that only grows: when `count` elements of `size` bytes exceed *capacity, the pointer
+ * stored at `slot` (a `T **`, passed as void *) is freed and replaced by a new block of that
+ * many, contents not kept. false (OUT_OF_MEMORY recorded) when the block cannot be had; the old
+ * one stays. */
+bool nc_reserve(nacre_context *ctx, void *slot, size_t *capacity, size_t count, size_t size);
 
 /* An estimate made before a large allocation (or a set of them): fails with
  * NACRE_ERROR_OUT_OF_MEMORY, "<what> needs <size>, over the memory limit of <limit> ...", when

@@ -243,14 +243,8 @@ static nacre_result vol_setup(vol_state *st, const nc_post_input *in, uint32_t b
     size_t per = 13u * batch + NC_FOG_EVAL_SCRATCH(batch) + NC_FOG_TAU_SCRATCH(vs->shadow_steps) +
                  3u * (size_t)batch * st->light_count;
     size_t total = per * (size_t)(ctx->threads > 0 ? ctx->threads : 1);
-    if (total > st->scratch_capacity) {
-        float *grown = nc_alloc(ctx, total * sizeof(float));
-        if (!grown)
-            return NACRE_ERROR_OUT_OF_MEMORY;
-        nc_free(ctx, st->scratch);
-        st->scratch = grown;
-        st->scratch_capacity = total;
-    }
+    if (!nc_reserve(ctx, &st->scratch, &st->scratch_capacity, total, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
     st->scratch_per_thread = per;
     return NACRE_OK;
 }
@@ -499,14 +493,8 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
     st->Hc = (st->H + 1) / 2;
     st->Dc = (st->D + 1) / 2;
     size_t nodes = (size_t)st->Wc * st->Hc * st->Dc, need = nodes * 3 * st->light_count;
-    if (need > st->tau_capacity) {
-        float *grown = nc_alloc(ctx, need * sizeof(float));
-        if (!grown)
-            return NACRE_ERROR_OUT_OF_MEMORY;
-        nc_free(ctx, st->tau_grid);
-        st->tau_grid = grown;
-        st->tau_capacity = need;
-    }
+    if (!nc_reserve(ctx, &st->tau_grid, &st->tau_capacity, need, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
     int64_t cols = (int64_t)st->Wc * st->Hc;
 #pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
     for (int64_t cc = 0; cc < cols; cc++) {
@@ -561,14 +549,8 @@ static nacre_result column_depths(vol_state *st, nacre_context *ctx, const float
                                   int threads)
 {
     size_t cols = (size_t)st->W * st->H;
-    if (cols > st->col_capacity) {
-        float *grown = nc_alloc(ctx, cols * sizeof(float));
-        if (!grown)
-            return NACRE_ERROR_OUT_OF_MEMORY;
-        nc_free(ctx, st->col_depth);
-        st->col_depth = grown;
-        st->col_capacity = cols;
-    }
+    if (!nc_reserve(ctx, &st->col_depth, &st->col_capacity, cols, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
     /* One row of columns per iteration: only it writes there, and a maximum does not depend on
      * the order. */
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
