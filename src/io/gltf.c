@@ -1190,6 +1190,39 @@ out:
     return r;
 }
 
+nacre_result nc_gltf_check(nacre_context *ctx, const char *path)
+{
+    nacre_gltf_report report;
+    memset(&report, 0, sizeof(report));
+    gltf_state g = {0};
+    g.ctx = ctx;
+    g.path = path;
+    g.report = &report;
+    char *text = NULL;
+    size_t len = 0;
+    double *buffer_len = NULL;
+    int nb = 0;
+    nacre_result r = read_json(&g, &text, &len);
+    if (r != NACRE_OK)
+        return r;
+    const char *end = NULL;
+    g.root = cJSON_ParseWithLengthOpts(text, len, &end, 0);
+    if (!g.root || !cJSON_IsObject(g.root)) {
+        size_t off = end && end >= text ? (size_t)(end - text) : 0;
+        r = nc_fail(ctx, NACRE_ERROR_PARSE, "%s: malformed glTF JSON (at byte %zu of the JSON)", path, off);
+    } else if ((r = check_buffers(&g, &buffer_len, &nb)) == NACRE_OK &&
+               (r = check_views_accessors(&g, buffer_len, nb)) == NACRE_OK) {
+        r = compute_world(&g);
+    }
+    cJSON_Delete(g.root);
+    nc_free(ctx, text);
+    nc_free(ctx, buffer_len);
+    nc_free(ctx, g.world);
+    nc_free(ctx, g.reached);
+    nc_free(ctx, g.order);
+    return r;
+}
+
 nacre_result nacre_scene_load_gltf(nacre_context *ctx, const char *path, const nacre_gltf_options *options,
                                    nacre_scene **out, nacre_scene_file_settings *settings,
                                    nacre_gltf_report *report)

@@ -15,5 +15,10 @@ nacre_result nc_gltf_import(nacre_scene *scene, const char *path, const nacre_gl
 
 /* Whether a path names a glTF file (.gltf or .glb, any case). */
 bool nc_gltf_is_path(const char *path);
+/* The structure checks the importer runs before assimp sees a glTF (GLB chunks, buffers, views,
+ * accessors against their views, the node tree), for any other reader of the file:
+ * nacre_mesh_load runs them too, since assimp trusts a file's counts (a mutated accessor count
+ * made it ask for 4 GB). */
+nacre_result nc_gltf_check(nacre_context *ctx, const char *path);
 
 #endif

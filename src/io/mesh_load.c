@@ -35,6 +35,7 @@
  */
 #include "core/core.h"
 #include "core/math.h"
+#include "io/gltf.h"
 #include "scene/mesh_private.h"
 
 #include <assimp/cimport.h>
@@ -1107,6 +1108,9 @@ static nacre_result open_scene(nacre_context *ctx, const char *path, load_state 
     if (r != NACRE_OK)
         return r;
 
+    /* A glTF's counts and offsets are checked against its buffers first (nc_gltf_check). */
+    if (nc_gltf_is_path(path) && (r = nc_gltf_check(ctx, path)) != NACRE_OK)
+        return r;
     /* Import without post-processing, check the faces, then triangulate (see check_faces). */
     const struct aiScene *scene = aiImportFile(path, 0);
     if (!scene) {
