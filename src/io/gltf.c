@@ -1126,6 +1126,32 @@ static nacre_result add_objects(gltf_state *g, const nacre_material *materials, 
     return r;
 }
 
+/* The file's JSON (a .glb's JSON chunk), parsed into g->root; *text holds it (free it). */
+static nacre_result parse_json(gltf_state *g, char **text, size_t *len)
+{
+    nacre_result r = read_json(g, text, len);
+    if (r != NACRE_OK)
+        return r;
+    const char *end = NULL;
+    g->root = cJSON_ParseWithLengthOpts(*text, *len, &end, 0);
+    if (!g->root || !cJSON_IsObject(g->root)) {
+        size_t off = end && end >= *text ? (size_t)(end - *text) : 0;
+        return nc_fail(g->ctx, NACRE_ERROR_PARSE, "%s: malformed glTF JSON (at byte %zu of the JSON)", g->path, off);
+    }
+    return NACRE_OK;
+}
+
+/* What must hold before assimp reads the file: buffers, views, accessors, the node tree. */
+static nacre_result check_structure(gltf_state *g, double **buffer_len, int *nb)
+{
+    nacre_result r = check_buffers(g, buffer_len, nb);
+    if (r == NACRE_OK)
+        r = check_views_accessors(g, *buffer_len, *nb);
+    if (r == NACRE_OK)
+        r = compute_world(g);
+    return r;
+}
+
 nacre_result nc_gltf_import(nacre_scene *scene, const char *path, const nacre_gltf_options *options,
                             nacre_gltf_report *report)
 {
@@ -1145,16 +1171,9 @@ nacre_result nc_gltf_import(nacre_scene *scene, const char *path, const nacre_gl
     int nb = 0;
     nacre_material *materials = NULL;
     int material_count = 0;
-    nacre_result r = read_json(&g, &text, &len);
+    nacre_result r = parse_json(&g, &text, &len);
     if (r != NACRE_OK)
-        return r;
-    const char *end = NULL;
-    g.root = cJSON_ParseWithLengthOpts(text, len, &end, 0);
-    if (!g.root || !cJSON_IsObject(g.root)) {
-        size_t off = end && end >= text ? (size_t)(end - text) : 0;
-        r = nc_fail(ctx, NACRE_ERROR_PARSE, "%s: malformed glTF JSON (at byte %zu of the JSON)", path, off);
         goto out;
-    }
     const cJSON *version = get(get(g.root, "asset"), "version");
     if (!cJSON_IsString(version) || version->valuestring[0] != '2') {
         r = nc_fail(ctx, NACRE_ERROR_UNSUPPORTED, "%s: asset.version: %s (nacre reads glTF 2.0)", path,
@@ -1163,8 +1182,7 @@ nacre_result nc_gltf_import(nacre_scene *scene, const char *path, const nacre_gl
     }
     report->meshes = (uint32_t)array_size(get(g.root, "meshes"));
     report->cameras = (uint32_t)array_size(get(g.root, "cameras"));
-    if ((r = check_extensions(&g)) != NACRE_OK || (r = check_buffers(&g, &buffer_len, &nb)) != NACRE_OK ||
-        (r = check_views_accessors(&g, buffer_len, nb)) != NACRE_OK || (r = compute_world(&g)) != NACRE_OK)
+    if ((r = check_extensions(&g)) != NACRE_OK || (r = check_structure(&g, &buffer_len, &nb)) != NACRE_OK)
         goto out;
     if ((r = add_materials(&g, &materials, &material_count)) != NACRE_OK)
         goto out;
@@ -1202,18 +1220,9 @@ nacre_result nc_gltf_check(nacre_context *ctx, const char *path)
     size_t len = 0;
     double *buffer_len = NULL;
     int nb = 0;
-    nacre_result r = read_json(&g, &text, &len);
-    if (r != NACRE_OK)
-        return r;
-    const char *end = NULL;
-    g.root = cJSON_ParseWithLengthOpts(text, len, &end, 0);
-    if (!g.root || !cJSON_IsObject(g.root)) {
-        size_t off = end && end >= text ? (size_t)(end - text) : 0;
-        r = nc_fail(ctx, NACRE_ERROR_PARSE, "%s: malformed glTF JSON (at byte %zu of the JSON)", path, off);
-    } else if ((r = check_buffers(&g, &buffer_len, &nb)) == NACRE_OK &&
-               (r = check_views_accessors(&g, buffer_len, nb)) == NACRE_OK) {
-        r = compute_world(&g);
-    }
+    nacre_result r = parse_json(&g, &text, &len);
+    if (r == NACRE_OK)
+        r = check_structure(&g, &buffer_len, &nb);
     cJSON_Delete(g.root);
     nc_free(ctx, text);
     nc_free(ctx, buffer_len);
