@@ -124,35 +124,24 @@ static nacre_result pp_create(nacre_context *ctx, void **state)
     return NACRE_OK;
 }
 
-static bool grow(nacre_context *ctx, void **p, size_t *cap, size_t n, size_t elem)
-{
-    if (n <= *cap && *p)
-        return true;
-    nc_free(ctx, *p);
-    *p = nc_alloc(ctx, n * elem);
-    *cap = *p ? n : 0;
-    return *p != NULL;
-}
-
 static nacre_result reserve_particles(nacre_context *ctx, pp_state *st, uint32_t n)
 {
     if (n <= st->cap)
         return NACRE_OK;
     size_t c = 0;
     bool ok = true;
-    void **f[] = {(void **)&st->cx, (void **)&st->cy, (void **)&st->cz, (void **)&st->radius, (void **)&st->column,
-                  (void **)&st->dist};
+    float **f[] = {&st->cx, &st->cy, &st->cz, &st->radius, &st->column, &st->dist};
     for (size_t i = 0; i < 6; i++, c = 0)
-        ok = ok && grow(ctx, f[i], &c, n, sizeof(float));
-    ok = ok && grow(ctx, (void **)&st->sys, &c, n, sizeof(uint16_t));
+        ok = ok && nc_reserve(ctx, f[i], &c, n, sizeof(float));
+    ok = ok && nc_reserve(ctx, &st->sys, &c, n, sizeof(uint16_t));
     c = 0;
-    ok = ok && grow(ctx, (void **)&st->rect, &c, 4 * (size_t)n, sizeof(int32_t));
+    ok = ok && nc_reserve(ctx, &st->rect, &c, 4 * (size_t)n, sizeof(int32_t));
     c = 0;
-    ok = ok && grow(ctx, (void **)&st->order, &c, n, sizeof(uint32_t));
+    ok = ok && nc_reserve(ctx, &st->order, &c, n, sizeof(uint32_t));
     c = 0;
-    ok = ok && grow(ctx, (void **)&st->sort_tmp, &c, n, sizeof(uint32_t));
+    ok = ok && nc_reserve(ctx, &st->sort_tmp, &c, n, sizeof(uint32_t));
     c = 0;
-    ok = ok && grow(ctx, (void **)&st->lit, &c, 3 * (size_t)n, sizeof(float));
+    ok = ok && nc_reserve(ctx, &st->lit, &c, 3 * (size_t)n, sizeof(float));
     st->cap = ok ? n : 0;
     return ok ? NACRE_OK : NACRE_ERROR_OUT_OF_MEMORY;
 }
@@ -279,8 +268,8 @@ static nacre_result frame_setup(pp_state *st, const nc_post_input *in, pp_frame 
     fr->ay = Yv[1] - Yv[0], fr->by = Yv[0];
     size_t cap = (size_t)(st->xy_cap > 0 ? st->xy_cap : 0), cap2 = cap;
     int32_t m = fr->w > fr->h ? fr->w : fr->h;
-    if (!grow(in->ctx, (void **)&st->X, &cap, (size_t)m, sizeof(float)) ||
-        !grow(in->ctx, (void **)&st->Y, &cap2, (size_t)m, sizeof(float)))
+    if (!nc_reserve(in->ctx, &st->X, &cap, (size_t)m, sizeof(float)) ||
+        !nc_reserve(in->ctx, &st->Y, &cap2, (size_t)m, sizeof(float)))
         return NACRE_ERROR_OUT_OF_MEMORY;
     st->xy_cap = m;
     for (int32_t x = 0; x < fr->w; x++)
@@ -308,7 +297,7 @@ static nacre_result frame_setup(pp_state *st, const nc_post_input *in, pp_frame 
  * depth buffer read at the image pixel nearest the buffer pixel's centre). */
 static nacre_result make_rays(nacre_context *ctx, pp_state *st, const pp_frame *fr)
 {
-    if (!grow(ctx, (void **)&st->ray, &st->ray_cap, 6 * (size_t)fr->rw * (size_t)fr->rh, sizeof(float)))
+    if (!nc_reserve(ctx, &st->ray, &st->ray_cap, 6 * (size_t)fr->rw * (size_t)fr->rh, sizeof(float)))
         return NACRE_ERROR_OUT_OF_MEMORY;
     for (int32_t ry = 0; ry < fr->rh; ry++)
         for (int32_t rx = 0; rx < fr->rw; rx++) {
@@ -343,7 +332,7 @@ static nacre_result bin(nacre_context *ctx, pp_state *st, const pp_frame *fr, co
 {
     uint32_t nb = ((uint32_t)fr->rh + BAND - 1) / BAND;
     *bands = nb;
-    if (!grow(ctx, (void **)&st->bin_start, &st->bin_start_cap, nb + 1, sizeof(uint32_t)))
+    if (!nc_reserve(ctx, &st->bin_start, &st->bin_start_cap, nb + 1, sizeof(uint32_t)))
         return NACRE_ERROR_OUT_OF_MEMORY;
     memset(st->bin_start, 0, (nb + 1) * sizeof(uint32_t));
     for (uint32_t k = 0; k < st->count; k++) {
@@ -355,7 +344,7 @@ static nacre_result bin(nacre_context *ctx, pp_state *st, const pp_frame *fr, co
     }
     for (uint32_t b = 0; b < nb; b++)
         st->bin_start[b + 1] += st->bin_start[b];
-    if (!grow(ctx, (void **)&st->bins, &st->bin_cap, st->bin_start[nb] + 1, sizeof(uint32_t)))
+    if (!nc_reserve(ctx, &st->bins, &st->bin_cap, st->bin_start[nb] + 1, sizeof(uint32_t)))
         return NACRE_ERROR_OUT_OF_MEMORY;
     for (uint32_t k = 0; k < st->count; k++) {
         uint32_t j = order ? order[k] : k;
@@ -651,7 +640,7 @@ static nacre_result pp_apply(void *state, const nc_post_input *in, nacre_image *
         size_t plane = (size_t)fr.rw * (size_t)fr.rh;
         if ((r = nc_memory_check(in->ctx, 20 * plane * sizeof(float), "particle billboard buffers")) != NACRE_OK)
             return r;
-        if (!grow(in->ctx, (void **)&st->tl, &st->tl_cap, 6 * plane, sizeof(float)))
+        if (!nc_reserve(in->ctx, &st->tl, &st->tl_cap, 6 * plane, sizeof(float)))
             return NACRE_ERROR_OUT_OF_MEMORY;
         if ((r = make_rays(in->ctx, st, &fr)) != NACRE_OK)
             return r;
@@ -679,7 +668,7 @@ static nacre_result pp_apply(void *state, const nc_post_input *in, nacre_image *
                 return r;
             sprites(st, &fr, bands, threads);
         } else {
-            if (!grow(in->ctx, (void **)&st->acc, &st->acc_cap, 8 * plane, sizeof(float)))
+            if (!nc_reserve(in->ctx, &st->acc, &st->acc_cap, 8 * plane, sizeof(float)))
                 return NACRE_ERROR_OUT_OF_MEMORY;
             if ((r = bin(in->ctx, st, &fr, NULL, &bands)) != NACRE_OK)
                 return r;
