@@ -209,12 +209,24 @@ uint64_t nacre_context_memory_peak(const nacre_context *ctx)
     return ctx ? atomic_load_explicit(&ctx->memory_peak, memory_order_relaxed) : 0;
 }
 
+/* Messages quote names and strings from the files they describe, which may hold newlines or
+ * other control characters; the API promises one printable line, so those become '?'. */
+static void one_line(char *msg, size_t cap)
+{
+    for (char *c = msg; *c; c++)
+        if ((unsigned char)*c < 0x20 || *c == 0x7f)
+            *c = '?';
+    if (!msg[0])
+        snprintf(msg, cap, "unspecified error");
+}
+
 nacre_result nc_failv(nacre_context *ctx, nacre_result code, const char *fmt, va_list ap)
 {
     if (!ctx)
         return code;
     char msg[NC_ERROR_MAX];
     vsnprintf(msg, sizeof(msg), fmt, ap);
+    one_line(msg, sizeof(msg));
     pthread_mutex_lock(&ctx->lock);
     nc_error_slot *slot = thread_slot(ctx);
     if (!slot) { /* a free slot, else the least recently written */
@@ -252,6 +264,7 @@ void nc_warn(nacre_context *ctx, const char *fmt, ...)
     va_start(ap, fmt);
     vsnprintf(msg, sizeof(msg), fmt, ap);
     va_end(ap);
+    one_line(msg, sizeof(msg));
     ctx->log_fn(ctx->log_user, NACRE_LOG_WARNING, msg);
 }
 

@@ -305,6 +305,44 @@ static void test_split_and_ignored(void)
     nacre_context_destroy(ctx);
 }
 
+/* Strings quoted from the file (a required extension's name, a buffer's uri) may hold newlines
+ * and other control characters; the error and the warnings stay one printable line. */
+static void test_control_characters(void)
+{
+    static const char *jsons[] = {
+        "{\"asset\":{\"version\":\"2.0\"},\"extensionsRequired\":[\"KHR_x\\nline two\\u0001\"]}",
+        "{\"asset\":{\"version\":\"2.0\"},\"buffers\":[{\"byteLength\":4,\"uri\":\"a\\r\\nb.bin\"}]}",
+        "{\"asset\":{\"version\":\"2.0\"},\"extensionsUsed\":[\"EXT_\\n\\t\"],\"nodes\":[]}",
+    };
+    nacre_context_desc d = {0};
+    d.threads = 2;
+    d.log_fn = count_warning;
+    nacre_context *ctx = NULL;
+    CHECK(nacre_context_create(&d, &ctx) == NACRE_OK);
+    char path[512];
+    snprintf(path, sizeof(path), "%s/control.gltf", TMP);
+    for (size_t i = 0; i < sizeof(jsons) / sizeof(jsons[0]); i++) {
+        FILE *f = fopen(path, "wb");
+        CHECK(f != NULL);
+        if (!f)
+            continue;
+        fputs(jsons[i], f);
+        fclose(f);
+        last_warning[0] = '\0';
+        nacre_scene *s = NULL;
+        CHECK(nacre_scene_load_gltf(ctx, path, NULL, &s, NULL, NULL) != NACRE_OK && s == NULL);
+        const char *msg = nacre_context_last_error(ctx);
+        printf("control %zu: %s | warning: %s\n", i, msg, last_warning);
+        CHECK(msg[0] && strcspn(msg, "\n\r\t\x01") == strlen(msg));
+        CHECK(strcspn(last_warning, "\n\r\t") == strlen(last_warning));
+        nacre_mesh_data m = {0};
+        CHECK(nacre_mesh_load(ctx, path, &m) != NACRE_OK && m.positions == NULL);
+        msg = nacre_context_last_error(ctx);
+        CHECK(msg[0] && strcspn(msg, "\n\r\t\x01") == strlen(msg));
+    }
+    nacre_context_destroy(ctx);
+}
+
 /* "import" with a material override and the file's own lights. */
 static void test_import(void)
 {
@@ -526,6 +564,7 @@ int main(void)
     test_mapping();
     test_misc();
     test_split_and_ignored();
+    test_control_characters();
     test_textured();
     test_import();
     test_malformed_cli();
