@@ -2,7 +2,9 @@
 # `make test`: install dependencies, build with ASan+UBSan, run the whole test suite; then the same
 # for the portable build (no x86-64-v3: the scalar fallbacks of the vector kernels); then the
 # memory-limit checks under `ulimit -v` on the release build (sanitizers cannot run under it);
-# then each libFuzzer target of tests/fuzz for FUZZ_SECONDS (clang, ASan+UBSan). `make fuzz-long`:
+# then each libFuzzer target of tests/fuzz for a fixed number of inputs from a fixed seed and an
+# empty corpus, so that every machine fuzzes about the same inputs (clang, ASan+UBSan; at most
+# FUZZ_TEST_SECONDS each). `make fuzz` fuzzes for FUZZ_SECONDS from a new seed; `make fuzz-long`:
 # the longer fuzzing run for release checks (tests/fuzz/README.md).
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 RELEASE_DIR ?= build/release
@@ -10,6 +12,7 @@ TEST_DIR ?= build/test
 GENERIC_TEST_DIR ?= build/test-generic
 FUZZ_DIR ?= build/fuzz
 FUZZ_SECONDS ?= 20
+FUZZ_TEST_SECONDS ?= 240
 # `make test` fuzzes from a fixed seed so that it is repeatable; `make fuzz` and `make fuzz-long`
 # draw a new seed each run (tests/fuzz/README.md).
 FUZZ_SEED ?= 1
@@ -47,7 +50,9 @@ test: build build-test build-test-generic build-fuzz
 	cd $(TEST_DIR) && ctest --output-on-failure -j $(JOBS)
 	cd $(GENERIC_TEST_DIR) && ctest --output-on-failure -j $(JOBS)
 	bash tests/limits.sh $(RELEASE_DIR)/nacre
-	NACRE_FUZZ_FLAGS="-seed=$(FUZZ_SEED) $(NACRE_FUZZ_FLAGS)" bash tests/fuzz/run.sh $(FUZZ_DIR) $(FUZZ_SECONDS)
+	rm -rf $(FUZZ_DIR)/fuzz-test
+	NACRE_FUZZ_FIXED=1 NACRE_FUZZ_WORK=$(FUZZ_DIR)/fuzz-test NACRE_FUZZ_FLAGS="-seed=$(FUZZ_SEED) $(NACRE_FUZZ_FLAGS)" \
+		bash tests/fuzz/run.sh $(FUZZ_DIR) $(FUZZ_TEST_SECONDS)
 
 fuzz: build-fuzz
 	bash tests/fuzz/run.sh $(FUZZ_DIR) $(FUZZ_SECONDS)

@@ -9,7 +9,10 @@
 # coverage grows from run to run without touching the source tree. Crash inputs land in
 # BUILD_DIR/fuzz-work/<target>/artifacts/, the output in BUILD_DIR/fuzz-work/<target>/log.
 # Extra libFuzzer flags can come from NACRE_FUZZ_FLAGS (e.g. "-jobs=2 -workers=2"), another
-# work folder from NACRE_FUZZ_WORK.
+# work folder from NACRE_FUZZ_WORK. NACRE_FUZZ_FIXED=1 runs each target for a fixed number of
+# inputs (runs_for below) instead of until SECONDS, which then only bounds the time: with a
+# fixed -seed and an empty work folder, every machine then tries nearly the same inputs (threads
+# make coverage, and so the mutations kept, differ slightly from run to run).
 set -uo pipefail
 
 if [ $# -lt 2 ]; then
@@ -33,6 +36,15 @@ max_len() {
     esac
 }
 
+# Inputs per target under NACRE_FUZZ_FIXED: about 20 s each on an idle 2-core machine (the mesh
+# target goes through assimp, two orders of magnitude slower per input than the others).
+runs_for() {
+    case $1 in
+    mesh) echo 4000 ;;
+    *) echo 100000 ;;
+    esac
+}
+
 work=${NACRE_FUZZ_WORK:-$build/fuzz-work}
 mkdir -p "$work/tmp"
 export NACRE_FUZZ_TMP=$work/tmp
@@ -50,13 +62,15 @@ for t in "${targets[@]}"; do
     mkdir -p "$work/$t/corpus" "$work/$t/artifacts"
     dict=()
     [ -f "$src/$t.dict" ] && dict=(-dict="$src/$t.dict")
+    runs=()
+    [ -n "${NACRE_FUZZ_FIXED:-}" ] && runs=(-runs="$(runs_for "$t")")
     start=$(date +%s)
     # rss_limit_mb / malloc_limit_mb: no input may make the library hold or ask for more than
     # this (the loaders' size checks are what is being tested); timeout: one input, seconds.
     # shellcheck disable=SC2086
     "$exe" -max_total_time="$seconds" -max_len="$(max_len "$t")" -timeout=10 \
         -rss_limit_mb=2048 -malloc_limit_mb=1024 -print_final_stats=1 \
-        -artifact_prefix="$work/$t/artifacts/" "${dict[@]}" ${NACRE_FUZZ_FLAGS:-} \
+        -artifact_prefix="$work/$t/artifacts/" "${dict[@]}" "${runs[@]}" ${NACRE_FUZZ_FLAGS:-} \
         "$work/$t/corpus" "$src/corpus/$t" >"$work/$t/log" 2>&1
     rc=$?
     stats=$(grep -E '^stat::number_of_executed_units|^stat::new_units_added' "$work/$t/log" |
