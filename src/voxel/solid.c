@@ -98,7 +98,7 @@ void nc_voxel_parity_triangle(uint64_t *flip, const bitset *bs, const double v[3
         double y = j + 0.5;
         for (int i = (int)ia0; i <= (int)ia1; i++) {
             double x = i + 0.5;
-            if (!(edge_owns(&e0, a, b, x, y) & edge_owns(&e1, a, b, x, y) & edge_owns(&e2, a, b, x, y)))
+            if (!((int)edge_owns(&e0, a, b, x, y) & (int)edge_owns(&e1, a, b, x, y) & (int)edge_owns(&e2, a, b, x, y)))
                 continue;
             double zc = v[0][c] + ga * (x - v[0][a]) + gb * (y - v[0][b]);
             /* First voxel whose centre k + 0.5 lies strictly above the crossing. */
