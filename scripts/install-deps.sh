@@ -3,7 +3,7 @@
 # is missing; through sudo when not root. If it cannot install, it names the packages.
 set -euo pipefail
 
-packages=(build-essential cmake pkg-config libcjson-dev libspng-dev libopenexr-dev libassimp-dev zlib1g-dev libembree-dev)
+packages=(build-essential cmake pkg-config libcjson-dev libspng-dev libopenexr-dev libassimp-dev libstb-dev zlib1g-dev libembree-dev)
 # The fuzz targets (tests/fuzz): clang with libFuzzer (libclang-rt-dev), clang's OpenMP runtime
 # (libomp-dev), llvm-symbolizer for readable sanitizer stacks (llvm). The unversioned packages
 # follow Debian's default clang, so compiler and runtimes always match.

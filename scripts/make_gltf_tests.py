@@ -14,7 +14,8 @@ gltf_demo.glb      examples/demo.json as glTF: the same shapes (nacre's generato
                    overrides jade and marble with the presets (glTF has no scattering)
 gltf_textured.glb  two quads under an orthographic camera and a sun: one with a base colour
                    texture (an 8x8 sRGB PNG in the GLB's BIN chunk) times baseColorFactor, one
-                   whose texture is a JPEG (nacre warns and ignores it: only its factor shows)
+                   whose texture is the same texels as a JPEG (written by Debian libstb's
+                   stbi_write_jpg at quality 100, no chroma subsampling)
 gltf_textured.gltf the textured quad alone, its image a file beside it (gltf_textured.png) and its
                    buffer a data: URI
 gltf_textured.json both as a nacre scene file: PLY quads with uvs, "diffuse_map" on the PNG
@@ -429,9 +430,22 @@ def texture_rows():
     return [[(32 * i + 16, 255 - 30 * j, 200 if (i + j) % 2 else 40) for i in range(TEX_N)] for j in range(TEX_N)]
 
 
+def jpeg_rgb(w, h, rows):
+    """A JPEG of rows of (r, g, b) bytes, by libstb (libstb-dev, a build dependency of nacre)."""
+    import ctypes
+    import tempfile
+    lib = ctypes.CDLL("libstb.so")
+    data = bytes(c for row in rows for px in row for c in px)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "t.jpg")
+        if not lib.stbi_write_jpg(path.encode(), w, h, 3, data, 100):
+            raise RuntimeError("stbi_write_jpg failed")
+        return open(path, "rb").read()
+
+
 def write_textured():
     png = png_rgb(TEX_N, TEX_N, texture_rows())
-    jpeg = b"\xff\xd8\xff\xe0\x00\x10JFIF\x00\x01\x01\x00\x00\x01\x00\x01\x00\x00\xff\xd9"
+    jpeg = jpeg_rgb(TEX_N, TEX_N, texture_rows())
     cam = {"name": "top", "camera": 0, "translation": [0.55, 2.0, 0.0],
            "rotation": quat_look([0, -1, 0], [0, 0, -1])}
     sun = {"name": "sun", "rotation": quat_look([-0.3, -1.0, -0.2], [0, 1, 0]),
@@ -479,6 +493,7 @@ def write_textured():
     doc2["buffers"] = [{"byteLength": len(b2.bin),
                         "uri": "data:application/octet-stream;base64," + base64.b64encode(bytes(b2.bin)).decode()}]
     open(os.path.join(OUT, "gltf_textured.png"), "wb").write(png)
+    open(os.path.join(OUT, "gltf_textured.jpg"), "wb").write(jpeg)
     open(os.path.join(OUT, "gltf_textured.gltf"), "w").write(json.dumps(doc2, separators=(",", ":")))
 
     # The same as a nacre scene: roughness 0.5 -> shininess 2 / 0.25^2 - 2 = 30, F0 0.04
@@ -493,7 +508,8 @@ def write_textured():
                    "up": [0, 0, -1], "height": 1.1, "near": 0.1, "far": 10},
         "materials": {"textured": {"type": "opaque", "diffuse": TEX_FACTOR, "specular": 0.04, "shininess": 30,
                                    "diffuse_map": "gltf_textured.png"},
-                      "jpeg": {"type": "opaque", "diffuse": JPEG_FACTOR, "specular": 0.04, "shininess": 30}},
+                      "jpeg": {"type": "opaque", "diffuse": JPEG_FACTOR, "specular": 0.04, "shininess": 30,
+                               "diffuse_map": "gltf_textured.jpg"}},
         "lights": [{"type": "directional", "direction": sun_dir, "irradiance": 2.0}],
         "objects": [{"name": "textured", "mesh": "gltf_textured_quad.ply", "material": "textured"},
                     {"name": "jpeg", "mesh": "gltf_textured_jpeg.ply", "material": "jpeg"}],

@@ -76,10 +76,10 @@ NACRE_API nacre_result nacre_image_write_data(nacre_context *ctx, const nacre_im
 /* Pixels with a NaN or infinite channel; the first one (row-major) in *x, *y and its channel in
  * *c when there is one (any pointer may be NULL). 0 for a NULL image. */
 NACRE_API uint64_t nacre_image_count_nonfinite(const nacre_image *image, int32_t *x, int32_t *y, int32_t *c);
-/* Read .png (sRGB decoded to linear, 8 or 16 bit) or .exr (R, G, B and A if present). The
- * result has 3 or 4 channels. */
+/* Read .png (sRGB decoded to linear, 8 or 16 bit), .jpg/.jpeg (sRGB decoded, 3 channels) or
+ * .exr (R, G, B and A if present). The result has 3 or 4 channels. */
 NACRE_API nacre_result nacre_image_read(nacre_context *ctx, const char *path, nacre_image *out);
-/* As nacre_image_read, but PNG samples are read as data (value / 255 or / 65535, no sRGB
+/* As nacre_image_read, but PNG and JPEG samples are read as data (value / 255 or / 65535, no sRGB
  * decoding): for depth maps and other non-colour images. */
 NACRE_API nacre_result nacre_image_read_data(nacre_context *ctx, const char *path, nacre_image *out);
 /* Compare `test` against `reference` (same size and channel count). */

@@ -807,9 +807,9 @@ static unsigned char *image_bytes(gltf_state *g, int i, size_t *size, char **pat
     return b;
 }
 
-/* The scene texture of material `mi`'s pbrMetallicRoughness.baseColorTexture (sRGB PNG decoded to
- * linear), in *out; id 0 when it has none or it cannot be used here, which is warned about (a
- * JPEG, which nacre does not decode; texCoord other than 0, nacre keeps TEXCOORD_0 only). */
+/* The scene texture of material `mi`'s pbrMetallicRoughness.baseColorTexture (sRGB PNG or JPEG
+ * decoded to linear), in *out; id 0 when it has none or it cannot be used here, which is warned
+ * about (another image format; texCoord other than 0, nacre keeps TEXCOORD_0 only). */
 static nacre_result base_color_texture(gltf_state *g, const cJSON *m, int mi, nacre_texture *out)
 {
     out->id = 0;
@@ -853,15 +853,17 @@ static nacre_result base_color_texture(gltf_state *g, const cJSON *m, int mi, na
     }
     static const unsigned char png_sig[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
     nacre_result r = NACRE_OK;
-    if (size < 8 || memcmp(bytes, png_sig, 8) != 0) {
-        bool jpeg = size >= 3 && bytes[0] == 0xFF && bytes[1] == 0xD8 && bytes[2] == 0xFF;
-        nc_warn(g->ctx, "%s: images[%d]: %s; the base colour texture of materials[%d] was ignored", g->path, ii,
-                jpeg ? "a JPEG image, which nacre does not decode" : "not a PNG image", mi);
+    bool png = size >= 8 && memcmp(bytes, png_sig, 8) == 0;
+    bool jpeg = size >= 3 && bytes[0] == 0xFF && bytes[1] == 0xD8 && bytes[2] == 0xFF;
+    if (!png && !jpeg) {
+        nc_warn(g->ctx, "%s: images[%d]: neither PNG nor JPEG; the base colour texture of materials[%d] was ignored",
+                g->path, ii, mi);
     } else {
         char name[600];
         snprintf(name, sizeof(name), "%s: images[%d]", g->path, ii);
         nacre_image img = {0};
-        r = nc_image_read_png_memory(g->ctx, name, bytes, size, true, &img);
+        r = png ? nc_image_read_png_memory(g->ctx, name, bytes, size, true, &img)
+                : nc_image_read_jpeg_memory(g->ctx, name, bytes, size, true, &img);
         if (r == NACRE_OK)
             r = nacre_scene_add_texture(g->scene, &img, out);
         nacre_image_free(g->ctx, &img);

@@ -145,7 +145,7 @@ nacre_result nc_image_check_file_size(nacre_context *ctx, const char *path, int6
 /* Dispatch by extension                                                                      */
 /* ------------------------------------------------------------------------------------------ */
 
-typedef enum image_format { FORMAT_UNKNOWN, FORMAT_PNG, FORMAT_EXR } image_format;
+typedef enum image_format { FORMAT_UNKNOWN, FORMAT_PNG, FORMAT_EXR, FORMAT_JPEG } image_format;
 
 /* ASCII-only, so the locale cannot change what counts as ".PNG". */
 static bool ext_equal(const char *ext, const char *lower)
@@ -171,6 +171,8 @@ static image_format format_of(const char *path)
         return FORMAT_PNG;
     if (ext_equal(dot + 1, "exr"))
         return FORMAT_EXR;
+    if (ext_equal(dot + 1, "jpg") || ext_equal(dot + 1, "jpeg"))
+        return FORMAT_JPEG;
     return FORMAT_UNKNOWN;
 }
 
@@ -189,6 +191,8 @@ nacre_result nacre_image_write(nacre_context *ctx, const nacre_image *image, con
         return nc_image_write_png(ctx, image, path, opt.exposure);
     case FORMAT_EXR:
         return nc_image_write_exr(ctx, image, path, opt.exr_type);
+    case FORMAT_JPEG:
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: nacre reads JPEG but writes PNG or EXR", path);
     case FORMAT_UNKNOWN:
         break;
     }
@@ -210,11 +214,13 @@ static nacre_result image_read(nacre_context *ctx, const char *path, bool srgb, 
         return nc_image_read_png(ctx, path, srgb, out);
     case FORMAT_EXR:
         return nc_image_read_exr(ctx, path, out);
+    case FORMAT_JPEG:
+        return nc_image_read_jpeg(ctx, path, srgb, out);
     case FORMAT_UNKNOWN:
         break;
     }
     return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
-                   "%s: unknown image extension (use .png or .exr)", path);
+                   "%s: unknown image extension (use .png, .exr, .jpg or .jpeg)", path);
 }
 
 nacre_result nacre_image_read(nacre_context *ctx, const char *path, nacre_image *out)

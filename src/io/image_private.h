@@ -82,5 +82,9 @@ nacre_result nc_image_read_png(nacre_context *ctx, const char *path, bool srgb, 
 nacre_result nc_image_read_png_memory(nacre_context *ctx, const char *name, const void *bytes, size_t size, bool srgb,
                                       nacre_image *out);
 nacre_result nc_image_read_exr(nacre_context *ctx, const char *path, nacre_image *out);
+/* JPEG (image_jpeg.c): 3 channels, srgb as for PNG; from a file or from bytes in memory. */
+nacre_result nc_image_read_jpeg(nacre_context *ctx, const char *path, bool srgb, nacre_image *out);
+nacre_result nc_image_read_jpeg_memory(nacre_context *ctx, const char *name, const void *bytes, size_t size,
+                                       bool srgb, nacre_image *out);
 
 #endif /* NACRE_IMAGE_PRIVATE_H */

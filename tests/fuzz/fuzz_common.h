@@ -93,11 +93,13 @@ static inline bool fuzz_starts_with(const uint8_t *data, size_t size, const char
     return size >= n && memcmp(data, magic, n) == 0;
 }
 
-/* The image readers choose their decoder by extension: PNG by its signature, anything else is
- * given to the EXR reader (whose magic the mutations may just as well break). */
+/* The image readers choose their decoder by extension: PNG and JPEG by their signatures, anything
+ * else is given to the EXR reader (whose magic the mutations may just as well break). */
 static inline const char *fuzz_image_extension(const uint8_t *data, size_t size)
 {
-    return fuzz_starts_with(data, size, "\x89PNG", 4) ? "png" : "exr";
+    if (fuzz_starts_with(data, size, "\x89PNG", 4))
+        return "png";
+    return fuzz_starts_with(data, size, "\xFF\xD8\xFF", 3) ? "jpg" : "exr";
 }
 
 

@@ -1,8 +1,8 @@
 /*
  * fuzz_image.c: libFuzzer target for the image reader (nacre_image_read: PNG through libspng
- * with sRGB decoding, EXR through OpenEXRCore). The reader picks its decoder by extension, so the
- * input goes to a per-process temporary file named .png when it starts with the PNG signature and
- * .exr otherwise. An image that loads must have a sane shape and every pixel is read (ASan then
+ * and JPEG through stb_image with sRGB decoding, EXR through OpenEXRCore). The reader picks its
+ * decoder by extension, so the input goes to a per-process temporary file named .png or .jpg
+ * when it starts with that format's signature and .exr otherwise. An image that loads must have a sane shape and every pixel is read (ASan then
  * catches a buffer smaller than the shape says); a failure must leave the image empty with one
  * line of message.
  */

@@ -7,7 +7,8 @@ the files written here start with "gen-" and are tiny on purpose, so that mutati
 part of a file instead of spending themselves on pixel or vertex data:
 
   mesh       ASCII PLY with normals, uvs and a quad; binary PLY in both byte orders; a GLB
-  image      PNG 8-bit RGBA, 16-bit RGB, grey+alpha, palette with tRNS; EXR half RGBA and float
+  image      PNG 8-bit RGBA, 16-bit RGB, grey+alpha, palette with tRNS; JPEG colour (4:4:4) and
+             grey (libstb's encoder); EXR half RGBA and float
              RGB uncompressed, half RGB ZIP-compressed, luminance Y
   nrrd       uint8 with "spacings", 4D big-endian float with a channel axis, int16 with
              "byte skip", double with space origin and directions
@@ -130,6 +131,19 @@ HALF, FLOAT = 1, 2
 NO_COMPRESSION, ZIPS_COMPRESSION = 0, 2
 
 
+def jpeg(w, h, comp, quality, f):
+    """A JPEG by Debian libstb's stbi_write_jpg (libstb-dev is a build dependency of nacre)."""
+    import ctypes
+    import tempfile
+    lib = ctypes.CDLL("libstb.so")
+    data = bytes(c for y in range(h) for x in range(w) for c in f(x, y)[:comp])
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "t.jpg")
+        if not lib.stbi_write_jpg(path.encode(), w, h, comp, data, quality):
+            raise RuntimeError("stbi_write_jpg failed")
+        return open(path, "rb").read()
+
+
 def exr_attr(name, kind, value):
     return name.encode() + b"\0" + kind.encode() + b"\0" + struct.pack("<i", len(value)) + value
 
@@ -199,6 +213,8 @@ def main():
     put("image", "gen-rgb16.png", png_rgb16(3, 2, lambda x, y: (x * 20000, y * 30000, 65535)))
     put("image", "gen-grey-alpha.png", png_grey_alpha(3, 3))
     put("image", "gen-palette.png", png_palette(4, 2))
+    put("image", "gen-rgb.jpg", jpeg(9, 8, 3, 100, lambda x, y: (x * 28, y * 30, 128)))
+    put("image", "gen-grey.jpg", jpeg(16, 8, 1, 50, lambda x, y: ((x * 16 + y * 8) % 256,)))
     put("image", "gen-half-rgba.exr", exr(4, 3, "RGBA", HALF, NO_COMPRESSION, colour))
     put("image", "gen-float-rgb.exr", exr(3, 2, "RGB", FLOAT, NO_COMPRESSION, colour))
     put("image", "gen-half-rgb-zip.exr", exr(8, 2, "RGB", HALF, ZIPS_COMPRESSION, colour))

@@ -769,6 +769,74 @@ static void test_bad_files(nacre_context *ctx)
     CHECK(strstr(nacre_context_last_error(ctx), "out of range") != NULL);
 }
 
+/* JPEG: tests/data/gltf_textured.jpg holds the texels of gltf_textured.png (scripts/
+ * make_gltf_tests.py, quality 100, no chroma subsampling), so the lossless PNG is the reference;
+ * as data the samples are code / 255; broken files fail with one line naming the path. */
+static void test_jpeg(nacre_context *ctx)
+{
+    const char *jpg_path = NACRE_SOURCE_DIR "/tests/data/gltf_textured.jpg";
+    nacre_image jpg = {0}, png = {0}, data = {0};
+    CHECK(nacre_image_read(ctx, jpg_path, &jpg) == NACRE_OK);
+    CHECK(nacre_image_read(ctx, NACRE_SOURCE_DIR "/tests/data/gltf_textured.png", &png) == NACRE_OK);
+    CHECK(nacre_image_read_data(ctx, jpg_path, &data) == NACRE_OK);
+    CHECK(jpg.width == 8 && jpg.height == 8 && jpg.channels == 3 && jpg.stride == 24);
+    if (jpg.pixels && png.pixels && data.pixels && png.width == 8 && png.height == 8 && png.channels == 3) {
+        double worst = 0, worst_data = 0;
+        for (size_t i = 0; i < 8 * 8 * 3; i++) {
+            worst = fmax(worst, fabs(nc_linear_to_srgb(jpg.pixels[i]) - nc_linear_to_srgb(png.pixels[i])));
+            worst_data = fmax(worst_data, fabs(nc_linear_to_srgb(jpg.pixels[i]) - data.pixels[i]));
+        }
+        printf("JPEG: largest difference to the PNG %.4f, sRGB read against data read %.2g\n", worst, worst_data);
+        CHECK(worst < 4.0 / 255.0);
+        CHECK(worst_data < 1e-5);
+    }
+    nacre_image_free(ctx, &jpg);
+    nacre_image_free(ctx, &png);
+    nacre_image_free(ctx, &data);
+
+    char path[512];
+    CHECK(copy_prefix(jpg_path, tpath(path, "truncated_header.jpg"), 100));
+    expect_read_error(ctx, path, NACRE_ERROR_PARSE);
+    CHECK(copy_prefix(jpg_path, tpath(path, "three_bytes.jpeg"), 3));
+    expect_read_error(ctx, path, NACRE_ERROR_PARSE);
+    unsigned char garbage[512];
+    uint32_t s = 5;
+    for (size_t i = 0; i < sizeof(garbage); i++)
+        garbage[i] = (unsigned char)(rng_next(&s) & 0xff);
+    write_bytes(tpath(path, "garbage.jpg"), garbage, sizeof(garbage));
+    expect_read_error(ctx, path, NACRE_ERROR_PARSE);
+    CHECK(strstr(nacre_context_last_error(ctx), "not a JPEG") != NULL);
+    write_bytes(tpath(path, "empty.JPG"), "", 0);
+    expect_read_error(ctx, path, NACRE_ERROR_PARSE);
+    /* The frame header claiming 16000 x 16000 pixels in a file of under 1 KB is refused before
+     * anything is decoded. */
+    FILE *fp = fopen(jpg_path, "rb");
+    unsigned char buf[4096];
+    size_t n = fp ? fread(buf, 1, sizeof(buf), fp) : 0;
+    if (fp)
+        fclose(fp);
+    size_t sof = 0;
+    for (size_t i = 2; i + 9 < n && !sof; i++)
+        if (buf[i] == 0xFF && buf[i + 1] == 0xC0)
+            sof = i;
+    CHECK(sof != 0);
+    if (sof) {
+        buf[sof + 5] = buf[sof + 7] = 16000 >> 8;
+        buf[sof + 6] = buf[sof + 8] = 16000 & 0xff;
+        write_bytes(tpath(path, "huge.jpg"), buf, n);
+        expect_read_error(ctx, path, NACRE_ERROR_PARSE);
+        printf("huge JPEG: %s\n", nacre_context_last_error(ctx));
+        CHECK(strstr(nacre_context_last_error(ctx), "more than its") != NULL);
+    }
+    /* nacre reads JPEG, it does not write it */
+    nacre_image img = make_image(ctx, 4, 4, 3, 0);
+    CHECK(nacre_image_write(ctx, &img, tpath(path, "out.jpg"), NULL) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(nacre_context_last_error(ctx), "writes PNG or EXR") != NULL);
+    struct stat st;
+    CHECK(stat(path, &st) != 0);
+    free(img.pixels);
+}
+
 static int64_t write_at(exr_const_context_t exr, void *user, const void *buffer, uint64_t size,
                         uint64_t offset, exr_stream_error_func_ptr_t error_cb)
 {
@@ -1198,6 +1266,7 @@ int main(void)
     test_png_alpha_and_grey(ctx);
     test_png_16bit(ctx);
     test_bad_files(ctx);
+    test_jpeg(ctx);
     test_exr_huge_header(ctx);
     test_header_vs_file_size(ctx);
     test_write_failures(ctx);
