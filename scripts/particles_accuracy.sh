@@ -1,7 +1,9 @@
 #!/bin/sh
-# The particle passes (billboards, sprites) against the path tracer on examples/particles.json
-# at 320x240 (docs/accuracy.md, "Particles"). Needs the release build (build/release). Writes its
-# images to ${OUT:-/tmp/nacre_particles}. The two path-traced references take minutes.
+# The particle passes (billboards, sprites) and the density grid they splat into (--particles
+# voxel, drawn by the froxel and the ray-marched volumetrics) against the path tracer on
+# examples/particles.json at 320x240 (docs/accuracy.md, "Particles"). Needs the release build (build/release). Writes its
+# images to ${OUT:-/tmp/nacre_particles}. The two path-traced references take minutes;
+# KEEP_REFS=1 reuses those already in OUT.
 set -e
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 NACRE="$ROOT/build/release/nacre"
@@ -17,12 +19,18 @@ python3 -c 'import json, sys; d = json.load(open(sys.argv[1])); del d["particles
 for m in billboards sprites; do
     "$NACRE" render "$ROOT/examples/particles.json" --method phong --particles $m --size 320x240 -o "$OUT/$m.exr"
 done
-"$NACRE" render "$ROOT/examples/particles.json" --method pathtrace --spp "$SPP" --seed 3 --size 320x240 -o "$OUT/ref.exr"
-"$NACRE" render "$ROOT/examples/particles.json" --method pathtrace --spp "$SPP" --seed 3 --max-scatter 1 \
-    --size 320x240 -o "$OUT/ref_single.exr"
+for v in froxel raymarch; do
+    "$NACRE" render "$ROOT/examples/particles.json" --method phong --particles voxel --volumetrics $v \
+        --size 320x240 -o "$OUT/voxel_$v.exr"
+done
+[ -f "$OUT/ref.exr" ] && [ -n "${KEEP_REFS:-}" ] ||
+    "$NACRE" render "$ROOT/examples/particles.json" --method pathtrace --spp "$SPP" --seed 3 --size 320x240 -o "$OUT/ref.exr"
+[ -f "$OUT/ref_single.exr" ] && [ -n "${KEEP_REFS:-}" ] ||
+    "$NACRE" render "$ROOT/examples/particles.json" --method pathtrace --spp "$SPP" --seed 3 --max-scatter 1 \
+        --size 320x240 -o "$OUT/ref_single.exr"
 for ref in ref ref_single; do
-    for m in billboards sprites; do
-        printf '%-10s vs %-10s ' "$m" "$ref"
+    for m in billboards sprites voxel_froxel voxel_raymarch; do
+        printf '%-14s vs %-10s ' "$m" "$ref"
         "$OUT/masked_compare" "$OUT/$m.exr" "$OUT/$ref.exr" "$OUT/bg.exr" "$OUT/billboards.exr" "$OUT/sprites.exr"
     done
 done

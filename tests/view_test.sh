@@ -50,6 +50,7 @@ check_bad "2 light 3 direction 0 -1 0" "the scene has 1 light"
 check_bad "2 material 9 g 0.2" "the scene has 3 materials"
 check_bad "2 material 0 g 1.5" "g: must be in"
 check_bad "2 material 0 preset unobtainium" "unknown material preset"
+check_bad "2 material 0 layer0_depth 1" "layer0_depth: material 0 has 0 layer(s)"
 check_bad "2 method froxel" "expected phong, diffusion, layered or pathtrace"
 check_bad "9 orbit 1 1" "past the run's last frame"
 check_bad "3 key F13" "unknown key"
@@ -107,9 +108,9 @@ same_as_render() { # NAME: view_NAME.png against nacre render of saved_NAME.json
 }
 saved_setting() { grep -o "\"$2\":[^,}]*" "$tmp/saved_$1.json" | head -1 | cut -d: -f2 | tr -d ' \t"'; }
 
-# layered.json opens with the path tracer; frame 1 switches to layered, 2-3 set its settings
-# (the planes refit only for epsilon), 4 orbits.
-printf '1 method layered\n2 set layered_samples 8\n3 set layered_integration samples\n3 set layered_epsilon 0.02\n4 orbit 10 0\n' \
+# layered.json opens with the path tracer; frame 1 switches to layered, 2-3 set its settings and
+# deepen layer 1 (the planes refit only for epsilon), 4 orbits.
+printf '1 method layered\n2 set layered_samples 8\n3 set layered_integration samples\n3 set layered_epsilon 0.02\n3 material 0 layer1_depth 0.9\n4 orbit 10 0\n' \
     >"$tmp/layered.txt"
 out=$(windowed "$examples/layered.json" --size 160x120 --frames 5 --script "$tmp/layered.txt" \
     --screenshot "$tmp/view_layered.png" --save-scene "$tmp/saved_layered.json" --threads 2) || fail "layered run failed: $out"
@@ -118,6 +119,7 @@ grep -q '"method":"layered"' <<<"$out" && [ "$(json_int "$out" planes)" = 2 ] &&
     fail "layered: method or stage_runs in '$out'"
 [ "$(saved_setting layered method)" = layered ] && [ "$(saved_setting layered layered_samples)" = 8 ] &&
     [ "$(saved_setting layered layered_integration)" = samples ] || fail "layered: the saved render block"
+grep -Eq '"depth":[[:space:]]*0\.9([,}[:space:]]|$)' "$tmp/saved_layered.json" || fail "layered: layer 1's edited depth is not in the saved scene"
 same_as_render layered
 
 # volumetrics.json opens with froxels: off (the analytic pass), raymarch, then froxel with a

@@ -13,6 +13,7 @@
 #include <backends/imgui_impl_sdl.h>
 #include <imgui.h>
 
+#include <math.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <string.h>
@@ -167,6 +168,19 @@ void material_controls(nc_view *v)
     x = m->base.eta;
     if (ImGui::SliderFloat("eta", &x, 1.0f, 2.5f))
         nc_view_material_field(v, v->material, "eta", x, false);
+    /* Layer depths (seed 001's layer thicknesses; with a depth map, the scale of its channel):
+     * the slider spans 0 to 4x the deepest loaded layer, so a preset's range stays usable. */
+    float deepest = 0.0f;
+    for (uint32_t k = 0; k < m->base.layering.count; k++)
+        deepest = fmaxf(deepest, m->layer_depth_loaded[k]);
+    for (uint32_t k = 0; k < m->base.layering.count; k++) {
+        char label[32], field[32];
+        snprintf(label, sizeof(label), "layer %u depth", k);
+        snprintf(field, sizeof(field), "layer%u_depth", k);
+        x = m->base.layering.layers[k].depth;
+        if (ImGui::SliderFloat(label, &x, 0.0f, deepest > 0.0f ? 4.0f * deepest : 1.0f, "%.3g"))
+            nc_view_material_field(v, v->material, field, x, false);
+    }
 }
 
 /* An integer render setting through nc_view_render_setting, applied when the slider is

@@ -31,6 +31,7 @@ typedef struct nc_view_material {
     nacre_material_desc base;
     float sigma_a_scale, sigma_s_scale;
     int preset; /* index in nc_view_presets, -1: as loaded */
+    float layer_depth_loaded[NACRE_MAX_LAYERS]; /* as loaded or as the preset: the panel's range */
 } nc_view_material;
 
 typedef struct nc_view {

@@ -255,6 +255,8 @@ bool nc_view_material_preset(nc_view *v, uint32_t material, const char *preset, 
         m->base = old;
         return false;
     }
+    for (uint32_t k = 0; k < NACRE_MAX_LAYERS; k++)
+        m->layer_depth_loaded[k] = d.layering.layers[k].depth;
     return true;
 }
 
@@ -285,8 +287,21 @@ bool nc_view_material_field(nc_view *v, uint32_t material, const char *field, fl
             return false;
         }
         m->base.eta = value;
+    } else if (strncmp(field, "layer", 5) == 0 && field[5] >= '0' && field[5] <= '9' &&
+               strcmp(field + 6, "_depth") == 0) {
+        uint32_t k = (uint32_t)(field[5] - '0');
+        if (k >= m->base.layering.count) {
+            snprintf(v->message, sizeof(v->message), "%s: material %u has %u layer(s)", field, material,
+                     m->base.layering.count);
+            return false;
+        }
+        if (!(value >= 0.0f) || !isfinite(value)) {
+            note(v, "%s: must be a finite depth >= 0 (scene units)", field);
+            return false;
+        }
+        m->base.layering.layers[k].depth = value;
     } else {
-        note(v, "unknown material field '%s' (sigma_a_scale, sigma_s_scale, g, eta)", field);
+        note(v, "unknown material field '%s' (sigma_a_scale, sigma_s_scale, g, eta, layerK_depth)", field);
         return false;
     }
     if (check_only) {
@@ -512,6 +527,8 @@ bool nc_view_init(nc_view *v, nacre_context *ctx, nacre_scene *scene, const nacr
         nacre_scene_get_material(scene, (nacre_material){i + 1}, &v->materials[i].base);
         v->materials[i].sigma_a_scale = v->materials[i].sigma_s_scale = 1.0f;
         v->materials[i].preset = -1;
+        for (uint32_t k = 0; k < NACRE_MAX_LAYERS; k++)
+            v->materials[i].layer_depth_loaded[k] = v->materials[i].base.layering.layers[k].depth;
     }
     if (nacre_renderer_create(ctx, &v->renderer) != NACRE_OK || nacre_renderer_create(ctx, &v->truth) != NACRE_OK) {
         note_error(v);
