@@ -216,8 +216,18 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
                 }
             }
         }
-        for (size_t c = 0; c < (z1 - z0) * nxy; c++)
-            gmax = slab[c] > gmax ? slab[c] : gmax;
+        /* Eight running maxima in registers: one accumulator in memory (the reduction
+         * variable) kept this scan scalar, and it cost most of a sparse splat. */
+        float m8[8] = {0};
+        const size_t count = (z1 - z0) * nxy;
+        size_t c = 0;
+        for (; c + 8 <= count; c += 8)
+            for (int k = 0; k < 8; k++)
+                m8[k] = slab[c + k] > m8[k] ? slab[c + k] : m8[k];
+        for (; c < count; c++)
+            m8[0] = slab[c] > m8[0] ? slab[c] : m8[0];
+        for (int k = 0; k < 8; k++)
+            gmax = m8[k] > gmax ? m8[k] : gmax;
     }
     g->max_value = gmax;
     return NACRE_OK;
