@@ -146,6 +146,33 @@ echo "$out"
 [ "$(saved_setting particles particles)" = sprites ] || fail "particles: the saved render block"
 same_as_render particles
 
+# --- the light's handle (gizmo): a click on it selects the light, a drag from it moves the
+# light so that the handle follows the mouse; the moved light is saved and rendered alike. The
+# window shot holds the frame under the panel and the handles.
+out=$(windowed --size 160x120 --frames 1 --method phong --threads 2) || fail "handle: first run failed: $out"
+hx=$(grep -o '"light_handle":\[[-0-9.]*' <<<"$out" | cut -d[ -f2)
+hy=$(grep -o '"light_handle":\[[-0-9.]*,[-0-9.]*' <<<"$out" | cut -d, -f2)
+if [ -z "$hx" ] || [ -z "$hy" ]; then
+    fail "handle: no light_handle in '$out'"
+else
+    tx=$(awk -v x="$hx" 'BEGIN { print x - 30 }'); ty=$(awk -v y="$hy" 'BEGIN { print y + 12 }')
+    printf '1 pick %d %d\n2 drag %s %s %s %s\n' "${hx%.*}" "${hy%.*}" "$hx" "$hy" "$tx" "$ty" >"$tmp/handle.txt"
+    out=$(windowed --size 160x120 --frames 3 --method phong --script "$tmp/handle.txt" --screenshot "$tmp/view_handle.png" \
+        --window-shot "$tmp/window_handle.png" --save-scene "$tmp/saved_handle.json" --threads 2) ||
+        fail "handle: drag run failed: $out"
+    echo "$out"
+    nx=$(grep -o '"light_handle":\[[-0-9.]*' <<<"$out" | cut -d[ -f2)
+    ny=$(grep -o '"light_handle":\[[-0-9.]*,[-0-9.]*' <<<"$out" | cut -d, -f2)
+    grep -q '"selected_light":0' <<<"$out" &&
+        awk -v a="$nx" -v b="$ny" -v x="$tx" -v y="$ty" 'BEGIN { exit !((a-x)^2 + (b-y)^2 < 1.5) }' ||
+        fail "handle: the handle is at ($nx, $ny), the drag ended at ($tx, $ty)"
+    grep -q '"direction":' "$tmp/saved_handle.json" && ! grep -Eq '"direction":[[:space:]]*\[-0.5, -1, -0.6\]' "$tmp/saved_handle.json" ||
+        fail "handle: the saved light did not move"
+    same_as_render handle
+    [ -s "$tmp/window_handle.png" ] || fail "handle: no window shot"
+fi
+check_bad "1 drag 1 2 3" "expected 4 numbers"
+
 # --- picking and the error view against the path tracer (small, the path tracer is slow) ----
 printf '1 pick 80 75\n2 view error\n' >"$tmp/truth.txt"
 out=$(windowed --size 160x120 --frames 4 --script "$tmp/truth.txt" --threads 2) || fail "truth run failed: $out"

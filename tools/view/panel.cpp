@@ -17,6 +17,7 @@
 #include <stdint.h>
 #include <stdio.h>
 #include <string.h>
+#include <vector>
 
 namespace {
 
@@ -25,6 +26,27 @@ GLuint g_texture = 0;
 int g_tex_w = 0, g_tex_h = 0;
 char g_image_path[256] = "view.png";
 char g_scene_path[256] = "view.json";
+const char *g_capture = nullptr;
+
+/* The drawn window (before it is presented) as a PNG: OpenGL's rows go bottom up. */
+void capture(nc_view *v, int w, int h)
+{
+    nacre_image img = {};
+    if (w <= 0 || h <= 0 || nacre_image_alloc(v->ctx, w, h, 3, &img) != NACRE_OK) {
+        snprintf(v->message, sizeof(v->message), "window capture: cannot allocate %dx%d", w, h);
+        return;
+    }
+    std::vector<uint8_t> px((size_t)w * (size_t)h * 3);
+    glPixelStorei(GL_PACK_ALIGNMENT, 1);
+    glReadBuffer(GL_BACK);
+    glReadPixels(0, 0, w, h, GL_RGB, GL_UNSIGNED_BYTE, px.data());
+    for (int y = 0; y < h; y++)
+        for (size_t i = 0; i < (size_t)w * 3; i++)
+            img.pixels[(size_t)y * img.stride + i] = px[(size_t)(h - 1 - y) * (size_t)w * 3 + i] / 255.0f;
+    if (nacre_image_write_data(v->ctx, &img, g_capture) != NACRE_OK)
+        snprintf(v->message, sizeof(v->message), "%s", nacre_context_last_error(v->ctx));
+    nacre_image_free(v->ctx, &img);
+}
 
 void upload(const uint8_t *rgba, int w, int h)
 {
@@ -341,6 +363,35 @@ extern "C" bool nc_panel_event(const SDL_Event *event)
     }
 }
 
+namespace {
+
+/* The lights' handles over the frame: a ring per light, filled for the selected one; a
+ * directional light's handle has a line to the camera target, the pivot it swings about. */
+void light_handles(nc_view *v, int width, int height)
+{
+    ImGuiIO &io = ImGui::GetIO();
+    ImDrawList *dl = ImGui::GetBackgroundDrawList();
+    const float sx = io.DisplaySize.x / (float)(width > 0 ? width : 1), sy = io.DisplaySize.y / (float)(height > 0 ? height : 1);
+    const uint32_t n = nacre_scene_light_count(v->scene);
+    for (uint32_t i = 0; i < n; i++) {
+        float x, y;
+        if (!nc_view_light_handle_pixel(v, i, &x, &y))
+            continue;
+        ImVec2 c(x * sx, y * sy);
+        const ImU32 colour = i == v->light ? IM_COL32(255, 210, 60, 255) : IM_COL32(230, 230, 230, 200);
+        nacre_light_desc d;
+        if (nacre_scene_get_light(v->scene, nacre_light{i + 1}, &d) == NACRE_OK && d.type == NACRE_LIGHT_DIRECTIONAL) {
+            /* The camera looks at the target: it is the frame's centre. */
+            dl->AddLine(c, ImVec2(0.5f * io.DisplaySize.x, 0.5f * io.DisplaySize.y), colour, 1.0f);
+        }
+        if (i == v->light)
+            dl->AddCircleFilled(c, NC_VIEW_HANDLE_PX * 0.6f * sx, colour);
+        dl->AddCircle(c, NC_VIEW_HANDLE_PX * sx, colour, 0, 2.0f);
+    }
+}
+
+} // namespace
+
 extern "C" void nc_panel_draw(nc_view *v, const uint8_t *rgba, int width, int height, bool show_panel)
 {
     upload(rgba, width, height);
@@ -349,6 +400,7 @@ extern "C" void nc_panel_draw(nc_view *v, const uint8_t *rgba, int width, int he
     ImGui::NewFrame();
     ImGuiIO &io = ImGui::GetIO();
     ImGui::GetBackgroundDrawList()->AddImage((ImTextureID)(intptr_t)g_texture, ImVec2(0, 0), io.DisplaySize);
+    light_handles(v, width, height);
     if (show_panel) {
         ImGui::SetNextWindowPos(ImVec2(8, 8), ImGuiCond_FirstUseEver);
         ImGui::SetNextWindowSize(ImVec2(330, 0), ImGuiCond_FirstUseEver);
@@ -376,5 +428,11 @@ extern "C" void nc_panel_draw(nc_view *v, const uint8_t *rgba, int width, int he
     glClearColor(0, 0, 0, 1);
     glClear(GL_COLOR_BUFFER_BIT);
     ImGui_ImplOpenGL2_RenderDrawData(ImGui::GetDrawData());
+    if (g_capture) {
+        capture(v, dw, dh);
+        g_capture = nullptr;
+    }
     SDL_GL_SwapWindow(g_window);
 }
+
+extern "C" void nc_panel_capture(const char *path) { g_capture = path; }

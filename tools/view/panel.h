@@ -25,6 +25,9 @@ bool nc_panel_event(const SDL_Event *event);
 /* Upload the frame (RGBA bytes, width x height) and draw it filling the window, then the panel
  * (unless hidden), then present. */
 void nc_panel_draw(nc_view *v, const uint8_t *rgba, int width, int height, bool show_panel);
+/* Write the window as the next nc_panel_draw leaves it (frame, light handles and panel) to a PNG
+ * at `path`; the result goes to v->message when that draw fails to write it. NULL: nothing. */
+void nc_panel_capture(const char *path);
 
 #ifdef __cplusplus
 }

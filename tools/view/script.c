@@ -26,7 +26,10 @@
  *   FRAME play | pause             timeline playback (1/30 s per frame in headless runs)
  *   FRAME view normal|wipe|error   what the window shows (wipe and error: against the path tracer)
  *   FRAME wipe X                   wipe line at fraction X of the width (0..1)
- *   FRAME pick X Y                 select the object under pixel (X, Y) of the last frame
+ *   FRAME pick X Y                 select the light whose handle is at pixel (X, Y), else the object
+ *                                  under it in the last frame
+ *   FRAME drag X0 Y0 X1 Y1         a left drag in the frame: from a light's handle it moves the
+ *                                  light, elsewhere it orbits (pixels)
  *   FRAME key K                    a key as in the window (see nacre view --help)
  *   FRAME resize W H               new image (and window) size
  *
@@ -258,6 +261,14 @@ static bool run_event(const nc_script *s, const nc_script_event *ev, nc_view *v,
     }
     if (strcmp(cmd, "light") == 0 || strcmp(cmd, "material") == 0)
         return run_element(s, ev, v, check, err, size);
+    if (strcmp(cmd, "drag") == 0) {
+        float p[4];
+        if (!numbers(s, ev, 1, 4, p, err, size))
+            return false;
+        if (!check)
+            nc_view_drag(v, p[0], p[1], p[2], p[3]);
+        return true;
+    }
     if (strcmp(cmd, "play") == 0 || strcmp(cmd, "pause") == 0) {
         if (ev->argc != 1)
             return fail(err, size, s, ev->line, "%s: takes no arguments", cmd);
@@ -278,7 +289,7 @@ static bool run_event(const nc_script *s, const nc_script_event *ev, nc_view *v,
     if (!known)
         return fail(err, size, s, ev->line,
                     "unknown command '%s' (orbit, pan, zoom, light, material, method, voxel_res, solver, set, "
-                    "exposure, time, play, pause, view, wipe, pick, key, resize)",
+                    "exposure, time, play, pause, view, wipe, pick, drag, key, resize)",
                     cmd);
     if (ev->argc != 2 && strcmp(cmd, "pick") && strcmp(cmd, "resize"))
         return fail(err, size, s, ev->line, "%s: expected one argument", cmd);

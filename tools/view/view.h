@@ -107,9 +107,22 @@ bool nc_view_render_setting(nc_view *v, const char *name, const char *value, boo
 void nc_view_set_time(nc_view *v, double time);
 void nc_view_set_mode(nc_view *v, nc_view_mode mode);
 bool nc_view_resize(nc_view *v, int32_t width, int32_t height, bool check_only);
-/* Select the object under pixel (x, y) (and its material); false if there is none or the frame
- * was not rasterized. */
+/* Select the light whose handle is at pixel (x, y), else the object under it (and its
+ * material); false if the frame was not rasterized. */
 bool nc_view_pick(nc_view *v, int32_t x, int32_t y);
+/* Light handles (the gizmo): a point or spot light's handle is its position; a directional
+ * light's is the point 0.25 x the camera distance from the target towards where the light comes
+ * from, so dragging it swings the light about the target. nc_view_light_handle_pixel gives the
+ * handle's frame pixel (false if it is behind the camera); nc_view_light_at the light whose
+ * handle is within NC_VIEW_HANDLE_PX of (x, y), or UINT32_MAX; nc_view_light_drag moves light
+ * `light`'s handle to pixel (x, y), keeping its distance from the camera plane. */
+#define NC_VIEW_HANDLE_PX 8.0f
+bool nc_view_light_handle_pixel(const nc_view *v, uint32_t light, float *x, float *y);
+uint32_t nc_view_light_at(const nc_view *v, float x, float y);
+bool nc_view_light_drag(nc_view *v, uint32_t light, float x, float y);
+/* A left drag in the frame from (x0, y0) to (x1, y1) pixels, as the mouse does it: from a light's
+ * handle it moves that light, elsewhere it orbits the camera. */
+void nc_view_drag(nc_view *v, float x0, float y0, float x1, float y1);
 /* A key as pressed in the window ("1".."4", "p", "t", "e", "n", "left", "right", "up", "down",
  * "[", "]", "r", "space"); false if the key means nothing. */
 bool nc_view_key(nc_view *v, const char *key, bool check_only);

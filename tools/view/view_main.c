@@ -31,16 +31,18 @@ static const char view_help[] =
     "  --frames N          render N frames, then exit (the timeline steps 1/30 s per frame)\n"
     "  --script FILE       timed events, one per line: FRAME COMMAND ARGS (README, `nacre view`)\n"
     "  --screenshot FILE   write the last frame's image (not the panel): .png (exposure) or .exr\n"
+    "  --window-shot FILE  write the last frame's window as drawn (frame, light handles, panel): .png\n"
     "  --save-scene FILE   write the final state as a scene file (`nacre render FILE` reproduces it)\n"
     "  With --frames, one JSON line: frames, fps, per-stage microseconds and stage_runs summed\n"
     "  over the frames, the final camera and time.\n"
-    "mouse: left drag orbits, middle or shift+left drag pans, wheel zooms, left click picks an object\n"
+    "mouse: left drag orbits, middle or shift+left drag pans, wheel zooms, left click picks a light's\n"
+    "       handle (circle) or an object, left drag on a handle moves that light\n"
     "keys:  1 phong, 2 diffusion, 3 layered, 4 pathtrace; p/space play; t wipe; e error view;\n"
     "       n frame; arrows turn the light; [ ] select light; r camera home; h panel; q quit\n"
     "  --help, --version\n";
 
 typedef struct view_options {
-    const char *scene, *method, *script, *screenshot, *save_scene, *camera;
+    const char *scene, *method, *script, *screenshot, *window_shot, *save_scene, *camera;
     long width, height, frames, voxel_res, spp, threads;
 } view_options;
 
@@ -84,6 +86,8 @@ static int parse_options(int argc, char **argv, view_options *o, bool *done)
             o->script = argv[++i];
         } else if (strcmp(a, "--screenshot") == 0 && v) {
             o->screenshot = argv[++i];
+        } else if (strcmp(a, "--window-shot") == 0 && v) {
+            o->window_shot = argv[++i];
         } else if (strcmp(a, "--save-scene") == 0 && v) {
             o->save_scene = argv[++i];
         } else if (strcmp(a, "--frames") == 0) {
@@ -106,8 +110,8 @@ static int parse_options(int argc, char **argv, view_options *o, bool *done)
             return nc_tool_usage("view", "unexpected argument '%s'", a);
         }
     }
-    if ((o->screenshot || o->save_scene) && !o->frames)
-        return nc_tool_usage("view", "--screenshot and --save-scene need --frames N (headless run)");
+    if ((o->screenshot || o->window_shot || o->save_scene) && !o->frames)
+        return nc_tool_usage("view", "--screenshot, --window-shot and --save-scene need --frames N (headless run)");
     if (o->camera && !(o->scene && (ends_with(o->scene, ".glb") || ends_with(o->scene, ".gltf"))))
         return nc_tool_usage("view", "--camera needs a .gltf or .glb scene");
     return 0;
@@ -163,10 +167,12 @@ static bool open_view(nc_view *v, nacre_context *ctx, const view_options *o)
     return true;
 }
 
-/* Mouse state between events: a left press that does not move is a click (pick). */
+/* Mouse state between events: a left press that does not move is a click (pick); one that
+ * starts on a light's handle drags that light. */
 typedef struct drag_state {
     bool left, middle, moved, shift;
     int x0, y0;
+    uint32_t light; /* the light being dragged, UINT32_MAX: none */
 } drag_state;
 
 /* Window pixel to frame pixel (the frame is stretched over the window when they differ). */
@@ -227,6 +233,12 @@ static bool handle_event(nc_view *v, SDL_Window *w, const SDL_Event *e, drag_sta
         d->moved = false;
         d->x0 = e->button.x;
         d->y0 = e->button.y;
+        d->light = UINT32_MAX;
+        if (d->left && !d->shift) {
+            int32_t fx, fy;
+            to_frame(w, v, e->button.x, e->button.y, &fx, &fy);
+            d->light = nc_view_light_at(v, (float)fx + 0.5f, (float)fy + 0.5f);
+        }
         return true;
     case SDL_MOUSEBUTTONUP:
         if (d->left && !d->moved) {
@@ -243,7 +255,11 @@ static bool handle_event(nc_view *v, SDL_Window *w, const SDL_Event *e, drag_sta
             d->moved = true;
         if (!d->moved)
             return true;
-        if (d->middle || d->shift)
+        if (d->left && d->light != UINT32_MAX) {
+            int32_t fx, fy;
+            to_frame(w, v, e->motion.x, e->motion.y, &fx, &fy);
+            nc_view_light_drag(v, d->light, (float)fx + 0.5f, (float)fy + 0.5f);
+        } else if (d->middle || d->shift)
             nc_view_pan(v, (float)e->motion.xrel, (float)e->motion.yrel);
         else
             nc_view_orbit(v, -0.3f * (float)e->motion.xrel, 0.3f * (float)e->motion.yrel);
@@ -283,6 +299,9 @@ static void print_json(const nc_view *v, double seconds)
            t[2]);
     if (v->object != UINT32_MAX)
         printf(",\"selected_object\":%u", v->object);
+    float hx, hy;
+    if (nc_view_light_handle_pixel(v, v->light, &hx, &hy))
+        printf(",\"selected_light\":%u,\"light_handle\":[%.1f,%.1f]", v->light, hx, hy);
     if (v->mean_rel_err >= 0)
         printf(",\"mean_rel_err\":%.6g,\"truth_spp\":%u", v->mean_rel_err, v->truth_stats.spp_done);
     printf("}\n");
@@ -294,6 +313,7 @@ static int run(nc_view *v, nc_script *script, const view_options *o, SDL_Window 
     uint8_t *rgba = NULL;
     size_t rgba_size = 0;
     drag_state drag = {0};
+    drag.light = UINT32_MAX;
     bool show_panel = true, minimized = false, running = true;
     char err[512];
     uint64_t start = nc_tool_now_us(), last = start;
@@ -335,6 +355,8 @@ static int run(nc_view *v, nc_script *script, const view_options *o, SDL_Window 
             rgba_size = need;
         }
         nc_view_display(v, rgba);
+        if (o->window_shot && o->frames && frame == o->frames - 1)
+            nc_panel_capture(o->window_shot);
         nc_panel_draw(v, rgba, v->fs.render.width, v->fs.render.height, show_panel);
     }
     free(rgba);

@@ -445,8 +445,148 @@ bool nc_view_resize(nc_view *v, int32_t width, int32_t height, bool check_only)
     return true;
 }
 
+/* The camera's frame: forward f, right r, up u (from the desc, whatever its up vector). */
+static void camera_basis(const nc_view *v, float f[3], float r[3], float u[3])
+{
+    const nacre_camera_desc *c = &v->camera;
+    float n = 0.0f;
+    for (int i = 0; i < 3; i++)
+        f[i] = c->target[i] - c->position[i], n += f[i] * f[i];
+    n = 1.0f / sqrtf(fmaxf(n, 1e-30f));
+    for (int i = 0; i < 3; i++)
+        f[i] *= n;
+    r[0] = f[1] * c->up[2] - f[2] * c->up[1];
+    r[1] = f[2] * c->up[0] - f[0] * c->up[2];
+    r[2] = f[0] * c->up[1] - f[1] * c->up[0];
+    n = 1.0f / sqrtf(fmaxf(r[0] * r[0] + r[1] * r[1] + r[2] * r[2], 1e-30f));
+    for (int i = 0; i < 3; i++)
+        r[i] *= n;
+    u[0] = r[1] * f[2] - r[2] * f[1];
+    u[1] = r[2] * f[0] - r[0] * f[2];
+    u[2] = r[0] * f[1] - r[1] * f[0];
+}
+
+/* Half the view's height at depth z (scene units), and the pixels per unit there. */
+static float half_height(const nc_view *v, float z)
+{
+    return v->camera.projection == NACRE_ORTHOGRAPHIC ? 0.5f * v->camera.ortho_height
+                                                      : z * tanf(0.5f * v->camera.fov_y * DEG);
+}
+
+static bool project(const nc_view *v, const float p[3], float *x, float *y, float *depth)
+{
+    float f[3], r[3], u[3], q[3];
+    camera_basis(v, f, r, u);
+    for (int i = 0; i < 3; i++)
+        q[i] = p[i] - v->camera.position[i];
+    float z = q[0] * f[0] + q[1] * f[1] + q[2] * f[2];
+    if (!(z > 0.0f) && v->camera.projection != NACRE_ORTHOGRAPHIC)
+        return false;
+    float hh = half_height(v, z), W = (float)v->fs.render.width, H = (float)v->fs.render.height;
+    float nx = (q[0] * r[0] + q[1] * r[1] + q[2] * r[2]) / (hh * W / H);
+    float ny = (q[0] * u[0] + q[1] * u[1] + q[2] * u[2]) / hh;
+    *x = 0.5f * (nx + 1.0f) * W;
+    *y = 0.5f * (1.0f - ny) * H;
+    *depth = z;
+    return isfinite(*x) && isfinite(*y);
+}
+
+static void unproject(const nc_view *v, float x, float y, float depth, float p[3])
+{
+    float f[3], r[3], u[3];
+    camera_basis(v, f, r, u);
+    float hh = half_height(v, depth), W = (float)v->fs.render.width, H = (float)v->fs.render.height;
+    float a = (2.0f * x / W - 1.0f) * hh * W / H, b = (1.0f - 2.0f * y / H) * hh;
+    for (int i = 0; i < 3; i++)
+        p[i] = v->camera.position[i] + depth * f[i] + a * r[i] + b * u[i];
+}
+
+static bool light_handle(const nc_view *v, uint32_t light, nacre_light_desc *d, float p[3])
+{
+    if (light >= nacre_scene_light_count(v->scene) ||
+        nacre_scene_get_light(v->scene, (nacre_light){light + 1}, d) != NACRE_OK)
+        return false;
+    if (d->type == NACRE_LIGHT_DIRECTIONAL)
+        for (int i = 0; i < 3; i++)
+            p[i] = v->camera.target[i] - 0.25f * v->distance * d->direction[i];
+    else
+        memcpy(p, d->position, sizeof(d->position));
+    return true;
+}
+
+bool nc_view_light_handle_pixel(const nc_view *v, uint32_t light, float *x, float *y)
+{
+    nacre_light_desc d;
+    float p[3], z;
+    return light_handle(v, light, &d, p) && project(v, p, x, y, &z);
+}
+
+uint32_t nc_view_light_at(const nc_view *v, float x, float y)
+{
+    uint32_t best = UINT32_MAX;
+    float best_d2 = NC_VIEW_HANDLE_PX * NC_VIEW_HANDLE_PX;
+    for (uint32_t i = 0; i < nacre_scene_light_count(v->scene); i++) {
+        float hx, hy;
+        if (!nc_view_light_handle_pixel(v, i, &hx, &hy))
+            continue;
+        float d2 = (hx - x) * (hx - x) + (hy - y) * (hy - y);
+        if (d2 <= best_d2)
+            best = i, best_d2 = d2;
+    }
+    return best;
+}
+
+bool nc_view_light_drag(nc_view *v, uint32_t light, float x, float y)
+{
+    nacre_light_desc d;
+    float p[3], hx, hy, z;
+    if (!light_handle(v, light, &d, p) || !project(v, p, &hx, &hy, &z))
+        return false;
+    if (d.type != NACRE_LIGHT_DIRECTIONAL) {
+        unproject(v, x, y, z, p);
+        return nc_view_light_position(v, light, p, false);
+    }
+    /* The handle stays on its sphere about the target: the nearer crossing of the pixel's ray
+     * with it, or where the ray passes closest when it misses. */
+    float o[3], w[3], oc[3], R = 0.25f * v->distance, wn = 0.0f;
+    unproject(v, x, y, 0.0f, o);
+    unproject(v, x, y, 1.0f, w);
+    for (int i = 0; i < 3; i++)
+        w[i] -= o[i], wn += w[i] * w[i], oc[i] = o[i] - v->camera.target[i];
+    wn = sqrtf(fmaxf(wn, 1e-30f));
+    float b = 0.0f, c = -R * R;
+    for (int i = 0; i < 3; i++)
+        w[i] /= wn, b += oc[i] * w[i], c += oc[i] * oc[i];
+    float disc = b * b - c, t = disc >= 0.0f ? -b - sqrtf(disc) : -b;
+    for (int i = 0; i < 3; i++)
+        p[i] = o[i] + t * w[i];
+    float dir[3], n = 0.0f;
+    for (int i = 0; i < 3; i++)
+        dir[i] = v->camera.target[i] - p[i], n += dir[i] * dir[i];
+    if (!(n > 0.0f))
+        return false;
+    for (int i = 0; i < 3; i++)
+        dir[i] /= sqrtf(n);
+    return nc_view_light_direction(v, light, dir, false);
+}
+
+void nc_view_drag(nc_view *v, float x0, float y0, float x1, float y1)
+{
+    uint32_t light = nc_view_light_at(v, x0, y0);
+    if (light != UINT32_MAX)
+        nc_view_light_drag(v, light, x1, y1);
+    else
+        nc_view_orbit(v, -0.3f * (x1 - x0), 0.3f * (y1 - y0));
+}
+
 bool nc_view_pick(nc_view *v, int32_t x, int32_t y)
 {
+    uint32_t light = nc_view_light_at(v, (float)x + 0.5f, (float)y + 0.5f);
+    if (light != UINT32_MAX) {
+        v->light = light;
+        snprintf(v->message, sizeof(v->message), "picked light %u", light);
+        return true;
+    }
     uint32_t index = UINT32_MAX;
     if (nacre_renderer_pick(v->renderer, x, y, &index) != NACRE_OK) {
         note_error(v);
