@@ -51,7 +51,7 @@ def core(m):
     if m.get("preset") == "fish":  # the preset's core (scene.c, seed 001 table 1), without its layers
         del m["preset"]
         m.update({"type": "translucent", "sigma_a": [0.5, 0.5, 0.5], "sigma_s": [1, 1, 2], "g": 0.8,
-                  "eta": 1.33, "specular": [0.04, 0.04, 0.04], "shininess": 128})
+                  "eta": 1.33})
 
 
 runs = {
