@@ -18,11 +18,11 @@
  * medium, tsm, inject, propagate, each cached as in that method) solves the object's voxels with
  * each voxel's own layer or core coefficients (averaged over the cell), and its exitance, read
  * as that method reads it (Fresnel transmission once, at the surface), is added to the march's
- * radiance. Adding the two follows Jensen et al. 2001's split of subsurface reflectance into a
- * single-scattering term and a diffusion term, where the diffusion solution stands for the
- * multiply scattered light; the diffusion solution's own share of single scattering (light
- * scattered once near the surface, which the diffusion approximation renders poorly) is not
- * removed, which docs/accuracy.md measures against the path tracer.
+ * radiance. As in Jensen et al. 2001's split of subsurface reflectance into a single-scattering
+ * term and a diffusion term, the diffusion solution stands for the multiply scattered light
+ * only: its sources are those of light scattered a second time (pipeline.c, multiple_medium),
+ * since the march already gives the first order; the solution of the first scattering's sources
+ * would count that order twice (docs/accuracy.md measures both against the path tracer).
  */
 #include "diffusion/pipeline.h"
 #include "layered/march.h"
