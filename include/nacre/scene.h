@@ -86,12 +86,27 @@ typedef struct nacre_layer {
                                      depth map, the scale of its channel (map value 1 = depth) */
 } nacre_layer;
 
+/* What the layered render method adds under its single scattering (seed 001 is single
+ * scattering only): NONE, or DIFFUSION, the diffusion method's (seed 000) solution on the
+ * object's voxels with each voxel's layer (or core) coefficients, for the multiply scattered
+ * light. The other methods ignore it (the path tracer renders every order). */
+typedef enum nacre_multiple_scattering {
+    NACRE_MULTIPLE_SCATTERING_NONE = 0,
+    NACRE_MULTIPLE_SCATTERING_DIFFUSION
+} nacre_multiple_scattering;
+
+/* "none", "diffusion"; false if unknown. */
+NACRE_API bool nacre_multiple_scattering_from_name(const char *name, nacre_multiple_scattering *out);
+NACRE_API const char *nacre_multiple_scattering_name(nacre_multiple_scattering ms);
+
 typedef struct nacre_layering {
     uint32_t count;                       /* 0 (not layered) .. NACRE_MAX_LAYERS */
     nacre_layer layers[NACRE_MAX_LAYERS]; /* from the surface inwards */
     nacre_texture depth_map;              /* optional (id 0: none): channel j scales layer j's depth,
                                              read bilinearly at the surface uv, repeating; needs
                                              at least `count` channels and a mesh with uvs */
+    nacre_multiple_scattering multiple_scattering; /* layered method only (default NONE); also for
+                                                     count 0, where the core is the only medium */
 } nacre_layering;
 
 /* Procedural depth maps for layerings (what seed 001 paints by hand): RGBA, values in [0, 1].

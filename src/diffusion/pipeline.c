@@ -18,12 +18,19 @@
  * too (a camera move only re-shades). The fluence of the previous frame warm-starts the solver
  * whenever the grid has the same dims.
  *
+ * For the layered method's multiple scattering (nc_diff_state.multiple_only, issue 23 item 5) the
+ * same pipeline runs on layered materials: the medium step gives each voxel its layers' and
+ * core's coefficients and the part of the first scattering's source that scatters again
+ * (multiple_medium), by which the sources are scaled after injection, so that the solution is
+ * the light of scattering orders 2 and up (the march gives order 1).
+ *
  * Units: world space, scene units (pipeline.h). Timings go to the VOXELIZE, MEDIUM (coefficients
  * per voxel), TSM, INJECT and PROPAGATE (solver setup and solves, exitance) stages; each counts
  * the objects it ran for in stage_runs.
  */
 #include "diffusion/pipeline.h"
 #include "core/optics.h"
+#include "layered/layers.h"
 #include "scene/medium.h"
 
 #include <math.h>
@@ -63,7 +70,8 @@ static void free_arrays(nc_diff_object *o)
         nc_free(ctx, o->q[c]);
         nc_free(ctx, o->phi[c]);
         nc_free(ctx, o->exitance[c]);
-        o->sigma_a[c] = o->sigma_sp[c] = o->source[c] = o->q[c] = o->phi[c] = o->exitance[c] = NULL;
+        nc_free(ctx, o->ms_keep[c]);
+        o->sigma_a[c] = o->sigma_sp[c] = o->source[c] = o->q[c] = o->phi[c] = o->exitance[c] = o->ms_keep[c] = NULL;
     }
     o->capacity = 0;
     o->phi_valid = false;
@@ -120,6 +128,11 @@ static nacre_result ensure_optional(nc_diff_object *o, bool hetero, bool face)
         }
         ok = ok && o->rest && o->eval_a && o->eval_s;
     }
+    if (hetero && o->multiple_only && !o->ms_keep[0])
+        for (int c = 0; c < 3; c++) {
+            o->ms_keep[c] = nc_calloc(o->ctx, o->capacity, sizeof(float));
+            ok = ok && o->ms_keep[c];
+        }
     if (face && !o->q[0])
         for (int c = 0; c < 3; c++) {
             o->q[c] = nc_calloc(o->ctx, o->capacity, sizeof(float));
@@ -228,13 +241,178 @@ nacre_result nc_diff_object_voxelize(nc_diff_object *o, const nacre_scene *s, ui
     return NACRE_OK;
 }
 
-/* Medium per voxel: constants for homogeneous materials; rest-pose evaluation otherwise. */
+/* Subsamples per axis of a voxel when it averages the layers' coefficients (LAYER_SUB^3 points). */
+#define LAYER_SUB 2
+/* Optical depths of the escape table (escape_table) and its entries: beyond ESC_TAU_MAX the
+ * escape fraction is below 2e-5. */
+#define ESC_TAU_MAX 8.0f
+#define ESC_N 256
+
+/* Fraction of the light scattered isotropically at optical depth tau below a plane boundary that
+ * leaves through it before interacting again: (1/2) int_0^1 T(mu) exp(-tau / mu) dmu, T the
+ * Fresnel transmittance from inside (relative index 1 / eta), tabulated on [0, ESC_TAU_MAX]. */
+static void escape_table(float eta, float table[ESC_N + 1])
+{
+    enum { MU_N = 256 };
+    for (int t = 0; t <= ESC_N; t++) {
+        double tau = (double)t * ESC_TAU_MAX / ESC_N, sum = 0.0;
+        for (int k = 0; k < MU_N; k++) {
+            double mu = (k + 0.5) / MU_N;
+            sum += (1.0 - nc_fresnel_dielectric(mu, 1.0 / eta)) * exp(-tau / mu);
+        }
+        table[t] = (float)(0.5 * sum / MU_N);
+    }
+}
+
+static inline float escape_at(const float table[ESC_N + 1], float tau)
+{
+    if (!(tau < ESC_TAU_MAX))
+        return 0.0f;
+    float x = fmaxf(tau, 0.0f) * (ESC_N / ESC_TAU_MAX);
+    int i = (int)x;
+    i = i < ESC_N ? i : ESC_N - 1;
+    float f = x - (float)i;
+    return table[i] + f * (table[i + 1] - table[i]);
+}
+
+/* The medium of an object whose solution stands for multiple scattering only (the layered
+ * method's, o->multiple_only), after nc_medium_eval put the core's coefficients in eval_a and
+ * eval_s at the n rest points.
+ *
+ * Coefficients: each voxel takes the mean of the reduced coefficients sigma_a and
+ * sigma_s (1 - g) over LAYER_SUB^3 points of its cell, each point those of the layer it lies in
+ * (nacre_layering: depth below the rest-pose mesh, the depth map read at the nearest point's uv)
+ * or of the core. The mean keeps the optical depth of layers thinner than a voxel, which a centre
+ * sample would drop or inflate to a whole cell. Voxels whose centre lies deeper than the deepest
+ * bottom plus the cell's half diagonal are all core.
+ *
+ * Sources of order 2 and up: the volume injection deposits where light scatters for the first
+ * time (in similarity-reduced terms), and a diffusion solution from those sources is the light
+ * of every order; the first order is the layered march's. Of the light scattered once at
+ * reduced optical depth tau below the surface, escape(tau) leaves without interacting again
+ * (escape_table, isotropic in the reduced medium, the surface locally a plane) and the rest
+ * interacts again, scattering with probability alpha' = sigma_s' / sigma_t'. So the source of
+ * the multiply scattered light is S alpha' (1 - escape(tau)) (the second event placed at the
+ * first), and ms_keep holds that factor per cell and channel, tau the optical depth of the
+ * straight path to the surface through the layers at the point's uv (mean over the subsamples
+ * near the surface, the centre deeper down). `to_rest`: the linear map of world offsets into
+ * rest space (NULL for deformed objects: the centre only, the rest map being known there). */
+static nacre_result multiple_medium(nc_diff_object *o, const nacre_scene *s, const nc_object_rec *obj,
+                                    const nacre_material_desc *m, size_t n, const nc_mat4 *to_rest, float *keep)
+{
+#ifdef NACRE_HAVE_EMBREE
+    nc_layer_stack stack;
+    nc_layers_init(s, &m->layering, &stack);
+    float deepest = 0.0f, st_min = INFINITY;
+    for (uint32_t j = 0; j < stack.count; j++)
+        deepest = fmaxf(deepest, stack.hi[j]);
+    const float core_g = 1.0f - m->g;
+    for (size_t k = 0; k < n; k++)
+        for (int c = 0; c < 3; c++)
+            st_min = fminf(st_min, o->eval_a[3 * k + c] + o->eval_s[3 * k + c] * core_g);
+    /* Half diagonal of a cell in rest units, bounded through the Frobenius norm of the map. */
+    float stretch = 1.0f;
+    if (to_rest) {
+        float f2 = 0.0f;
+        for (int r = 0; r < 3; r++)
+            for (int c = 0; c < 3; c++)
+                f2 += to_rest->m[r][c] * to_rest->m[r][c];
+        stretch = sqrtf(f2);
+    }
+    const float half_diag = 0.5f * sqrtf(3.0f) * o->h * stretch;
+    /* Deeper than this no layer and no escape matter (the core's escape is under 2e-5). */
+    const float reach = fmaxf(deepest, st_min > 0.0f ? ESC_TAU_MAX / st_min : 0.0f) + half_diag;
+    float esc[ESC_N + 1];
+    escape_table(m->eta, esc);
+    RTCDevice device = rtcNewDevice("threads=1");
+    if (!device)
+        return nc_fail(o->ctx, NACRE_ERROR_UNSUPPORTED, "diffusion: Embree device creation failed");
+    nc_surface_locator *loc = NULL;
+    nacre_result res = nc_locator_create(o->ctx, device, &s->meshes[obj->desc.mesh.id - 1].data, &loc);
+    if (res == NACRE_OK) {
+        const float sub = (float)LAYER_SUB;
+        nc_vec3 off[LAYER_SUB * LAYER_SUB * LAYER_SUB];
+        int nsub = 0;
+        for (int z = 0; z < LAYER_SUB; z++)
+            for (int y = 0; y < LAYER_SUB; y++)
+                for (int x = 0; x < LAYER_SUB; x++) {
+                    nc_vec3 w = nc_v3((((float)x + 0.5f) / sub - 0.5f) * o->h, (((float)y + 0.5f) / sub - 0.5f) * o->h,
+                                      (((float)z + 0.5f) / sub - 0.5f) * o->h);
+                    off[nsub++] = to_rest ? nc_mat4_dir(to_rest, w) : nc_v3(0, 0, 0);
+                }
+        const nacre_layer *layers = m->layering.layers;
+#pragma omp parallel for schedule(dynamic, 256) num_threads(nc_threads(o->ctx))
+        for (size_t k = 0; k < n; k++) {
+            const float *p = o->rest + 3 * k;
+            float core_a[3], core_sp[3];
+            for (int c = 0; c < 3; c++) {
+                core_a[c] = o->eval_a[3 * k + c];
+                core_sp[c] = o->eval_s[3 * k + c] * core_g;
+            }
+            float uv[2];
+            uint32_t hint = UINT32_MAX;
+            float d = nc_locator_nearest(loc, p, reach, &hint, uv);
+            /* The centre alone where the cell cannot reach a layer (or the map is unknown). */
+            const int points = (to_rest && d <= deepest + half_diag) ? nsub : 1;
+            float sa[3] = {0, 0, 0}, ssp[3] = {0, 0, 0}, e[3] = {0, 0, 0};
+            for (int q = 0; q < points; q++) {
+                float dq = d;
+                if (points > 1) {
+                    float pq[3] = {p[0] + off[q].x, p[1] + off[q].y, p[2] + off[q].z};
+                    dq = nc_locator_nearest(loc, pq, reach + 2.0f * half_diag, &hint, uv);
+                }
+                uint32_t j = isfinite(dq) ? nc_layers_find(&stack, dq, uv[0], uv[1]) : stack.count;
+                float bottom[NACRE_MAX_LAYERS];
+                if (isfinite(dq))
+                    nc_layers_bottoms(&stack, uv[0], uv[1], bottom);
+                for (int c = 0; c < 3; c++) {
+                    sa[c] += j < stack.count ? layers[j].sigma_a[c] : core_a[c];
+                    ssp[c] += j < stack.count ? layers[j].sigma_s[c] * (1.0f - layers[j].g) : core_sp[c];
+                    if (!isfinite(dq))
+                        continue;
+                    /* Reduced optical depth of the straight path up to the surface. */
+                    float tau = 0.0f, top = 0.0f;
+                    for (uint32_t l = 0; l < stack.count && top < dq; l++) {
+                        float b = fminf(bottom[l], dq);
+                        if (b > top)
+                            tau += (b - top) * (layers[l].sigma_a[c] + layers[l].sigma_s[c] * (1.0f - layers[l].g));
+                        top = fmaxf(top, bottom[l]);
+                    }
+                    if (dq > top)
+                        tau += (dq - top) * (core_a[c] + core_sp[c]);
+                    e[c] += escape_at(esc, tau);
+                }
+            }
+            for (int c = 0; c < 3; c++) {
+                float a = sa[c] / (float)points, sp = ssp[c] / (float)points;
+                o->eval_a[3 * k + c] = a;
+                /* eval_s holds sigma_s with the core's g: the caller applies (1 - g) */
+                o->eval_s[3 * k + c] = sp / core_g;
+                keep[3 * k + c] = (a + sp > 0.0f ? sp / (a + sp) : 0.0f) * (1.0f - e[c] / (float)points);
+            }
+        }
+        nc_locator_destroy(o->ctx, loc);
+    }
+    rtcReleaseDevice(device);
+    return res;
+#else
+    (void)s, (void)obj, (void)m, (void)n, (void)to_rest, (void)keep;
+    return nc_fail(o->ctx, NACRE_ERROR_UNSUPPORTED,
+                   "diffusion: multiple scattering under the layered method is not implemented without Embree "
+                   "(it finds each voxel's depth below the surface)");
+#endif
+}
+
+/* Medium per voxel: constants for homogeneous materials; rest-pose evaluation otherwise; a
+ * layered material (only the layered method's multiple scattering asks for one) per voxel from
+ * its layers and core (layered_coefficients). */
 nacre_result nc_diff_object_medium(nc_diff_object *o, const nacre_scene *s, uint32_t index, bool face_mode)
 {
     const nc_object_rec *obj = &s->objects[index];
     const nacre_material_desc *m = &s->materials[obj->desc.material.id - 1];
+    const bool multiple = o->multiple_only;
     o->medium_valid = o->light_valid = o->lit = false;
-    o->heterogeneous = nc_medium_heterogeneous(m);
+    o->heterogeneous = nc_medium_heterogeneous(m) || multiple;
     if (o->eta != m->eta || o->fresnel_diffuse == 0.0f) {
         o->eta = m->eta;
         o->fdr = (float)nc_fresnel_fdr(m->eta);
@@ -254,9 +432,9 @@ nacre_result nc_diff_object_medium(nc_diff_object *o, const nacre_scene *s, uint
         /* The rest points of the solid cells only, packed in cell order (evaluated, then
          * scattered back below). */
         size_t n = 0;
+        nc_mat4 to_rest;
         if (obj->desc.deformer_count == 0) {
             /* Undeformed: the rest point of a voxel centre is exactly its inverse transform. */
-            nc_mat4 to_rest;
             nc_mat4_inverse(obj->object_to_world, &to_rest);
             for (uint32_t z = 0; z < o->dims[2]; z++)
                 for (uint32_t y = 0; y < o->dims[1]; y++)
@@ -281,14 +459,29 @@ nacre_result nc_diff_object_medium(nc_diff_object *o, const nacre_scene *s, uint
                 }
         }
         nc_medium_eval(s, m, o->rest, n, o->eval_a, o->eval_s);
+        float *keep = NULL;
+        if (multiple) {
+            /* per rest point, then per cell into ms_keep */
+            keep = nc_alloc(o->ctx, (n > 0 ? n : 1) * 3 * sizeof(float));
+            res = keep ? NACRE_OK : NACRE_ERROR_OUT_OF_MEMORY;
+            if (res == NACRE_OK)
+                res = multiple_medium(o, s, obj, m, n, obj->desc.deformer_count == 0 ? &to_rest : NULL, keep);
+            if (res != NACRE_OK) {
+                nc_free(o->ctx, keep);
+                return res;
+            }
+        }
         size_t k = 0;
         for (size_t i = 0; i < o->cells; i++) {
             for (int c = 0; c < 3; c++) {
                 o->sigma_a[c][i] = o->solid[i] ? o->eval_a[3 * k + c] : 0.0f;
                 o->sigma_sp[c][i] = o->solid[i] ? o->eval_s[3 * k + c] * (1.0f - m->g) : 0.0f;
+                if (keep)
+                    o->ms_keep[c][i] = o->solid[i] ? keep[3 * k + c] : 0.0f;
             }
             k += o->solid[i] ? 1 : 0;
         }
+        nc_free(o->ctx, keep);
     }
     o->medium_valid = true;
     return NACRE_OK;
@@ -417,6 +610,13 @@ static bool same_light_settings(const nacre_render_settings *a, const nacre_rend
 nacre_result nc_diffusion_frame(nc_diff_state *st, const nacre_scene *s, const nacre_render_settings *settings,
                                 const nc_shade_light *lights, uint32_t light_count, nacre_render_stats *stats)
 {
+    return nc_diffusion_frame_objects(st, s, settings, lights, light_count, NULL, stats);
+}
+
+nacre_result nc_diffusion_frame_objects(nc_diff_state *st, const nacre_scene *s, const nacre_render_settings *settings,
+                                        const nc_shade_light *lights, uint32_t light_count, const uint8_t *only,
+                                        nacre_render_stats *stats)
+{
     nacre_result res = ensure_objects(st, s->object_count);
     if (res != NACRE_OK)
         return res;
@@ -438,10 +638,11 @@ nacre_result nc_diffusion_frame(nc_diff_state *st, const nacre_scene *s, const n
     for (uint32_t i = 0; i < s->object_count; i++) {
         const nc_object_rec *obj = &s->objects[i];
         const nacre_material_desc *m = &s->materials[obj->desc.material.id - 1];
-        if (m->type != NACRE_MATERIAL_TRANSLUCENT)
+        if (m->type != NACRE_MATERIAL_TRANSLUCENT || (only && !only[i]))
             continue;
         nc_diff_object *o = &st->objects[i];
         o->ctx = st->ctx;
+        o->multiple_only = st->multiple_only;
         bool face_mode = settings->diffusion.source == NACRE_SOURCE_FACE;
         if (!o->vox_valid || o->key_uid != s->uid || o->key_geometry != s->versions.geometry ||
             o->key_res != settings->diffusion.voxel_resolution) {
@@ -487,6 +688,13 @@ nacre_result nc_diffusion_frame(nc_diff_state *st, const nacre_scene *s, const n
             stats->stage_ran[NACRE_STAGE_TSM] = stats->stage_ran[NACRE_STAGE_INJECT] = true;
             stats->stage_runs[NACRE_STAGE_TSM]++;
             stats->stage_runs[NACRE_STAGE_INJECT]++;
+            if (o->multiple_only && o->ms_keep[0]) {
+                uint64_t t0 = nc_now_us();
+                for (int c = 0; c < 3; c++)
+                    for (size_t k = 0; k < o->cells; k++)
+                        o->source[c][k] *= o->ms_keep[c][k];
+                stats->stage_us[NACRE_STAGE_INJECT] += nc_now_us() - t0;
+            }
             if (o->solid_count > 0) {
                 uint64_t t0 = nc_now_us();
                 if ((res = object_solve(o, settings)) != NACRE_OK)

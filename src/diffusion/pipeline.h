@@ -45,6 +45,9 @@ typedef struct nc_diff_object {
     uint64_t solid_count;
     uint32_t lo[3], hi[3];           /* bounding box of the solid cells, [lo, hi) */
     /* Medium */
+    bool multiple_only;              /* the solution stands for orders >= 2 (nc_diff_state) */
+    float *ms_keep[3];               /* cells each, when multiple_only: the part of the first
+                                      * scattering's source that scatters again (pipeline.c) */
     bool heterogeneous;
     float eta, fdr, robin_a, fresnel_diffuse;
     float inv_eta2, radiance_k;      /* shading constants: 1 / eta^2, 1 / (pi (1 - fresnel_diffuse)) */
@@ -128,6 +131,10 @@ typedef struct nc_diff_state {
     uint64_t scene_uid;
     nc_tsm_band band;
     uint8_t *subsurface;             /* per object: 1 = shaded from the diffusion solution */
+    /* Set by the layered method, whose march gives the single scattering: the objects' media come
+     * from their layers and core, and the sources are those of light scattered twice or more
+     * (pipeline.c, multiple_medium). Volume sources only. */
+    bool multiple_only;
 } nc_diff_state;
 
 nacre_result nc_diff_state_create(nacre_context *ctx, nc_diff_state **out);
@@ -140,6 +147,12 @@ void nc_diff_state_destroy(nc_diff_state *st);
 nacre_result nc_diffusion_frame(nc_diff_state *st, const nacre_scene *scene,
                                 const nacre_render_settings *settings, const nc_shade_light *lights,
                                 uint32_t light_count, nacre_render_stats *stats);
+
+/* The same for the objects i with only[i] != 0 (only: one entry per scene object; NULL: every
+ * translucent object). The others are left alone and not shaded from the solution. */
+nacre_result nc_diffusion_frame_objects(nc_diff_state *st, const nacre_scene *scene,
+                                        const nacre_render_settings *settings, const nc_shade_light *lights,
+                                        uint32_t light_count, const uint8_t *only, nacre_render_stats *stats);
 
 /* Fill the subsurface hook of the phong pass (shade.h) from the state of the last frame. */
 void nc_diffusion_shade_params(const nc_diff_state *st, const nacre_scene *scene,

@@ -267,7 +267,7 @@ static void parse_material(loader *ld, const cJSON *obj, const nacre_material *r
     static const char *const opaque_keys[] = {"type", "diffuse", "specular", "shininess", "diffuse_map"};
     static const char *const translucent_keys[] = {"type", "preset", "sigma_a", "sigma_s", "g",
                                                    "eta", "specular", "shininess", "pattern",
-                                                   "layers", "depth_map"};
+                                                   "layers", "depth_map", "multiple_scattering"};
     static const char *const types[] = {"opaque", "translucent"};
     if (!nc_json_expect_object(ld, obj))
         return;
@@ -313,6 +313,12 @@ static void parse_material(loader *ld, const cJSON *obj, const nacre_material *r
         nc_json_parse_pattern(ld, pattern, &d.pattern);
     if (type == 1 && !ld->err)
         parse_layering(ld, obj, &d.layering);
+    if (type == 1 && !ld->err && nc_json_member(obj, "multiple_scattering")) {
+        static const char *const ms[] = {"none", "diffusion"};
+        int v = nc_json_get_choice(ld, obj, "multiple_scattering", "multiple scattering", ms, COUNT_OF(ms));
+        if (v >= 0)
+            d.layering.multiple_scattering = (nacre_multiple_scattering)v;
+    }
     if (type == 0 && !ld->err)
         parse_diffuse_map(ld, obj, &d.diffuse_map);
     if (ld->err)

@@ -555,6 +555,8 @@ static void add_pattern(writer *w, cJSON *parent, const nacre_medium_pattern *p)
 
 static void add_layering(writer *w, cJSON *o, const nacre_layering *l)
 {
+    if (l->multiple_scattering != NACRE_MULTIPLE_SCATTERING_NONE)
+        add_string(w, o, "multiple_scattering", nacre_multiple_scattering_name(l->multiple_scattering));
     if (l->count == 0)
         return;
     cJSON *arr = cJSON_CreateArray();

@@ -308,3 +308,20 @@ float nc_locator_nearest(const nc_surface_locator *loc, const float p[3], float 
 }
 
 #endif /* NACRE_HAVE_EMBREE */
+
+static const char *const ms_names[] = {"none", "diffusion"};
+
+bool nacre_multiple_scattering_from_name(const char *name, nacre_multiple_scattering *out)
+{
+    for (int i = 0; name && i < 2; i++)
+        if (strcmp(name, ms_names[i]) == 0) {
+            *out = (nacre_multiple_scattering)i;
+            return true;
+        }
+    return false;
+}
+
+const char *nacre_multiple_scattering_name(nacre_multiple_scattering ms)
+{
+    return (unsigned)ms < 2 ? ms_names[ms] : "unknown";
+}

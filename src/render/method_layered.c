@@ -11,7 +11,20 @@
  * layer stay on top, as the seed's surface layer (section 3). A translucent material without
  * layers is one layer, the core, so every scene renders. The material's pattern is not read:
  * the core is its first medium.
+ *
+ * Multiple scattering (material option multiple_scattering = DIFFUSION): the seed's march is
+ * single scattering only, which leaves thick, high-albedo layers too dark. For such objects the
+ * diffusion method's pipeline (seed 000, Blanchard 2012; diffusion/pipeline.c, stages voxelize,
+ * medium, tsm, inject, propagate, each cached as in that method) solves the object's voxels with
+ * each voxel's own layer or core coefficients (averaged over the cell), and its exitance, read
+ * as that method reads it (Fresnel transmission once, at the surface), is added to the march's
+ * radiance. As in Jensen et al. 2001's split of subsurface reflectance into a single-scattering
+ * term and a diffusion term, the diffusion solution stands for the multiply scattered light
+ * only: its sources are those of light scattered a second time (pipeline.c, multiple_medium),
+ * since the march already gives the first order; the solution of the first scattering's sources
+ * would count that order twice (docs/accuracy.md measures both against the path tracer).
  */
+#include "diffusion/pipeline.h"
 #include "layered/march.h"
 #include "layered/planes.h"
 #include "render/method.h"
@@ -33,6 +46,8 @@ typedef struct layered_state {
     nc_layer_medium *media; /* per material (translucent ones used) */
     uint32_t media_capacity;
     uint8_t *subsurface;    /* per object: rendered by the march */
+    uint8_t *multiple;      /* per object: multiple scattering from the diffusion pipeline */
+    nc_diff_state *diff;    /* that pipeline's state (created on first use) */
     float *radiance;        /* 3 per pixel of the G-buffer, translucent pixels only */
     size_t radiance_pixels;
 } layered_state;
@@ -71,6 +86,8 @@ static void layered_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->objects);
     nc_free(ctx, st->media);
     nc_free(ctx, st->subsurface);
+    nc_free(ctx, st->multiple);
+    nc_diff_state_destroy(st->diff);
     nc_free(ctx, st->radiance);
     nc_free(ctx, st);
 }
@@ -80,18 +97,21 @@ static nacre_result ensure_capacity(layered_state *st, const nacre_scene *s, siz
     nacre_context *ctx = st->ctx;
     if (s->object_count > st->object_capacity) {
         layered_object *o = nc_calloc(ctx, s->object_count, sizeof(*o));
-        uint8_t *sub = nc_calloc(ctx, s->object_count, 1);
-        if (!o || !sub) {
+        uint8_t *sub = nc_calloc(ctx, s->object_count, 1), *mult = nc_calloc(ctx, s->object_count, 1);
+        if (!o || !sub || !mult) {
             nc_free(ctx, o);
             nc_free(ctx, sub);
+            nc_free(ctx, mult);
             return NACRE_ERROR_OUT_OF_MEMORY;
         }
         if (st->objects)
             memcpy(o, st->objects, st->object_capacity * sizeof(*o));
         nc_free(ctx, st->objects);
         nc_free(ctx, st->subsurface);
+        nc_free(ctx, st->multiple);
         st->objects = o;
         st->subsurface = sub;
+        st->multiple = mult;
         st->object_capacity = s->object_count;
     }
     if (s->material_count > st->media_capacity) {
@@ -237,17 +257,49 @@ static void march(layered_state *st, const nacre_scene *s, const nc_raster_frame
     stats->stage_runs[NACRE_STAGE_MARCH] = 1;
 }
 
-/* The shading pass's hook: the march's radiance in place of Lambert. */
+/* The shading pass's hook: the march's radiance in place of Lambert, plus the diffusion
+ * solution's for objects with multiple scattering. */
 static void layered_subsurface(const void *user, uint32_t object, const nc_shade_batch *b,
                                float out[3][NC_SHADE_BATCH])
 {
-    (void)object;
     const layered_state *st = user;
     const float *r = st->radiance + 3 * b->first;
     const uint32_t padded = (b->count + 7u) & ~7u;
     for (uint32_t i = 0; i < padded; i++)
         for (int c = 0; c < 3; c++)
             out[c][i] = i < b->count ? r[3 * i + c] : 0.0f;
+    if (st->diff && st->multiple[object] && st->diff->subsurface[object]) {
+        float ms[3][NC_SHADE_BATCH];
+        nc_diff_subsurface_radiance(st->diff, object, b, ms);
+        for (uint32_t i = 0; i < b->count; i++)
+            for (int c = 0; c < 3; c++)
+                out[c][i] += ms[c][i];
+    }
+}
+
+/* The diffusion pipeline for the objects whose material asks for multiple scattering. */
+static nacre_result update_multiple(layered_state *st, nc_frame *f)
+{
+    const nacre_scene *s = f->scene;
+    bool any = false;
+    for (uint32_t i = 0; i < s->object_count; i++) {
+        const nacre_material_desc *m = nc_scene_material(s, s->objects[i].desc.material);
+        st->multiple[i] = st->subsurface[i] && m->layering.multiple_scattering == NACRE_MULTIPLE_SCATTERING_DIFFUSION;
+        any = any || st->multiple[i];
+    }
+    if (!any)
+        return NACRE_OK;
+    nacre_result res = nc_method_diffusion.check(f->ctx, f->settings);
+    if (res == NACRE_OK && f->settings->diffusion.source != NACRE_SOURCE_VOLUME)
+        return nc_fail(f->ctx, NACRE_ERROR_UNSUPPORTED,
+                       "render: source: face sources are not implemented for the layered method's multiple "
+                       "scattering (use volume)");
+    if (res == NACRE_OK && !st->diff && (res = nc_diff_state_create(f->ctx, &st->diff)) == NACRE_OK)
+        st->diff->multiple_only = true;
+    if (res == NACRE_OK)
+        res = nc_diffusion_frame_objects(st->diff, s, f->settings, f->raster->shade_lights, s->light_count,
+                                         st->multiple, f->stats);
+    return res;
 }
 
 static nacre_result layered_render(void *state, nc_frame *f)
@@ -278,6 +330,8 @@ static nacre_result layered_render(void *state, nc_frame *f)
     }
     if ((res = update_planes(st, s, f->settings->layered.epsilon, f->stats)) != NACRE_OK)
         return res;
+    if ((res = update_multiple(st, f)) != NACRE_OK)
+        return res;
     nc_shade_params params;
     nc_raster_frame_shade_params(f->raster, f->settings, &params);
     march(st, s, f->raster, f->settings, &params, f->stats);
@@ -295,7 +349,9 @@ const nc_method nc_method_layered = {
     .id = NACRE_METHOD_LAYERED,
     .needs_objects = true,
     .uses_raster = true,
-    .stages = NC_RASTER_STAGES | (1u << NACRE_STAGE_PLANES) | (1u << NACRE_STAGE_MARCH),
+    .stages = NC_RASTER_STAGES | (1u << NACRE_STAGE_PLANES) | (1u << NACRE_STAGE_MARCH) |
+              (1u << NACRE_STAGE_VOXELIZE) | (1u << NACRE_STAGE_MEDIUM) | (1u << NACRE_STAGE_TSM) |
+              (1u << NACRE_STAGE_INJECT) | (1u << NACRE_STAGE_PROPAGATE),
     .check = layered_check,
     .create = layered_create,
     .render = layered_render,

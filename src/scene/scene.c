@@ -224,6 +224,10 @@ static nacre_result check_layering(const nacre_scene *s, const nacre_layering *l
     if (l->count > NACRE_MAX_LAYERS)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: layers: at most %d (got %u)",
                        NACRE_MAX_LAYERS, l->count);
+    if (l->multiple_scattering != NACRE_MULTIPLE_SCATTERING_NONE &&
+        l->multiple_scattering != NACRE_MULTIPLE_SCATTERING_DIFFUSION)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: multiple_scattering: unknown (%d)",
+                       (int)l->multiple_scattering);
     if (l->count == 0)
         return NACRE_OK;
     for (uint32_t j = 0; j < l->count; j++) {
