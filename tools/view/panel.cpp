@@ -190,6 +190,11 @@ void material_controls(nc_view *v)
     x = m->base.eta;
     if (ImGui::SliderFloat("eta", &x, 1.0f, 2.5f))
         nc_view_material_field(v, v->material, "eta", x, false);
+    if (m->base.layering.count > 0) {
+        bool ms = m->base.layering.multiple_scattering == NACRE_MULTIPLE_SCATTERING_DIFFUSION;
+        if (ImGui::Checkbox("multiple scattering (diffusion)", &ms))
+            nc_view_material_field(v, v->material, "multiple_scattering", ms ? 1.0f : 0.0f, false);
+    }
     /* Layer depths (seed 001's layer thicknesses; with a depth map, the scale of its channel):
      * the slider spans 0 to 4x the deepest loaded layer, so a preset's range stays usable. */
     float deepest = 0.0f;

@@ -12,7 +12,8 @@
  *   FRAME light I strength R G B   light I: irradiance or intensity
  *   FRAME material M preset NAME   material M (0-based): a measured preset (jade, marble, ...)
  *   FRAME material M FIELD VALUE   FIELD: sigma_a_scale, sigma_s_scale, g, eta, layerK_depth (layer
- *                                  K from the surface, 0-based, scene units)
+ *                                  K from the surface, 0-based, scene units), multiple_scattering
+ *                                  0|1 (layered materials: the diffusion under the march)
  *   FRAME method NAME              phong, diffusion, layered, pathtrace
  *   FRAME voxel_res N              diffusion voxel resolution (2..512)
  *   FRAME solver NAME              multigrid, seed

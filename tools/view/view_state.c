@@ -300,8 +300,20 @@ bool nc_view_material_field(nc_view *v, uint32_t material, const char *field, fl
             return false;
         }
         m->base.layering.layers[k].depth = value;
+    } else if (strcmp(field, "multiple_scattering") == 0) {
+        if (m->base.layering.count == 0) {
+            snprintf(v->message, sizeof(v->message), "multiple_scattering: material %u is not layered", material);
+            return false;
+        }
+        if (value != 0.0f && value != 1.0f) {
+            note(v, "multiple_scattering: 0 (none) or 1 (diffusion)%s", "");
+            return false;
+        }
+        m->base.layering.multiple_scattering =
+            value == 1.0f ? NACRE_MULTIPLE_SCATTERING_DIFFUSION : NACRE_MULTIPLE_SCATTERING_NONE;
     } else {
-        note(v, "unknown material field '%s' (sigma_a_scale, sigma_s_scale, g, eta, layerK_depth)", field);
+        note(v, "unknown material field '%s' (sigma_a_scale, sigma_s_scale, g, eta, layerK_depth, "
+                "multiple_scattering)", field);
         return false;
     }
     if (check_only) {
