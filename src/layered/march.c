@@ -537,6 +537,44 @@ static void eval8(const ray_ctx *r, const nacre_light_desc *l, const float *sp, 
 }
 #endif
 
+#ifdef __AVX2__
+/* fast_exp on 8 lanes. */
+static inline __m256 fast_exp8(__m256 x)
+{
+    __m256 y = _mm256_mul_ps(x, _mm256_set1_ps(1.44269504f));
+    const __m256 keep = _mm256_cmp_ps(y, _mm256_set1_ps(-126.0f), _CMP_GT_OQ);
+    y = _mm256_max_ps(_mm256_min_ps(y, _mm256_set1_ps(126.0f)), _mm256_set1_ps(-126.0f));
+    const __m256 n = _mm256_floor_ps(y), f = _mm256_sub_ps(y, n);
+    __m256 p = _mm256_set1_ps(1.8775767e-3f);
+    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(8.9893397e-3f));
+    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(5.5826318e-2f));
+    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(2.4015361e-1f));
+    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(6.9315308e-1f));
+    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(9.9999994e-1f));
+    const __m256i e = _mm256_slli_epi32(_mm256_add_epi32(_mm256_cvtps_epi32(n), _mm256_set1_epi32(127)), 23);
+    return _mm256_and_ps(keep, _mm256_mul_ps(p, _mm256_castsi256_ps(e)));
+}
+#endif
+
+/* sum over e < n of k[e] e^a[e] */
+static inline float sum_k_exp(const float *k, const float *a, uint32_t n)
+{
+    float acc = 0;
+    uint32_t e = 0;
+#ifdef __AVX2__
+    __m256 v = _mm256_setzero_ps();
+    for (; e + 8 <= n; e += 8)
+        v = _mm256_fmadd_ps(_mm256_loadu_ps(k + e), fast_exp8(_mm256_loadu_ps(a + e)), v);
+    float lanes[8];
+    _mm256_storeu_ps(lanes, v);
+    for (int q = 0; q < 8; q++)
+        acc += lanes[q];
+#endif
+    for (; e < n; e++)
+        acc += k[e] * fast_exp(a[e]);
+    return acc;
+}
+
 /* The light at points s[0..n-1] (n <= NC_MARCH_BATCH) into out[0..n-1]. */
 static void eval_batch(const ray_ctx *r, const nacre_light_desc *l, float co, float ci, const float *s, uint32_t n,
                        light_batch *out)
@@ -717,11 +755,11 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
         }
         /* The light is evaluated in batches of points (eval_batch): the pieces' midpoints
          * (SAMPLES) or their ends, point 0 the first piece's start (ANALYTIC). */
-        const uint32_t npts = prm->analytic ? np + 1 : np;
+        const uint32_t npts = np + 1;
         light_batch lb;
         float spts[NC_MARCH_BATCH];
         uint32_t base = 0, filled = 0;
-#define POINT(q) (prm->analytic ? ((q) == 0 ? pieces[0].s0 : pieces[(q) - 1].s1) : 0.5f * (pieces[q].s0 + pieces[q].s1))
+#define POINT(q) ((q) == 0 ? pieces[0].s0 : pieces[(q) - 1].s1)
 #define FETCH(q)                                                                                                       \
     do {                                                                                                               \
         if ((q) >= base + filled) {                                                                                    \
@@ -740,24 +778,41 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
         bool a_lit = false;
         uint32_t a_layer = UINT32_MAX, qa = 0;
         const float vis_rate = (vis1 - vis0) / r.len;
+        if (!prm->analytic) {
+            /* The seed's sums, a batch of samples at a time: the weights and exponents first
+             * (the transmittance to P runs from sample to sample), then the exponentials 8 at a
+             * time (sum_k_exp). */
+            float ks[3][NC_MARCH_BATCH], arg[3][NC_MARCH_BATCH];
+            for (uint32_t i0 = 0; i0 < np; i0 += NC_MARCH_BATCH) {
+                const uint32_t nb = np - i0 < NC_MARCH_BATCH ? np - i0 : NC_MARCH_BATCH;
+                for (uint32_t e = 0; e < nb; e++)
+                    spts[e] = 0.5f * (pieces[i0 + e].s0 + pieces[i0 + e].s1);
+                eval_batch(&r, l, co, ci, spts, nb, &lb);
+                for (uint32_t e = 0; e < nb; e++) {
+                    const piece *pc = &pieces[i0 + e];
+                    const uint32_t j = pc->layer;
+                    const float len = pc->s1 - pc->s0;
+                    float w = hg(lb.cos_s[e], m->g[j]) * (vis0 + vis_rate * spts[e]) * len * lb.w[e];
+                    w = w > 0 ? w : 0.0f;
+                    for (int c = 0; c < 3; c++) {
+                        ks[c][e] = m->ss[j][c] * l->strength[c] * w;
+                        arg[c][e] = -lb.tau[c][e] - tau[c] - 0.5f * m->st[j][c] * len;
+                        tau[c] += m->st[j][c] * len;
+                    }
+                }
+                for (int c = 0; c < 3; c++)
+                    sum[c] += sum_k_exp(ks[c], arg[c], nb);
+            }
+            for (int c = 0; c < 3; c++)
+                rgb[c] += sum[c] * t_out;
+            continue;
+        }
         for (uint32_t i = 0; i < np; i++) {
             const piece *pc = &pieces[i];
             const uint32_t j = pc->layer;
             const float len = pc->s1 - pc->s0;
             for (int c = 0; c < 3; c++)
                 kc[c] = m->ss[j][c] * l->strength[c];
-            if (!prm->analytic) {
-                FETCH(i);
-                const uint32_t q = i - base;
-                const float sm = 0.5f * (pc->s0 + pc->s1);
-                const float w = hg(lb.cos_s[q], m->g[j]) * (vis0 + vis_rate * sm) * len * lb.w[q];
-                for (int c = 0; c < 3; c++) {
-                    if (w > 0)
-                        sum[c] += kc[c] * w * fast_exp(-lb.tau[c][q] - tau[c] - 0.5f * m->st[j][c] * len);
-                    tau[c] += m->st[j][c] * len;
-                }
-                continue;
-            }
             if (a_layer != j) { /* the first piece, or a new layer: the start's phase changed */
                 FETCH(i);
                 qa = i - base;
