@@ -774,7 +774,7 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
          * share it when the layer does not change, and its difference gives the exponential's
          * rate without a logarithm per channel. */
         float tau[3] = {0, 0, 0}, sum[3] = {0, 0, 0}, kc[3];
-        float lfa[3] = {0, 0, 0};
+        float lfa[3] = {0, 0, 0}, ea[3] = {0, 0, 0}; /* ea = e^lfa: a piece's end starts the next */
         bool a_lit = false;
         uint32_t a_layer = UINT32_MAX, qa = 0;
         const float vis_rate = (vis1 - vis0) / r.len;
@@ -820,8 +820,10 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
                 a_lit = pa > FLT_MIN; /* fast_log takes normal numbers */
                 if (a_lit) {
                     const float lp = fast_log(pa);
-                    for (int c = 0; c < 3; c++)
+                    for (int c = 0; c < 3; c++) {
                         lfa[c] = lp - lb.tau[c][qa] - tau[c];
+                        ea[c] = fast_exp(lfa[c]);
+                    }
                 }
             }
             FETCH(i + 1);
@@ -832,14 +834,16 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
             for (int c = 0; c < 3; c++) {
                 const float tb = tau[c] + m->st[j][c] * len;
                 const float lfb = lpb - lb.tau[c][qb] - tb;
+                const float fb = b_lit ? fast_exp(lfb) : 0.0f;
                 if (a_lit && b_lit) {
-                    const float q = lfa[c] - lfb, fa = fast_exp(lfa[c]), fb = fast_exp(lfb);
+                    const float q = lfa[c] - lfb, fa = ea[c];
                     sum[c] += kc[c] * (q > 1e-4f || q < -1e-4f ? len * (fa - fb) / q : len * 0.5f * (fa + fb));
                 } else { /* light on one end only: the trapezoid */
-                    sum[c] += kc[c] * len * 0.5f * ((a_lit ? fast_exp(lfa[c]) : 0.0f) + (b_lit ? fast_exp(lfb) : 0.0f));
+                    sum[c] += kc[c] * len * 0.5f * ((a_lit ? ea[c] : 0.0f) + fb);
                 }
                 tau[c] = tb;
                 lfa[c] = lfb;
+                ea[c] = fb;
             }
             a_lit = b_lit;
             a_layer = j;
