@@ -753,8 +753,8 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
             if (vis0 <= 0 && vis1 <= 0)
                 continue;
         }
-        /* The light is evaluated in batches of points (eval_batch): the pieces' midpoints
-         * (SAMPLES) or their ends, point 0 the first piece's start (ANALYTIC). */
+        /* ANALYTIC evaluates the light at the pieces' ends in batches (eval_batch through
+         * FETCH): point 0 is the first piece's start, point q the end of piece q - 1. */
         const uint32_t npts = np + 1;
         light_batch lb;
         float spts[NC_MARCH_BATCH];
