@@ -48,7 +48,7 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
                                        "pcf_radius", "shadow_bias", "spp", "seed", "time",
                                        "voxel_resolution", "tsm_size", "solver", "source",
                                        "tolerance", "seed_iterations", "time_limit", "max_scatter",
-                                       "layered_samples", "layered_epsilon", "layered_integration",
+                                       "layered_samples", "layered_epsilon", "layered_half_res", "layered_integration",
                                        "particles", "volumetrics", "froxel_width", "froxel_height",
                                        "froxel_slices", "raymarch_steps", "shadow_steps"};
     /* indexed by the enums' values */
@@ -116,6 +116,8 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
         s->layered.samples = (uint32_t)v;
     static const range epsilon_range = {0.0, 1.0, true, true};
     nc_json_get_number(ld, obj, "layered_epsilon", epsilon_range, &s->layered.epsilon);
+    static const range half_res_range = {0.0, 1.0, false, true};
+    nc_json_get_number(ld, obj, "layered_half_res", half_res_range, &s->layered.half_res);
     const char *const integrations[] = {nacre_layered_integration_name(NACRE_LAYERED_ANALYTIC),
                                         nacre_layered_integration_name(NACRE_LAYERED_SAMPLES)};
     choice = nc_json_get_choice(ld, obj, "layered_integration", "integration", integrations, COUNT_OF(integrations));

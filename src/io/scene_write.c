@@ -447,6 +447,7 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
         {s->pathtrace.time_limit >= 0 && s->pathtrace.time_limit <= FLT_MAX, "time_limit"},
         {s->layered.samples >= 1 && s->layered.samples <= 4096, "layered_samples"},
         {s->layered.epsilon > 0 && s->layered.epsilon < 1, "layered_epsilon"},
+        {s->layered.half_res >= 0 && s->layered.half_res < 1, "layered_half_res"},
         {s->layered.integration == NACRE_LAYERED_ANALYTIC || s->layered.integration == NACRE_LAYERED_SAMPLES,
          "layered_integration"},
         {(unsigned)s->particles <= NACRE_PARTICLES_DRAW_VOXEL, "particles"},
@@ -488,6 +489,7 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
     add_uint(w, o, "max_scatter", s->pathtrace.max_scatter);
     add_uint(w, o, "layered_samples", s->layered.samples);
     add_float(w, o, "layered_epsilon", s->layered.epsilon);
+    add_float(w, o, "layered_half_res", s->layered.half_res);
     add_string(w, o, "layered_integration", nacre_layered_integration_name(s->layered.integration));
     add_string(w, o, "particles", nacre_particles_draw_name(s->particles));
     add_string(w, o, "volumetrics", nacre_volumetrics_name(s->volumetrics.mode));

@@ -41,6 +41,7 @@
 #include "core/optics.h"
 #include "scene/lights.h"
 
+#include <float.h>
 #include <math.h>
 #include <string.h>
 
@@ -60,6 +61,103 @@ static inline float hg(float c, float g)
 {
     float d = 1.0f + g * g - 2.0f * g * c;
     return (1.0f - g * g) / (4.0f * (float)NC_PI * d * sqrtf(d));
+}
+
+/* e^x for |x| < 87 (0 below, e^87 above): 2^(x log2 e) split into an integer power, built in the
+ * exponent bits, and a degree-5 polynomial of the fraction (nc_fast_exp_neg's); relative error
+ * under 4e-6, where expf is a library call per channel and piece end. */
+static inline float fast_exp(float x)
+{
+    float y = x * 1.44269504f;
+    if (!(y > -126.0f))
+        return 0.0f;
+    y = y < 126.0f ? y : 126.0f;
+    float n = floorf(y), f = y - n;
+    float p = 1.8775767e-3f;
+    p = p * f + 8.9893397e-3f;
+    p = p * f + 5.5826318e-2f;
+    p = p * f + 2.4015361e-1f;
+    p = p * f + 6.9315308e-1f;
+    p = p * f + 9.9999994e-1f;
+    union {
+        float f;
+        int32_t i;
+    } u;
+    u.i = ((int32_t)n + 127) << 23;
+    return p * u.f;
+}
+
+/* ln x for normal positive x: the exponent bits, and for the mantissa m in [sqrt(1/2), sqrt(2))
+ * the series 2 atanh((m - 1) / (m + 1)) to the 9th power (truncation under 4e-10); absolute
+ * error under 2e-7 after rounding. */
+static inline float fast_log(float x)
+{
+    union {
+        float f;
+        int32_t i;
+    } u = {.f = x};
+    int32_t e = ((u.i >> 23) & 0xff) - 127;
+    u.i = (u.i & 0x007fffff) | 0x3f800000; /* m in [1, 2) */
+    if (u.f > 1.41421356f) {
+        u.f *= 0.5f;
+        e++;
+    }
+    const float t = (u.f - 1.0f) / (u.f + 1.0f), t2 = t * t;
+    const float p = t * (2.0f + t2 * (0.66666667f + t2 * (0.4f + t2 * (0.28571429f + t2 * 0.22222222f))));
+    return p + (float)e * 0.69314718f;
+}
+
+/* The depth map's layer bottoms at (u, v), as nc_layers_bottoms but in float and without integer
+ * division: the march makes several per sample. Texel centres and wrapping as
+ * nc_texture_sample_n; the bilinear weights differ from its double ones by float rounding (the
+ * fraction of u * width keeps 24 - log2(width) bits). */
+static inline void bottoms_at(const nc_layer_stack *s, float u, float v, float bottom[NACRE_MAX_LAYERS])
+{
+    float mapv[NACRE_MAX_LAYERS] = {1.0f, 1.0f, 1.0f, 1.0f};
+    const nc_texture_rec *t = s->map;
+    if (t && s->count) {
+        float fu = u - floorf(u), fv = v - floorf(v);
+        if (!(fu >= 0.0f && fu <= 1.0f))
+            fu = 0.0f; /* NaN or infinite uv */
+        if (!(fv >= 0.0f && fv <= 1.0f))
+            fv = 0.0f;
+        const float fx = fu * (float)t->width - 0.5f, fy = (1.0f - fv) * (float)t->height - 0.5f;
+        const float x0 = floorf(fx), y0 = floorf(fy);
+        const float ax = fx - x0, ay = fy - y0;
+        /* x0 in [-1, width - 1]: one conditional wrap on each side */
+        int32_t xa = (int32_t)x0, ya = (int32_t)y0;
+        xa = xa < 0 ? xa + t->width : xa;
+        ya = ya < 0 ? ya + t->height : ya;
+        int32_t xb = xa + 1 < t->width ? xa + 1 : 0, yb = ya + 1 < t->height ? ya + 1 : 0;
+        xa = xa < t->width ? xa : 0;
+        ya = ya < t->height ? ya : 0;
+        const size_t ch = (size_t)t->channels, w = (size_t)t->width;
+        const float *p00 = t->data + ch * ((size_t)xa + w * (size_t)ya), *p10 = t->data + ch * ((size_t)xb + w * (size_t)ya);
+        const float *p01 = t->data + ch * ((size_t)xa + w * (size_t)yb), *p11 = t->data + ch * ((size_t)xb + w * (size_t)yb);
+        const float w00 = (1 - ay) * (1 - ax), w10 = (1 - ay) * ax, w01 = ay * (1 - ax), w11 = ay * ax;
+        for (uint32_t k = 0; k < s->count; k++)
+            mapv[k] = w00 * p00[k] + w10 * p10[k] + w01 * p01[k] + w11 * p11[k];
+    }
+    float run = 0;
+    for (uint32_t j = 0; j < s->count; j++) {
+        run = maxf(run, s->depth[j] * mapv[j]);
+        bottom[j] = run;
+    }
+}
+
+/* nc_layers_find with bottoms_at. */
+static inline uint32_t find_at(const nc_layer_stack *s, float d, float u, float v)
+{
+    uint32_t j = 0;
+    while (j < s->count && d >= s->hi[j])
+        j++;
+    if (j == s->count || d < s->lo[j])
+        return j;
+    float bottom[NACRE_MAX_LAYERS];
+    bottoms_at(s, u, v, bottom);
+    while (j < s->count && d >= bottom[j])
+        j++;
+    return j;
 }
 
 void nc_layer_medium_init(const nacre_scene *scene, const nacre_material_desc *m, float epsilon, nc_layer_medium *out)
@@ -123,7 +221,7 @@ typedef struct ray_ctx {
 
 static inline uint32_t layer_at(const ray_ctx *r, float s)
 {
-    return r->m->count ? nc_layers_find(&r->m->stack, s * r->dz, r->pt->uv[0] + s * r->du, r->pt->uv[1] + s * r->dv)
+    return r->m->count ? find_at(&r->m->stack, s * r->dz, r->pt->uv[0] + s * r->du, r->pt->uv[1] + s * r->dv)
                        : 0;
 }
 
@@ -131,7 +229,7 @@ static inline uint32_t layer_at(const ray_ctx *r, float s)
  * refracted beam after the path K'M (rgb), and the cosine between the beam and the view ray. */
 typedef struct light_at {
     bool lit;     /* false: no light reaches M this way (the rest is 0) */
-    float lw;     /* log of the scalar factor: Fresnel, beam compression, 1 / r^2, spot cone */
+    float w;      /* the scalar factor: Fresnel, beam compression, 1 / r^2, spot cone */
     float tau[3]; /* optical depth along K'M */
     float cos_s;
     float k[3];   /* K' */
@@ -214,8 +312,8 @@ static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, fl
     } else {
         float bm[NACRE_MAX_LAYERS], bk[NACRE_MAX_LAYERS];
         float dpk[3] = {out->k[0] - pt->p[0], out->k[1] - pt->p[1], out->k[2] - pt->p[2]};
-        nc_layers_bottoms(&m->stack, pt->uv[0] + s * r->du, pt->uv[1] + s * r->dv, bm);
-        nc_layers_bottoms(&m->stack, pt->uv[0] + dot3(pt->gu, dpk), pt->uv[1] + dot3(pt->gv, dpk), bk);
+        bottoms_at(&m->stack, pt->uv[0] + s * r->du, pt->uv[1] + s * r->dv, bm);
+        bottoms_at(&m->stack, pt->uv[0] + dot3(pt->gu, dpk), pt->uv[1] + dot3(pt->gv, dpk), bk);
         float above = 0, prev_m = 0, prev_k = 0;
         for (uint32_t j = 0; j < m->count; j++) {
             float dj = 0.5f * ((bm[j] - prev_m) + (bk[j] - prev_k));
@@ -235,9 +333,260 @@ static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, fl
     if (!(scale > 0))
         return;
     out->lit = true;
-    out->lw = logf(scale);
+    out->w = scale;
     memcpy(out->tau, tau, sizeof(tau));
     out->cos_s = dot3(wt, r->d);
+}
+
+/* Light at a batch of points of the view ray: what eval_light gives, structure of arrays. */
+#define NC_MARCH_BATCH 64
+typedef struct light_batch {
+    float w[NC_MARCH_BATCH]; /* light_at.w, 0 where no light reaches (lit = w > 0) */
+    float tau[3][NC_MARCH_BATCH];
+    float cos_s[NC_MARCH_BATCH];
+} light_batch;
+
+static void eval_scalar(const ray_ctx *r, const nacre_light_desc *l, float co, float ci, const float *s, uint32_t n,
+                        light_batch *out)
+{
+    for (uint32_t i = 0; i < n; i++) {
+        light_at la;
+        eval_light(r, l, co, ci, s[i], &la);
+        const bool lit = la.lit && la.w > 0;
+        out->w[i] = lit ? la.w : 0.0f;
+        for (int c = 0; c < 3; c++)
+            out->tau[c][i] = lit ? la.tau[c] : 0.0f;
+        out->cos_s[i] = lit ? la.cos_s : 0.0f;
+    }
+}
+
+#ifdef __AVX2__
+#include <immintrin.h>
+
+/* bottoms_at on 8 uvs: the same float arithmetic, the texels through gathers. */
+static inline void bottoms8(const nc_layer_stack *s, __m256 u, __m256 v, __m256 bottom[NACRE_MAX_LAYERS])
+{
+    const __m256 one = _mm256_set1_ps(1.0f), zero = _mm256_setzero_ps();
+    __m256 mapv[NACRE_MAX_LAYERS] = {one, one, one, one};
+    const nc_texture_rec *t = s->map;
+    if (t && s->count) {
+        __m256 fu = _mm256_sub_ps(u, _mm256_floor_ps(u)), fv = _mm256_sub_ps(v, _mm256_floor_ps(v));
+        /* NaN or infinite uv: 0 (ordered compares are false on NaN) */
+        fu = _mm256_and_ps(fu, _mm256_and_ps(_mm256_cmp_ps(fu, zero, _CMP_GE_OQ), _mm256_cmp_ps(fu, one, _CMP_LE_OQ)));
+        fv = _mm256_and_ps(fv, _mm256_and_ps(_mm256_cmp_ps(fv, zero, _CMP_GE_OQ), _mm256_cmp_ps(fv, one, _CMP_LE_OQ)));
+        const __m256 half = _mm256_set1_ps(0.5f);
+        const __m256 fx = _mm256_sub_ps(_mm256_mul_ps(fu, _mm256_set1_ps((float)t->width)), half);
+        const __m256 fy = _mm256_sub_ps(_mm256_mul_ps(_mm256_sub_ps(one, fv), _mm256_set1_ps((float)t->height)), half);
+        const __m256 x0 = _mm256_floor_ps(fx), y0 = _mm256_floor_ps(fy);
+        const __m256 ax = _mm256_sub_ps(fx, x0), ay = _mm256_sub_ps(fy, y0);
+        const __m256i W = _mm256_set1_epi32(t->width), H = _mm256_set1_epi32(t->height);
+        const __m256i izero = _mm256_setzero_si256(), ione = _mm256_set1_epi32(1);
+        __m256i xa = _mm256_cvttps_epi32(x0), ya = _mm256_cvttps_epi32(y0);
+        xa = _mm256_add_epi32(xa, _mm256_and_si256(_mm256_cmpgt_epi32(izero, xa), W));
+        ya = _mm256_add_epi32(ya, _mm256_and_si256(_mm256_cmpgt_epi32(izero, ya), H));
+        __m256i xb = _mm256_add_epi32(xa, ione), yb = _mm256_add_epi32(ya, ione);
+        xb = _mm256_and_si256(xb, _mm256_cmpgt_epi32(W, xb));
+        yb = _mm256_and_si256(yb, _mm256_cmpgt_epi32(H, yb));
+        xa = _mm256_and_si256(xa, _mm256_cmpgt_epi32(W, xa));
+        ya = _mm256_and_si256(ya, _mm256_cmpgt_epi32(H, ya));
+        const __m256i ch = _mm256_set1_epi32(t->channels);
+        const __m256i rowa = _mm256_mullo_epi32(ya, W), rowb = _mm256_mullo_epi32(yb, W);
+        const __m256i i00 = _mm256_mullo_epi32(_mm256_add_epi32(xa, rowa), ch);
+        const __m256i i10 = _mm256_mullo_epi32(_mm256_add_epi32(xb, rowa), ch);
+        const __m256i i01 = _mm256_mullo_epi32(_mm256_add_epi32(xa, rowb), ch);
+        const __m256i i11 = _mm256_mullo_epi32(_mm256_add_epi32(xb, rowb), ch);
+        const __m256 bx = _mm256_sub_ps(one, ax), by = _mm256_sub_ps(one, ay);
+        const __m256 w00 = _mm256_mul_ps(by, bx), w10 = _mm256_mul_ps(by, ax);
+        const __m256 w01 = _mm256_mul_ps(ay, bx), w11 = _mm256_mul_ps(ay, ax);
+        for (uint32_t k = 0; k < s->count; k++) {
+            const float *d = t->data + k;
+            __m256 acc = _mm256_mul_ps(w00, _mm256_i32gather_ps(d, i00, 4));
+            acc = _mm256_fmadd_ps(w10, _mm256_i32gather_ps(d, i10, 4), acc);
+            acc = _mm256_fmadd_ps(w01, _mm256_i32gather_ps(d, i01, 4), acc);
+            mapv[k] = _mm256_fmadd_ps(w11, _mm256_i32gather_ps(d, i11, 4), acc);
+        }
+    }
+    __m256 run = _mm256_setzero_ps();
+    for (uint32_t j = 0; j < s->count; j++) {
+        run = _mm256_max_ps(run, _mm256_mul_ps(_mm256_set1_ps(s->depth[j]), mapv[j]));
+        bottom[j] = run;
+    }
+}
+
+static inline __m256 dot8(const __m256 a[3], const __m256 b[3])
+{
+    return _mm256_fmadd_ps(a[2], b[2], _mm256_fmadd_ps(a[1], b[1], _mm256_mul_ps(a[0], b[0])));
+}
+
+/* eval_light on 8 points of the ray (directional and point lights; spot lights take the scalar
+ * path for their falloff). Lanes past n repeat the last point and are not stored. */
+static void eval8(const ray_ctx *r, const nacre_light_desc *l, const float *sp, uint32_t n, light_batch *out,
+                  uint32_t at)
+{
+    const nc_march_point *pt = r->pt;
+    const nc_layer_medium *m = r->m;
+    float sl[8];
+    for (uint32_t i = 0; i < 8; i++)
+        sl[i] = sp[i < n ? i : n - 1];
+    const __m256 s = _mm256_loadu_ps(sl), zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f);
+    __m256 mpt[3], nm[3], pm[3], w[3], wt[3], k[3];
+    const __m256 a = _mm256_max_ps(_mm256_sub_ps(_mm256_set1_ps(r->len), s), zero), b = s;
+    const __m256 ab = _mm256_add_ps(a, b);
+    const __m256 inv_ab = _mm256_div_ps(one, _mm256_blendv_ps(one, ab, _mm256_cmp_ps(ab, zero, _CMP_GT_OQ)));
+    for (int c = 0; c < 3; c++) {
+        mpt[c] = _mm256_fmadd_ps(s, _mm256_set1_ps(r->d[c]), _mm256_set1_ps(pt->p[c]));
+        nm[c] = _mm256_fmadd_ps(a, _mm256_set1_ps(pt->n[c]), _mm256_mul_ps(b, _mm256_set1_ps(pt->ns[c])));
+        pm[c] = _mm256_mul_ps(_mm256_fmadd_ps(a, _mm256_set1_ps(pt->p[c]), _mm256_mul_ps(b, _mm256_set1_ps(pt->ps[c]))),
+                              inv_ab);
+    }
+    const __m256 nn = dot8(nm, nm);
+    __m256 ok = _mm256_cmp_ps(nn, zero, _CMP_GT_OQ);
+    const __m256 inv_nn = _mm256_div_ps(one, _mm256_sqrt_ps(_mm256_blendv_ps(one, nn, ok)));
+    for (int c = 0; c < 3; c++)
+        nm[c] = _mm256_mul_ps(nm[c], inv_nn);
+    if (l->type == NACRE_LIGHT_DIRECTIONAL) {
+        for (int c = 0; c < 3; c++)
+            w[c] = _mm256_set1_ps(-l->direction[c]);
+    } else {
+        for (int c = 0; c < 3; c++)
+            w[c] = _mm256_sub_ps(_mm256_set1_ps(l->position[c]), mpt[c]);
+        const __m256 len2 = dot8(w, w);
+        ok = _mm256_and_ps(ok, _mm256_cmp_ps(len2, zero, _CMP_GT_OQ));
+        const __m256 inv = _mm256_div_ps(one, _mm256_sqrt_ps(_mm256_blendv_ps(one, len2, ok)));
+        for (int c = 0; c < 3; c++)
+            w[c] = _mm256_mul_ps(w[c], inv);
+    }
+    const __m256 cos_i = dot8(nm, w);
+    ok = _mm256_and_ps(ok, _mm256_cmp_ps(cos_i, zero, _CMP_GT_OQ));
+    const float eta = m->eta;
+    const __m256 veta = _mm256_set1_ps(eta), inv_eta2 = _mm256_set1_ps(1.0f / (eta * eta));
+    const __m256 sin2_t = _mm256_mul_ps(_mm256_fnmadd_ps(cos_i, cos_i, one), inv_eta2);
+    const __m256 cos_t = _mm256_sqrt_ps(_mm256_max_ps(_mm256_sub_ps(one, sin2_t), zero));
+    ok = _mm256_and_ps(ok, _mm256_cmp_ps(cos_t, _mm256_set1_ps(1e-4f), _CMP_GT_OQ));
+    const __m256 cos_t_safe = _mm256_blendv_ps(one, cos_t, ok);
+    const __m256 inv_eta = _mm256_set1_ps(1.0f / eta);
+    for (int c = 0; c < 3; c++)
+        wt[c] = _mm256_fmadd_ps(_mm256_fnmadd_ps(cos_i, nm[c], w[c]), inv_eta, _mm256_mul_ps(cos_t, nm[c]));
+    __m256 h = zero;
+    for (int c = 0; c < 3; c++)
+        h = _mm256_fmadd_ps(_mm256_sub_ps(pm[c], mpt[c]), nm[c], h);
+    h = _mm256_max_ps(h, zero);
+    const __m256 km = _mm256_div_ps(h, cos_t_safe);
+    for (int c = 0; c < 3; c++)
+        k[c] = _mm256_fmadd_ps(km, wt[c], mpt[c]);
+    /* Fresnel (nc_fresnel_dielectric_f): its cos_t is the refracted one above */
+    const __m256 ec = _mm256_mul_ps(veta, cos_t), ei = _mm256_mul_ps(veta, cos_i);
+    const __m256 rs = _mm256_div_ps(_mm256_sub_ps(cos_i, ec), _mm256_add_ps(cos_i, ec));
+    const __m256 rp = _mm256_div_ps(_mm256_sub_ps(ei, cos_t), _mm256_add_ps(ei, cos_t));
+    const __m256 fr = _mm256_mul_ps(_mm256_set1_ps(0.5f), _mm256_fmadd_ps(rs, rs, _mm256_mul_ps(rp, rp)));
+    __m256 scale = _mm256_div_ps(_mm256_mul_ps(_mm256_sub_ps(one, fr), cos_i), cos_t_safe);
+    if (l->type != NACRE_LIGHT_DIRECTIONAL) {
+        __m256 dk[3];
+        for (int c = 0; c < 3; c++)
+            dk[c] = _mm256_sub_ps(k[c], _mm256_set1_ps(l->position[c]));
+        const __m256 d2 = dot8(dk, dk);
+        ok = _mm256_and_ps(ok, _mm256_cmp_ps(d2, zero, _CMP_GT_OQ));
+        scale = _mm256_div_ps(scale, _mm256_blendv_ps(one, d2, ok));
+    }
+    __m256 tau[3] = {zero, zero, zero};
+    if (m->count == 0) {
+        for (int c = 0; c < 3; c++)
+            tau[c] = _mm256_mul_ps(_mm256_set1_ps(m->st[0][c]), km);
+    } else {
+        __m256 bm[NACRE_MAX_LAYERS], bk[NACRE_MAX_LAYERS], dpk[3];
+        const __m256 u = _mm256_fmadd_ps(s, _mm256_set1_ps(r->du), _mm256_set1_ps(pt->uv[0]));
+        const __m256 v = _mm256_fmadd_ps(s, _mm256_set1_ps(r->dv), _mm256_set1_ps(pt->uv[1]));
+        bottoms8(&m->stack, u, v, bm);
+        for (int c = 0; c < 3; c++)
+            dpk[c] = _mm256_sub_ps(k[c], _mm256_set1_ps(pt->p[c]));
+        const __m256 gu[3] = {_mm256_set1_ps(pt->gu[0]), _mm256_set1_ps(pt->gu[1]), _mm256_set1_ps(pt->gu[2])};
+        const __m256 gv[3] = {_mm256_set1_ps(pt->gv[0]), _mm256_set1_ps(pt->gv[1]), _mm256_set1_ps(pt->gv[2])};
+        bottoms8(&m->stack, _mm256_add_ps(_mm256_set1_ps(pt->uv[0]), dot8(gu, dpk)),
+                 _mm256_add_ps(_mm256_set1_ps(pt->uv[1]), dot8(gv, dpk)), bk);
+        const __m256 inv_ct = _mm256_div_ps(one, cos_t_safe);
+        __m256 above = zero, prev_m = zero, prev_k = zero;
+        for (uint32_t j = 0; j < m->count; j++) {
+            const __m256 dj =
+                _mm256_mul_ps(_mm256_set1_ps(0.5f), _mm256_add_ps(_mm256_sub_ps(bm[j], prev_m), _mm256_sub_ps(bk[j], prev_k)));
+            prev_m = bm[j];
+            prev_k = bk[j];
+            const __m256 len = _mm256_min_ps(_mm256_fnmadd_ps(above, inv_ct, km), _mm256_mul_ps(dj, inv_ct));
+            const __m256 lp = _mm256_max_ps(len, zero);
+            for (int c = 0; c < 3; c++)
+                tau[c] = _mm256_fmadd_ps(_mm256_set1_ps(m->st[j][c]), lp, tau[c]);
+            above = _mm256_add_ps(above, dj);
+        }
+        const __m256 rest = _mm256_max_ps(_mm256_fnmadd_ps(above, inv_ct, km), zero);
+        for (int c = 0; c < 3; c++)
+            tau[c] = _mm256_fmadd_ps(_mm256_set1_ps(m->st[m->count][c]), rest, tau[c]);
+    }
+    ok = _mm256_and_ps(ok, _mm256_cmp_ps(scale, zero, _CMP_GT_OQ));
+    float ow[8], ot[3][8], oc[8];
+    _mm256_storeu_ps(ow, _mm256_and_ps(scale, ok));
+    for (int c = 0; c < 3; c++)
+        _mm256_storeu_ps(ot[c], _mm256_and_ps(tau[c], ok));
+    _mm256_storeu_ps(oc, _mm256_and_ps(dot8(wt, (const __m256[3]){_mm256_set1_ps(r->d[0]), _mm256_set1_ps(r->d[1]),
+                                                                   _mm256_set1_ps(r->d[2])}),
+                                       ok));
+    for (uint32_t i = 0; i < n && i < 8; i++) {
+        out->w[at + i] = ow[i];
+        for (int c = 0; c < 3; c++)
+            out->tau[c][at + i] = ot[c][i];
+        out->cos_s[at + i] = oc[i];
+    }
+}
+#endif
+
+#ifdef __AVX2__
+/* fast_exp on 8 lanes. */
+static inline __m256 fast_exp8(__m256 x)
+{
+    __m256 y = _mm256_mul_ps(x, _mm256_set1_ps(1.44269504f));
+    const __m256 keep = _mm256_cmp_ps(y, _mm256_set1_ps(-126.0f), _CMP_GT_OQ);
+    y = _mm256_max_ps(_mm256_min_ps(y, _mm256_set1_ps(126.0f)), _mm256_set1_ps(-126.0f));
+    const __m256 n = _mm256_floor_ps(y), f = _mm256_sub_ps(y, n);
+    __m256 p = _mm256_set1_ps(1.8775767e-3f);
+    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(8.9893397e-3f));
+    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(5.5826318e-2f));
+    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(2.4015361e-1f));
+    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(6.9315308e-1f));
+    p = _mm256_fmadd_ps(p, f, _mm256_set1_ps(9.9999994e-1f));
+    const __m256i e = _mm256_slli_epi32(_mm256_add_epi32(_mm256_cvtps_epi32(n), _mm256_set1_epi32(127)), 23);
+    return _mm256_and_ps(keep, _mm256_mul_ps(p, _mm256_castsi256_ps(e)));
+}
+#endif
+
+/* sum over e < n of k[e] e^a[e] */
+static inline float sum_k_exp(const float *k, const float *a, uint32_t n)
+{
+    float acc = 0;
+    uint32_t e = 0;
+#ifdef __AVX2__
+    __m256 v = _mm256_setzero_ps();
+    for (; e + 8 <= n; e += 8)
+        v = _mm256_fmadd_ps(_mm256_loadu_ps(k + e), fast_exp8(_mm256_loadu_ps(a + e)), v);
+    float lanes[8];
+    _mm256_storeu_ps(lanes, v);
+    for (int q = 0; q < 8; q++)
+        acc += lanes[q];
+#endif
+    for (; e < n; e++)
+        acc += k[e] * fast_exp(a[e]);
+    return acc;
+}
+
+/* The light at points s[0..n-1] (n <= NC_MARCH_BATCH) into out[0..n-1]. */
+static void eval_batch(const ray_ctx *r, const nacre_light_desc *l, float co, float ci, const float *s, uint32_t n,
+                       light_batch *out)
+{
+#ifdef __AVX2__
+    if (l->type != NACRE_LIGHT_SPOT) {
+        for (uint32_t i = 0; i < n; i += 8)
+            eval8(r, l, s + i, n - i < 8 ? n - i : 8, out, i);
+        return;
+    }
+#endif
+    eval_scalar(r, l, co, ci, s, n, out);
 }
 
 /* A piece of the view ray [s0, s1] inside one layer. */
@@ -245,6 +594,43 @@ typedef struct piece {
     float s0, s1;
     uint8_t layer;
 } piece;
+
+/* A point of the view ray with its layer, and the layer bottoms there once read: the boundary
+ * search reuses them for its secant. */
+typedef struct probe {
+    float s;
+    uint32_t layer;
+    bool has_bot;
+    float bot[NACRE_MAX_LAYERS];
+} probe;
+
+static inline void probe_at(const ray_ctx *r, float s, probe *p)
+{
+    const nc_layer_stack *st = &r->m->stack;
+    p->s = s;
+    p->has_bot = false;
+    /* find_at, keeping the bottoms */
+    const float d = s * r->dz;
+    uint32_t j = 0;
+    while (j < st->count && d >= st->hi[j])
+        j++;
+    if (j < st->count && d >= st->lo[j]) {
+        bottoms_at(st, r->pt->uv[0] + s * r->du, r->pt->uv[1] + s * r->dv, p->bot);
+        p->has_bot = true;
+        while (j < st->count && d >= p->bot[j])
+            j++;
+    }
+    p->layer = j;
+}
+
+static inline float probe_bottom(const ray_ctx *r, probe *p, uint32_t edge)
+{
+    if (!p->has_bot) {
+        bottoms_at(&r->m->stack, r->pt->uv[0] + p->s * r->du, r->pt->uv[1] + p->s * r->dv, p->bot);
+        p->has_bot = true;
+    }
+    return p->bot[edge];
+}
 
 /* The pieces of constant layer along [0, len] (ANALYTIC), or the N steps with the layer at their
  * midpoints (SAMPLES); stops early where the transmittance to P is negligible. */
@@ -264,30 +650,32 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
         }
         return count;
     }
+    probe plo, ps, pa, pb, pm;
+    probe_at(r, 0.0f, &plo);
     float lo = 0;
-    uint32_t jl = layer_at(r, 0.0f);
+    uint32_t jl = plo.layer;
     for (uint32_t i = 1; i <= n && tau_min < tau_stop; i++) {
         const float s = i == n ? r->len : (float)i * step;
-        uint32_t j = layer_at(r, s);
+        probe_at(r, s, &ps);
+        const uint32_t j = ps.layer;
         while (j != jl && count < NC_MARCH_MAX_PIECES - 2) {
             /* First change of layer after lo: layer_at(a) == jl, layer_at(b) != jl. */
-            float a = lo, b = s;
+            pa = plo;
+            pb = ps;
             for (int it = 0; it < NC_MARCH_BISECT; it++) {
-                float mid = 0.5f * (a + b);
-                if (layer_at(r, mid) == jl)
-                    a = mid;
+                probe_at(r, 0.5f * (pa.s + pb.s), &pm);
+                if (pm.layer == jl)
+                    pa = pm;
                 else
-                    b = mid;
+                    pb = pm;
             }
             /* The bracket's last step is a secant on depth - bottom: exact where the boundary
              * is flat, so a handful of halvings suffice. */
-            const uint32_t jb = layer_at(r, b);
+            const float a = pa.s, b = pb.s;
+            const uint32_t jb = pb.layer;
             const uint32_t edge = jb > jl ? jl : jl - 1; /* the bottom crossed */
-            float bot[NACRE_MAX_LAYERS] = {0, 0, 0, 0};
-            nc_layers_bottoms(&m->stack, r->pt->uv[0] + a * r->du, r->pt->uv[1] + a * r->dv, bot);
-            const float fa = a * r->dz - bot[edge];
-            nc_layers_bottoms(&m->stack, r->pt->uv[0] + b * r->du, r->pt->uv[1] + b * r->dv, bot);
-            const float fb = b * r->dz - bot[edge];
+            const float fa = a * r->dz - probe_bottom(r, &pa, edge);
+            const float fb = b * r->dz - probe_bottom(r, &pb, edge);
             float cut = fa != fb ? a + (b - a) * fa / (fa - fb) : b;
             cut = cut >= a && cut <= b ? cut : b;
             out[count++] = (piece){lo, cut, (uint8_t)jl};
@@ -295,13 +683,15 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
             lo = cut;
             /* The layer just past the cut: a bracket that held two boundaries goes on with the
              * layer between them, not the one at its end. */
-            const uint32_t jn = layer_at(r, cut + 1e-3f * (b - cut));
-            jl = jn != jl ? jn : jb;
+            probe_at(r, cut + 1e-3f * (b - cut), &pm);
+            jl = pm.layer != jl ? pm.layer : jb;
+            plo = (probe){.s = cut, .layer = jl, .has_bot = false};
         }
         out[count++] = (piece){lo, s, (uint8_t)jl};
         tau_min += minf(m->st[jl][0], minf(m->st[jl][1], m->st[jl][2])) * (s - lo);
         lo = s;
         jl = j;
+        plo = ps;
         if (count >= NC_MARCH_MAX_PIECES - 2)
             break;
     }
@@ -363,63 +753,103 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
             if (vis0 <= 0 && vis1 <= 0)
                 continue;
         }
+        /* ANALYTIC evaluates the light at the pieces' ends in batches (eval_batch through
+         * FETCH): point 0 is the first piece's start, point q the end of piece q - 1. */
+        const uint32_t npts = np + 1;
+        light_batch lb;
+        float spts[NC_MARCH_BATCH];
+        uint32_t base = 0, filled = 0;
+#define POINT(q) ((q) == 0 ? pieces[0].s0 : pieces[(q) - 1].s1)
+#define FETCH(q)                                                                                                       \
+    do {                                                                                                               \
+        if ((q) >= base + filled) {                                                                                    \
+            base = (q);                                                                                                \
+            filled = npts - base < NC_MARCH_BATCH ? npts - base : NC_MARCH_BATCH;                                      \
+            for (uint32_t e = 0; e < filled; e++)                                                                      \
+                spts[e] = POINT(base + e);                                                                             \
+            eval_batch(&r, l, co, ci, spts, filled, &lb);                                                              \
+        }                                                                                                              \
+    } while (0)
         /* Per channel, ln of the integrand without sigma_s * strength (kc): the pieces' ends
          * share it when the layer does not change, and its difference gives the exponential's
          * rate without a logarithm per channel. */
         float tau[3] = {0, 0, 0}, sum[3] = {0, 0, 0}, kc[3];
-        float lfa[3] = {0, 0, 0};
+        float lfa[3] = {0, 0, 0}, ea[3] = {0, 0, 0}; /* ea = e^lfa: a piece's end starts the next */
         bool a_lit = false;
-        uint32_t a_layer = UINT32_MAX;
-        light_at la, lb;
+        uint32_t a_layer = UINT32_MAX, qa = 0;
+        const float vis_rate = (vis1 - vis0) / r.len;
+        if (!prm->analytic) {
+            /* The seed's sums, a batch of samples at a time: the weights and exponents first
+             * (the transmittance to P runs from sample to sample), then the exponentials 8 at a
+             * time (sum_k_exp). */
+            float ks[3][NC_MARCH_BATCH], arg[3][NC_MARCH_BATCH];
+            for (uint32_t i0 = 0; i0 < np; i0 += NC_MARCH_BATCH) {
+                const uint32_t nb = np - i0 < NC_MARCH_BATCH ? np - i0 : NC_MARCH_BATCH;
+                for (uint32_t e = 0; e < nb; e++)
+                    spts[e] = 0.5f * (pieces[i0 + e].s0 + pieces[i0 + e].s1);
+                eval_batch(&r, l, co, ci, spts, nb, &lb);
+                for (uint32_t e = 0; e < nb; e++) {
+                    const piece *pc = &pieces[i0 + e];
+                    const uint32_t j = pc->layer;
+                    const float len = pc->s1 - pc->s0;
+                    float w = hg(lb.cos_s[e], m->g[j]) * (vis0 + vis_rate * spts[e]) * len * lb.w[e];
+                    w = w > 0 ? w : 0.0f;
+                    for (int c = 0; c < 3; c++) {
+                        ks[c][e] = m->ss[j][c] * l->strength[c] * w;
+                        arg[c][e] = -lb.tau[c][e] - tau[c] - 0.5f * m->st[j][c] * len;
+                        tau[c] += m->st[j][c] * len;
+                    }
+                }
+                for (int c = 0; c < 3; c++)
+                    sum[c] += sum_k_exp(ks[c], arg[c], nb);
+            }
+            for (int c = 0; c < 3; c++)
+                rgb[c] += sum[c] * t_out;
+            continue;
+        }
         for (uint32_t i = 0; i < np; i++) {
             const piece *pc = &pieces[i];
             const uint32_t j = pc->layer;
             const float len = pc->s1 - pc->s0;
             for (int c = 0; c < 3; c++)
                 kc[c] = m->ss[j][c] * l->strength[c];
-            if (!prm->analytic) {
-                const float sm = 0.5f * (pc->s0 + pc->s1);
-                eval_light(&r, l, co, ci, sm, &la);
-                const float vis = vis0 + (vis1 - vis0) * (sm / r.len);
-                const float w = hg(la.cos_s, m->g[j]) * vis * len;
-                for (int c = 0; c < 3; c++) {
-                    if (la.lit && w > 0)
-                        sum[c] += kc[c] * w * expf(la.lw - la.tau[c] - tau[c] - 0.5f * m->st[j][c] * len);
-                    tau[c] += m->st[j][c] * len;
-                }
-                continue;
-            }
             if (a_layer != j) { /* the first piece, or a new layer: the start's phase changed */
-                if (i == 0)
-                    eval_light(&r, l, co, ci, pc->s0, &la);
-                const float pa = hg(la.cos_s, m->g[j]) * (vis0 + (vis1 - vis0) * (pc->s0 / r.len));
-                a_lit = la.lit && pa > 0;
+                FETCH(i);
+                qa = i - base;
+                const float pa = hg(lb.cos_s[qa], m->g[j]) * (vis0 + vis_rate * pc->s0) * lb.w[qa];
+                a_lit = pa > FLT_MIN; /* fast_log takes normal numbers */
                 if (a_lit) {
-                    const float lp = logf(pa) + la.lw;
-                    for (int c = 0; c < 3; c++)
-                        lfa[c] = lp - la.tau[c] - tau[c];
+                    const float lp = fast_log(pa);
+                    for (int c = 0; c < 3; c++) {
+                        lfa[c] = lp - lb.tau[c][qa] - tau[c];
+                        ea[c] = fast_exp(lfa[c]);
+                    }
                 }
             }
-            eval_light(&r, l, co, ci, pc->s1, &lb);
-            const float pb = hg(lb.cos_s, m->g[j]) * (vis0 + (vis1 - vis0) * (pc->s1 / r.len));
-            const bool b_lit = lb.lit && pb > 0;
-            const float lpb = b_lit ? logf(pb) + lb.lw : 0.0f;
+            FETCH(i + 1);
+            const uint32_t qb = i + 1 - base;
+            const float pb = hg(lb.cos_s[qb], m->g[j]) * (vis0 + vis_rate * pc->s1) * lb.w[qb];
+            const bool b_lit = pb > FLT_MIN;
+            const float lpb = b_lit ? fast_log(pb) : 0.0f;
             for (int c = 0; c < 3; c++) {
                 const float tb = tau[c] + m->st[j][c] * len;
-                const float lfb = lpb - lb.tau[c] - tb;
+                const float lfb = lpb - lb.tau[c][qb] - tb;
+                const float fb = b_lit ? fast_exp(lfb) : 0.0f;
                 if (a_lit && b_lit) {
-                    const float q = lfa[c] - lfb, fa = expf(lfa[c]), fb = expf(lfb);
+                    const float q = lfa[c] - lfb, fa = ea[c];
                     sum[c] += kc[c] * (q > 1e-4f || q < -1e-4f ? len * (fa - fb) / q : len * 0.5f * (fa + fb));
                 } else { /* light on one end only: the trapezoid */
-                    sum[c] += kc[c] * len * 0.5f * ((a_lit ? expf(lfa[c]) : 0.0f) + (b_lit ? expf(lfb) : 0.0f));
+                    sum[c] += kc[c] * len * 0.5f * ((a_lit ? ea[c] : 0.0f) + fb);
                 }
                 tau[c] = tb;
                 lfa[c] = lfb;
+                ea[c] = fb;
             }
             a_lit = b_lit;
             a_layer = j;
-            la = lb;
         }
+#undef FETCH
+#undef POINT
         for (int c = 0; c < 3; c++)
             rgb[c] += sum[c] * t_out;
     }

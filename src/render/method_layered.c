@@ -60,6 +60,9 @@ static nacre_result layered_check(nacre_context *ctx, const nacre_render_setting
     if (!(s->layered.epsilon > 0.0f && s->layered.epsilon < 1.0f))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: layered_epsilon: %g is not in (0, 1)",
                        (double)s->layered.epsilon);
+    if (!(s->layered.half_res >= 0.0f && s->layered.half_res < 1.0f))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: layered_half_res: %g is not in [0, 1)",
+                       (double)s->layered.half_res);
     if (s->layered.integration != NACRE_LAYERED_ANALYTIC && s->layered.integration != NACRE_LAYERED_SAMPLES)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: layered_integration: unknown (%d)",
                        (int)s->layered.integration);
@@ -228,6 +231,51 @@ static void march_point(const nacre_scene *s, const nc_gbuffer *gb, const layere
     }
 }
 
+/* March G-buffer pixel i if it shows a translucent object; false if it does not. */
+static inline bool march_pixel(const layered_state *st, const nacre_scene *s, const nc_raster_frame *rf,
+                               const nc_shade_params *sp, const nc_march_params *prm, size_t i)
+{
+    const nc_gbuffer *gb = &rf->gbuffer;
+    uint32_t o = gb->object[i];
+    if (o == NC_NO_OBJECT || !st->subsurface[o])
+        return false;
+    nc_march_point pt;
+    march_point(s, gb, &st->objects[o], i, sp, &pt);
+    const nc_layer_medium *m = &st->media[s->objects[o].desc.material.id - 1];
+    nc_layered_radiance(m, &pt, rf->shade_lights, s->light_count, prm, st->radiance + 3 * i);
+    return true;
+}
+
+/* Half resolution (settings.layered.half_res > 0): pixel i between marched pixels a and b (and c,
+ * d when it is between four) takes their mean where they show the same object at depths and
+ * normals close to its own and their radiances agree within the tolerance; else it is marched. */
+static bool interpolate_pixel(const layered_state *st, const nc_gbuffer *gb, size_t i, const size_t *nb, int count,
+                              float tol)
+{
+    const uint32_t o = gb->object[i];
+    const float z = gb->view_depth[i];
+    const float *n = gb->normal + 3 * i;
+    float mean[3] = {0, 0, 0}, lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {0, 0, 0};
+    for (int k = 0; k < count; k++) {
+        const size_t q = nb[k];
+        const float *nq = gb->normal + 3 * q;
+        if (gb->object[q] != o || fabsf(gb->view_depth[q] - z) > 0.01f * z ||
+            n[0] * nq[0] + n[1] * nq[1] + n[2] * nq[2] < 0.98f)
+            return false;
+        for (int c = 0; c < 3; c++) {
+            const float v = st->radiance[3 * q + c];
+            mean[c] += v / (float)count;
+            lo[c] = fminf(lo[c], v);
+            hi[c] = fmaxf(hi[c], v);
+        }
+    }
+    for (int c = 0; c < 3; c++)
+        if (!(hi[c] - lo[c] <= tol * mean[c]))
+            return false;
+    memcpy(st->radiance + 3 * i, mean, sizeof(mean));
+    return true;
+}
+
 static void march(layered_state *st, const nacre_scene *s, const nc_raster_frame *rf,
                   const nacre_render_settings *settings, const nc_shade_params *sp, nacre_render_stats *stats)
 {
@@ -238,18 +286,41 @@ static void march(layered_state *st, const nacre_scene *s, const nc_raster_frame
                                  .pcf_radius = settings->shadow.pcf_radius,
                                  .shadow_bias = settings->shadow.bias};
     const int32_t w = gb->width, h = gb->height;
+    const float tol = settings->layered.half_res;
+    /* Every pixel, or (half resolution) those of even x and y first. */
+    const int32_t stride = tol > 0 ? 2 : 1;
 #pragma omp parallel for schedule(dynamic, 2) num_threads(nc_threads(st->ctx))
-    for (int32_t y = 0; y < h; y++) {
+    for (int32_t y = 0; y < h; y += stride) {
         int32_t x0 = gb->row_span ? gb->row_span[2 * y] : 0, x1 = gb->row_span ? gb->row_span[2 * y + 1] : w;
-        for (int32_t x = x0; x < x1; x++) {
-            size_t i = (size_t)y * (size_t)w + (size_t)x;
-            uint32_t o = gb->object[i];
-            if (o == NC_NO_OBJECT || !st->subsurface[o])
-                continue;
-            nc_march_point pt;
-            march_point(s, gb, &st->objects[o], i, sp, &pt);
-            const nc_layer_medium *m = &st->media[s->objects[o].desc.material.id - 1];
-            nc_layered_radiance(m, &pt, rf->shade_lights, s->light_count, &prm, st->radiance + 3 * i);
+        for (int32_t x = x0 + (x0 % stride); x < x1; x += stride)
+            march_pixel(st, s, rf, sp, &prm, (size_t)y * (size_t)w + (size_t)x);
+    }
+    if (stride > 1) {
+#pragma omp parallel for schedule(dynamic, 4) num_threads(nc_threads(st->ctx))
+        for (int32_t y = 0; y < h; y++) {
+            int32_t x0 = gb->row_span ? gb->row_span[2 * y] : 0, x1 = gb->row_span ? gb->row_span[2 * y + 1] : w;
+            for (int32_t x = x0; x < x1; x++) {
+                const bool ox = x & 1, oy = y & 1;
+                const size_t i = (size_t)y * (size_t)w + (size_t)x;
+                const uint32_t o = gb->object[i];
+                if (!(ox || oy) || o == NC_NO_OBJECT || !st->subsurface[o])
+                    continue;
+                /* The marched pixels around: 2 along a row or column, 4 at the centre of a cell. */
+                size_t nb[4];
+                int count = 0;
+                const bool in = (!ox || x + 1 < w) && (!oy || y + 1 < h);
+                if (in) {
+                    const int32_t xa = x - ox, ya = y - oy, xb = x + ox, yb = y + oy;
+                    nb[count++] = (size_t)ya * (size_t)w + (size_t)xa;
+                    nb[count++] = (size_t)yb * (size_t)w + (size_t)xb;
+                    if (ox && oy) {
+                        nb[count++] = (size_t)ya * (size_t)w + (size_t)xb;
+                        nb[count++] = (size_t)yb * (size_t)w + (size_t)xa;
+                    }
+                }
+                if (!in || !interpolate_pixel(st, gb, i, nb, count, tol))
+                    march_pixel(st, s, rf, sp, &prm, i);
+            }
         }
     }
     stats->stage_us[NACRE_STAGE_MARCH] += nc_now_us() - t0;

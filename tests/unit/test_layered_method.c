@@ -5,7 +5,7 @@
  * exit, for both integrations; one layer of constant thickness against its closed form; the
  * seed's point sampling converging as N grows (10 .. 200) and the analytic pieces reaching the
  * 200-sample image with few steps on a slab with the vein depth map; the planes stage cached
- * across light and camera edits; bad input (a layered mesh without uvs, samples and epsilon out
+ * across light and camera edits; half resolution against the full image; bad input (a layered mesh without uvs, samples and epsilon out
  * of range) refused with messages naming the object or the field.
  */
 #include "test_util.h"
@@ -416,17 +416,20 @@ static void test_bad_input(void)
     nacre_scene_destroy(s);
     /* Scene files: the render block's keys, read and range-checked with the field named. */
     const char *good = "{\"render\": {\"method\": \"layered\", \"layered_samples\": 7, \"layered_epsilon\": 0.05,"
-                       " \"layered_integration\": \"samples\"}, \"objects\": []}";
+                       " \"layered_integration\": \"samples\", \"layered_half_res\": 0.05}, \"objects\": []}";
     nacre_scene_file_settings fs;
     s = NULL;
     CHECK(nacre_scene_load_json(ctx, good, strlen(good), "g.json", NULL, &s, &fs) == NACRE_OK);
     CHECK(fs.render.method == NACRE_METHOD_LAYERED && fs.render.layered.samples == 7 &&
-          fabsf(fs.render.layered.epsilon - 0.05f) < 1e-7f && fs.render.layered.integration == NACRE_LAYERED_SAMPLES);
+          fabsf(fs.render.layered.epsilon - 0.05f) < 1e-7f && fs.render.layered.integration == NACRE_LAYERED_SAMPLES &&
+          fabsf(fs.render.layered.half_res - 0.05f) < 1e-7f);
     nacre_scene_destroy(s);
     const char *bad[] = {"{\"render\": {\"layered_samples\": 0}}", "{\"render\": {\"layered_samples\": 5000}}",
-                         "{\"render\": {\"layered_epsilon\": 1}}", "{\"render\": {\"layered_integration\": \"simpson\"}}"};
-    const char *field[] = {"layered_samples", "layered_samples", "layered_epsilon", "layered_integration"};
-    for (int i = 0; i < 4; i++) {
+                         "{\"render\": {\"layered_epsilon\": 1}}", "{\"render\": {\"layered_integration\": \"simpson\"}}",
+                         "{\"render\": {\"layered_half_res\": 1}}"};
+    const char *field[] = {"layered_samples", "layered_samples", "layered_epsilon", "layered_integration",
+                           "layered_half_res"};
+    for (int i = 0; i < 5; i++) {
         s = NULL;
         CHECK(nacre_scene_load_json(ctx, bad[i], strlen(bad[i]), "b.json", NULL, &s, &fs) != NACRE_OK);
         CHECK(s == NULL && strstr(nacre_context_last_error(ctx), field[i]) != NULL);
@@ -481,6 +484,80 @@ static void test_maps_and_fish(void)
     CHECK_NEAR(fish.layering.layers[0].g, 0.25, 1e-6);
 }
 
+/* Half resolution: a pixel is interpolated only where its marched neighbours agree within the
+ * tolerance, so the image stays close to the full one: on the layered sphere of the example (vein
+ * map, curved surface, silhouettes), the interpolated pixels' mean relative error stays below the
+ * tolerance and the whole object's below a tenth of it; 0 gives the full image. */
+static void test_half_res(void)
+{
+    nacre_scene *s = NULL;
+    nacre_scene_file_settings fs;
+    CHECK(nacre_scene_load_file(ctx, NACRE_SOURCE_DIR "/examples/layered.json", &s, &fs) == NACRE_OK);
+    if (!s)
+        return;
+    CHECK(nacre_scene_commit(s, 0) == NACRE_OK);
+    nacre_render_settings rs = fs.render;
+    rs.method = NACRE_METHOD_LAYERED;
+    rs.width = 200;
+    rs.height = 150;
+    rs.layered.samples = 4;
+    rs.layered.integration = NACRE_LAYERED_ANALYTIC;
+    nacre_image full = {0}, half = {0}, phong = {0};
+    CHECK(nacre_render(s, &rs, &full, NULL) == NACRE_OK);
+    /* The sphere's pixels: the others are phong's */
+    nacre_render_settings ps = rs;
+    ps.method = NACRE_METHOD_PHONG;
+    CHECK(nacre_render(s, &ps, &phong, NULL) == NACRE_OK);
+    const float tol[] = {0.02f, 0.05f};
+    for (int t = 0; t < 2; t++) {
+        rs.layered.half_res = tol[t];
+        CHECK(nacre_render(s, &rs, &half, NULL) == NACRE_OK);
+        if (!full.pixels || !half.pixels || !phong.pixels)
+            break;
+        double sum_i = 0, sum_all = 0;
+        size_t n_i = 0, n_all = 0;
+        for (int32_t y = 0; y < full.height; y++)
+            for (int32_t x = 0; x < full.width; x++) {
+                const float *a = half.pixels + half.stride * (size_t)y + 3 * (size_t)x;
+                const float *b = full.pixels + full.stride * (size_t)y + 3 * (size_t)x;
+                const float *f = phong.pixels + phong.stride * (size_t)y + 3 * (size_t)x;
+                const bool interpolated = a[0] != b[0] || a[1] != b[1] || a[2] != b[2];
+                const bool object = f[0] != b[0] || f[1] != b[1] || f[2] != b[2];
+                for (int c = 0; c < 3; c++) {
+                    if (!(b[c] > 1e-6f))
+                        continue;
+                    const double e = fabs((double)a[c] - (double)b[c]) / (double)b[c];
+                    if (interpolated) {
+                        sum_i += e;
+                        n_i++;
+                    }
+                    if (object) {
+                        sum_all += e;
+                        n_all++;
+                    }
+                }
+            }
+        const double ei = n_i ? sum_i / (double)n_i : 0, ea = n_all ? sum_all / (double)n_all : 0;
+        printf("half_res %.2f: %zu interpolated channel values of %zu on the object, mean relative error %.5f "
+               "there, %.5f over the object\n",
+               (double)tol[t], n_i, n_all, ei, ea);
+        CHECK(n_i > n_all / 10); /* the setting does something */
+        CHECK(ei < tol[t]);
+        CHECK(ea < 0.1 * tol[t]);
+    }
+    rs.layered.half_res = 0;
+    CHECK(nacre_render(s, &rs, &half, NULL) == NACRE_OK);
+    CHECK(half.pixels && full.pixels &&
+          memcmp(half.pixels, full.pixels, sizeof(float) * full.stride * (size_t)full.height) == 0);
+    rs.layered.half_res = 1.0f;
+    CHECK(nacre_render(s, &rs, &half, NULL) == NACRE_ERROR_INVALID_ARGUMENT);
+    CHECK(strstr(nacre_context_last_error(ctx), "layered_half_res") != NULL);
+    nacre_image_free(ctx, &full);
+    nacre_image_free(ctx, &half);
+    nacre_image_free(ctx, &phong);
+    nacre_scene_destroy(s);
+}
+
 int main(void)
 {
     CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
@@ -491,6 +568,7 @@ int main(void)
     test_planes_cached();
     test_bad_input();
     test_maps_and_fish();
+    test_half_res();
     nacre_context_destroy(ctx);
     return TEST_MAIN_END();
 }

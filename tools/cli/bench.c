@@ -38,9 +38,11 @@ static const char bench_help[] =
     "usage: nacre bench load [--json] [--runs N] [--mesh PLY] [--glb GLB]\n"
     "  load     lucy_1600k.ply as a scene, and the same triangles from a .glb (nacre_scene_load_gltf;\n"
     "           make it with scripts/ply_to_glb.py), medians and their ratio (target <= 1.5)\n"
-    "usage: nacre bench layered [--json] [--runs N] [--scene FILE]\n"
-    "  layered  the layered method at 640x480 on FILE (default examples/layered.json): the cold\n"
-    "           frame per stage, then 4, 10, 50, 100 steps of each integration while the light moves\n"
+    "usage: nacre bench layered [--json] [--runs N] [--scene FILE] [--only fish|head] [--steps N]\n"
+    "  layered  the seed's table 2 layout: 800x600, 10/50/100 samples and 2/4/8 analytic steps\n"
+    "           while the light moves, fps and error to 200 samples, on UV spheres of 2.8k and\n"
+    "           73k triangles in FILE (default examples/layered.json) in place of its translucent object;\n"
+    "           --only: the meshes whose name contains it; --steps N: only the rows of N samples/steps\n"
     "usage: nacre bench particles [--json] [--runs N]\n"
     "  particles  the smoke plume of examples/particles.json with 10k and 100k particles:\n"
     "           simulate, splat into 128^3, commit, and the billboards and sprites passes at\n"
@@ -84,7 +86,7 @@ int nc_cli_bench(int argc, char **argv)
             json = true;
         else if (strcmp(argv[i], "--runs") == 0 && i + 1 < argc && nc_tool_parse_int(argv[i + 1], 1, 10000, &runs))
             i++;
-        else if ((voxelize || diffusion) && strcmp(argv[i], "--only") == 0 && i + 1 < argc)
+        else if ((voxelize || diffusion || layered) && strcmp(argv[i], "--only") == 0 && i + 1 < argc)
             filter.only = argv[++i];
         else if ((voxelize || diffusion) && strcmp(argv[i], "--res") == 0 && i + 1 < argc &&
                  nc_tool_parse_int(argv[i + 1], 1, 4096, &res_only))
@@ -95,6 +97,9 @@ int nc_cli_bench(int argc, char **argv)
             load_ply = argv[++i];
         else if (load && strcmp(argv[i], "--glb") == 0 && i + 1 < argc)
             load_glb = argv[++i];
+        else if (layered && strcmp(argv[i], "--steps") == 0 && i + 1 < argc &&
+                 nc_tool_parse_int(argv[i + 1], 1, 4096, &res_only))
+            filter.res = (uint32_t)res_only, i++;
         else if (layered && strcmp(argv[i], "--scene") == 0 && i + 1 < argc)
             layered_scene = argv[++i];
         else if (!voxelize && strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
@@ -117,7 +122,7 @@ int nc_cli_bench(int argc, char **argv)
     if (load)
         return nc_bench_load(json, (int)runs, load_ply, load_glb);
     if (layered)
-        return nc_bench_layered(json, (int)runs, layered_scene);
+        return nc_bench_layered(json, (int)runs, layered_scene, &filter);
     if (particles)
         return nc_bench_particles(json, (int)runs);
     if (volumetrics)

@@ -143,6 +143,9 @@ static const char render_help[] =
     "                      closed form) | samples (the seed: one point sample per step)\n"
     "  --epsilon E         negligible attenuation in (0, 1) (default 0.01): radius of the fitted\n"
     "                      planes, -log(E) / sigma_t, and the depth where marching stops\n"
+    "  --half-res T        march every other pixel in x and y, and interpolate the others where\n"
+    "                      their marched neighbours agree within relative tolerance T in (0, 1)\n"
+    "                      (default 0: every pixel marched; docs/performance.md gives the error)\n"
     "fog over phong and diffusion (docs/scene-format.md, \"Volumetrics\"):\n"
     "  --volumetrics V     off (default: analytic fog, directional lights and ambient, unshadowed)\n"
     "                      | froxel (frustum grid: every fog and light, shadow maps, the fog's own\n"
@@ -227,7 +230,7 @@ static int cmd_render(int argc, char **argv)
     nacre_diffusion_source source = NACRE_SOURCE_VOLUME;
     long width = 0, height = 0, threads = 0, voxel_res = -1, tsm_size = -1, seed_iters = -1, spp = -1, seed = -1,
          max_scatter = -1, layered_samples = -1, froxel[3] = {-1, -1, -1}, raymarch_steps = -1, shadow_steps = -1;
-    double exposure = NAN, time = NAN, tolerance = NAN, time_limit = NAN, layered_epsilon = NAN;
+    double exposure = NAN, time = NAN, tolerance = NAN, time_limit = NAN, layered_epsilon = NAN, layered_half_res = NAN;
     const char *integration_name = NULL, *volumetrics_name = NULL;
     nacre_layered_integration integration = NACRE_LAYERED_ANALYTIC;
     nacre_volumetrics_mode volumetrics = NACRE_VOLUMETRICS_OFF;
@@ -316,6 +319,10 @@ static int cmd_render(int argc, char **argv)
             if (!has_value || !nc_tool_parse_float(argv[++i], &layered_epsilon) ||
                 !(layered_epsilon > 0 && layered_epsilon < 1))
                 return nc_tool_usage("render", "--epsilon needs a number in (0, 1)");
+        } else if (strcmp(a, "--half-res") == 0) {
+            if (!has_value || !nc_tool_parse_float(argv[++i], &layered_half_res) ||
+                !(layered_half_res >= 0 && layered_half_res < 1))
+                return nc_tool_usage("render", "--half-res needs a number in [0, 1)");
         } else if (strcmp(a, "--integration") == 0) {
             if (!has_value || !nacre_layered_integration_from_name(argv[i + 1], &integration))
                 return nc_tool_usage("render", "--integration needs analytic or samples");
@@ -471,6 +478,8 @@ static int cmd_render(int argc, char **argv)
         rs.layered.samples = (uint32_t)layered_samples;
     if (!isnan(layered_epsilon))
         rs.layered.epsilon = (float)layered_epsilon;
+    if (!isnan(layered_half_res))
+        rs.layered.half_res = (float)layered_half_res;
     if (integration_name)
         rs.layered.integration = integration;
     if (volumetrics_name)

@@ -18,7 +18,8 @@
  *   FRAME voxel_res N              diffusion voxel resolution (2..512)
  *   FRAME solver NAME              multigrid, seed
  *   FRAME set NAME VALUE           a render setting by its scene-file name (nc_view_render_setting):
- *                                  layered_samples N, layered_epsilon E, layered_integration
+ *                                  layered_samples N, layered_epsilon E, layered_half_res T,
+ *                                  layered_integration
  *                                  analytic|samples, volumetrics off|froxel|raymarch,
  *                                  froxel_width|froxel_height|froxel_slices N, raymarch_steps N,
  *                                  shadow_steps N, particles billboards|sprites|voxel

@@ -379,6 +379,14 @@ bool nc_view_render_setting(nc_view *v, const char *name, const char *value, boo
         if (!ok)
             snprintf(v->message, sizeof(v->message), "layered_epsilon '%s': expected a number in (0, 1)", value);
         ly->epsilon = (float)e;
+    } else if (strcmp(name, "layered_half_res") == 0) {
+        char *end = NULL;
+        errno = 0;
+        double e = strtod(value, &end);
+        ok = !errno && end != value && !*end && e >= 0.0 && e < 1.0;
+        if (!ok)
+            snprintf(v->message, sizeof(v->message), "layered_half_res '%s': expected a number in [0, 1)", value);
+        ly->half_res = (float)e;
     } else if (strcmp(name, "layered_integration") == 0) {
         ok = nacre_layered_integration_from_name(value, &ly->integration);
         if (!ok)
