@@ -324,14 +324,16 @@ NACRE_API nacre_camera_desc nacre_camera_desc_defaults(void);
  * spot lights (nacre_render_stats.fog_lights_ignored), patterns by their mean coefficients; with
  * nacre_render_settings.volumetrics FROXEL or RAYMARCH, single scattering of every light with
  * shadow maps and the fog's own shadow, patterns evaluated where they are. */
-typedef enum nacre_fog_shape { NACRE_FOG_GLOBAL = 0, NACRE_FOG_BOX } nacre_fog_shape;
+/* SPHERE: the ellipsoid inscribed in the box of `size` (a sphere of diameter size when the three
+ * are equal), centred and rotated as a box. */
+typedef enum nacre_fog_shape { NACRE_FOG_GLOBAL = 0, NACRE_FOG_BOX, NACRE_FOG_SPHERE } nacre_fog_shape;
 
 typedef struct { uint32_t id; } nacre_fog;
 
 typedef struct nacre_fog_desc {
     nacre_fog_shape shape;
-    float center[3];              /* origin of the local frame; BOX: the box's centre */
-    float size[3];                /* BOX: edge lengths along the local axes, > 0 */
+    float center[3];              /* origin of the local frame; BOX, SPHERE: the centre */
+    float size[3];                /* BOX: edge lengths along the local axes; SPHERE: diameters; > 0 */
     float rotate[3];              /* Euler degrees, about x, then y, then z (as nacre_transform) */
     float sigma_a[3], sigma_s[3]; /* per scene unit, >= 0 */
     float g;                      /* Henyey-Greenstein anisotropy, in (-1, 1) */
@@ -347,6 +349,8 @@ NACRE_API nacre_fog_desc nacre_fog_desc_defaults(nacre_fog_shape shape);
 /* At most NACRE_MAX_FOGS per scene. */
 NACRE_API nacre_result nacre_scene_add_fog(nacre_scene *scene, const nacre_fog_desc *desc, nacre_fog *out);
 NACRE_API nacre_result nacre_scene_set_fog(nacre_scene *scene, nacre_fog fog, const nacre_fog_desc *desc);
+/* The desc of a fog added by the user (particle systems' grids are not listed). */
+NACRE_API nacre_result nacre_scene_get_fog(const nacre_scene *scene, nacre_fog fog, nacre_fog_desc *out);
 NACRE_API uint32_t nacre_scene_fog_count(const nacre_scene *scene);
 /* The files a scene loaded from a scene file was built from (meshes, depth maps, volumes), as
  * resolved against the scene file's folder; NULL past the count. A tool writing outputs can

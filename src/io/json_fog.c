@@ -1,6 +1,6 @@
 /*
  * json_fog.c: the "fog" section of a JSON scene (docs/scene-format.md, "fog"): participating
- * media in open space, global or in a box, optionally heterogeneous through a "pattern" (read by
+ * media in open space, global, in a box or in a sphere (ellipsoid), optionally heterogeneous through a "pattern" (read by
  * json_materials.c). Coefficients are per scene unit, positions in scene units.
  */
 #include "io/scene_json_internal.h"
@@ -8,7 +8,7 @@
 /* "fog": participating media in open space (nacre_fog_desc). */
 void nc_json_parse_fog(loader *ld, const cJSON *obj)
 {
-    static const char *const shapes[] = {"global", "box"};
+    static const char *const shapes[] = {"global", "box", "sphere"};
     static const char *const keys[] = {"shape", "center", "size", "rotate", "sigma_a", "sigma_s", "g",
                                        "height_falloff", "height_base", "pattern"};
     if (!nc_json_expect_object(ld, obj) || !nc_json_require(ld, obj, "shape"))
@@ -16,12 +16,12 @@ void nc_json_parse_fog(loader *ld, const cJSON *obj)
     int shape = nc_json_get_choice(ld, obj, "shape", "fog shape", shapes, COUNT_OF(shapes));
     if (shape < 0)
         return;
-    nacre_fog_desc d = nacre_fog_desc_defaults(shape == 0 ? NACRE_FOG_GLOBAL : NACRE_FOG_BOX);
+    nacre_fog_desc d = nacre_fog_desc_defaults(shape == 0 ? NACRE_FOG_GLOBAL : shape == 1 ? NACRE_FOG_BOX : NACRE_FOG_SPHERE);
     nc_json_check_keys(ld, obj, keys, COUNT_OF(keys));
-    if (shape == 1)
+    if (shape != 0)
         nc_json_require(ld, obj, "size");
     if (!ld->err && shape == 0 && nc_json_member(obj, "size"))
-        nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "\"size\" applies to box fogs only");
+        nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "\"size\" applies to box and sphere fogs only");
     static const range g_range = {-1.0, 1.0, true, true};
     nc_json_get_floats(ld, obj, "center", 3, R_FINITE, false, d.center);
     nc_json_get_floats(ld, obj, "size", 3, R_POSITIVE, true, d.size);

@@ -761,9 +761,9 @@ static cJSON *fog_object(writer *w, const nacre_fog_desc *d)
     cJSON *o = cJSON_CreateObject();
     if (!o)
         return NULL;
-    add_string(w, o, "shape", d->shape == NACRE_FOG_BOX ? "box" : "global");
+    add_string(w, o, "shape", d->shape == NACRE_FOG_BOX ? "box" : d->shape == NACRE_FOG_SPHERE ? "sphere" : "global");
     add_floats(w, o, "center", d->center, 3);
-    if (d->shape == NACRE_FOG_BOX)
+    if (d->shape != NACRE_FOG_GLOBAL)
         add_floats(w, o, "size", d->size, 3);
     add_floats(w, o, "rotate", d->rotate, 3);
     add_floats(w, o, "sigma_a", d->sigma_a, 3);

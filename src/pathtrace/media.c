@@ -234,7 +234,7 @@ static bool maj_next(maj_iter *it, float *s0, float *s1, float *maj)
 /* ---- fog: participating media in open space ----------------------------------------------
  *
  * Fogs fill the air (the path is in no object). Along a ray each fog occupies one interval (a box
- * clipped by the slab test in its local frame, or everything), and their coefficients add. The
+ * clipped by the slab test in its local frame, an ellipsoid's chord, or everything), and their coefficients add. The
  * majorant of a piece of the ray is the sum over the fogs present of their pattern bound times
  * the largest height() on the piece; height() = exp(-falloff (y - base)) is monotone in y, so its
  * largest value is at the lower end, and pieces are cut where height() changes by a factor of 2
@@ -275,7 +275,16 @@ static void fog_init(fog_iter *it, const pt_scene *ps, nc_vec3 org, nc_vec3 dir,
     for (uint32_t i = 0; i < pt->fog_count; i++) {
         const pt_fog *f = &pt->fogs[i];
         float t0 = 0.0f, t1 = tmax;
-        if (f->box) {
+        if (f->ellipsoid) {
+            nc_vec3 q = nc_mat4_point(&f->rec->world_to_local, org), v = nc_mat4_dir(&f->rec->world_to_local, dir);
+            double qv[3] = {q.x, q.y, q.z}, vv[3] = {v.x, v.y, v.z}, half[3] = {f->half[0], f->half[1], f->half[2]};
+            double a = 0.0, b = tmax;
+            if (nc_vol_shape_segment(true, half, qv, vv, &a, &b))
+                t0 = (float)a, t1 = (float)b;
+            else
+                t1 = -1.0f;
+        } else if (f->box) {
+            /* The slab test in float, as the path tracer has always cut boxes. */
             nc_vec3 q = nc_mat4_point(&f->rec->world_to_local, org), v = nc_mat4_dir(&f->rec->world_to_local, dir);
             float qv[3] = {q.x, q.y, q.z}, vv[3] = {v.x, v.y, v.z};
             for (int a = 0; a < 3; a++) {

@@ -95,8 +95,8 @@ typedef struct pt_light {
 /* A fog of the scene (see "fog" in media.c). */
 typedef struct pt_fog {
     const nc_fog_rec *rec;
-    bool box, patterned, height;
-    float half[3];        /* box: half edge lengths */
+    bool box, ellipsoid, patterned, height;
+    float half[3];        /* box: half edge lengths (ellipsoid: semi-axes) */
     float maj;            /* scalar bound of sigma_t where height() = 1 */
     float falloff, base, g;
     float hexp;           /* cap of height()'s exponent: at most 60, and maj e^hexp <= NC_VOL_MAX_DENSITY */

@@ -540,6 +540,7 @@ static void setup_fogs(nc_pathtracer *pt, const nacre_scene *s, nc_pt_medium_max
         pt_fog *f = &pt->fogs[i];
         f->rec = rec;
         f->box = rec->desc.shape == NACRE_FOG_BOX;
+        f->ellipsoid = rec->desc.shape == NACRE_FOG_SPHERE;
         for (int a = 0; a < 3; a++)
             f->half[a] = 0.5f * rec->desc.size[a];
         f->patterned = nc_medium_heterogeneous(&rec->medium);

@@ -45,9 +45,9 @@ enum { MEAN_RES = 16, MEAN_POINTS = MEAN_RES * MEAN_RES * MEAN_RES };
 
 /* One fog as the pixels need it. */
 typedef struct fog_const {
-    bool box;
+    bool box, ellipsoid; /* box: bounded (a box, or an ellipsoid if `ellipsoid`) */
     double w2l[3][4]; /* box: world -> local rows (rotation and translation) */
-    double half[3];   /* box: half edge lengths */
+    double half[3];   /* box: half edge lengths (ellipsoid: semi-axes) */
     nc_vol_height h;
     double sigma_t[3], sigma_s[3]; /* where the height factor is 1 (patterns: their mean) */
     double g;
@@ -118,10 +118,11 @@ static nacre_result fog_create(nacre_context *ctx, void **state)
 }
 
 /* Mean sigma_a, sigma_s of a patterned fog over a stratified grid of the region it is seen in:
- * its box, or for a global fog the scene's bounds (where the camera looks). */
+ * its box (an ellipsoid: the grid's points inside it), or for a global fog the scene's bounds
+ * (where the camera looks). */
 static void pattern_mean(fog_state *st, const nacre_scene *s, const nc_fog_rec *rec, float sa[3], float ss[3])
 {
-    bool box = rec->desc.shape == NACRE_FOG_BOX;
+    bool box = rec->desc.shape != NACRE_FOG_GLOBAL, ellipsoid = rec->desc.shape == NACRE_FOG_SPHERE;
     for (int k = 0; k < MEAN_RES; k++)
         for (int j = 0; j < MEAN_RES; j++)
             for (int i = 0; i < MEAN_RES; i++) {
@@ -140,14 +141,21 @@ static void pattern_mean(fog_state *st, const nacre_scene *s, const nc_fog_rec *
             }
     nc_medium_eval(s, &rec->medium, st->points, MEAN_POINTS, st->eval_sa, st->eval_ss);
     double a[3] = {0, 0, 0}, b[3] = {0, 0, 0};
-    for (size_t n = 0; n < MEAN_POINTS; n++)
+    const float half[3] = {0.5f * rec->desc.size[0], 0.5f * rec->desc.size[1], 0.5f * rec->desc.size[2]};
+    size_t counted = 0;
+    for (size_t n = 0; n < MEAN_POINTS; n++) {
+        if (ellipsoid && !nc_vol_shape_inside(true, half, st->points + 3 * n))
+            continue;
+        counted++;
         for (int c = 0; c < 3; c++) {
             a[c] += st->eval_sa[3 * n + c];
             b[c] += st->eval_ss[3 * n + c];
         }
+    }
+    const double count = counted ? (double)counted : 1.0;
     for (int c = 0; c < 3; c++) {
-        sa[c] = (float)(a[c] / MEAN_POINTS);
-        ss[c] = (float)(b[c] / MEAN_POINTS);
+        sa[c] = (float)(a[c] / count);
+        ss[c] = (float)(b[c] / count);
     }
 }
 
@@ -174,7 +182,8 @@ static nacre_result fog_setup(fog_state *st, nacre_context *ctx, const nacre_sce
     for (uint32_t i = 0; i < s->fog_count; i++) {
         const nc_fog_rec *rec = &s->fogs[i];
         fog_const *f = &st->fogs[i];
-        f->box = rec->desc.shape == NACRE_FOG_BOX;
+        f->box = rec->desc.shape != NACRE_FOG_GLOBAL;
+        f->ellipsoid = rec->desc.shape == NACRE_FOG_SPHERE;
         for (int r = 0; r < 3; r++) {
             for (int c = 0; c < 4; c++)
                 f->w2l[r][c] = rec->world_to_local.m[r][c];
@@ -264,31 +273,18 @@ static double camera_ray(const camera_rays *cr, int32_t x, int32_t y, float dept
     return t > 0.0 ? t : 0.0;
 }
 
-/* The part [t0, t1] of [0, tmax] inside a box fog (slab test in its local frame). */
+/* The part [t0, t1] of [0, tmax] inside a bounded fog (in its local frame). */
 static bool box_segment(const fog_const *f, const double o[3], const double d[3], double tmax, double *t0, double *t1)
 {
-    double a = 0.0, b = tmax;
+    double ol[3], dl[3];
     for (int k = 0; k < 3; k++) {
         const double *m = f->w2l[k];
-        double ol = m[0] * o[0] + m[1] * o[1] + m[2] * o[2] + m[3];
-        double dl = m[0] * d[0] + m[1] * d[1] + m[2] * d[2];
-        if (dl == 0.0) {
-            if (fabs(ol) > f->half[k])
-                return false;
-            continue;
-        }
-        double ta = (-f->half[k] - ol) / dl, tb = (f->half[k] - ol) / dl;
-        if (ta > tb) { /* ternaries, not fmin/fmax: those are libm calls here */
-            double u = ta;
-            ta = tb;
-            tb = u;
-        }
-        a = ta > a ? ta : a;
-        b = tb < b ? tb : b;
+        ol[k] = m[0] * o[0] + m[1] * o[1] + m[2] * o[2] + m[3];
+        dl[k] = m[0] * d[0] + m[1] * d[1] + m[2] * d[2];
     }
-    *t0 = a;
-    *t1 = b;
-    return a < b;
+    *t0 = 0.0;
+    *t1 = tmax;
+    return nc_vol_shape_segment(f->ellipsoid, f->half, ol, dl, t0, t1);
 }
 
 /* c T + L along one ray (see the top of the file), into rgb. */

@@ -227,7 +227,7 @@ static nacre_result vol_setup(vol_state *st, const nc_post_input *in, uint32_t b
     const nc_mat4 *vm = &in->view->view;
     for (uint32_t i = 0; i < st->field.count; i++) {
         const nc_fog_rec *rec = &s->fogs[i];
-        if (rec->desc.shape != NACRE_FOG_BOX)
+        if (rec->desc.shape == NACRE_FOG_GLOBAL) /* a sphere's box bounds it: its corners serve */
             continue;
         nc_mat4 l2w;
         if (!nc_mat4_inverse(rec->world_to_local, &l2w))

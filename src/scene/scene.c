@@ -921,13 +921,13 @@ nacre_fog_desc nacre_fog_desc_defaults(nacre_fog_shape shape)
 static nacre_result check_fog(const nacre_scene *s, const nacre_fog_desc *d)
 {
     nacre_context *ctx = s->ctx;
-    if (d->shape != NACRE_FOG_GLOBAL && d->shape != NACRE_FOG_BOX)
+    if (d->shape != NACRE_FOG_GLOBAL && d->shape != NACRE_FOG_BOX && d->shape != NACRE_FOG_SPHERE)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: shape: unknown (%d)", (int)d->shape);
     if (!finite3(d->center))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: center: must be finite");
     if (!finite3(d->rotate))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: rotate: must be finite");
-    if (d->shape == NACRE_FOG_BOX && !(nonneg3(d->size) && d->size[0] > 0 && d->size[1] > 0 && d->size[2] > 0))
+    if (d->shape != NACRE_FOG_GLOBAL && !(nonneg3(d->size) && d->size[0] > 0 && d->size[1] > 0 && d->size[2] > 0))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: size: must be finite and > 0");
     if (!nonneg3(d->sigma_a))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: sigma_a: must be finite and >= 0");

@@ -26,6 +26,17 @@ nacre_result nacre_scene_get_light(const nacre_scene *s, nacre_light light, nacr
     return NACRE_OK;
 }
 
+nacre_result nacre_scene_get_fog(const nacre_scene *s, nacre_fog fog, nacre_fog_desc *out)
+{
+    if (!s || !out)
+        return NACRE_ERROR_INVALID_ARGUMENT;
+    if (fog.id < 1 || fog.id > nc_scene_user_fogs(s))
+        return nc_fail(s->ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog %u: no such fog (the scene has %u)", fog.id,
+                       nc_scene_user_fogs(s));
+    *out = s->fogs[fog.id - 1].desc;
+    return NACRE_OK;
+}
+
 nacre_result nacre_scene_get_material(const nacre_scene *s, nacre_material material, nacre_material_desc *out)
 {
     if (!s || !out)

@@ -20,7 +20,8 @@ void nc_fog_field_init(nc_fog_field *f, const nacre_scene *s, uint32_t count, ui
     for (uint32_t i = 0; i < f->count; i++) {
         const nc_fog_rec *rec = &s->fogs[i];
         nc_fog_one *o = &f->fogs[i];
-        o->box = rec->desc.shape == NACRE_FOG_BOX;
+        o->box = rec->desc.shape != NACRE_FOG_GLOBAL;
+        o->ellipsoid = rec->desc.shape == NACRE_FOG_SPHERE;
         o->patterned = nc_medium_heterogeneous(&rec->medium);
         for (int r = 0; r < 3; r++) {
             for (int c = 0; c < 4; c++)
@@ -50,7 +51,7 @@ static inline void to_local(const nc_fog_one *o, const float p[3], float q[3])
 
 static inline bool inside(const nc_fog_one *o, const float q[3])
 {
-    return fabsf(q[0]) <= o->half[0] && fabsf(q[1]) <= o->half[1] && fabsf(q[2]) <= o->half[2];
+    return nc_vol_shape_inside(o->ellipsoid, o->half, q);
 }
 
 void nc_fog_field_eval(const nc_fog_field *f, uint32_t n, const float *p, float *sigma_t, float *sigma_s, float *g,
@@ -125,28 +126,14 @@ bool nc_fog_field_segment(const nc_fog_one *o, const float p[3], const float w[3
 {
     if (!o->box)
         return *t1 > *t0;
-    double a = *t0, b = *t1;
+    double ol[3], dl[3], half[3];
     for (int k = 0; k < 3; k++) {
         const float *m = o->w2l[k];
-        double ol = (double)m[0] * p[0] + (double)m[1] * p[1] + (double)m[2] * p[2] + m[3];
-        double dl = (double)m[0] * w[0] + (double)m[1] * w[1] + (double)m[2] * w[2];
-        if (dl == 0.0) {
-            if (fabs(ol) > o->half[k])
-                return false;
-            continue;
-        }
-        double ta = (-o->half[k] - ol) / dl, tb = (o->half[k] - ol) / dl;
-        if (ta > tb) {
-            double u = ta;
-            ta = tb;
-            tb = u;
-        }
-        a = ta > a ? ta : a;
-        b = tb < b ? tb : b;
+        ol[k] = (double)m[0] * p[0] + (double)m[1] * p[1] + (double)m[2] * p[2] + m[3];
+        dl[k] = (double)m[0] * w[0] + (double)m[1] * w[1] + (double)m[2] * w[2];
+        half[k] = o->half[k];
     }
-    *t0 = a;
-    *t1 = b;
-    return a < b;
+    return nc_vol_shape_segment(o->ellipsoid, half, ol, dl, t0, t1);
 }
 
 /* Where the ray p + t w leaves the scene bounds (0 if it starts outside and never enters). */

@@ -20,9 +20,10 @@
 #include "volume/volume.h"
 
 typedef struct nc_fog_one {
-    bool box, patterned;
+    bool box, patterned;                 /* box: bounded (a box, or an ellipsoid if `ellipsoid`) */
+    bool ellipsoid;
     float w2l[3][4];                     /* world -> local (rotation, translation) */
-    float half[3];                       /* box: half edges */
+    float half[3];                       /* box: half edges (ellipsoid: semi-axes) */
     nc_vol_height h;                     /* height profile (double, closed forms) */
     float hf_falloff, hf_base, hf_cap;   /* the same in float, for point factors */
     bool height;
@@ -64,7 +65,7 @@ void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const f
 /* Whether any fog has a pattern. */
 bool nc_fog_field_patterned(const nc_fog_field *f);
 
-/* Ray [t0, t1] inside fog i's box (global: [t0, t1] itself); false if empty. */
+/* Ray [t0, t1] inside fog i's box or ellipsoid (global: [t0, t1] itself); false if empty. */
 bool nc_fog_field_segment(const nc_fog_one *fog, const float o[3], const float d[3], double *t0, double *t1);
 
 #endif /* NACRE_VOLUME_FOG_FIELD_H */

@@ -34,6 +34,63 @@
  * value, far below any scene; nacre_fog_desc). */
 #define NC_VOL_HEIGHT_EXP_MAX 60.0f
 
+/* ---- where a bounded fog is ------------------------------------------------------------- */
+
+/* The part [*t0, *t1] (narrowed in place) of the ray o + t d, in the fog's local frame, inside
+ * its box (|x_k| <= half[k]; slab test) or, if `ellipsoid`, inside the ellipsoid of semi-axes
+ * half[k] (the unit sphere after scaling each axis by 1 / half[k]); false if empty. */
+static inline bool nc_vol_shape_segment(bool ellipsoid, const double half[3], const double o[3], const double d[3],
+                                        double *t0, double *t1)
+{
+    double a = *t0, b = *t1;
+    if (ellipsoid) {
+        double A = 0.0, B = 0.0, C = -1.0;
+        for (int k = 0; k < 3; k++) {
+            double ok = o[k] / half[k], dk = d[k] / half[k];
+            A += dk * dk;
+            B += ok * dk;
+            C += ok * ok;
+        }
+        double disc = B * B - A * C;
+        if (!(A > 0.0) || !(disc > 0.0))
+            return false;
+        /* The two roots without cancellation: q = -(B + sign(B) sqrt(disc)). */
+        double q = -(B + (B >= 0.0 ? sqrt(disc) : -sqrt(disc)));
+        double r0 = q / A, r1 = q != 0.0 ? C / q : -r0;
+        double lo = r0 < r1 ? r0 : r1, hi = r0 < r1 ? r1 : r0;
+        a = lo > a ? lo : a;
+        b = hi < b ? hi : b;
+    } else {
+        for (int k = 0; k < 3; k++) {
+            if (d[k] == 0.0) {
+                if (fabs(o[k]) > half[k])
+                    return false;
+                continue;
+            }
+            double ta = (-half[k] - o[k]) / d[k], tb = (half[k] - o[k]) / d[k];
+            if (ta > tb) { /* ternaries, not fmin/fmax: those are libm calls in hot loops */
+                double u = ta;
+                ta = tb;
+                tb = u;
+            }
+            a = ta > a ? ta : a;
+            b = tb < b ? tb : b;
+        }
+    }
+    *t0 = a;
+    *t1 = b;
+    return a < b;
+}
+
+/* Whether local point q lies in the box or ellipsoid of half extents `half`. */
+static inline bool nc_vol_shape_inside(bool ellipsoid, const float half[3], const float q[3])
+{
+    if (!ellipsoid)
+        return fabsf(q[0]) <= half[0] && fabsf(q[1]) <= half[1] && fabsf(q[2]) <= half[2];
+    float x = q[0] / half[0], y = q[1] / half[1], z = q[2] / half[2];
+    return x * x + y * y + z * z <= 1.0f;
+}
+
 /* ---- Beer-Lambert ---------------------------------------------------------------------- */
 
 /* Transmittance of a homogeneous segment of length d. Float, written as the path tracer has
