@@ -34,6 +34,7 @@
  * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
  */
 #include "core/core.h"
+#include "core/simd.h"
 #include "render/method.h"
 #include "scene/lights.h"
 #include "scene/medium.h"
@@ -62,8 +63,20 @@ typedef struct camera_rays {
     double near, far; /* view-axis depths of the near and far planes */
 } camera_rays;
 
+/* A global fog without pattern, whose optical depth towards the lights the froxels take in closed
+ * form (float; nc_vol_height_integral's cases). */
+typedef struct vfog {
+    const nc_fog_one *o;
+    float sig_t[3]; /* where the height factor is 1 */
+    float flat;     /* without falloff: the constant factor e^min(cap, 0) */
+    float yc, fcap; /* with falloff: the height below which the factor is the constant fcap = e^cap */
+} vfog;
+
 typedef struct vol_state {
     nc_fog_field field;
+    vfog gfog[NACRE_MAX_FOGS];
+    uint32_t gfog_count;
+    bool analytic_boxes; /* any box fog without pattern (exact per froxel, nc_fog_field_optical_depth) */
     vlight *lights;
     uint32_t light_capacity, light_count;
     float env[3];
@@ -186,6 +199,9 @@ static inline double ray_t(double z, double scale, double offset)
     return t > 0.0 ? t : 0.0;
 }
 
+/* Floats of froxel_light_column's scratch for columns of up to d froxels. */
+#define LIGHT_SCRATCH(d) ((14u + NACRE_MAX_FOGS) * (((size_t)(d) + 7) & ~(size_t)7))
+
 /* Lights, fogs, environment and camera of the frame; per-thread scratch for batches of up to
  * `batch` points. */
 static nacre_result vol_setup(vol_state *st, const nc_post_input *in, uint32_t batch)
@@ -240,8 +256,26 @@ static nacre_result vol_setup(vol_state *st, const nc_post_input *in, uint32_t b
                 st->cam.far = z;
         }
     }
+    st->gfog_count = 0;
+    st->analytic_boxes = false;
+    for (uint32_t i = 0; i < st->field.count; i++) {
+        const nc_fog_one *o = &st->field.fogs[i];
+        if (o->patterned)
+            continue;
+        if (o->box) {
+            st->analytic_boxes = true;
+            continue;
+        }
+        vfog *v = &st->gfog[st->gfog_count++];
+        v->o = o;
+        for (int c = 0; c < 3; c++)
+            v->sig_t[c] = o->sigma_a[c] + o->sigma_s[c];
+        v->flat = o->hf_cap >= 0.0f ? 1.0f : expf(o->hf_cap);
+        v->yc = o->hf_falloff > 0.0f ? o->hf_base - o->hf_cap / o->hf_falloff : -INFINITY;
+        v->fcap = expf(o->hf_cap);
+    }
     size_t per = 13u * batch + NC_FOG_EVAL_SCRATCH(batch) + NC_FOG_TAU_SCRATCH(vs->shadow_steps) +
-                 3u * (size_t)batch * st->light_count;
+                 LIGHT_SCRATCH(batch);
     size_t total = per * (size_t)(ctx->threads > 0 ? ctx->threads : 1);
     if (!nc_reserve(ctx, &st->scratch, &st->scratch_capacity, total, sizeof(float)))
         return NACRE_ERROR_OUT_OF_MEMORY;
@@ -299,10 +333,10 @@ static inline bool light_at(const vlight *li, const float x[3], float wi[3], flo
 #define TAU_MAX 80.0f
 
 /* The source (sigma_s x in-scattered radiance) at n points p seen along direction d (eye to
- * point): src[3k + c] from ss[3k + c] and g[k]. src may alias ss. tau_pre: the optical depth
- * towards light l at point k at [3 (l n + k) + c], or NULL to integrate it here. */
+ * point): src[3k + c] from ss[3k + c] and g[k]. src may alias ss. The march's lighting: every
+ * optical depth integrated here (froxel_light_column is the froxels' faster form). */
 static void light_points(const vol_state *st, uint32_t n, const float *p, const float d[3], const float *ss,
-                         const float *g, float *src, const float *tau_pre, float *tau_scratch)
+                         const float *g, float *src, float *tau_scratch)
 {
     for (uint32_t k = 0; k < n; k++) {
         const float *x = p + 3 * (size_t)k;
@@ -325,12 +359,9 @@ static void light_points(const vol_state *st, uint32_t n, const float *p, const 
             }
             float tau[3], w[3] = {-wi[0], -wi[1], -wi[2]};
             double td[3];
-            nc_fog_field_optical_depth(&st->field, x, w, dist, tau_pre ? NC_FOG_ANALYTIC : NC_FOG_ALL, td, tau_scratch);
-            for (int c = 0; c < 3; c++) {
-                if (tau_pre)
-                    td[c] += tau_pre[3 * ((size_t)l * n + k) + c];
+            nc_fog_field_optical_depth(&st->field, x, w, dist, NC_FOG_ALL, td, tau_scratch);
+            for (int c = 0; c < 3; c++)
                 tau[c] = td[c] < TAU_MAX ? (float)td[c] : TAU_MAX;
-            }
             float ph = hg_phase(-(d[0] * wi[0] + d[1] * wi[1] + d[2] * wi[2]), g[k]) * vis * scale;
             for (int c = 0; c < 3; c++)
                 acc[c] += li->e[c] * ph * expf(-tau[c]);
@@ -580,6 +611,231 @@ static nacre_result column_depths(vol_state *st, nacre_context *ctx, const float
     return NACRE_OK;
 }
 
+/* ---- the froxels' lighting, 8 froxels of a column at a time (core/simd.h) ------------------- */
+
+static inline nc_v8f v8_floor(nc_v8f x)
+{
+#ifdef __AVX__
+    return (nc_v8f)_mm256_floor_ps((__m256)x);
+#else
+    for (int l = 0; l < 8; l++)
+        x[l] = floorf(x[l]);
+    return x;
+#endif
+}
+
+/* nc_vol_exp_fast (volume.h) lane by lane. */
+static inline nc_v8f v8_exp_fast(nc_v8f x)
+{
+    nc_v8f y = x * 1.44269504f;
+    y = nc_v8_sel(y > -126.0f, y, nc_v8_splat(-126.0f));
+    y = nc_v8_sel(y < 127.0f, y, nc_v8_splat(127.0f));
+    nc_v8f n = v8_floor(y), f = y - n;
+    nc_v8f p = nc_v8_splat(1.8775767e-3f);
+    p = p * f + 8.9893397e-3f;
+    p = p * f + 5.5826318e-2f;
+    p = p * f + 2.4015361e-1f;
+    p = p * f + 6.9315308e-1f;
+    p = p * f + 9.9999994e-1f;
+    nc_v8i bits = (__builtin_convertvector(n, nc_v8i) + 127) << 23;
+    return nc_v8_sel(x > -87.0f, p * (nc_v8f)bits, (nc_v8f){0});
+}
+
+/* nc_vol_exp_ratio_fast lane by lane (x >= 0, finite where selected). */
+static inline nc_v8f v8_exp_ratio_fast(nc_v8f x)
+{
+    nc_v8f series = 1.0f - x * (0.5f - x * (1.0f / 6.0f - x * (1.0f / 24.0f - x * (1.0f / 120.0f))));
+    return nc_v8_sel(x < 0.1f, series, (1.0f - v8_exp_fast(-x)) / x);
+}
+
+/* hg_phase lane by lane. */
+static inline nc_v8f v8_hg_phase(nc_v8f cs, nc_v8f g)
+{
+    nc_v8f x = 1.0f + g * g - 2.0f * g * cs;
+    return (1.0f - g * g) / (4.0f * (float)NC_PI * x * nc_v8_sqrt(x));
+}
+
+/* nc_vol_height_integral of global fog v (with a falloff) in float along rays from heights y
+ * with direction y components wy over [0, len] (finite; a point light at height y_end, where the
+ * height factor is f_end), given the factors f_y at y. The case of a directional light (len
+ * infinite) is froxel_light_column's. */
+static inline nc_v8f v8_height_integral(const vfog *v, nc_v8f y, nc_v8f wy, nc_v8f len, nc_v8f f_y, float y_end,
+                                        float f_end)
+{
+    const nc_v8f zero = {0};
+    float k = v->o->hf_falloff;
+    nc_v8f s = nc_v8_sel(wy >= 0.0f, wy, -wy);
+    nc_v8i here = wy >= 0.0f; /* the point is the lower end */
+    nc_v8f y_lo = nc_v8_sel(here, y, nc_v8_splat(y_end)), f_lo = nc_v8_sel(here, f_y, nc_v8_splat(f_end));
+    nc_v8i below = y_lo < v->yc;
+    nc_v8f to_cap = (v->yc - y_lo) / s;
+    nc_v8f capped = nc_v8_sel(below, nc_v8_sel(to_cap < len, to_cap, len), zero);
+    f_lo = nc_v8_sel(below, nc_v8_splat(v->fcap), f_lo);
+    nc_v8f rest = len - capped;
+    nc_v8f total = capped * f_lo + nc_v8_sel(rest > 0.0f, rest * f_lo * v8_exp_ratio_fast(k * s * rest), zero);
+    return nc_v8_sel(s == 0.0f, len * f_lo, total); /* level: constant density */
+}
+
+/* The froxels' lighting of one column (light_points' sum, by light over groups of 8 froxels in
+ * SoA arrays): n froxels at p (xyz each) seen along d, src[3k + c] from ss[3k + c] and g[k]; src
+ * may alias ss. The optical depth towards a light is the sum of the patterned fogs' coarse grid
+ * (interpolated; cn, cw: the grid's 4 columns around this one and their weights, cn NULL
+ * without patterned fogs), the global fogs without pattern in closed form and the boxes without
+ * pattern exactly (nc_fog_field_optical_depth, sharp walls); its exponential is
+ * nc_vol_exp_fast's. The opaque shadow is looked up per froxel. */
+static void froxel_light_column(const vol_state *st, uint32_t n, const float *p, const float d[3], const float *ss,
+                                const float *g, float *src, const size_t cn[4], const float cw[4], float *ls,
+                                float *tau_scratch)
+{
+    if (n == 0)
+        return;
+    const size_t S = ((size_t)st->D + 7) & ~(size_t)7;
+    const uint32_t n8 = (n + 7) & ~7u;
+    float *X = ls, *Y = ls + S, *Z = ls + 2 * S, *Gp = ls + 3 * S, *F = ls + 4 * S;
+    float *A[3] = {ls + 5 * S, ls + 6 * S, ls + 7 * S}, *T[3] = {ls + 8 * S, ls + 9 * S, ls + 10 * S};
+    float *CG = ls + 11 * S, *HF = ls + 14 * S;
+    /* Lanes past n repeat the last froxel (their results are not used). */
+    for (uint32_t k = 0; k < n8; k++) {
+        uint32_t q = k < n ? k : n - 1;
+        X[k] = p[3 * q];
+        Y[k] = p[3 * q + 1];
+        Z[k] = p[3 * q + 2];
+        Gp[k] = g[q];
+        for (int c = 0; c < 3; c++)
+            A[c][k] = st->env[c];
+    }
+    /* Each global fog's height factor at the froxels, shared by all lights. */
+    for (uint32_t f = 0; f < st->gfog_count; f++) {
+        const nc_fog_one *o = st->gfog[f].o;
+        for (uint32_t k = 0; k < n8; k += 8) {
+            nc_v8f e = -o->hf_falloff * (nc_v8_load(Y + k) - o->hf_base);
+            nc_v8f hf = o->height ? v8_exp_fast(nc_v8_sel(e < o->hf_cap, e, nc_v8_splat(o->hf_cap)))
+                                  : nc_v8_splat(st->gfog[f].flat);
+            nc_v8_store(HF + f * S + k, hf);
+        }
+    }
+    size_t nodes = (size_t)st->Wc * st->Hc * st->Dc;
+    for (uint32_t l = 0; l < st->light_count; l++) {
+        const vlight *li = &st->lights[l];
+        bool directional = li->type == NACRE_LIGHT_DIRECTIONAL;
+        if (cn) {
+            /* The 4 grid columns around this one, then linear in depth between even froxels. */
+            const float *grid = st->tau_grid + 3 * (size_t)l * nodes;
+            for (uint32_t kc = 0; kc < st->Dc; kc++)
+                for (int c = 0; c < 3; c++) {
+                    float t = 0.0f;
+                    for (int q = 0; q < 4; q++)
+                        t += cw[q] * grid[3 * (cn[q] * st->Dc + kc) + c];
+                    CG[3 * kc + c] = t;
+                }
+            for (uint32_t k = 0; k < n8; k++) {
+                uint32_t c0 = k / 2 < st->Dc ? k / 2 : st->Dc - 1, c1 = c0 + 1 < st->Dc ? c0 + 1 : c0;
+                float wc = (k & 1) && c1 != c0 ? 0.5f : 0.0f;
+                for (int c = 0; c < 3; c++)
+                    T[c][k] = (1.0f - wc) * CG[3 * c0 + c] + wc * CG[3 * c1 + c];
+            }
+        } else {
+            for (int c = 0; c < 3; c++)
+                memset(T[c], 0, n8 * sizeof(float));
+        }
+        if (directional) {
+            float cs = -(d[0] * li->dir[0] + d[1] * li->dir[1] + d[2] * li->dir[2]), wy = -li->dir[1];
+            for (uint32_t k = 0; k < n8; k += 8)
+                nc_v8_store(F + k, v8_hg_phase(nc_v8_splat(cs), nc_v8_load(Gp + k)));
+            for (uint32_t f = 0; f < st->gfog_count; f++) {
+                const vfog *v = &st->gfog[f];
+                float kf = v->o->hf_falloff;
+                for (uint32_t k = 0; k < n8; k += 8) {
+                    nc_v8f hf = nc_v8_load(HF + f * S + k), y = nc_v8_load(Y + k), G;
+                    if (!(kf > 0.0f) || wy < 0.0f) {
+                        G = nc_v8_splat(INFINITY); /* constant or denser fog forever */
+                    } else if (wy == 0.0f) {
+                        G = nc_v8_sel(hf > 0.0f, nc_v8_splat(INFINITY), (nc_v8f){0});
+                    } else {
+                        /* Rising forever: the capped stretch below yc, then the integral of e^(-k wy t). */
+                        nc_v8i below = y < v->yc;
+                        nc_v8f f_lo = nc_v8_sel(below, nc_v8_splat(v->fcap), hf);
+                        nc_v8f capped = nc_v8_sel(below, (v->yc - y) / wy, (nc_v8f){0});
+                        G = capped * f_lo + f_lo / (kf * wy);
+                    }
+                    for (int c = 0; c < 3; c++)
+                        if (v->sig_t[c] > 0.0f)
+                            nc_v8_store(T[c] + k, nc_v8_load(T[c] + k) + v->sig_t[c] * G);
+                }
+            }
+        } else {
+            float hl[NACRE_MAX_FOGS];
+            for (uint32_t f = 0; f < st->gfog_count; f++) {
+                const nc_fog_one *o = st->gfog[f].o;
+                hl[f] = o->height ? nc_vol_exp_fast(fminf(o->hf_cap, -o->hf_falloff * (li->pos[1] - o->hf_base)))
+                                  : st->gfog[f].flat;
+            }
+            const nc_v8f zero = {0};
+            for (uint32_t k = 0; k < n8; k += 8) {
+                nc_v8f vx = nc_v8_load(X + k) - li->pos[0], vy = nc_v8_load(Y + k) - li->pos[1],
+                       vz = nc_v8_load(Z + k) - li->pos[2];
+                nc_v8f d2 = vx * vx + vy * vy + vz * vz;
+                nc_v8i valid = d2 > 0.0f;
+                nc_v8f dist = nc_v8_sqrt(d2), inv = 1.0f / dist;
+                nc_v8f wx = vx * inv, wyv = vy * inv, wz = vz * inv;
+                nc_v8f scale = 1.0f / d2;
+                if (li->type == NACRE_LIGHT_SPOT)
+                    for (int q = 0; q < 8; q++)
+                        scale[q] *= nc_spot_falloff(li->falloff, wx[q] * li->dir[0] + wyv[q] * li->dir[1] + wz[q] * li->dir[2],
+                                                    li->co, li->ci);
+                nc_v8f cs = -(d[0] * wx + d[1] * wyv + d[2] * wz);
+                nc_v8_store(F + k, nc_v8_sel(valid, v8_hg_phase(cs, nc_v8_load(Gp + k)) * scale, zero));
+                for (uint32_t f = 0; f < st->gfog_count; f++) {
+                    const vfog *v = &st->gfog[f];
+                    nc_v8f G = v->o->hf_falloff > 0.0f
+                                   ? v8_height_integral(v, nc_v8_load(Y + k), -wyv, dist, nc_v8_load(HF + f * S + k),
+                                                        li->pos[1], hl[f])
+                                   : dist * v->flat;
+                    G = nc_v8_sel(valid, G, zero);
+                    for (int c = 0; c < 3; c++)
+                        if (v->sig_t[c] > 0.0f)
+                            nc_v8_store(T[c] + k, nc_v8_load(T[c] + k) + v->sig_t[c] * G);
+                }
+            }
+        }
+        /* The opaque shadow and the boxes without pattern: per froxel, where light arrives. */
+        if (st->analytic_boxes || li->shadow) {
+            for (uint32_t k = 0; k < n; k++) {
+                if (!(F[k] > 0.0f) || !(ss[3 * k] > 0.0f || ss[3 * k + 1] > 0.0f || ss[3 * k + 2] > 0.0f))
+                    continue;
+                const float *x = p + 3 * (size_t)k;
+                if (li->shadow) {
+                    F[k] *= nc_shadow_lookup_volume(li->shadow, nc_v3a(x), st->pcf, st->bias);
+                    if (!(F[k] > 0.0f))
+                        continue;
+                }
+                if (st->analytic_boxes) {
+                    float w[3], dist = INFINITY;
+                    if (directional) {
+                        w[0] = -li->dir[0], w[1] = -li->dir[1], w[2] = -li->dir[2];
+                    } else {
+                        float v[3] = {li->pos[0] - x[0], li->pos[1] - x[1], li->pos[2] - x[2]};
+                        dist = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+                        w[0] = v[0] / dist, w[1] = v[1] / dist, w[2] = v[2] / dist;
+                    }
+                    double td[3];
+                    nc_fog_field_optical_depth(&st->field, x, w, dist, NC_FOG_ANALYTIC | NC_FOG_BOXES, td, tau_scratch);
+                    for (int c = 0; c < 3; c++)
+                        T[c][k] += td[c] < TAU_MAX ? (float)td[c] : TAU_MAX;
+                }
+            }
+        }
+        for (uint32_t k = 0; k < n8; k += 8) {
+            nc_v8f fk = nc_v8_load(F + k);
+            for (int c = 0; c < 3; c++)
+                nc_v8_store(A[c] + k, nc_v8_load(A[c] + k) + li->e[c] * fk * v8_exp_fast(-nc_v8_load(T[c] + k)));
+        }
+    }
+    for (uint32_t k = 0; k < n; k++)
+        for (int c = 0; c < 3; c++)
+            src[3 * k + c] = ss[3 * k + c] * A[c][k];
+}
+
 static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads, uint32_t batch)
 {
     bool patterned = nc_fog_field_patterned(&st->field);
@@ -587,16 +843,17 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
     if (res != NACRE_OK)
         return res;
     int64_t cols = (int64_t)st->W * st->H;
-    size_t nodes = (size_t)st->Wc * st->Hc * st->Dc;
 #pragma omp parallel for schedule(dynamic, 16) num_threads(threads)
     for (int64_t col = 0; col < cols; col++) {
         float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
-        float *pre = tau + NC_FOG_TAU_SCRATCH(st->field.shadow_steps);
+        float *ls = tau + NC_FOG_TAU_SCRATCH(st->field.shadow_steps);
         uint32_t i = (uint32_t)(col % st->W), j = (uint32_t)(col / st->W);
-        uint32_t a0, a1, b0, b1;
-        float wa, wb;
-        coarse(i, st->Wc, &a0, &a1, &wa);
-        coarse(j, st->Hc, &b0, &b1, &wb);
+        uint32_t a0 = 0, a1 = 0, b0 = 0, b1 = 0;
+        float wa = 0.0f, wb = 0.0f;
+        if (patterned) {
+            coarse(i, st->Wc, &a0, &a1, &wa);
+            coarse(j, st->Hc, &b0, &b1, &wb);
+        }
         const size_t cn[4] = {(size_t)b0 * st->Wc + a0, (size_t)b0 * st->Wc + a1, (size_t)b1 * st->Wc + a0,
                               (size_t)b1 * st->Wc + a1};
         const float cw[4] = {(1 - wa) * (1 - wb), wa * (1 - wb), (1 - wa) * wb, wa * wb};
@@ -604,27 +861,13 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
         uint32_t n = 0;
         while (n < st->D && st->bound[n] <= st->col_depth[col])
             n++;
-        for (uint32_t l = 0; patterned && l < st->light_count; l++) {
-            const float *grid = st->tau_grid + 3 * (size_t)l * nodes;
-            for (uint32_t k = 0; k < n; k++) {
-                uint32_t c0, c1;
-                float wc;
-                coarse(k, st->Dc, &c0, &c1, &wc);
-                float t[3] = {0, 0, 0};
-                for (int q = 0; q < 4; q++) {
-                    const float *n0 = grid + 3 * (cn[q] * st->Dc + c0), *n1 = grid + 3 * (cn[q] * st->Dc + c1);
-                    for (int ch = 0; ch < 3; ch++)
-                        t[ch] += cw[q] * ((1 - wc) * n0[ch] + wc * n1[ch]);
-                }
-                memcpy(pre + 3 * ((size_t)l * n + k), t, sizeof(t));
-            }
-        }
         float o[3], d[3];
         double scale, offset;
         column_ray(st, i, j, o, d, &scale, &offset);
         column_points(st, o, d, scale, offset, p);
         size_t base = (size_t)col * st->D;
-        light_points(st, n, p, d, st->src + 3 * base, st->g + base, st->src + 3 * base, patterned ? pre : NULL, tau);
+        froxel_light_column(st, n, p, d, st->src + 3 * base, st->g + base, st->src + 3 * base, patterned ? cn : NULL,
+                            cw, ls, tau);
         memset(st->src + 3 * (base + n), 0, 3 * (size_t)(st->D - n) * sizeof(float));
     }
     return NACRE_OK;
@@ -826,7 +1069,7 @@ static nacre_result raymarch_apply(void *state, const nc_post_input *in, nacre_i
                     p[3 * k + c] = o[c] + t * d[c];
             }
             nc_fog_field_eval(&st->field, n, p, sig_t, src, g, ev);
-            light_points(st, n, p, d, src, g, src, NULL, tau);
+            light_points(st, n, p, d, src, g, src, tau);
             nc_vol_march m[3] = {nc_vol_march_begin(), nc_vol_march_begin(), nc_vol_march_begin()};
             for (uint32_t k = 0; k < n; k++)
                 for (int c = 0; c < 3; c++)

@@ -185,7 +185,7 @@ void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const f
     tau[0] = tau[1] = tau[2] = 0.0;
     for (uint32_t i = 0; i < f->count; i++) {
         const nc_fog_one *o = &f->fogs[i];
-        if (!(which & (o->patterned ? NC_FOG_PATTERNED : NC_FOG_ANALYTIC)))
+        if (!(which & (o->patterned ? NC_FOG_PATTERNED : NC_FOG_ANALYTIC)) || ((which & NC_FOG_BOXES) && !o->box))
             continue;
         double a = 0.0, b = tmax;
         if (!nc_fog_field_segment(o, p, w, &a, &b))

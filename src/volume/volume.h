@@ -26,6 +26,8 @@
 #include <math.h>
 #include <stdbool.h>
 #include <stddef.h>
+#include <stdint.h>
+#include <string.h>
 
 /* Density cap of any fog, per scene unit: a free path far below float resolution at every
  * scene scale, so that tracking weights (products of two densities) stay finite. */
@@ -44,6 +46,38 @@ static inline float nc_vol_transmittance(float sigma_t, float d) { return expf(-
  * steps' transmittances, evaluated as e^(-sum of optical depths) (one exponential, and no
  * underflow of partial products before a step of zero density). */
 double nc_vol_transmittance_steps(size_t n, const float *sigma_t, const float *length);
+
+/* e^x in float for x <= 88 (x below -87, or -inf, gives 0): 2^(x log2 e) split into an integer
+ * power, built in the exponent bits, and a degree-5 polynomial of the fraction (the particles'
+ * billboard kernel's); relative error under 4e-6. Written so that loops over froxels vectorize
+ * (expf does not), where the volumetric passes take several per froxel and light. */
+static inline float nc_vol_exp_fast(float x)
+{
+    float y = x * 1.44269504f;
+    y = y > -126.0f ? y : -126.0f;
+    y = y < 127.0f ? y : 127.0f;
+    float n = floorf(y), f = y - n;
+    float p = 1.8775767e-3f;
+    p = p * f + 8.9893397e-3f;
+    p = p * f + 5.5826318e-2f;
+    p = p * f + 2.4015361e-1f;
+    p = p * f + 6.9315308e-1f;
+    p = p * f + 9.9999994e-1f;
+    int32_t bits = ((int32_t)n + 127) << 23;
+    float scale;
+    memcpy(&scale, &bits, sizeof(scale));
+    return x > -87.0f ? p * scale : 0.0f;
+}
+
+/* (1 - e^(-x)) / x in float for x >= 0 (finite), with nc_vol_exp_fast: the series through x^4
+ * below 0.1 (next term under 2e-8), the quotient above (at most 4e-5 from the exponential's
+ * error over x). */
+static inline float nc_vol_exp_ratio_fast(float x)
+{
+    if (x < 0.1f)
+        return 1.0f - x * (0.5f - x * (1.0f / 6.0f - x * (1.0f / 24.0f - x * (1.0f / 120.0f))));
+    return (1.0f - nc_vol_exp_fast(-x)) / x;
+}
 
 /* ---- segment integral (§1.2.10) -------------------------------------------------------- */
 
