@@ -798,32 +798,29 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
                 }
             }
         }
-        /* The opaque shadow and the boxes without pattern: per froxel, where light arrives. */
-        if (st->analytic_boxes || li->shadow) {
-            for (uint32_t k = 0; k < n; k++) {
-                if (!(F[k] > 0.0f) || !(ss[3 * k] > 0.0f || ss[3 * k + 1] > 0.0f || ss[3 * k + 2] > 0.0f))
-                    continue;
-                const float *x = p + 3 * (size_t)k;
-                if (li->shadow) {
-                    F[k] *= nc_shadow_lookup_volume(li->shadow, nc_v3a(x), st->pcf, st->bias);
-                    if (!(F[k] > 0.0f))
-                        continue;
-                }
-                if (st->analytic_boxes) {
-                    float w[3], dist = INFINITY;
-                    if (directional) {
-                        w[0] = -li->dir[0], w[1] = -li->dir[1], w[2] = -li->dir[2];
-                    } else {
-                        float v[3] = {li->pos[0] - x[0], li->pos[1] - x[1], li->pos[2] - x[2]};
-                        dist = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-                        w[0] = v[0] / dist, w[1] = v[1] / dist, w[2] = v[2] / dist;
-                    }
-                    double td[3];
-                    nc_fog_field_optical_depth(&st->field, x, w, dist, NC_FOG_ANALYTIC | NC_FOG_BOXES, td, tau_scratch);
-                    for (int c = 0; c < 3; c++)
-                        T[c][k] += td[c] < TAU_MAX ? (float)td[c] : TAU_MAX;
-                }
+        /* The opaque shadow, then the boxes without pattern per froxel where light arrives. */
+        if (li->shadow)
+            for (uint32_t k = 0; k < n8; k += 8) {
+                float vis[8];
+                nc_shadow_lookup_volume8(li->shadow, X + k, Y + k, Z + k, st->bias, vis);
+                nc_v8_store(F + k, nc_v8_load(F + k) * nc_v8_load(vis));
             }
+        for (uint32_t k = 0; st->analytic_boxes && k < n; k++) {
+            if (!(F[k] > 0.0f) || !(ss[3 * k] > 0.0f || ss[3 * k + 1] > 0.0f || ss[3 * k + 2] > 0.0f))
+                continue;
+            const float *x = p + 3 * (size_t)k;
+            float w[3], dist = INFINITY;
+            if (directional) {
+                w[0] = -li->dir[0], w[1] = -li->dir[1], w[2] = -li->dir[2];
+            } else {
+                float v[3] = {li->pos[0] - x[0], li->pos[1] - x[1], li->pos[2] - x[2]};
+                dist = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+                w[0] = v[0] / dist, w[1] = v[1] / dist, w[2] = v[2] / dist;
+            }
+            double td[3];
+            nc_fog_field_optical_depth(&st->field, x, w, dist, NC_FOG_ANALYTIC | NC_FOG_BOXES, td, tau_scratch);
+            for (int c = 0; c < 3; c++)
+                T[c][k] += td[c] < TAU_MAX ? (float)td[c] : TAU_MAX;
         }
         for (uint32_t k = 0; k < n8; k += 8) {
             nc_v8f fk = nc_v8_load(F + k);

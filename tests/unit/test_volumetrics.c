@@ -10,7 +10,8 @@
  *     march and the analytic pass agree (0.5%) on objects and background; the march does not
  *     depend on its step count nor the froxels' background on the slice count (segment
  *     integral); 1 and 2 threads give the same bits; transmittance stays in [0, 1] (fog_field);
- *   - a global height fog lit by a sun, point lights below and above the view and a spot, seen
+ *   - a global height fog lit by a sun (a slab above the view casts a shaft), point lights below
+ *     and above the view and a spot, seen
  *     through an orthographic camera whose pixels are the froxel columns and whose march steps
  *     are the slices: froxels (the optical depth towards the lights in float closed form, a fast
  *     exponential) against the march (every optical depth integrated in double) within 0.1%,
@@ -341,13 +342,15 @@ static void field_transmittance(void)
     "{\"camera\": {\"type\": \"orthographic\", \"position\": [0, 0, 5], \"target\": [0, 0, 0], "    \
     "\"height\": 4, \"near\": 1, \"far\": 9}, \"environment\": 0,"                                  \
     "\"materials\": {\"black\": {\"type\": \"opaque\", \"diffuse\": 0, \"specular\": 0}},"          \
-    "\"objects\": [{\"shape\": {\"type\": \"sphere\", \"radius\": 0.1}, \"material\": \"black\","   \
-    "\"transform\": {\"translate\": [0, 0, 20]}, \"shadows\": false}],"                             \
     "\"fog\": [{\"shape\": \"global\", \"sigma_a\": 0.05, \"sigma_s\": [0.4, 0.25, 0.1], \"g\": 0.3,"  \
     "\"height_falloff\": 0.6, \"height_base\": -1}],"
 
-#define HEIGHT_FOG_LIGHTS                                                                           \
+#define HEIGHT_FOG_LIGHTS(slab_x)                                                                        \
     HEIGHT_FOG_CAMERA                                                                               \
+    "\"objects\": [{\"shape\": {\"type\": \"sphere\", \"radius\": 0.1}, \"material\": \"black\","   \
+    "\"transform\": {\"translate\": [0, 0, 20]}, \"shadows\": false},"                              \
+    "{\"shape\": {\"type\": \"box\", \"size\": [1.2, 0.1, 1]}, \"material\": \"black\","              \
+    "\"transform\": {\"translate\": [" slab_x ", 2.6, 0]}}],"                                         \
     "\"lights\": [{\"type\": \"directional\", \"direction\": [0.3, -1, 0.2], \"irradiance\": 2},"       \
     "{\"type\": \"point\", \"position\": [1, 1.5, 0.3], \"intensity\": 3},"                            \
     "{\"type\": \"point\", \"position\": [-1.5, -3, 2], \"intensity\": 20},"                          \
@@ -356,6 +359,8 @@ static void field_transmittance(void)
 
 #define HEIGHT_FOG_SUN                                                                              \
     HEIGHT_FOG_CAMERA                                                                               \
+    "\"objects\": [{\"shape\": {\"type\": \"sphere\", \"radius\": 0.1}, \"material\": \"black\","   \
+    "\"transform\": {\"translate\": [0, 0, 20]}, \"shadows\": false}],"                             \
     "\"lights\": [{\"type\": \"directional\", \"direction\": [0, -1, 0], \"irradiance\": 2, "          \
     "\"angular_radius\": 0}]}"
 
@@ -378,7 +383,7 @@ static void height_fog_lights(void)
             settings(NACRE_METHOD_PHONG, k ? NACRE_VOLUMETRICS_RAYMARCH : NACRE_VOLUMETRICS_FROXEL, W, H);
         rs.volumetrics.froxel_width = W; /* a column per pixel, through its centre */
         rs.volumetrics.froxel_height = H;
-        if (!render(ctx, HEIGHT_FOG_LIGHTS, &rs, &img[k], NULL))
+        if (!render(ctx, HEIGHT_FOG_LIGHTS("0.3"), &rs, &img[k], NULL))
             goto out;
     }
     double worst = 0, top = 0;
@@ -394,13 +399,25 @@ static void height_fog_lights(void)
             }
     printf("  height fog, sun + 2 points + spot: froxel vs march largest relative difference %.2e\n", worst);
     CHECK(worst < 1e-3);
+    /* The slab's shadow is in the image: moved out of the sun's way, the froxels change by far
+     * more than that. */
+    nacre_image_free(ctx, &img[1]);
+    memset(&img[1], 0, sizeof(img[1]));
+    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_FROXEL, W, H);
+    rs.volumetrics.froxel_width = W;
+    rs.volumetrics.froxel_height = H;
+    if (!render(ctx, HEIGHT_FOG_LIGHTS("30"), &rs, &img[1], NULL))
+        goto out;
+    double shaft = 0;
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++)
+            shaft = fmax(shaft, 1 - px(&img[0], x, y, 1) / px(&img[1], x, y, 1));
+    printf("  the slab's shaft: darker by up to %.3f\n", shaft);
+    CHECK(shaft > 0.01);
     nacre_image_free(ctx, &img[0]);
     nacre_image_free(ctx, &img[1]);
     memset(img, 0, sizeof(img));
 
-    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_FROXEL, W, H);
-    rs.volumetrics.froxel_width = W;
-    rs.volumetrics.froxel_height = H;
     if (!render(ctx, HEIGHT_FOG_SUN, &rs, &img[0], NULL))
         goto out;
     worst = 0;
