@@ -85,10 +85,14 @@ typedef struct vol_state {
     /* froxel grid: W x H columns of D froxels, column-major in depth (index col * D + k) */
     uint32_t W, H, D;
     float *st, *src, *g; /* 3N, 3N (sigma_s after fill, the source after light), N */
-    float *acc_l, *acc_t; /* per column D + 1 boundaries (1 .. D, then infinity) x 3 */
+    /* Radiance and transmittance from the eye to boundaries 1 .. D and infinity of every column,
+     * slice-major ([(b - 1) cols + col] x 3): neighbouring pixels at similar depths read
+     * neighbouring words. */
+    float *acc_l, *acc_t;
     float *col_depth;     /* per column: the farthest depth of the pixels that read it */
     size_t col_capacity;
     double *bound;        /* D + 1 view-axis depths of the slice boundaries */
+    float slice_inv_b1, slice_scale; /* perspective: slice 1 + log(z / bound[1]) x slice_scale */
     size_t grid_capacity;
     /* Optical depth towards each light at the froxels of even indices (Wc x Hc x Dc nodes,
      * column-major in depth), x 3 channels, per light */
@@ -475,6 +479,8 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
         } else {
             for (uint32_t k = 1; k <= D; k++)
                 st->bound[k] = z0 * pow(zf / z0, (double)(k - 1) / (D - 1));
+            st->slice_inv_b1 = (float)(1.0 / st->bound[1]);
+            st->slice_scale = (float)((D - 1) / log(st->bound[D] / st->bound[1]));
         }
     }
     return NACRE_OK;
@@ -627,18 +633,20 @@ static inline nc_v8f v8_floor(nc_v8f x)
 /* nc_vol_exp_fast (volume.h) lane by lane. */
 static inline nc_v8f v8_exp_fast(nc_v8f x)
 {
-    nc_v8f y = x * 1.44269504f;
-    y = nc_v8_sel(y > -126.0f, y, nc_v8_splat(-126.0f));
-    y = nc_v8_sel(y < 127.0f, y, nc_v8_splat(127.0f));
-    nc_v8f n = v8_floor(y), f = y - n;
-    nc_v8f p = nc_v8_splat(1.8775767e-3f);
-    p = p * f + 8.9893397e-3f;
-    p = p * f + 5.5826318e-2f;
-    p = p * f + 2.4015361e-1f;
-    p = p * f + 6.9315308e-1f;
-    p = p * f + 9.9999994e-1f;
+    nc_v8f n = v8_floor(x * 1.44269504f + 0.5f);
+    n = nc_v8_sel(n > -127.0f, n, nc_v8_splat(-127.0f));
+    n = nc_v8_sel(n < 127.0f, n, nc_v8_splat(127.0f));
+    nc_v8f r = x - n * 0.693359375f;
+    r = r - n * -2.12194440e-4f;
+    nc_v8f p = nc_v8_splat(1.9875691500e-4f);
+    p = p * r + 1.3981999507e-3f;
+    p = p * r + 8.3334519073e-3f;
+    p = p * r + 4.1665795894e-2f;
+    p = p * r + 1.6666665459e-1f;
+    p = p * r + 5.0000001201e-1f;
+    nc_v8f y = p * r * r + r + 1.0f;
     nc_v8i bits = (__builtin_convertvector(n, nc_v8i) + 127) << 23;
-    return nc_v8_sel(x > -87.0f, p * (nc_v8f)bits, (nc_v8f){0});
+    return nc_v8_sel(x > -87.0f, y * (nc_v8f)bits, (nc_v8f){0});
 }
 
 /* nc_vol_exp_ratio_fast lane by lane (x >= 0, finite where selected). */
@@ -873,33 +881,50 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
 static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
 {
     int64_t cols = (int64_t)st->W * st->H;
-    uint32_t D = st->D;
+    uint32_t D = st->D, D3 = 3 * D;
 #pragma omp parallel for schedule(static) num_threads(threads)
     for (int64_t col = 0; col < cols; col++) {
-        float *tau = thread_scratch(st) + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
+        float *sc = thread_scratch(st), *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
+        float *len3 = sc, *T3 = sc + D3, *S3 = sc + 2 * (size_t)D3;
         float o[3], d[3];
         double scale, offset;
         column_ray(st, (uint32_t)(col % st->W), (uint32_t)(col / st->W), o, d, &scale, &offset);
-        size_t base = (size_t)col * D, out = (size_t)col * (D + 1);
-        /* nc_vol_march_step in float with one exponential per channel (the double form, with
-         * two, was most of this stage): the same segment integral, (1 - T) / sigma_t. */
-        float ml[3] = {0, 0, 0}, mt[3] = {1, 1, 1};
+        size_t base = (size_t)col * D;
         for (uint32_t k = 0; k < D; k++) {
             float len = (float)(ray_t(st->bound[k + 1], scale, offset) - ray_t(st->bound[k], scale, offset));
+            len3[3 * k] = len3[3 * k + 1] = len3[3 * k + 2] = len;
+        }
+        /* nc_vol_march_step's segment integral in float, (1 - T) / sigma_t, each slice's
+         * transmittance and source first (8 words at a time), then the running sums. */
+        const float *sig = st->st + 3 * base, *src = st->src + 3 * base;
+        uint32_t i = 0;
+        for (; i + 8 <= D3; i += 8) {
+            nc_v8f sg = nc_v8_load(sig + i), len = nc_v8_load(len3 + i), x = sg * len, T = v8_exp_fast(-x);
+            nc_v8f w = nc_v8_sel(x < 1e-3f, len * (1.0f - 0.5f * x), (1.0f - T) / sg);
+            nc_v8_store(T3 + i, T);
+            nc_v8_store(S3 + i, nc_v8_load(src + i) * w);
+        }
+        for (; i < D3; i++) {
+            float x = sig[i] * len3[i], T = nc_vol_exp_fast(-x);
+            T3[i] = T;
+            S3[i] = src[i] * (x < 1e-3f ? len3[i] * (1.0f - 0.5f * x) : (1.0f - T) / sig[i]);
+        }
+        float ml[3] = {0, 0, 0}, mt[3] = {1, 1, 1};
+        for (uint32_t k = 0; k < D; k++) {
+            float *pl = st->acc_l + 3 * ((size_t)k * (size_t)cols + (size_t)col), *pt = st->acc_t + (pl - st->acc_l);
             for (int c = 0; c < 3; c++) {
-                float sig = st->st[3 * (base + k) + c], x = sig * len, T = expf(-x);
-                float w = x < 1e-3f ? len * (1.0f - 0.5f * x) : (1.0f - T) / sig;
-                ml[c] += mt[c] * st->src[3 * (base + k) + c] * w;
-                mt[c] *= T;
-                st->acc_l[3 * (out + k) + c] = ml[c];
-                st->acc_t[3 * (out + k) + c] = mt[c];
+                ml[c] += mt[c] * S3[3 * k + c];
+                mt[c] *= T3[3 * k + c];
+                pl[c] = ml[c];
+                pt[c] = mt[c];
             }
         }
         double L[3], T[3];
         tail(st, o, d, ray_t(st->bound[D], scale, offset), L, T, tau);
+        float *pl = st->acc_l + 3 * ((size_t)D * (size_t)cols + (size_t)col), *pt = st->acc_t + (pl - st->acc_l);
         for (int c = 0; c < 3; c++) {
-            st->acc_l[3 * (out + D) + c] = (float)(ml[c] + mt[c] * L[c]);
-            st->acc_t[3 * (out + D) + c] = (float)(mt[c] * T[c]);
+            pl[c] = (float)(ml[c] + mt[c] * L[c]);
+            pt[c] = (float)(mt[c] * T[c]);
         }
     }
 }
@@ -911,7 +936,8 @@ static inline void boundary_add(const vol_state *st, size_t col, uint32_t b, flo
         t[0] += w, t[1] += w, t[2] += w;
         return;
     }
-    const float *pl = st->acc_l + 3 * (col * (st->D + 1) + b - 1), *pt = st->acc_t + 3 * (col * (st->D + 1) + b - 1);
+    size_t at = 3 * ((size_t)(b - 1) * st->W * st->H + col);
+    const float *pl = st->acc_l + at, *pt = st->acc_t + at;
     for (int c = 0; c < 3; c++) {
         l[c] += w * pl[c];
         t[c] += w * pt[c];
@@ -939,8 +965,9 @@ static inline void depth_slot(const vol_state *st, float z, uint32_t *b0, float 
     } else if (D == 1 || z < st->bound[1]) {
         k = 0;
     } else {
-        double u = 1.0 + log(z / st->bound[1]) / log(st->bound[D] / st->bound[1]) * (D - 1);
-        k = (uint32_t)u;
+        /* In float: the steps below correct the rounding. */
+        float u = 1.0f + logf(z * st->slice_inv_b1) * st->slice_scale;
+        k = u > 1.0f ? (uint32_t)u : 1;
     }
     if (k >= D)
         k = D - 1;
