@@ -519,6 +519,16 @@ static void froxel_fill(vol_state *st, int threads)
     }
 }
 
+/* Froxels that a pixel reads in a column whose pixels reach view depth z: the slices that begin
+ * at or before it. */
+static uint32_t lit_slices(const vol_state *st, float z)
+{
+    uint32_t n = 0;
+    while (n < st->D && st->bound[n] <= z)
+        n++;
+    return n;
+}
+
 /* The coarse grid of the patterned fogs' optical depths towards the lights (nodes at the
  * froxels of even indices): their march towards every light is most of the lighting's cost, and
  * their shadow on themselves varies slowly next to the opaque shadows, so it is integrated at
@@ -538,11 +548,20 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
         float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
         float o[3], d[3];
         double scale, offset;
-        column_ray(st, 2 * (uint32_t)(cc % st->Wc), 2 * (uint32_t)(cc / st->Wc), o, d, &scale, &offset);
+        uint32_t gi = (uint32_t)(cc % st->Wc), gj = (uint32_t)(cc / st->Wc);
+        /* Nodes that a lit froxel reads (froxel_light: froxels k < n of the columns 2g - 1 ..
+         * 2g + 1 read nodes up to n / 2); the others are never read, and set to 0. */
+        float depth = 0.0f;
+        for (uint32_t j = gj > 0 ? 2 * gj - 1 : 0; j <= 2 * gj + 1 && j < st->H; j++)
+            for (uint32_t i = gi > 0 ? 2 * gi - 1 : 0; i <= 2 * gi + 1 && i < st->W; i++)
+                depth = fmaxf(depth, st->col_depth[(size_t)j * st->W + i]);
+        uint32_t n = lit_slices(st, depth), used = n == 0 ? 0 : n / 2 + 1 < st->Dc ? n / 2 + 1 : st->Dc;
+        column_ray(st, 2 * gi, 2 * gj, o, d, &scale, &offset);
         column_points(st, o, d, scale, offset, p);
         for (uint32_t l = 0; l < st->light_count; l++) {
             float *out = st->tau_grid + 3 * ((size_t)l * nodes + (size_t)cc * st->Dc);
-            for (uint32_t c = 0; c < st->Dc; c++) {
+            memset(out + 3 * (size_t)used, 0, 3 * (size_t)(st->Dc - used) * sizeof(float));
+            for (uint32_t c = 0; c < used; c++) {
                 const float *x = p + 3 * (size_t)(2 * c);
                 float wi[3], dist, sf;
                 double td[3] = {0, 0, 0};
@@ -729,7 +748,8 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
         if (cn) {
             /* The 4 grid columns around this one, then linear in depth between even froxels. */
             const float *grid = st->tau_grid + 3 * (size_t)l * nodes;
-            for (uint32_t kc = 0; kc < st->Dc; kc++)
+            uint32_t used = n / 2 + 1 < st->Dc ? n / 2 + 1 : st->Dc;
+            for (uint32_t kc = 0; kc < used; kc++)
                 for (int c = 0; c < 3; c++) {
                     float t = 0.0f;
                     for (int q = 0; q < 4; q++)
@@ -737,7 +757,7 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
                     CG[3 * kc + c] = t;
                 }
             for (uint32_t k = 0; k < n8; k++) {
-                uint32_t c0 = k / 2 < st->Dc ? k / 2 : st->Dc - 1, c1 = c0 + 1 < st->Dc ? c0 + 1 : c0;
+                uint32_t c0 = k / 2 < used ? k / 2 : used - 1, c1 = c0 + 1 < used ? c0 + 1 : c0;
                 float wc = (k & 1) && c1 != c0 ? 0.5f : 0.0f;
                 for (int c = 0; c < 3; c++)
                     T[c][k] = (1.0f - wc) * CG[3 * c0 + c] + wc * CG[3 * c1 + c];
@@ -862,10 +882,7 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
         const size_t cn[4] = {(size_t)b0 * st->Wc + a0, (size_t)b0 * st->Wc + a1, (size_t)b1 * st->Wc + a0,
                               (size_t)b1 * st->Wc + a1};
         const float cw[4] = {(1 - wa) * (1 - wb), wa * (1 - wb), (1 - wa) * wb, wa * wb};
-        /* Froxels that a pixel reads: slices that begin at or before the column's depth. */
-        uint32_t n = 0;
-        while (n < st->D && st->bound[n] <= st->col_depth[col])
-            n++;
+        uint32_t n = lit_slices(st, st->col_depth[col]);
         float o[3], d[3];
         double scale, offset;
         column_ray(st, i, j, o, d, &scale, &offset);
