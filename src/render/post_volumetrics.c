@@ -720,7 +720,7 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
     const uint32_t n8 = (n + 7) & ~7u;
     float *X = ls, *Y = ls + S, *Z = ls + 2 * S, *Gp = ls + 3 * S, *F = ls + 4 * S;
     float *A[3] = {ls + 5 * S, ls + 6 * S, ls + 7 * S}, *T[3] = {ls + 8 * S, ls + 9 * S, ls + 10 * S};
-    float *CG = ls + 11 * S, *HF = ls + 14 * S;
+    float *CG = ls + 11 * S, *HF = ls + 14 * S; /* CG: 3 x S, a node per 2 froxels plus padding */
     /* Lanes past n repeat the last froxel (their results are not used). */
     for (uint32_t k = 0; k < n8; k++) {
         uint32_t q = k < n ? k : n - 1;
@@ -746,21 +746,24 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
         const vlight *li = &st->lights[l];
         bool directional = li->type == NACRE_LIGHT_DIRECTIONAL;
         if (cn) {
-            /* The 4 grid columns around this one, then linear in depth between even froxels. */
+            /* The 4 grid columns around this one (per channel, the last node repeated past the
+             * used ones), then linear in depth: even froxels on the nodes, odd ones halfway. */
             const float *grid = st->tau_grid + 3 * (size_t)l * nodes;
-            uint32_t used = n / 2 + 1 < st->Dc ? n / 2 + 1 : st->Dc;
+            uint32_t used = n / 2 + 1 < st->Dc ? n / 2 + 1 : st->Dc, half = n8 / 2;
+            const float *g4[4] = {grid + 3 * cn[0] * st->Dc, grid + 3 * cn[1] * st->Dc, grid + 3 * cn[2] * st->Dc,
+                                  grid + 3 * cn[3] * st->Dc};
             for (uint32_t kc = 0; kc < used; kc++)
-                for (int c = 0; c < 3; c++) {
-                    float t = 0.0f;
-                    for (int q = 0; q < 4; q++)
-                        t += cw[q] * grid[3 * (cn[q] * st->Dc + kc) + c];
-                    CG[3 * kc + c] = t;
-                }
-            for (uint32_t k = 0; k < n8; k++) {
-                uint32_t c0 = k / 2 < used ? k / 2 : used - 1, c1 = c0 + 1 < used ? c0 + 1 : c0;
-                float wc = (k & 1) && c1 != c0 ? 0.5f : 0.0f;
                 for (int c = 0; c < 3; c++)
-                    T[c][k] = (1.0f - wc) * CG[3 * c0 + c] + wc * CG[3 * c1 + c];
+                    CG[c * S + kc] = cw[0] * g4[0][3 * kc + c] + cw[1] * g4[1][3 * kc + c] +
+                                     cw[2] * g4[2][3 * kc + c] + cw[3] * g4[3][3 * kc + c];
+            for (int c = 0; c < 3; c++) {
+                float *cg = CG + c * S, *t = T[c];
+                for (uint32_t kc = used; kc <= half; kc++)
+                    cg[kc] = cg[used - 1];
+                for (uint32_t m = 0; m < half; m++) {
+                    t[2 * m] = cg[m];
+                    t[2 * m + 1] = 0.5f * (cg[m] + cg[m + 1]);
+                }
             }
         } else {
             for (int c = 0; c < 3; c++)
