@@ -93,6 +93,8 @@ typedef struct vol_state {
     size_t col_capacity;
     double *bound;        /* D + 1 view-axis depths of the slice boundaries */
     float slice_inv_b1, slice_scale; /* perspective: slice 1 + log(z / bound[1]) x slice_scale */
+    float *boundf;                   /* bound in float (D + 1), then 1 / each slice's depth (D) */
+    size_t boundf_capacity;
     size_t grid_capacity;
     /* Optical depth towards each light at the froxels of even indices (Wc x Hc x Dc nodes,
      * column-major in depth), x 3 channels, per light */
@@ -118,6 +120,7 @@ static void vol_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->acc_l);
     nc_free(ctx, st->acc_t);
     nc_free(ctx, st->bound);
+    nc_free(ctx, st->boundf);
     nc_free(ctx, st->tau_grid);
     nc_free(ctx, st->col_depth);
     nc_free(ctx, st->scratch);
@@ -468,6 +471,8 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
     }
     const camera_rays *cr = &st->cam;
     uint32_t D = st->D;
+    if (!nc_reserve(ctx, &st->boundf, &st->boundf_capacity, 2 * (size_t)D + 1, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
     if (cr->ortho) {
         for (uint32_t k = 0; k <= D; k++)
             st->bound[k] = cr->near + (cr->far - cr->near) * k / D;
@@ -483,6 +488,10 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
             st->slice_scale = (float)((D - 1) / log(st->bound[D] / st->bound[1]));
         }
     }
+    for (uint32_t k = 0; k <= D; k++)
+        st->boundf[k] = (float)st->bound[k];
+    for (uint32_t k = 0; k < D; k++)
+        st->boundf[D + 1 + k] = (float)(1.0 / (st->bound[k + 1] - st->bound[k]));
     return NACRE_OK;
 }
 
@@ -968,37 +977,37 @@ static inline void boundary_add(const vol_state *st, size_t col, uint32_t b, flo
 static inline void depth_slot(const vol_state *st, float z, uint32_t *b0, float *frac)
 {
     uint32_t D = st->D;
+    const float *bf = st->boundf, *inv_w = st->boundf + D + 1;
     if (isinf(z)) {
         *b0 = D + 1;
         *frac = 0.0f;
         return;
     }
-    if (!(z < st->bound[D])) {
+    if (!(z < bf[D])) {
         *b0 = D;
         *frac = 0.0f;
         return;
     }
     uint32_t k;
     if (st->cam.ortho) {
-        double u = (z - st->bound[0]) / (st->bound[D] - st->bound[0]) * D;
-        k = u > 0.0 ? (uint32_t)u : 0;
-    } else if (D == 1 || z < st->bound[1]) {
+        float u = (z - bf[0]) * inv_w[0];
+        k = u > 0.0f ? (uint32_t)u : 0;
+    } else if (D == 1 || z < bf[1]) {
         k = 0;
     } else {
-        /* In float: the steps below correct the rounding. */
+        /* The steps below correct the rounding. */
         float u = 1.0f + logf(z * st->slice_inv_b1) * st->slice_scale;
         k = u > 1.0f ? (uint32_t)u : 1;
     }
     if (k >= D)
         k = D - 1;
-    /* Rounding of the logarithm: step to the slice that holds z. */
-    while (k > 0 && z < st->bound[k])
+    while (k > 0 && z < bf[k])
         k--;
-    while (k + 1 < D && z >= st->bound[k + 1])
+    while (k + 1 < D && z >= bf[k + 1])
         k++;
-    double f = (z - st->bound[k]) / (st->bound[k + 1] - st->bound[k]);
+    float f = (z - bf[k]) * inv_w[k];
     *b0 = k;
-    *frac = (float)(f < 0.0 ? 0.0 : f > 1.0 ? 1.0 : f);
+    *frac = f < 0.0f ? 0.0f : f > 1.0f ? 1.0f : f;
 }
 
 static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_image *image, int threads)
