@@ -774,28 +774,50 @@ void nc_shadow_lookup_volume8(const nc_shadow_map *sm, const float *px, const fl
     nc_v8i live = (d >= linear_depth(v, 0.0f)) & (u > -1.0f) & (u < size) & (vv > -1.0f) & (vv < size);
     nc_v8f limit = d - fmax_fast(bias, 0.0f) * (2.0f * w / (pm->m[0][0] * size));
     /* The 2 x 2 texels of the live lanes (1, no caster, elsewhere). */
-    float tz[4][8], fxs[8], fys[8];
-    uint32_t bits = nc_v8_bits(live);
     const float *map = sm->depth;
     int n = sm->size;
-    for (int l = 0; l < 8; l++) {
-        fxs[l] = fys[l] = 0.0f;
-        tz[0][l] = tz[1][l] = tz[2][l] = tz[3][l] = 1.0f;
-        if (!(bits >> l & 1u))
-            continue;
-        float fu = floorf(u[l]), fv = floorf(vv[l]);
-        int x0 = (int)fu, y0 = (int)fv;
-        fxs[l] = u[l] - fu;
-        fys[l] = vv[l] - fv;
+    nc_v8f tz[4], fx, fy, lit = zero;
+#ifdef __AVX2__
+    {
+        __m256 fu = _mm256_floor_ps((__m256)u), fv = _mm256_floor_ps((__m256)vv);
+        fx = nc_v8_sel(live, u - (nc_v8f)fu, zero);
+        fy = nc_v8_sel(live, vv - (nc_v8f)fv, zero);
+        /* Dead lanes may hold any value: their indices are masked off. */
+        nc_v8i x0 = nc_v8i_sel(live, (nc_v8i)_mm256_cvttps_epi32(fu), (nc_v8i){0});
+        nc_v8i y0 = nc_v8i_sel(live, (nc_v8i)_mm256_cvttps_epi32(fv), (nc_v8i){0});
         for (int k = 0; k < 4; k++) {
-            int tx = x0 + (k & 1), ty = y0 + (k >> 1);
-            if (tx >= 0 && ty >= 0 && tx < n && ty < n)
-                tz[k][l] = map[(size_t)ty * (size_t)n + (size_t)tx];
+            nc_v8i tx = x0 + (k & 1), ty = y0 + (k >> 1);
+            nc_v8i in = live & (tx >= 0) & (ty >= 0) & (tx < n) & (ty < n);
+            tz[k] = (nc_v8f)_mm256_mask_i32gather_ps((__m256)one, map, (__m256i)(ty * n + tx), (__m256)in, 4);
         }
     }
-    nc_v8f fx = nc_v8_load(fxs), fy = nc_v8_load(fys), lit = zero;
+#else
+    {
+        float t[4][8], fxs[8], fys[8];
+        uint32_t bits = nc_v8_bits(live);
+        for (int l = 0; l < 8; l++) {
+            fxs[l] = fys[l] = 0.0f;
+            t[0][l] = t[1][l] = t[2][l] = t[3][l] = 1.0f;
+            if (!(bits >> l & 1u))
+                continue;
+            float fu = floorf(u[l]), fv = floorf(vv[l]);
+            int x0 = (int)fu, y0 = (int)fv;
+            fxs[l] = u[l] - fu;
+            fys[l] = vv[l] - fv;
+            for (int k = 0; k < 4; k++) {
+                int tx = x0 + (k & 1), ty = y0 + (k >> 1);
+                if (tx >= 0 && ty >= 0 && tx < n && ty < n)
+                    t[k][l] = map[(size_t)ty * (size_t)n + (size_t)tx];
+            }
+        }
+        for (int k = 0; k < 4; k++)
+            tz[k] = nc_v8_load(t[k]);
+        fx = nc_v8_load(fxs);
+        fy = nc_v8_load(fys);
+    }
+#endif
     for (int k = 0; k < 4; k++) {
-        nc_v8f t = nc_v8_load(tz[k]);
+        nc_v8f t = tz[k];
         nc_v8f lin = v->orthographic ? (pm->m[2][3] - t) / pm->m[2][2] : pm->m[2][3] / (t + pm->m[2][2]);
         nc_v8f wt = ((k & 1) ? fx : 1.0f - fx) * ((k >> 1) ? fy : 1.0f - fy);
         lit += nc_v8_sel((t >= 1.0f) | (lin >= limit), wt, zero);
