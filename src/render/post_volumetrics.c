@@ -18,7 +18,10 @@
  * (the phong pass's maps; none when shadows are off), Tr the transmittance from the point
  * towards the light through every fog (§2.2.3, the fog's own shadow: closed form for fogs
  * without pattern, a march of shadow_steps through patterned ones, fog_field.h), and L_env the
- * environment taken as unshadowed isotropic ambient light, as in the analytic fog pass.
+ * environment taken as unshadowed isotropic ambient light, as in the analytic fog pass. The march
+ * evaluates this per point in double; the froxels in float, 8 froxels of a column at a time
+ * (froxel_light_column: global fogs without pattern in closed form, patterned ones from a coarse
+ * grid, boxes without pattern exactly, a fast exponential), which the tests hold to the march.
  *
  * Depth slices: with a perspective camera slice 0 runs from the eye to z0 and slices 1 .. D-1
  * are spaced exponentially from z0 to zf (boundaries z0 (zf / z0)^(k / (D - 1))), zf the
