@@ -246,9 +246,11 @@ void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const f
         /* Without falloff every step has the same height integral. */
         double G_flat = o->height ? 0.0 : nc_vol_height_integral(&o->h, p[1], w[1], 0.0, dt);
         for (uint32_t k = 0; k < n; k++) {
-            double G = !(len > 0.0)  ? 0.0
-                       : !o->height ? G_flat
-                                    : nc_vol_height_integral(&o->h, p[1], w[1], a + k * dt, a + (k + 1) * dt);
+            double G = G_flat;
+            if (!(len > 0.0))
+                G = 0.0;
+            else if (o->height)
+                G = nc_vol_height_integral(&o->h, p[1], w[1], a + k * dt, a + (k + 1) * dt);
             for (int c = 0; c < 3; c++) {
                 double st = (double)sa[3 * k + c] + ss[3 * k + c];
                 mean[c] += st / n;
