@@ -43,6 +43,6 @@ int nc_bench_layered(bool json, int runs, const char *scene_path, const nc_bench
 /* Particles: simulate, splat, billboards and sprites passes (bench/bench_particles.c). */
 int nc_bench_particles(bool json, int runs);
 /* The froxel stages, the per-pixel march and the analytic fog pass (bench/bench_volumetrics.c). */
-int nc_bench_volumetrics(bool json, int runs);
+int nc_bench_volumetrics(bool json, int runs, bool raymarch);
 
 #endif /* NACRE_BENCH_H */

@@ -156,6 +156,11 @@ float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_
  * nc_shadow_lookup's cost. Points beyond the map's far plane (behind every caster) are shadowed
  * where the map holds a caster, where surfaces beyond the scene bounds count as lit. */
 float nc_shadow_lookup_volume(const nc_shadow_map *sm, nc_vec3 p, float pcf_radius, float bias);
+/* nc_shadow_lookup_volume for 8 points (px, py, pz: 8 floats each) into out[0 .. 8): the set-up
+ * and the comparisons 8 lanes at a time (core/simd.h), the texels read lane by lane; equal to it
+ * up to float rounding of the set-up (cube maps: the same calls). */
+void nc_shadow_lookup_volume8(const nc_shadow_map *sm, const float *px, const float *py, const float *pz, float bias,
+                              float *out);
 /* nc_shadow_lookup for n points (positions p, normals n as SoA arrays) into out[0 .. n), with the
  * next lookups' texels prefetched. An orthographic map (directional light) does the per-point
  * set-up of many points at once in vectorized loops; the values are nc_shadow_lookup's up to

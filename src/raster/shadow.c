@@ -751,3 +751,76 @@ float nc_shadow_lookup_volume(const nc_shadow_map *sm, nc_vec3 p, float pcf_radi
     }
     return lit;
 }
+
+void nc_shadow_lookup_volume8(const nc_shadow_map *sm, const float *px, const float *py, const float *pz, float bias,
+                              float *out)
+{
+    if (!sm || !sm->depth || sm->size < 1 || sm->kind == NC_SHADOW_CUBE) {
+        for (int l = 0; l < 8; l++)
+            out[l] = nc_shadow_lookup_volume(sm, nc_v3(px[l], py[l], pz[l]), 0.5f, bias);
+        return;
+    }
+    const nc_raster_view *v = &sm->views[0];
+    const nc_mat4 *m = &v->view, *pm = &v->proj;
+    const nc_v8f x = nc_v8_load(px), y = nc_v8_load(py), z = nc_v8_load(pz), zero = {0}, one = nc_v8_splat(1.0f);
+    nc_v8f vx = m->m[0][0] * x + m->m[0][1] * y + m->m[0][2] * z + m->m[0][3];
+    nc_v8f vy = m->m[1][0] * x + m->m[1][1] * y + m->m[1][2] * z + m->m[1][3];
+    nc_v8f vz = m->m[2][0] * x + m->m[2][1] * y + m->m[2][2] * z + m->m[2][3];
+    nc_v8f d = -vz, w = v->orthographic ? one : d;
+    nc_v8f ndc_x = (pm->m[0][0] * vx + pm->m[0][2] * vz + pm->m[0][3]) / w;
+    nc_v8f ndc_y = (pm->m[1][1] * vy + pm->m[1][2] * vz + pm->m[1][3]) / w;
+    float size = (float)sm->size;
+    nc_v8f u = (ndc_x * 0.5f + 0.5f) * size - 0.5f, vv = (0.5f - ndc_y * 0.5f) * size - 0.5f;
+    nc_v8i live = (d >= linear_depth(v, 0.0f)) & (u > -1.0f) & (u < size) & (vv > -1.0f) & (vv < size);
+    nc_v8f limit = d - fmax_fast(bias, 0.0f) * (2.0f * w / (pm->m[0][0] * size));
+    /* The 2 x 2 texels of the live lanes (1, no caster, elsewhere). */
+    const float *map = sm->depth;
+    int n = sm->size;
+    nc_v8f tz[4], fx, fy, lit = zero;
+#ifdef __AVX2__
+    {
+        __m256 fu = _mm256_floor_ps((__m256)u), fv = _mm256_floor_ps((__m256)vv);
+        fx = nc_v8_sel(live, u - (nc_v8f)fu, zero);
+        fy = nc_v8_sel(live, vv - (nc_v8f)fv, zero);
+        /* Dead lanes may hold any value: their indices are masked off. */
+        nc_v8i x0 = nc_v8i_sel(live, (nc_v8i)_mm256_cvttps_epi32(fu), (nc_v8i){0});
+        nc_v8i y0 = nc_v8i_sel(live, (nc_v8i)_mm256_cvttps_epi32(fv), (nc_v8i){0});
+        for (int k = 0; k < 4; k++) {
+            nc_v8i tx = x0 + (k & 1), ty = y0 + (k >> 1);
+            nc_v8i in = live & (tx >= 0) & (ty >= 0) & (tx < n) & (ty < n);
+            tz[k] = (nc_v8f)_mm256_mask_i32gather_ps((__m256)one, map, (__m256i)(ty * n + tx), (__m256)in, 4);
+        }
+    }
+#else
+    {
+        float t[4][8], fxs[8], fys[8];
+        uint32_t bits = nc_v8_bits(live);
+        for (int l = 0; l < 8; l++) {
+            fxs[l] = fys[l] = 0.0f;
+            t[0][l] = t[1][l] = t[2][l] = t[3][l] = 1.0f;
+            if (!(bits >> l & 1u))
+                continue;
+            float fu = floorf(u[l]), fv = floorf(vv[l]);
+            int x0 = (int)fu, y0 = (int)fv;
+            fxs[l] = u[l] - fu;
+            fys[l] = vv[l] - fv;
+            for (int k = 0; k < 4; k++) {
+                int tx = x0 + (k & 1), ty = y0 + (k >> 1);
+                if (tx >= 0 && ty >= 0 && tx < n && ty < n)
+                    t[k][l] = map[(size_t)ty * (size_t)n + (size_t)tx];
+            }
+        }
+        for (int k = 0; k < 4; k++)
+            tz[k] = nc_v8_load(t[k]);
+        fx = nc_v8_load(fxs);
+        fy = nc_v8_load(fys);
+    }
+#endif
+    for (int k = 0; k < 4; k++) {
+        nc_v8f t = tz[k];
+        nc_v8f lin = v->orthographic ? (pm->m[2][3] - t) / pm->m[2][2] : pm->m[2][3] / (t + pm->m[2][2]);
+        nc_v8f wt = ((k & 1) ? fx : 1.0f - fx) * ((k >> 1) ? fy : 1.0f - fy);
+        lit += nc_v8_sel((t >= 1.0f) | (lin >= limit), wt, zero);
+    }
+    nc_v8_store(out, nc_v8_sel(live, lit, one));
+}

@@ -18,7 +18,10 @@
  * (the phong pass's maps; none when shadows are off), Tr the transmittance from the point
  * towards the light through every fog (§2.2.3, the fog's own shadow: closed form for fogs
  * without pattern, a march of shadow_steps through patterned ones, fog_field.h), and L_env the
- * environment taken as unshadowed isotropic ambient light, as in the analytic fog pass.
+ * environment taken as unshadowed isotropic ambient light, as in the analytic fog pass. The march
+ * evaluates this per point in double; the froxels in float, 8 froxels of a column at a time
+ * (froxel_light_column: global fogs without pattern in closed form, patterned ones from a coarse
+ * grid, boxes without pattern exactly, a fast exponential), which the tests hold to the march.
  *
  * Depth slices: with a perspective camera slice 0 runs from the eye to z0 and slices 1 .. D-1
  * are spaced exponentially from z0 to zf (boundaries z0 (zf / z0)^(k / (D - 1))), zf the
@@ -34,6 +37,7 @@
  * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
  */
 #include "core/core.h"
+#include "core/simd.h"
 #include "render/method.h"
 #include "scene/lights.h"
 #include "scene/medium.h"
@@ -62,8 +66,20 @@ typedef struct camera_rays {
     double near, far; /* view-axis depths of the near and far planes */
 } camera_rays;
 
+/* A global fog without pattern, whose optical depth towards the lights the froxels take in closed
+ * form (float; nc_vol_height_integral's cases). */
+typedef struct vfog {
+    const nc_fog_one *o;
+    float sig_t[3]; /* where the height factor is 1 */
+    float flat;     /* without falloff: the constant factor e^min(cap, 0) */
+    float yc, fcap; /* with falloff: the height below which the factor is the constant fcap = e^cap */
+} vfog;
+
 typedef struct vol_state {
     nc_fog_field field;
+    vfog gfog[NACRE_MAX_FOGS];
+    uint32_t gfog_count;
+    bool analytic_boxes; /* any box fog without pattern (exact per froxel, nc_fog_field_optical_depth) */
     vlight *lights;
     uint32_t light_capacity, light_count;
     float env[3];
@@ -72,10 +88,16 @@ typedef struct vol_state {
     /* froxel grid: W x H columns of D froxels, column-major in depth (index col * D + k) */
     uint32_t W, H, D;
     float *st, *src, *g; /* 3N, 3N (sigma_s after fill, the source after light), N */
-    float *acc_l, *acc_t; /* per column D + 1 boundaries (1 .. D, then infinity) x 3 */
+    /* Radiance and transmittance from the eye to boundaries 1 .. D and infinity of every column,
+     * slice-major ([(b - 1) cols + col] x 3): neighbouring pixels at similar depths read
+     * neighbouring words. */
+    float *acc_l, *acc_t;
     float *col_depth;     /* per column: the farthest depth of the pixels that read it */
     size_t col_capacity;
     double *bound;        /* D + 1 view-axis depths of the slice boundaries */
+    float slice_inv_b1, slice_scale; /* perspective: slice 1 + log(z / bound[1]) x slice_scale */
+    float *boundf;                   /* bound in float (D + 1), then 1 / each slice's depth (D) */
+    size_t boundf_capacity;
     size_t grid_capacity;
     /* Optical depth towards each light at the froxels of even indices (Wc x Hc x Dc nodes,
      * column-major in depth), x 3 channels, per light */
@@ -101,6 +123,7 @@ static void vol_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->acc_l);
     nc_free(ctx, st->acc_t);
     nc_free(ctx, st->bound);
+    nc_free(ctx, st->boundf);
     nc_free(ctx, st->tau_grid);
     nc_free(ctx, st->col_depth);
     nc_free(ctx, st->scratch);
@@ -186,6 +209,9 @@ static inline double ray_t(double z, double scale, double offset)
     return t > 0.0 ? t : 0.0;
 }
 
+/* Floats of froxel_light_column's scratch for columns of up to d froxels. */
+#define LIGHT_SCRATCH(d) ((14u + NACRE_MAX_FOGS) * (((size_t)(d) + 7) & ~(size_t)7))
+
 /* Lights, fogs, environment and camera of the frame; per-thread scratch for batches of up to
  * `batch` points. */
 static nacre_result vol_setup(vol_state *st, const nc_post_input *in, uint32_t batch)
@@ -240,8 +266,26 @@ static nacre_result vol_setup(vol_state *st, const nc_post_input *in, uint32_t b
                 st->cam.far = z;
         }
     }
+    st->gfog_count = 0;
+    st->analytic_boxes = false;
+    for (uint32_t i = 0; i < st->field.count; i++) {
+        const nc_fog_one *o = &st->field.fogs[i];
+        if (o->patterned)
+            continue;
+        if (o->box) {
+            st->analytic_boxes = true;
+            continue;
+        }
+        vfog *v = &st->gfog[st->gfog_count++];
+        v->o = o;
+        for (int c = 0; c < 3; c++)
+            v->sig_t[c] = o->sigma_a[c] + o->sigma_s[c];
+        v->flat = o->hf_cap >= 0.0f ? 1.0f : expf(o->hf_cap);
+        v->yc = o->hf_falloff > 0.0f ? o->hf_base - o->hf_cap / o->hf_falloff : -INFINITY;
+        v->fcap = expf(o->hf_cap);
+    }
     size_t per = 13u * batch + NC_FOG_EVAL_SCRATCH(batch) + NC_FOG_TAU_SCRATCH(vs->shadow_steps) +
-                 3u * (size_t)batch * st->light_count;
+                 LIGHT_SCRATCH(batch);
     size_t total = per * (size_t)(ctx->threads > 0 ? ctx->threads : 1);
     if (!nc_reserve(ctx, &st->scratch, &st->scratch_capacity, total, sizeof(float)))
         return NACRE_ERROR_OUT_OF_MEMORY;
@@ -299,10 +343,10 @@ static inline bool light_at(const vlight *li, const float x[3], float wi[3], flo
 #define TAU_MAX 80.0f
 
 /* The source (sigma_s x in-scattered radiance) at n points p seen along direction d (eye to
- * point): src[3k + c] from ss[3k + c] and g[k]. src may alias ss. tau_pre: the optical depth
- * towards light l at point k at [3 (l n + k) + c], or NULL to integrate it here. */
+ * point): src[3k + c] from ss[3k + c] and g[k]. src may alias ss. The march's lighting: every
+ * optical depth integrated here (froxel_light_column is the froxels' faster form). */
 static void light_points(const vol_state *st, uint32_t n, const float *p, const float d[3], const float *ss,
-                         const float *g, float *src, const float *tau_pre, float *tau_scratch)
+                         const float *g, float *src, float *tau_scratch)
 {
     for (uint32_t k = 0; k < n; k++) {
         const float *x = p + 3 * (size_t)k;
@@ -325,12 +369,9 @@ static void light_points(const vol_state *st, uint32_t n, const float *p, const 
             }
             float tau[3], w[3] = {-wi[0], -wi[1], -wi[2]};
             double td[3];
-            nc_fog_field_optical_depth(&st->field, x, w, dist, tau_pre ? NC_FOG_ANALYTIC : NC_FOG_ALL, td, tau_scratch);
-            for (int c = 0; c < 3; c++) {
-                if (tau_pre)
-                    td[c] += tau_pre[3 * ((size_t)l * n + k) + c];
+            nc_fog_field_optical_depth(&st->field, x, w, dist, NC_FOG_ALL, td, tau_scratch);
+            for (int c = 0; c < 3; c++)
                 tau[c] = td[c] < TAU_MAX ? (float)td[c] : TAU_MAX;
-            }
             float ph = hg_phase(-(d[0] * wi[0] + d[1] * wi[1] + d[2] * wi[2]), g[k]) * vis * scale;
             for (int c = 0; c < 3; c++)
                 acc[c] += li->e[c] * ph * expf(-tau[c]);
@@ -433,6 +474,8 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
     }
     const camera_rays *cr = &st->cam;
     uint32_t D = st->D;
+    if (!nc_reserve(ctx, &st->boundf, &st->boundf_capacity, 2 * (size_t)D + 1, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
     if (cr->ortho) {
         for (uint32_t k = 0; k <= D; k++)
             st->bound[k] = cr->near + (cr->far - cr->near) * k / D;
@@ -444,8 +487,14 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
         } else {
             for (uint32_t k = 1; k <= D; k++)
                 st->bound[k] = z0 * pow(zf / z0, (double)(k - 1) / (D - 1));
+            st->slice_inv_b1 = (float)(1.0 / st->bound[1]);
+            st->slice_scale = (float)((D - 1) / log(st->bound[D] / st->bound[1]));
         }
     }
+    for (uint32_t k = 0; k <= D; k++)
+        st->boundf[k] = (float)st->bound[k];
+    for (uint32_t k = 0; k < D; k++)
+        st->boundf[D + 1 + k] = (float)(1.0 / (st->bound[k + 1] - st->bound[k]));
     return NACRE_OK;
 }
 
@@ -482,6 +531,16 @@ static void froxel_fill(vol_state *st, int threads)
     }
 }
 
+/* Froxels that a pixel reads in a column whose pixels reach view depth z: the slices that begin
+ * at or before it. */
+static uint32_t lit_slices(const vol_state *st, float z)
+{
+    uint32_t n = 0;
+    while (n < st->D && st->bound[n] <= z)
+        n++;
+    return n;
+}
+
 /* The coarse grid of the patterned fogs' optical depths towards the lights (nodes at the
  * froxels of even indices): their march towards every light is most of the lighting's cost, and
  * their shadow on themselves varies slowly next to the opaque shadows, so it is integrated at
@@ -501,11 +560,20 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
         float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
         float o[3], d[3];
         double scale, offset;
-        column_ray(st, 2 * (uint32_t)(cc % st->Wc), 2 * (uint32_t)(cc / st->Wc), o, d, &scale, &offset);
+        uint32_t gi = (uint32_t)(cc % st->Wc), gj = (uint32_t)(cc / st->Wc);
+        /* Nodes that a lit froxel reads (froxel_light: froxels k < n of the columns 2g - 1 ..
+         * 2g + 1 read nodes up to n / 2); the others are never read, and set to 0. */
+        float depth = 0.0f;
+        for (uint32_t j = gj > 0 ? 2 * gj - 1 : 0; j <= 2 * gj + 1 && j < st->H; j++)
+            for (uint32_t i = gi > 0 ? 2 * gi - 1 : 0; i <= 2 * gi + 1 && i < st->W; i++)
+                depth = fmaxf(depth, st->col_depth[(size_t)j * st->W + i]);
+        uint32_t n = lit_slices(st, depth), used = n == 0 ? 0 : n / 2 + 1 < st->Dc ? n / 2 + 1 : st->Dc;
+        column_ray(st, 2 * gi, 2 * gj, o, d, &scale, &offset);
         column_points(st, o, d, scale, offset, p);
         for (uint32_t l = 0; l < st->light_count; l++) {
             float *out = st->tau_grid + 3 * ((size_t)l * nodes + (size_t)cc * st->Dc);
-            for (uint32_t c = 0; c < st->Dc; c++) {
+            memset(out + 3 * (size_t)used, 0, 3 * (size_t)(st->Dc - used) * sizeof(float));
+            for (uint32_t c = 0; c < used; c++) {
                 const float *x = p + 3 * (size_t)(2 * c);
                 float wi[3], dist, sf;
                 double td[3] = {0, 0, 0};
@@ -580,6 +648,234 @@ static nacre_result column_depths(vol_state *st, nacre_context *ctx, const float
     return NACRE_OK;
 }
 
+/* ---- the froxels' lighting, 8 froxels of a column at a time (core/simd.h) ------------------- */
+
+static inline nc_v8f v8_floor(nc_v8f x)
+{
+#ifdef __AVX__
+    return (nc_v8f)_mm256_floor_ps((__m256)x);
+#else
+    for (int l = 0; l < 8; l++)
+        x[l] = floorf(x[l]);
+    return x;
+#endif
+}
+
+/* nc_vol_exp_fast (volume.h) lane by lane. */
+static inline nc_v8f v8_exp_fast(nc_v8f x)
+{
+    nc_v8f n = v8_floor(x * 1.44269504f + 0.5f);
+    n = nc_v8_sel(n > -127.0f, n, nc_v8_splat(-127.0f));
+    n = nc_v8_sel(n < 127.0f, n, nc_v8_splat(127.0f));
+    nc_v8f r = x - n * 0.693359375f;
+    r = r - n * -2.12194440e-4f;
+    nc_v8f p = nc_v8_splat(1.9875691500e-4f);
+    p = p * r + 1.3981999507e-3f;
+    p = p * r + 8.3334519073e-3f;
+    p = p * r + 4.1665795894e-2f;
+    p = p * r + 1.6666665459e-1f;
+    p = p * r + 5.0000001201e-1f;
+    nc_v8f y = p * r * r + r + 1.0f;
+    nc_v8i bits = (__builtin_convertvector(n, nc_v8i) + 127) << 23;
+    return nc_v8_sel(x > -87.0f, y * (nc_v8f)bits, (nc_v8f){0});
+}
+
+/* nc_vol_exp_ratio_fast lane by lane (x >= 0, finite where selected). */
+static inline nc_v8f v8_exp_ratio_fast(nc_v8f x)
+{
+    nc_v8f series = 1.0f - x * (0.5f - x * (1.0f / 6.0f - x * (1.0f / 24.0f - x * (1.0f / 120.0f))));
+    return nc_v8_sel(x < 0.1f, series, (1.0f - v8_exp_fast(-x)) / x);
+}
+
+/* hg_phase lane by lane. */
+static inline nc_v8f v8_hg_phase(nc_v8f cs, nc_v8f g)
+{
+    nc_v8f x = 1.0f + g * g - 2.0f * g * cs;
+    return (1.0f - g * g) / (4.0f * (float)NC_PI * x * nc_v8_sqrt(x));
+}
+
+/* nc_vol_height_integral of global fog v (with a falloff) in float along rays from heights y
+ * with direction y components wy over [0, len] (finite; a point light at height y_end, where the
+ * height factor is f_end), given the factors f_y at y. The case of a directional light (len
+ * infinite) is froxel_light_column's. */
+static inline nc_v8f v8_height_integral(const vfog *v, nc_v8f y, nc_v8f wy, nc_v8f len, nc_v8f f_y, float y_end,
+                                        float f_end)
+{
+    const nc_v8f zero = {0};
+    float k = v->o->hf_falloff;
+    nc_v8f s = nc_v8_sel(wy >= 0.0f, wy, -wy);
+    nc_v8i here = wy >= 0.0f; /* the point is the lower end */
+    nc_v8f y_lo = nc_v8_sel(here, y, nc_v8_splat(y_end)), f_lo = nc_v8_sel(here, f_y, nc_v8_splat(f_end));
+    nc_v8i below = y_lo < v->yc;
+    nc_v8f to_cap = (v->yc - y_lo) / s;
+    nc_v8f capped = nc_v8_sel(below, nc_v8_sel(to_cap < len, to_cap, len), zero);
+    f_lo = nc_v8_sel(below, nc_v8_splat(v->fcap), f_lo);
+    nc_v8f rest = len - capped;
+    nc_v8f total = capped * f_lo + nc_v8_sel(rest > 0.0f, rest * f_lo * v8_exp_ratio_fast(k * s * rest), zero);
+    return nc_v8_sel(s == 0.0f, len * f_lo, total); /* level: constant density */
+}
+
+/* The froxels' lighting of one column (light_points' sum, by light over groups of 8 froxels in
+ * SoA arrays): n froxels at p (xyz each) seen along d, src[3k + c] from ss[3k + c] and g[k]; src
+ * may alias ss. The optical depth towards a light is the sum of the patterned fogs' coarse grid
+ * (interpolated; cn, cw: the grid's 4 columns around this one and their weights, cn NULL
+ * without patterned fogs), the global fogs without pattern in closed form and the boxes without
+ * pattern exactly (nc_fog_field_optical_depth, sharp walls); its exponential is
+ * nc_vol_exp_fast's. The opaque shadow is looked up per froxel. */
+static void froxel_light_column(const vol_state *st, uint32_t n, const float *p, const float d[3], const float *ss,
+                                const float *g, float *src, const size_t cn[4], const float cw[4], float *ls,
+                                float *tau_scratch)
+{
+    if (n == 0)
+        return;
+    const size_t S = ((size_t)st->D + 7) & ~(size_t)7;
+    const uint32_t n8 = (n + 7) & ~7u;
+    float *X = ls, *Y = ls + S, *Z = ls + 2 * S, *Gp = ls + 3 * S, *F = ls + 4 * S;
+    float *A[3] = {ls + 5 * S, ls + 6 * S, ls + 7 * S}, *T[3] = {ls + 8 * S, ls + 9 * S, ls + 10 * S};
+    float *CG = ls + 11 * S, *HF = ls + 14 * S; /* CG: 3 x S, a node per 2 froxels plus padding */
+    /* Lanes past n repeat the last froxel (their results are not used). */
+    for (uint32_t k = 0; k < n8; k++) {
+        uint32_t q = k < n ? k : n - 1;
+        X[k] = p[3 * q];
+        Y[k] = p[3 * q + 1];
+        Z[k] = p[3 * q + 2];
+        Gp[k] = g[q];
+        for (int c = 0; c < 3; c++)
+            A[c][k] = st->env[c];
+    }
+    /* Each global fog's height factor at the froxels, shared by all lights. */
+    for (uint32_t f = 0; f < st->gfog_count; f++) {
+        const nc_fog_one *o = st->gfog[f].o;
+        for (uint32_t k = 0; k < n8; k += 8) {
+            nc_v8f e = -o->hf_falloff * (nc_v8_load(Y + k) - o->hf_base);
+            nc_v8f hf = o->height ? v8_exp_fast(nc_v8_sel(e < o->hf_cap, e, nc_v8_splat(o->hf_cap)))
+                                  : nc_v8_splat(st->gfog[f].flat);
+            nc_v8_store(HF + f * S + k, hf);
+        }
+    }
+    size_t nodes = (size_t)st->Wc * st->Hc * st->Dc;
+    for (uint32_t l = 0; l < st->light_count; l++) {
+        const vlight *li = &st->lights[l];
+        bool directional = li->type == NACRE_LIGHT_DIRECTIONAL;
+        if (cn) {
+            /* The 4 grid columns around this one (per channel, the last node repeated past the
+             * used ones), then linear in depth: even froxels on the nodes, odd ones halfway. */
+            const float *grid = st->tau_grid + 3 * (size_t)l * nodes;
+            uint32_t used = n / 2 + 1 < st->Dc ? n / 2 + 1 : st->Dc, half = n8 / 2;
+            const float *g4[4] = {grid + 3 * cn[0] * st->Dc, grid + 3 * cn[1] * st->Dc, grid + 3 * cn[2] * st->Dc,
+                                  grid + 3 * cn[3] * st->Dc};
+            for (uint32_t kc = 0; kc < used; kc++)
+                for (int c = 0; c < 3; c++)
+                    CG[c * S + kc] = cw[0] * g4[0][3 * kc + c] + cw[1] * g4[1][3 * kc + c] +
+                                     cw[2] * g4[2][3 * kc + c] + cw[3] * g4[3][3 * kc + c];
+            for (int c = 0; c < 3; c++) {
+                float *cg = CG + c * S, *t = T[c];
+                for (uint32_t kc = used; kc <= half; kc++)
+                    cg[kc] = cg[used - 1];
+                for (uint32_t m = 0; m < half; m++) {
+                    t[2 * m] = cg[m];
+                    t[2 * m + 1] = 0.5f * (cg[m] + cg[m + 1]);
+                }
+            }
+        } else {
+            for (int c = 0; c < 3; c++)
+                memset(T[c], 0, n8 * sizeof(float));
+        }
+        if (directional) {
+            float cs = -(d[0] * li->dir[0] + d[1] * li->dir[1] + d[2] * li->dir[2]), wy = -li->dir[1];
+            for (uint32_t k = 0; k < n8; k += 8)
+                nc_v8_store(F + k, v8_hg_phase(nc_v8_splat(cs), nc_v8_load(Gp + k)));
+            for (uint32_t f = 0; f < st->gfog_count; f++) {
+                const vfog *v = &st->gfog[f];
+                float kf = v->o->hf_falloff;
+                for (uint32_t k = 0; k < n8; k += 8) {
+                    nc_v8f hf = nc_v8_load(HF + f * S + k), y = nc_v8_load(Y + k), G;
+                    if (!(kf > 0.0f) || wy < 0.0f) {
+                        G = nc_v8_splat(INFINITY); /* constant or denser fog forever */
+                    } else if (wy == 0.0f) {
+                        G = nc_v8_sel(hf > 0.0f, nc_v8_splat(INFINITY), (nc_v8f){0});
+                    } else {
+                        /* Rising forever: the capped stretch below yc, then the integral of e^(-k wy t). */
+                        nc_v8i below = y < v->yc;
+                        nc_v8f f_lo = nc_v8_sel(below, nc_v8_splat(v->fcap), hf);
+                        nc_v8f capped = nc_v8_sel(below, (v->yc - y) / wy, (nc_v8f){0});
+                        G = capped * f_lo + f_lo / (kf * wy);
+                    }
+                    for (int c = 0; c < 3; c++)
+                        if (v->sig_t[c] > 0.0f)
+                            nc_v8_store(T[c] + k, nc_v8_load(T[c] + k) + v->sig_t[c] * G);
+                }
+            }
+        } else {
+            float hl[NACRE_MAX_FOGS];
+            for (uint32_t f = 0; f < st->gfog_count; f++) {
+                const nc_fog_one *o = st->gfog[f].o;
+                hl[f] = o->height ? nc_vol_exp_fast(fminf(o->hf_cap, -o->hf_falloff * (li->pos[1] - o->hf_base)))
+                                  : st->gfog[f].flat;
+            }
+            const nc_v8f zero = {0};
+            for (uint32_t k = 0; k < n8; k += 8) {
+                nc_v8f vx = nc_v8_load(X + k) - li->pos[0], vy = nc_v8_load(Y + k) - li->pos[1],
+                       vz = nc_v8_load(Z + k) - li->pos[2];
+                nc_v8f d2 = vx * vx + vy * vy + vz * vz;
+                nc_v8i valid = d2 > 0.0f;
+                nc_v8f dist = nc_v8_sqrt(d2), inv = 1.0f / dist;
+                nc_v8f wx = vx * inv, wyv = vy * inv, wz = vz * inv;
+                nc_v8f scale = 1.0f / d2;
+                if (li->type == NACRE_LIGHT_SPOT)
+                    for (int q = 0; q < 8; q++)
+                        scale[q] *= nc_spot_falloff(li->falloff, wx[q] * li->dir[0] + wyv[q] * li->dir[1] + wz[q] * li->dir[2],
+                                                    li->co, li->ci);
+                nc_v8f cs = -(d[0] * wx + d[1] * wyv + d[2] * wz);
+                nc_v8_store(F + k, nc_v8_sel(valid, v8_hg_phase(cs, nc_v8_load(Gp + k)) * scale, zero));
+                for (uint32_t f = 0; f < st->gfog_count; f++) {
+                    const vfog *v = &st->gfog[f];
+                    nc_v8f G = v->o->hf_falloff > 0.0f
+                                   ? v8_height_integral(v, nc_v8_load(Y + k), -wyv, dist, nc_v8_load(HF + f * S + k),
+                                                        li->pos[1], hl[f])
+                                   : dist * v->flat;
+                    G = nc_v8_sel(valid, G, zero);
+                    for (int c = 0; c < 3; c++)
+                        if (v->sig_t[c] > 0.0f)
+                            nc_v8_store(T[c] + k, nc_v8_load(T[c] + k) + v->sig_t[c] * G);
+                }
+            }
+        }
+        /* The opaque shadow, then the boxes without pattern per froxel where light arrives. */
+        if (li->shadow)
+            for (uint32_t k = 0; k < n8; k += 8) {
+                float vis[8];
+                nc_shadow_lookup_volume8(li->shadow, X + k, Y + k, Z + k, st->bias, vis);
+                nc_v8_store(F + k, nc_v8_load(F + k) * nc_v8_load(vis));
+            }
+        for (uint32_t k = 0; st->analytic_boxes && k < n; k++) {
+            if (!(F[k] > 0.0f) || !(ss[3 * k] > 0.0f || ss[3 * k + 1] > 0.0f || ss[3 * k + 2] > 0.0f))
+                continue;
+            const float *x = p + 3 * (size_t)k;
+            float w[3], dist = INFINITY;
+            if (directional) {
+                w[0] = -li->dir[0], w[1] = -li->dir[1], w[2] = -li->dir[2];
+            } else {
+                float v[3] = {li->pos[0] - x[0], li->pos[1] - x[1], li->pos[2] - x[2]};
+                dist = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+                w[0] = v[0] / dist, w[1] = v[1] / dist, w[2] = v[2] / dist;
+            }
+            double td[3];
+            nc_fog_field_optical_depth(&st->field, x, w, dist, NC_FOG_ANALYTIC | NC_FOG_BOXES, td, tau_scratch);
+            for (int c = 0; c < 3; c++)
+                T[c][k] += td[c] < TAU_MAX ? (float)td[c] : TAU_MAX;
+        }
+        for (uint32_t k = 0; k < n8; k += 8) {
+            nc_v8f fk = nc_v8_load(F + k);
+            for (int c = 0; c < 3; c++)
+                nc_v8_store(A[c] + k, nc_v8_load(A[c] + k) + li->e[c] * fk * v8_exp_fast(-nc_v8_load(T[c] + k)));
+        }
+    }
+    for (uint32_t k = 0; k < n; k++)
+        for (int c = 0; c < 3; c++)
+            src[3 * k + c] = ss[3 * k + c] * A[c][k];
+}
+
 static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads, uint32_t batch)
 {
     bool patterned = nc_fog_field_patterned(&st->field);
@@ -587,44 +883,28 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
     if (res != NACRE_OK)
         return res;
     int64_t cols = (int64_t)st->W * st->H;
-    size_t nodes = (size_t)st->Wc * st->Hc * st->Dc;
 #pragma omp parallel for schedule(dynamic, 16) num_threads(threads)
     for (int64_t col = 0; col < cols; col++) {
         float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
-        float *pre = tau + NC_FOG_TAU_SCRATCH(st->field.shadow_steps);
+        float *ls = tau + NC_FOG_TAU_SCRATCH(st->field.shadow_steps);
         uint32_t i = (uint32_t)(col % st->W), j = (uint32_t)(col / st->W);
-        uint32_t a0, a1, b0, b1;
-        float wa, wb;
-        coarse(i, st->Wc, &a0, &a1, &wa);
-        coarse(j, st->Hc, &b0, &b1, &wb);
+        uint32_t a0 = 0, a1 = 0, b0 = 0, b1 = 0;
+        float wa = 0.0f, wb = 0.0f;
+        if (patterned) {
+            coarse(i, st->Wc, &a0, &a1, &wa);
+            coarse(j, st->Hc, &b0, &b1, &wb);
+        }
         const size_t cn[4] = {(size_t)b0 * st->Wc + a0, (size_t)b0 * st->Wc + a1, (size_t)b1 * st->Wc + a0,
                               (size_t)b1 * st->Wc + a1};
         const float cw[4] = {(1 - wa) * (1 - wb), wa * (1 - wb), (1 - wa) * wb, wa * wb};
-        /* Froxels that a pixel reads: slices that begin at or before the column's depth. */
-        uint32_t n = 0;
-        while (n < st->D && st->bound[n] <= st->col_depth[col])
-            n++;
-        for (uint32_t l = 0; patterned && l < st->light_count; l++) {
-            const float *grid = st->tau_grid + 3 * (size_t)l * nodes;
-            for (uint32_t k = 0; k < n; k++) {
-                uint32_t c0, c1;
-                float wc;
-                coarse(k, st->Dc, &c0, &c1, &wc);
-                float t[3] = {0, 0, 0};
-                for (int q = 0; q < 4; q++) {
-                    const float *n0 = grid + 3 * (cn[q] * st->Dc + c0), *n1 = grid + 3 * (cn[q] * st->Dc + c1);
-                    for (int ch = 0; ch < 3; ch++)
-                        t[ch] += cw[q] * ((1 - wc) * n0[ch] + wc * n1[ch]);
-                }
-                memcpy(pre + 3 * ((size_t)l * n + k), t, sizeof(t));
-            }
-        }
+        uint32_t n = lit_slices(st, st->col_depth[col]);
         float o[3], d[3];
         double scale, offset;
         column_ray(st, i, j, o, d, &scale, &offset);
         column_points(st, o, d, scale, offset, p);
         size_t base = (size_t)col * st->D;
-        light_points(st, n, p, d, st->src + 3 * base, st->g + base, st->src + 3 * base, patterned ? pre : NULL, tau);
+        froxel_light_column(st, n, p, d, st->src + 3 * base, st->g + base, st->src + 3 * base, patterned ? cn : NULL,
+                            cw, ls, tau);
         memset(st->src + 3 * (base + n), 0, 3 * (size_t)(st->D - n) * sizeof(float));
     }
     return NACRE_OK;
@@ -633,33 +913,50 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
 static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
 {
     int64_t cols = (int64_t)st->W * st->H;
-    uint32_t D = st->D;
+    uint32_t D = st->D, D3 = 3 * D;
 #pragma omp parallel for schedule(static) num_threads(threads)
     for (int64_t col = 0; col < cols; col++) {
-        float *tau = thread_scratch(st) + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
+        float *sc = thread_scratch(st), *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
+        float *len3 = sc, *T3 = sc + D3, *S3 = sc + 2 * (size_t)D3;
         float o[3], d[3];
         double scale, offset;
         column_ray(st, (uint32_t)(col % st->W), (uint32_t)(col / st->W), o, d, &scale, &offset);
-        size_t base = (size_t)col * D, out = (size_t)col * (D + 1);
-        /* nc_vol_march_step in float with one exponential per channel (the double form, with
-         * two, was most of this stage): the same segment integral, (1 - T) / sigma_t. */
-        float ml[3] = {0, 0, 0}, mt[3] = {1, 1, 1};
+        size_t base = (size_t)col * D;
         for (uint32_t k = 0; k < D; k++) {
             float len = (float)(ray_t(st->bound[k + 1], scale, offset) - ray_t(st->bound[k], scale, offset));
+            len3[3 * k] = len3[3 * k + 1] = len3[3 * k + 2] = len;
+        }
+        /* nc_vol_march_step's segment integral in float, (1 - T) / sigma_t, each slice's
+         * transmittance and source first (8 words at a time), then the running sums. */
+        const float *sig = st->st + 3 * base, *src = st->src + 3 * base;
+        uint32_t i = 0;
+        for (; i + 8 <= D3; i += 8) {
+            nc_v8f sg = nc_v8_load(sig + i), len = nc_v8_load(len3 + i), x = sg * len, T = v8_exp_fast(-x);
+            nc_v8f w = nc_v8_sel(x < 1e-3f, len * (1.0f - 0.5f * x), (1.0f - T) / sg);
+            nc_v8_store(T3 + i, T);
+            nc_v8_store(S3 + i, nc_v8_load(src + i) * w);
+        }
+        for (; i < D3; i++) {
+            float x = sig[i] * len3[i], T = nc_vol_exp_fast(-x);
+            T3[i] = T;
+            S3[i] = src[i] * (x < 1e-3f ? len3[i] * (1.0f - 0.5f * x) : (1.0f - T) / sig[i]);
+        }
+        float ml[3] = {0, 0, 0}, mt[3] = {1, 1, 1};
+        for (uint32_t k = 0; k < D; k++) {
+            float *pl = st->acc_l + 3 * ((size_t)k * (size_t)cols + (size_t)col), *pt = st->acc_t + (pl - st->acc_l);
             for (int c = 0; c < 3; c++) {
-                float sig = st->st[3 * (base + k) + c], x = sig * len, T = expf(-x);
-                float w = x < 1e-3f ? len * (1.0f - 0.5f * x) : (1.0f - T) / sig;
-                ml[c] += mt[c] * st->src[3 * (base + k) + c] * w;
-                mt[c] *= T;
-                st->acc_l[3 * (out + k) + c] = ml[c];
-                st->acc_t[3 * (out + k) + c] = mt[c];
+                ml[c] += mt[c] * S3[3 * k + c];
+                mt[c] *= T3[3 * k + c];
+                pl[c] = ml[c];
+                pt[c] = mt[c];
             }
         }
         double L[3], T[3];
         tail(st, o, d, ray_t(st->bound[D], scale, offset), L, T, tau);
+        float *pl = st->acc_l + 3 * ((size_t)D * (size_t)cols + (size_t)col), *pt = st->acc_t + (pl - st->acc_l);
         for (int c = 0; c < 3; c++) {
-            st->acc_l[3 * (out + D) + c] = (float)(ml[c] + mt[c] * L[c]);
-            st->acc_t[3 * (out + D) + c] = (float)(mt[c] * T[c]);
+            pl[c] = (float)(ml[c] + mt[c] * L[c]);
+            pt[c] = (float)(mt[c] * T[c]);
         }
     }
 }
@@ -671,7 +968,8 @@ static inline void boundary_add(const vol_state *st, size_t col, uint32_t b, flo
         t[0] += w, t[1] += w, t[2] += w;
         return;
     }
-    const float *pl = st->acc_l + 3 * (col * (st->D + 1) + b - 1), *pt = st->acc_t + 3 * (col * (st->D + 1) + b - 1);
+    size_t at = 3 * ((size_t)(b - 1) * st->W * st->H + col);
+    const float *pl = st->acc_l + at, *pt = st->acc_t + at;
     for (int c = 0; c < 3; c++) {
         l[c] += w * pl[c];
         t[c] += w * pt[c];
@@ -682,36 +980,37 @@ static inline void boundary_add(const vol_state *st, size_t col, uint32_t b, flo
 static inline void depth_slot(const vol_state *st, float z, uint32_t *b0, float *frac)
 {
     uint32_t D = st->D;
+    const float *bf = st->boundf, *inv_w = st->boundf + D + 1;
     if (isinf(z)) {
         *b0 = D + 1;
         *frac = 0.0f;
         return;
     }
-    if (!(z < st->bound[D])) {
+    if (!(z < bf[D])) {
         *b0 = D;
         *frac = 0.0f;
         return;
     }
     uint32_t k;
     if (st->cam.ortho) {
-        double u = (z - st->bound[0]) / (st->bound[D] - st->bound[0]) * D;
-        k = u > 0.0 ? (uint32_t)u : 0;
-    } else if (D == 1 || z < st->bound[1]) {
+        float u = (z - bf[0]) * inv_w[0];
+        k = u > 0.0f ? (uint32_t)u : 0;
+    } else if (D == 1 || z < bf[1]) {
         k = 0;
     } else {
-        double u = 1.0 + log(z / st->bound[1]) / log(st->bound[D] / st->bound[1]) * (D - 1);
-        k = (uint32_t)u;
+        /* The steps below correct the rounding. */
+        float u = 1.0f + logf(z * st->slice_inv_b1) * st->slice_scale;
+        k = u > 1.0f ? (uint32_t)u : 1;
     }
     if (k >= D)
         k = D - 1;
-    /* Rounding of the logarithm: step to the slice that holds z. */
-    while (k > 0 && z < st->bound[k])
+    while (k > 0 && z < bf[k])
         k--;
-    while (k + 1 < D && z >= st->bound[k + 1])
+    while (k + 1 < D && z >= bf[k + 1])
         k++;
-    double f = (z - st->bound[k]) / (st->bound[k + 1] - st->bound[k]);
+    float f = (z - bf[k]) * inv_w[k];
     *b0 = k;
-    *frac = (float)(f < 0.0 ? 0.0 : f > 1.0 ? 1.0 : f);
+    *frac = f < 0.0f ? 0.0f : f > 1.0f ? 1.0f : f;
 }
 
 static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_image *image, int threads)
@@ -826,7 +1125,7 @@ static nacre_result raymarch_apply(void *state, const nc_post_input *in, nacre_i
                     p[3 * k + c] = o[c] + t * d[c];
             }
             nc_fog_field_eval(&st->field, n, p, sig_t, src, g, ev);
-            light_points(st, n, p, d, src, g, src, NULL, tau);
+            light_points(st, n, p, d, src, g, src, tau);
             nc_vol_march m[3] = {nc_vol_march_begin(), nc_vol_march_begin(), nc_vol_march_begin()};
             for (uint32_t k = 0; k < n; k++)
                 for (int c = 0; c < 3; c++)

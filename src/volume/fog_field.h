@@ -56,6 +56,7 @@ void nc_fog_field_eval(const nc_fog_field *f, uint32_t n, const float *p, float 
 #define NC_FOG_ANALYTIC 1u  /* fogs without pattern (closed form) */
 #define NC_FOG_PATTERNED 2u /* patterned fogs (marched) */
 #define NC_FOG_ALL 3u
+#define NC_FOG_BOXES 4u /* with the above: only the box-shaped ones of those */
 
 /* Optical depth per channel of the fogs of `which` along p + t w, t in [0, tmax] (tmax may be
  * INFINITY; the result may be INFINITY: a global fog without falloff towards a directional

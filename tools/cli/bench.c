@@ -47,10 +47,11 @@ static const char bench_help[] =
     "  particles  the smoke plume of examples/particles.json with 10k and 100k particles:\n"
     "           simulate, splat into 128^3, commit, and the billboards and sprites passes at\n"
     "           1280x720, median ms per stage\n"
-    "usage: nacre bench volumetrics [--json] [--runs N]\n"
-    "  volumetrics  froxel stages (fill, light, integrate, apply at 160x90x64), the per-pixel\n"
-    "           march and the analytic fog pass over the demo at 1280x720 with a shadowed sun,\n"
-    "           four point lights, height fog and a 128^3 cloud (bench/bench_volumetrics.c)\n";
+    "usage: nacre bench volumetrics [--json] [--runs N] [--raymarch]\n"
+    "  volumetrics  froxel stages (fill, light, integrate, apply at 160x90x64) and the analytic\n"
+    "           fog pass over the demo at 1280x720 with a shadowed sun, four point lights, height\n"
+    "           fog and a 128^3 cloud (bench/bench_volumetrics.c)\n"
+    "  --raymarch  also one frame of the per-pixel march (64 steps; tens of seconds)\n";
 
 
 
@@ -78,7 +79,7 @@ int nc_cli_bench(int argc, char **argv)
     bool json = false;
     long runs = pathtrace ? 1 : 15, res_only = 0;
     nc_bench_filter filter = {NULL, 0};
-    bool repaint = false;
+    bool repaint = false, raymarch = false;
     for (int i = 1; i < argc; i++) {
         if (nc_tool_common_flag("bench", argv[i], bench_help, &code))
             return code;
@@ -93,6 +94,8 @@ int nc_cli_bench(int argc, char **argv)
             filter.res = (uint32_t)res_only, i++;
         else if (diffusion && strcmp(argv[i], "--repaint") == 0)
             repaint = true;
+        else if (volumetrics && strcmp(argv[i], "--raymarch") == 0)
+            raymarch = true;
         else if (load && strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
             load_ply = argv[++i];
         else if (load && strcmp(argv[i], "--glb") == 0 && i + 1 < argc)
@@ -126,7 +129,7 @@ int nc_cli_bench(int argc, char **argv)
     if (particles)
         return nc_bench_particles(json, (int)runs);
     if (volumetrics)
-        return nc_bench_volumetrics(json, (int)runs);
+        return nc_bench_volumetrics(json, (int)runs, raymarch);
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;
