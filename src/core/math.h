@@ -36,6 +36,30 @@ typedef struct nc_vec3 { float x, y, z; } nc_vec3;
 typedef struct nc_vec4 { float x, y, z, w; } nc_vec4;
 typedef struct nc_mat4 { float m[4][4]; } nc_mat4;
 
+/* e^x for |x| < 87 (0 below -87, e^87 above): 2^(x log2 e) split into an integer power, built
+ * in the exponent bits, and a degree-5 polynomial of the fraction; relative error under 4e-6.
+ * Several times faster than expf where kernels take one per pixel and particle or per piece of
+ * a march (billboards, the layered march); volume.h's nc_vol_exp_fast is the one to use where
+ * expf's accuracy (1e-7) is needed. */
+static inline float nc_fast_exp(float x)
+{
+    float y = x * 1.44269504f;
+    if (!(y > -126.0f))
+        return 0.0f;
+    y = y < 126.0f ? y : 126.0f;
+    float n = floorf(y), f = y - n;
+    float p = 1.8775767e-3f;
+    p = p * f + 8.9893397e-3f;
+    p = p * f + 5.5826318e-2f;
+    p = p * f + 2.4015361e-1f;
+    p = p * f + 6.9315308e-1f;
+    p = p * f + 9.9999994e-1f;
+    int32_t bits = ((int32_t)n + 127) << 23;
+    float scale;
+    memcpy(&scale, &bits, sizeof(scale));
+    return p * scale;
+}
+
 static inline nc_vec3 nc_v3(float x, float y, float z) { nc_vec3 r = {x, y, z}; return r; }
 static inline nc_vec3 nc_v3a(const float *a) { nc_vec3 r = {a[0], a[1], a[2]}; return r; }
 static inline void nc_v3store(nc_vec3 v, float *a) { a[0] = v.x; a[1] = v.y; a[2] = v.z; }

@@ -63,29 +63,9 @@ static inline float hg(float c, float g)
     return (1.0f - g * g) / (4.0f * (float)NC_PI * d * sqrtf(d));
 }
 
-/* e^x for |x| < 87 (0 below, e^87 above): 2^(x log2 e) split into an integer power, built in the
- * exponent bits, and a degree-5 polynomial of the fraction (nc_fast_exp_neg's); relative error
- * under 4e-6, where expf is a library call per channel and piece end. */
-static inline float fast_exp(float x)
-{
-    float y = x * 1.44269504f;
-    if (!(y > -126.0f))
-        return 0.0f;
-    y = y < 126.0f ? y : 126.0f;
-    float n = floorf(y), f = y - n;
-    float p = 1.8775767e-3f;
-    p = p * f + 8.9893397e-3f;
-    p = p * f + 5.5826318e-2f;
-    p = p * f + 2.4015361e-1f;
-    p = p * f + 6.9315308e-1f;
-    p = p * f + 9.9999994e-1f;
-    union {
-        float f;
-        int32_t i;
-    } u;
-    u.i = ((int32_t)n + 127) << 23;
-    return p * u.f;
-}
+/* e^x: core/math.h's nc_fast_exp (relative error under 4e-6), where expf is a library call per
+ * channel and piece end. */
+#define fast_exp nc_fast_exp
 
 /* ln x for normal positive x: the exponent bits, and for the mantissa m in [sqrt(1/2), sqrt(2))
  * the series 2 atanh((m - 1) / (m + 1)) to the 9th power (truncation under 4e-10); absolute

@@ -22,34 +22,13 @@
 #ifndef NACRE_PARTICLES_BILLBOARD_H
 #define NACRE_PARTICLES_BILLBOARD_H
 
+#include "core/math.h"
+
 #include <math.h>
 #include <stdbool.h>
 #include <stdint.h>
 
 #define NC_BILLBOARD_REMAP_T 1.0f
-
-/* e^x for x <= 0 (x below -87 gives 0): 2^(x log2 e) split into an integer power, built in the
- * exponent bits, and a degree-5 polynomial of the fraction; relative error under 4e-6, several
- * times faster than expf in the billboard loops, which evaluate it per pixel and particle. */
-static inline float nc_fast_exp_neg(float x)
-{
-    float y = x * 1.44269504f;
-    if (!(y > -126.0f))
-        return 0.0f;
-    float n = floorf(y), f = y - n;
-    float p = 1.8775767e-3f;
-    p = p * f + 8.9893397e-3f;
-    p = p * f + 5.5826318e-2f;
-    p = p * f + 2.4015361e-1f;
-    p = p * f + 6.9315308e-1f;
-    p = p * f + 9.9999994e-1f;
-    union {
-        float f;
-        int32_t i;
-    } u;
-    u.i = ((int32_t)n + 127) << 23;
-    return p * u.f;
-}
 
 static inline float nc_billboard_remap(float x, float T)
 {
@@ -71,7 +50,7 @@ static inline bool nc_billboard_hit(const float v[3], const float d[3], float R,
     if (!(rho2 < R2))
         return false;
     rho2 = fmaxf(rho2, 0.0f);
-    *weight = nc_fast_exp_neg(-4.5f * rho2 / R2);
+    *weight = nc_fast_exp(-4.5f * rho2 / R2);
     *tmid = t;
     *half = sqrtf(R2 - rho2);
     return true;

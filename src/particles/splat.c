@@ -66,7 +66,7 @@ static float axis_weights(double c, double R, double origin, double h, int32_t n
     float sum = 0.0f;
     for (int32_t i = a; i <= b; i++) {
         float t = (float)((origin + i * h - c) / R);
-        w[i - a] = nc_fast_exp_neg(-NC_PARTICLE_KERNEL_A * t * t);
+        w[i - a] = nc_fast_exp(-NC_PARTICLE_KERNEL_A * t * t);
         sum += w[i - a];
     }
     if (!(sum > 0.0f)) {

@@ -484,7 +484,7 @@ static void march(pp_state *st, const pp_frame *fr, const float g, int threads)
                 for (int c = 0; c < 3; c++) {
                     /* Environment: the mean transmittance to the chord's two ends. */
                     float tf = front[c] + 0.5f * tau[c] * rr * dt;
-                    S[c] = fr->env[c] * 0.5f * (nc_fast_exp_neg(-tf) + nc_fast_exp_neg(-fmaxf(tau[c] - tf, 0.0f)));
+                    S[c] = fr->env[c] * 0.5f * (nc_fast_exp(-tf) + nc_fast_exp(-fmaxf(tau[c] - tf, 0.0f)));
                 }
                 for (uint32_t l = 0; l < fr->suns; l++) {
                     const float to[3] = {-fr->sun_dir[l][0], -fr->sun_dir[l][1], -fr->sun_dir[l][2]};
@@ -499,10 +499,10 @@ static void march(pp_state *st, const pp_frame *fr, const float g, int threads)
                                 tl[c] += sig[c] * ds;
                     }
                     for (int c = 0; c < 3; c++)
-                        S[c] += fr->sun_e[l][c] * phase[l] * nc_fast_exp_neg(-tl[c]);
+                        S[c] += fr->sun_e[l][c] * phase[l] * nc_fast_exp(-tl[c]);
                 }
                 for (int c = 0; c < 3; c++) {
-                    const float st_c = tau[c] * rr, a = nc_fast_exp_neg(-st_c * dt);
+                    const float st_c = tau[c] * rr, a = nc_fast_exp(-st_c * dt);
                     Ls[c] += T[c] * (1.0f - a) * alb[c] * S[c];
                     T[c] *= a;
                     front[c] += st_c * dt;
@@ -571,9 +571,9 @@ static void sprites(pp_state *st, const pp_frame *fr, uint32_t bands, int thread
                         continue;
                     const size_t i = ri + (size_t)x;
                     float col = st->column[j] * wgt * fade, keep[3];
-                    keep[0] = nc_fast_exp_neg(-sy->sigma_t[0] * col);
-                    keep[1] = grey ? keep[0] : nc_fast_exp_neg(-sy->sigma_t[1] * col);
-                    keep[2] = grey ? keep[0] : nc_fast_exp_neg(-sy->sigma_t[2] * col);
+                    keep[0] = nc_fast_exp(-sy->sigma_t[0] * col);
+                    keep[1] = grey ? keep[0] : nc_fast_exp(-sy->sigma_t[1] * col);
+                    keep[2] = grey ? keep[0] : nc_fast_exp(-sy->sigma_t[2] * col);
                     for (int c = 0; c < 3; c++) {
                         st->tl[c * plane + i] *= keep[c];
                         st->tl[(3 + c) * plane + i] = st->tl[(3 + c) * plane + i] * keep[c] + (1.0f - keep[c]) * lit[c];
