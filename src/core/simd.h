@@ -89,6 +89,17 @@ static inline uint32_t nc_v8_bits(nc_v8i m)
 #endif
 }
 
+static inline nc_v8f nc_v8_floor(nc_v8f x)
+{
+#ifdef __AVX__
+    return (nc_v8f)_mm256_floor_ps((__m256)x);
+#else
+    for (int l = 0; l < 8; l++)
+        x[l] = floorf(x[l]);
+    return x;
+#endif
+}
+
 static inline nc_v8f nc_v8_sqrt(nc_v8f x)
 {
 #ifdef __AVX__

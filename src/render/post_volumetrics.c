@@ -650,21 +650,10 @@ static nacre_result column_depths(vol_state *st, nacre_context *ctx, const float
 
 /* ---- the froxels' lighting, 8 froxels of a column at a time (core/simd.h) ------------------- */
 
-static inline nc_v8f v8_floor(nc_v8f x)
-{
-#ifdef __AVX__
-    return (nc_v8f)_mm256_floor_ps((__m256)x);
-#else
-    for (int l = 0; l < 8; l++)
-        x[l] = floorf(x[l]);
-    return x;
-#endif
-}
-
 /* nc_vol_exp_fast (volume.h) lane by lane. */
 static inline nc_v8f v8_exp_fast(nc_v8f x)
 {
-    nc_v8f n = v8_floor(x * 1.44269504f + 0.5f);
+    nc_v8f n = nc_v8_floor(x * 1.44269504f + 0.5f);
     n = nc_v8_sel(n > -127.0f, n, nc_v8_splat(-127.0f));
     n = nc_v8_sel(n < 127.0f, n, nc_v8_splat(127.0f));
     nc_v8f r = x - n * 0.693359375f;
