@@ -7,16 +7,16 @@
  */
 #include "io/image_private.h"
 
-#include <errno.h>
 #include <stb_image.h>
 #include <stdio.h>
 #include <stdlib.h>
-#include <sys/stat.h>
 
 /* Entropy-coded JPEG can describe a flat 8x8 block in a few bits, and a progressive file's
  * end-of-band runs span thousands of blocks, so the header's size is only bounded loosely by
  * the file's: this ratio rejects absurd headers, the memory limit does the rest. */
 #define JPEG_MAX_RATIO 20000.0
+/* Compressed bytes are a fraction of the pixels, which nc_image_check_file_size bounds. */
+#define JPEG_FILE_MAX ((size_t)1 << 30)
 
 static nacre_result decode(nacre_context *ctx, const char *name, const unsigned char *bytes, size_t size, bool srgb,
                            nacre_image *out)
@@ -62,35 +62,11 @@ nacre_result nc_image_read_jpeg_memory(nacre_context *ctx, const char *name, con
 
 nacre_result nc_image_read_jpeg(nacre_context *ctx, const char *path, bool srgb, nacre_image *out)
 {
-    FILE *fp = fopen(path, "rb");
-    if (!fp)
-        return nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot open: %s", path, strerror(errno));
-    struct stat st;
-    if (fstat(fileno(fp), &st) != 0 || !S_ISREG(st.st_mode)) {
-        fclose(fp);
-        return nc_fail(ctx, NACRE_ERROR_IO, "%s: not a regular file", path);
-    }
-    if (st.st_size <= 0) {
-        fclose(fp);
-        return nc_fail(ctx, NACRE_ERROR_PARSE, "%s: empty file", path);
-    }
-    /* Compressed bytes are a fraction of the decoded image, which the memory limit bounds. */
-    nacre_result r = nc_memory_check(ctx, (uint64_t)st.st_size, path);
-    if (r != NACRE_OK) {
-        fclose(fp);
-        return r;
-    }
-    size_t size = (size_t)st.st_size;
-    unsigned char *bytes = nc_alloc(ctx, size);
-    if (!bytes) {
-        fclose(fp);
-        return NACRE_ERROR_OUT_OF_MEMORY;
-    }
-    if (fread(bytes, 1, size, fp) != size)
-        r = nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot read %zu bytes", path, size);
-    fclose(fp);
+    char *bytes = NULL;
+    size_t size = 0;
+    nacre_result r = nc_read_file(ctx, path, JPEG_FILE_MAX, "not a JPEG nacre reads", &bytes, &size);
     if (r == NACRE_OK)
-        r = decode(ctx, path, bytes, size, srgb, out);
+        r = decode(ctx, path, (const unsigned char *)bytes, size, srgb, out);
     nc_free(ctx, bytes);
     return r;
 }

@@ -22,6 +22,7 @@
  */
 #include "io/scene_json_internal.h"
 #include "io/gltf.h"
+#include "io/tmpfile.h"
 
 #include <errno.h>
 #include <stdio.h>
@@ -227,58 +228,6 @@ nacre_result nacre_scene_load_json(nacre_context *ctx, const char *json, size_t 
                      settings);
 }
 
-static nacre_result read_whole_file(nacre_context *ctx, const char *path, char **out, size_t *size)
-{
-    FILE *f = fopen(path, "rb");
-    if (!f) {
-        int e = errno;
-        char reason[128];
-        if (strerror_r(e, reason, sizeof(reason)) != 0)
-            snprintf(reason, sizeof(reason), "error %d", e);
-        return nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot open: %s", path, reason);
-    }
-    size_t cap = 0, len = 0;
-    char *buf = NULL;
-    nacre_result r = NACRE_OK;
-    for (;;) {
-        if (len == cap) {
-            size_t grown = cap ? cap * 2 : 16384;
-            if (cap >= SCENE_FILE_MAX) {
-                r = nc_fail(ctx, NACRE_ERROR_IO, "%s: larger than %u MiB, not a scene file", path,
-                            SCENE_FILE_MAX >> 20);
-                break;
-            }
-            char *p = nc_realloc(ctx, buf, len, grown);
-            if (!p) {
-                r = NACRE_ERROR_OUT_OF_MEMORY;
-                break;
-            }
-            buf = p;
-            cap = grown;
-        }
-        size_t n = fread(buf + len, 1, cap - len, f);
-        len += n;
-        if (n == 0) {
-            if (ferror(f)) {
-                int e = errno;
-                char reason[128];
-                if (strerror_r(e, reason, sizeof(reason)) != 0)
-                    snprintf(reason, sizeof(reason), "error %d", e);
-                r = nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot read: %s", path, reason);
-            }
-            break;
-        }
-    }
-    fclose(f);
-    if (r != NACRE_OK) {
-        nc_free(ctx, buf);
-        return r;
-    }
-    *out = buf;
-    *size = len;
-    return NACRE_OK;
-}
-
 nacre_result nacre_scene_load_file(nacre_context *ctx, const char *path, nacre_scene **out,
                                    nacre_scene_file_settings *settings)
 {
@@ -293,7 +242,7 @@ nacre_result nacre_scene_load_file(nacre_context *ctx, const char *path, nacre_s
         return nacre_scene_load_gltf(ctx, path, NULL, out, settings, NULL);
     char *text = NULL;
     size_t size = 0;
-    nacre_result r = read_whole_file(ctx, path, &text, &size);
+    nacre_result r = nc_read_file(ctx, path, SCENE_FILE_MAX, "not a scene file", &text, &size);
     if (r != NACRE_OK)
         return r;
     /* Mesh paths are relative to the scene file's folder. */

@@ -83,3 +83,55 @@ void nc_tmpfile_abort(nacre_context *ctx, nc_tmpfile *tmp)
     unlink(tmp->tmp_path);
     tmpfile_release(ctx, tmp);
 }
+
+nacre_result nc_read_file(nacre_context *ctx, const char *path, size_t max_bytes, const char *too_big, char **out,
+                          size_t *size)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) {
+        int e = errno;
+        char reason[128];
+        if (strerror_r(e, reason, sizeof(reason)) != 0)
+            snprintf(reason, sizeof(reason), "error %d", e);
+        return nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot open: %s", path, reason);
+    }
+    size_t cap = 0, len = 0;
+    char *buf = NULL;
+    nacre_result r = NACRE_OK;
+    for (;;) {
+        if (len == cap) {
+            size_t grown = cap ? cap * 2 : 16384;
+            if (cap >= max_bytes) {
+                r = nc_fail(ctx, NACRE_ERROR_IO, "%s: larger than %zu MiB, %s", path, max_bytes >> 20, too_big);
+                break;
+            }
+            char *p = nc_realloc(ctx, buf, len, grown);
+            if (!p) {
+                r = NACRE_ERROR_OUT_OF_MEMORY;
+                break;
+            }
+            buf = p;
+            cap = grown;
+        }
+        size_t n = fread(buf + len, 1, cap - len, f);
+        len += n;
+        if (n == 0) {
+            if (ferror(f)) {
+                int e = errno;
+                char reason[128];
+                if (strerror_r(e, reason, sizeof(reason)) != 0)
+                    snprintf(reason, sizeof(reason), "error %d", e);
+                r = nc_fail(ctx, NACRE_ERROR_IO, "%s: cannot read: %s", path, reason);
+            }
+            break;
+        }
+    }
+    fclose(f);
+    if (r != NACRE_OK) {
+        nc_free(ctx, buf);
+        return r;
+    }
+    *out = buf;
+    *size = len;
+    return NACRE_OK;
+}
