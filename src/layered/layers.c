@@ -102,16 +102,12 @@ uint32_t nc_layers_find(const nc_layer_stack *s, float d, float u, float v)
 {
     /* Constant layers need no lookup; with a map, the depths of layers that every uv puts
      * above (or below) d settle most points without sampling. */
-    uint32_t j = 0;
-    while (j < s->count && d >= s->hi[j])
-        j++;
-    if (j == s->count || d < s->lo[j])
+    uint32_t j;
+    if (nc_layers_settled(s, d, &j))
         return j;
     float bottom[NACRE_MAX_LAYERS];
     nc_layers_bottoms(s, u, v, bottom);
-    while (j < s->count && d >= bottom[j])
-        j++;
-    return j;
+    return nc_layers_after(s, d, j, bottom);
 }
 
 uint32_t nc_layers_touching(const nc_layer_stack *s, float d0, float d1)

@@ -22,6 +22,26 @@ void nc_layers_init(const nacre_scene *scene, const nacre_layering *layering, nc
 /* The layer holding depth d below the surface point of texture coordinates (u, v): 0..count-1,
  * or count for the core. A point exactly on a boundary belongs to the deeper layer. */
 uint32_t nc_layers_find(const nc_layer_stack *stack, float d, float u, float v);
+/* The part of a layer lookup that needs no depth map: the first layer j whose largest bottom
+ * over every uv lies below depth d; true if that settles it (d is above j's smallest bottom,
+ * or in the core), else the caller reads the bottoms at (u, v) and goes on from j with
+ * nc_layers_after. nc_layers_find is these two around nc_layers_bottoms. */
+static inline bool nc_layers_settled(const nc_layer_stack *s, float d, uint32_t *j)
+{
+    uint32_t k = 0;
+    while (k < s->count && d >= s->hi[k])
+        k++;
+    *j = k;
+    return k == s->count || d < s->lo[k];
+}
+
+static inline uint32_t nc_layers_after(const nc_layer_stack *s, float d, uint32_t j,
+                                       const float bottom[NACRE_MAX_LAYERS])
+{
+    while (j < s->count && d >= bottom[j])
+        j++;
+    return j;
+}
 /* Bottoms of the layers (running maximum of depth * map) at texture coordinates (u, v). */
 void nc_layers_bottoms(const nc_layer_stack *stack, float u, float v, float bottom[NACRE_MAX_LAYERS]);
 /* Bit j set when some uv puts some depth of [d0, d1] in layer j (bit count: the core). */

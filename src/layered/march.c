@@ -128,16 +128,12 @@ static inline void bottoms_at(const nc_layer_stack *s, float u, float v, float b
 /* nc_layers_find with bottoms_at. */
 static inline uint32_t find_at(const nc_layer_stack *s, float d, float u, float v)
 {
-    uint32_t j = 0;
-    while (j < s->count && d >= s->hi[j])
-        j++;
-    if (j == s->count || d < s->lo[j])
+    uint32_t j;
+    if (nc_layers_settled(s, d, &j))
         return j;
     float bottom[NACRE_MAX_LAYERS];
     bottoms_at(s, u, v, bottom);
-    while (j < s->count && d >= bottom[j])
-        j++;
-    return j;
+    return nc_layers_after(s, d, j, bottom);
 }
 
 void nc_layer_medium_init(const nacre_scene *scene, const nacre_material_desc *m, float epsilon, nc_layer_medium *out)
