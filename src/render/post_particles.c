@@ -360,22 +360,33 @@ static nacre_result bin(nacre_context *ctx, pp_state *st, const pp_frame *fr, co
     return NACRE_OK;
 }
 
+/* Rows y0..y1 (image rows) of band b, and those rows of `count` planes set to value[k]: both
+ * passes start a band by clearing their own planes there. */
+static void band_start(const pp_frame *fr, uint32_t b, float *planes, int count, const float *value, int32_t *y0,
+                       int32_t *y1)
+{
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+    *y0 = fr->ry0 + (int32_t)(b * BAND);
+    *y1 = *y0 + (int32_t)BAND - 1;
+    if (*y1 > fr->ry0 + fr->rh - 1)
+        *y1 = fr->ry0 + fr->rh - 1;
+    for (int32_t y = *y0; y <= *y1; y++)
+        for (int k = 0; k < count; k++) {
+            float *row = planes + k * plane + (size_t)(y - fr->ry0) * (size_t)fr->rw;
+            for (int32_t x = 0; x < fr->rw; x++)
+                row[x] = value[k];
+        }
+}
+
 /* Pass 1: per pixel of the rect, optical depths and the chord ends (planes of `acc`). */
 static void accumulate(pp_state *st, const pp_frame *fr, uint32_t bands, int threads)
 {
     const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
     for (uint32_t b = 0; b < bands; b++) {
-        int32_t y0 = fr->ry0 + (int32_t)(b * BAND), y1 = y0 + (int32_t)BAND - 1;
-        if (y1 > fr->ry0 + fr->rh - 1)
-            y1 = fr->ry0 + fr->rh - 1;
-        for (int32_t y = y0; y <= y1; y++)
-            for (int k = 0; k < 8; k++) {
-                float *row = st->acc + k * plane + (size_t)(y - fr->ry0) * (size_t)fr->rw;
-                float v = k < 6 ? 0.0f : (k == 6 ? INFINITY : -INFINITY);
-                for (int32_t x = 0; x < fr->rw; x++)
-                    row[x] = v;
-            }
+        static const float cleared[8] = {0, 0, 0, 0, 0, 0, INFINITY, -INFINITY};
+        int32_t y0, y1;
+        band_start(fr, b, st->acc, 8, cleared, &y0, &y1);
         for (uint32_t e = st->bin_start[b]; e < st->bin_start[b + 1]; e++) {
             const uint32_t j = st->bins[e];
             const int32_t *rc = st->rect + 4 * (size_t)j;
@@ -542,15 +553,9 @@ static void sprites(pp_state *st, const pp_frame *fr, uint32_t bands, int thread
     const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
     for (uint32_t b = 0; b < bands; b++) {
-        int32_t y0 = fr->ry0 + (int32_t)(b * BAND), y1 = y0 + (int32_t)BAND - 1;
-        if (y1 > fr->ry0 + fr->rh - 1)
-            y1 = fr->ry0 + fr->rh - 1;
-        for (int32_t y = y0; y <= y1; y++)
-            for (int k = 0; k < 6; k++) {
-                float *row = st->tl + k * plane + (size_t)(y - fr->ry0) * (size_t)fr->rw;
-                for (int32_t x = 0; x < fr->rw; x++)
-                    row[x] = k < 3 ? 1.0f : 0.0f;
-            }
+        static const float cleared[6] = {1, 1, 1, 0, 0, 0}; /* transmittance, radiance */
+        int32_t y0, y1;
+        band_start(fr, b, st->tl, 6, cleared, &y0, &y1);
         for (uint32_t e = st->bin_start[b]; e < st->bin_start[b + 1]; e++) {
             const uint32_t j = st->bins[e];
             const int32_t *rc = st->rect + 4 * (size_t)j;
