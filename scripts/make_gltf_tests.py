@@ -21,6 +21,11 @@ gltf_textured.gltf the textured quad alone, its image a file beside it (gltf_tex
 gltf_textured.json both as a nacre scene file: PLY quads with uvs, "diffuse_map" on the PNG
 gltf_misc.gltf     one root node over a two-primitive mesh (a metal, and no material: the default),
                    a spot light and an orthographic camera; its buffer is a base64 data: URI
+gltf_thickness.glb a UV-mapped KHR_materials_volume sphere whose thicknessTexture (an 8x8 PNG in
+                   the BIN chunk) holds latitude bands in G and other values in R and B, a sun and
+                   a camera; gltf_thickness.json is the same as a nacre scene with the layer that
+                   the "thickness": "layer" import makes (docs/scene-format.md): the sphere as PLY
+                   with uvs, the depth map gltf_thickness_depth.png (G copied into R)
 bad_*.gl*          malformed files: truncated GLB, a missing buffer, an out-of-range accessor,
                    an unknown required extension
 
@@ -517,8 +522,88 @@ def write_textured():
     open(os.path.join(OUT, "gltf_textured.json"), "w").write(json.dumps(scene, indent=1) + "\n")
 
 
+# ---- thickness texture as a one-layer depth map ---------------------------------------------
+
+TH_FACTOR = 0.03  # metres: the layer's depth where G is 1
+TH_N = 8
+
+
+def uv_sphere(radius, segments, rings):
+    """A UV sphere with uvs (u around, v from the north pole down, glTF's convention); the seam
+    shares vertices (u jumps back to 0), harmless for maps that vary with latitude only."""
+    pos, nrm, _, tri = sphere(radius, segments, rings)
+    uv = [(0.5, 0.0)]
+    for j in range(1, rings):
+        uv += [(i / segments, j / rings) for i in range(segments)]
+    uv.append((0.5, 1.0))
+    return pos, nrm, uv, tri
+
+
+def thickness_rows(copy_g_to_r):
+    """Latitude bands in G (thickness), a ramp in R and a constant in B that the import ignores."""
+    rows = []
+    for j in range(TH_N):
+        g = [230, 40, 160, 90, 250, 20, 130, 200][j]
+        rows.append([((g if copy_g_to_r else 17 * i + 5), g, 99) for i in range(TH_N)])
+    return rows
+
+
+def write_thickness():
+    geo = uv_sphere(0.1, 48, 24)
+    png = png_rgb(TH_N, TH_N, thickness_rows(False))
+    b = Builder()
+    mesh = b.mesh(geo, 0, "ball")
+    while len(b.bin) % 4:
+        b.bin.append(0)
+    b.views.append({"buffer": 0, "byteOffset": len(b.bin), "byteLength": len(png)})
+    b.bin += png
+    cam_at, target = [0.0, 0.12, 0.45], [0.0, 0.0, 0.0]
+    fwd = [target[k] - cam_at[k] for k in range(3)]
+    sun_dir = [-0.5, -0.6, -0.62]
+    doc = {"asset": {"version": "2.0", "generator": "nacre scripts/make_gltf_tests.py"},
+           "extensionsUsed": ["KHR_lights_punctual", "KHR_materials_volume", "KHR_materials_transmission"],
+           "scenes": [{"nodes": [0, 1, 2]}],
+           "nodes": [{"name": "ball", "mesh": 0},
+                     {"name": "cam", "camera": 0, "translation": cam_at, "rotation": quat_look(fwd, [0, 1, 0])},
+                     {"name": "sun", "rotation": quat_look(sun_dir, [0, 1, 0]),
+                      "extensions": {"KHR_lights_punctual": {"light": 0}}}],
+           "cameras": [{"type": "perspective", "perspective": {"yfov": math.radians(30), "znear": 0.01}}],
+           "extensions": {"KHR_lights_punctual": {"lights": [
+               {"type": "directional", "color": [1, 1, 1], "intensity": 3.0 * LUMENS_PER_WATT}]}},
+           "materials": [{"name": "wax", "pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1],
+                                                                 "metallicFactor": 0, "roughnessFactor": 0.3},
+                          "extensions": {"KHR_materials_volume": {
+                              "thicknessFactor": TH_FACTOR, "thicknessTexture": {"index": 0},
+                              "attenuationColor": ATT_COLOR, "attenuationDistance": 0.05},
+                              "KHR_materials_transmission": {"transmissionFactor": 1.0}}}],
+           "textures": [{"source": 0}], "images": [{"bufferView": len(b.views) - 1, "mimeType": "image/png"}],
+           "meshes": [mesh], "accessors": b.accessors, "bufferViews": b.views,
+           "buffers": [{"byteLength": len(b.bin)}]}
+    open(os.path.join(OUT, "gltf_thickness.glb"), "wb").write(glb(doc, b.bin))
+    write_ply(os.path.join(OUT, "gltf_thickness_ball.ply"), geo)
+    open(os.path.join(OUT, "gltf_thickness_depth.png"), "wb").write(png_rgb(TH_N, TH_N, thickness_rows(True)))
+    # The mapping of docs/scene-format.md: roughness 0.3 -> shininess 2 / 0.09^2 - 2, F0 0.04
+    sigma_a = [-math.log(c) / 0.05 for c in ATT_COLOR]
+    a = 0.3 * 0.3
+    scene = {
+        "units": "m",
+        "render": {"method": "phong", "width": 64, "height": 48},
+        "camera": {"type": "perspective", "position": cam_at, "target": target, "up": [0, 1, 0], "fov": 30,
+                   "near": 0.01},
+        "materials": {"wax": {"type": "translucent", "sigma_a": sigma_a, "sigma_s": [10.0] * 3, "g": 0,
+                              "eta": 1.5, "specular": [0.04] * 3, "shininess": 2 / (a * a) - 2,
+                              "depth_map": "gltf_thickness_depth.png",
+                              "layers": [{"sigma_a": sigma_a, "sigma_s": [1000.0] * 3, "g": 0,
+                                          "depth": TH_FACTOR}]}},
+        "lights": [{"type": "directional", "direction": sun_dir, "irradiance": 3.0}],
+        "objects": [{"name": "ball", "mesh": "gltf_thickness_ball.ply", "material": "wax"}],
+    }
+    open(os.path.join(OUT, "gltf_thickness.json"), "w").write(json.dumps(scene, indent=1) + "\n")
+
+
 def main():
     os.makedirs(OUT, exist_ok=True)
+    write_thickness()
     write_demo()
     write_misc()
     write_textured()

@@ -74,7 +74,8 @@ typedef struct nacre_medium_pattern {
  * depth(k) * map_k(u, v) for k <= j (a layer cannot end above the one before it: the running
  * maximum gives it zero thickness). Without a depth map map_k = 1 (layers of constant
  * thickness). Points deeper than the last bottom are in the core. The path tracer renders layered
- * media exactly; the diffusion method reports them as not implemented; the phong method shades the
+ * media exactly; the diffusion method solves on each voxel's mean of its layers' and core's
+ * coefficients (layers thinner than a voxel are averaged into it); the phong method shades the
  * core only. Scene files: "layers" and "depth_map" (docs/scene-format.md). */
 #define NACRE_MAX_LAYERS 4
 typedef struct { uint32_t id; } nacre_texture;

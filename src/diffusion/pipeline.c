@@ -18,11 +18,11 @@
  * too (a camera move only re-shades). The fluence of the previous frame warm-starts the solver
  * whenever the grid has the same dims.
  *
- * For the layered method's multiple scattering (nc_diff_state.multiple_only, issue 23 item 5) the
- * same pipeline runs on layered materials: the medium step gives each voxel its layers' and
- * core's coefficients and the part of the first scattering's source that scatters again
- * (multiple_medium), by which the sources are scaled after injection, so that the solution is
- * the light of scattering orders 2 and up (the march gives order 1).
+ * Layered materials (nacre_layering): the medium step gives each voxel the mean of its layers'
+ * and core's coefficients over its cell (layered_medium). For the layered method's multiple
+ * scattering (nc_diff_state.multiple_only, issue 23 item 5) it also gives the part of the first
+ * scattering's source that scatters again, by which the sources are scaled after injection, so
+ * that the solution is the light of scattering orders 2 and up (the march gives order 1).
  *
  * Units: world space, scene units (pipeline.h). Timings go to the VOXELIZE, MEDIUM (coefficients
  * per voxel), TSM, INJECT and PROPAGATE (solver setup and solves, exitance) stages; each counts
@@ -275,9 +275,9 @@ static inline float escape_at(const float table[ESC_N + 1], float tau)
     return table[i] + f * (table[i + 1] - table[i]);
 }
 
-/* The medium of an object whose solution stands for multiple scattering only (the layered
- * method's, o->multiple_only), after nc_medium_eval put the core's coefficients in eval_a and
- * eval_s at the n rest points.
+/* The medium of an object with a layered material, after nc_medium_eval put the core's
+ * coefficients in eval_a and eval_s at the n rest points; `keep` (NULL unless the solution
+ * stands for multiple scattering only, o->multiple_only) gets the sources' factor below.
  *
  * Coefficients: each voxel takes the mean of the reduced coefficients sigma_a and
  * sigma_s (1 - g) over LAYER_SUB^3 points of its cell, each point those of the layer it lies in
@@ -297,7 +297,7 @@ static inline float escape_at(const float table[ESC_N + 1], float tau)
  * straight path to the surface through the layers at the point's uv (mean over the subsamples
  * near the surface, the centre deeper down). `to_rest`: the linear map of world offsets into
  * rest space (NULL for deformed objects: the centre only, the rest map being known there). */
-static nacre_result multiple_medium(nc_diff_object *o, const nacre_scene *s, const nc_object_rec *obj,
+static nacre_result layered_medium(nc_diff_object *o, const nacre_scene *s, const nc_object_rec *obj,
                                     const nacre_material_desc *m, size_t n, const nc_mat4 *to_rest, float *keep)
 {
 #ifdef NACRE_HAVE_EMBREE
@@ -368,7 +368,7 @@ static nacre_result multiple_medium(nc_diff_object *o, const nacre_scene *s, con
                 for (int c = 0; c < 3; c++) {
                     sa[c] += j < stack.count ? layers[j].sigma_a[c] : core_a[c];
                     ssp[c] += j < stack.count ? layers[j].sigma_s[c] * (1.0f - layers[j].g) : core_sp[c];
-                    if (!isfinite(dq))
+                    if (!isfinite(dq) || !keep)
                         continue;
                     /* Reduced optical depth of the straight path up to the surface. */
                     float tau = 0.0f, top = 0.0f;
@@ -388,7 +388,8 @@ static nacre_result multiple_medium(nc_diff_object *o, const nacre_scene *s, con
                 o->eval_a[3 * k + c] = a;
                 /* eval_s holds sigma_s with the core's g: the caller applies (1 - g) */
                 o->eval_s[3 * k + c] = sp / core_g;
-                keep[3 * k + c] = (a + sp > 0.0f ? sp / (a + sp) : 0.0f) * (1.0f - e[c] / (float)points);
+                if (keep)
+                    keep[3 * k + c] = (a + sp > 0.0f ? sp / (a + sp) : 0.0f) * (1.0f - e[c] / (float)points);
             }
         }
         nc_locator_destroy(o->ctx, loc);
@@ -398,21 +399,21 @@ static nacre_result multiple_medium(nc_diff_object *o, const nacre_scene *s, con
 #else
     (void)s, (void)obj, (void)m, (void)n, (void)to_rest, (void)keep;
     return nc_fail(o->ctx, NACRE_ERROR_UNSUPPORTED,
-                   "diffusion: multiple scattering under the layered method is not implemented without Embree "
-                   "(it finds each voxel's depth below the surface)");
+                   "diffusion: layered materials are not implemented without Embree (it finds each voxel's "
+                   "depth below the surface)");
 #endif
 }
 
 /* Medium per voxel: constants for homogeneous materials; rest-pose evaluation otherwise; a
- * layered material (only the layered method's multiple scattering asks for one) per voxel from
- * its layers and core (layered_coefficients). */
+ * layered material per voxel from its layers and core (layered_medium). */
 nacre_result nc_diff_object_medium(nc_diff_object *o, const nacre_scene *s, uint32_t index, bool face_mode)
 {
     const nc_object_rec *obj = &s->objects[index];
     const nacre_material_desc *m = &s->materials[obj->desc.material.id - 1];
     const bool multiple = o->multiple_only;
+    const bool layered = multiple || m->layering.count > 0;
     o->medium_valid = o->light_valid = o->lit = false;
-    o->heterogeneous = nc_medium_heterogeneous(m) || multiple;
+    o->heterogeneous = nc_medium_heterogeneous(m) || layered;
     if (o->eta != m->eta || o->fresnel_diffuse == 0.0f) {
         o->eta = m->eta;
         o->fdr = (float)nc_fresnel_fdr(m->eta);
@@ -460,12 +461,11 @@ nacre_result nc_diff_object_medium(nc_diff_object *o, const nacre_scene *s, uint
         }
         nc_medium_eval(s, m, o->rest, n, o->eval_a, o->eval_s);
         float *keep = NULL;
-        if (multiple) {
-            /* per rest point, then per cell into ms_keep */
-            keep = nc_alloc(o->ctx, (n > 0 ? n : 1) * 3 * sizeof(float));
-            res = keep ? NACRE_OK : NACRE_ERROR_OUT_OF_MEMORY;
-            if (res == NACRE_OK)
-                res = multiple_medium(o, s, obj, m, n, obj->desc.deformer_count == 0 ? &to_rest : NULL, keep);
+        if (layered) {
+            /* keep: per rest point, then per cell into ms_keep (multiple scattering only) */
+            if (multiple && !(keep = nc_alloc(o->ctx, (n > 0 ? n : 1) * 3 * sizeof(float))))
+                return NACRE_ERROR_OUT_OF_MEMORY;
+            res = layered_medium(o, s, obj, m, n, obj->desc.deformer_count == 0 ? &to_rest : NULL, keep);
             if (res != NACRE_OK) {
                 nc_free(o->ctx, keep);
                 return res;

@@ -38,14 +38,6 @@ static nacre_result diffusion_create(nacre_context *ctx, void **state)
 static nacre_result diffusion_render(void *state, nc_frame *f)
 {
     const nacre_scene *s = f->scene;
-    for (uint32_t i = 0; i < s->object_count; i++) {
-        const nacre_material_desc *m = nc_scene_material(s, s->objects[i].desc.material);
-        if (m && m->type == NACRE_MATERIAL_TRANSLUCENT && m->layering.count > 0)
-            return nc_fail(f->ctx, NACRE_ERROR_UNSUPPORTED,
-                           "render: object '%s' has a layered material: layers are not implemented in the "
-                           "diffusion method (use --method pathtrace)",
-                           s->objects[i].name ? s->objects[i].name : "(unnamed)");
-    }
     nacre_result res = nc_raster_frame_prepare(f->raster, s, f->settings, f->stats);
     if (res != NACRE_OK)
         return res;

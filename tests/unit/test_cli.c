@@ -130,11 +130,12 @@ static void test_render_errors(void)
     CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
     CHECK(exists(outpng));
     remove(outpng);
-    /* A layered material under a method that has no layers yet: the same. */
-    snprintf(args, sizeof(args), "render %s/examples/layered.json --method diffusion -o %s", NACRE_SOURCE_DIR, outpng);
-    CHECK(run(args, out, sizeof(out), err, sizeof(err)) != 0);
-    CHECK(strstr(err, "object 'layered sphere' has a layered material") != NULL);
-    CHECK(!exists(outpng));
+    /* and with the diffusion method (its voxels average the layers) */
+    snprintf(args, sizeof(args), "render %s/examples/layered.json --method diffusion --size 40x30 -o %s",
+             NACRE_SOURCE_DIR, outpng);
+    CHECK(run(args, out, sizeof(out), err, sizeof(err)) == 0);
+    CHECK(exists(outpng));
+    remove(outpng);
     /* Path tracing with its variance image; --variance needs the path tracer. */
     char varexr[600];
     snprintf(varexr, sizeof(varexr), "%s/var.exr", TMP);

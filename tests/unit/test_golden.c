@@ -9,8 +9,8 @@
  *   <name>.pathtrace.sd.exr       its per-pixel standard deviation of the mean, half
  *
  * all at 160 pixels wide. Diffusion is skipped, with a note, for scenes without a translucent
- * object (it would equal phong) and for layered materials (not implemented by that method); the
- * path tracer for builds without Embree.
+ * object (it would equal phong) and for layered materials in builds without Embree (the voxels'
+ * depths below the surface need it); the path tracer for builds without Embree.
  *
  * Phong and diffusion tolerance: the renders are deterministic, but optimisation levels, FMA
  * contraction (the x86-64-v3 and the portable build) and sanitizer builds may move a few

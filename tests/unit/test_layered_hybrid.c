@@ -233,6 +233,78 @@ static void test_none_is_single(void)
     nacre_scene_destroy(s);
 }
 
+/* The diffusion method on a layered material solves on each voxel's mean of its layers' and
+ * core's coefficients: a layer equal to the core changes nothing, a layer deeper than the ball
+ * is the whole medium, and the skin's thin layers change the image. */
+static nacre_scene *two_media(const char *core, const char *layer, double depth)
+{
+    char layers[256] = "", buf[4096];
+    if (layer)
+        snprintf(layers, sizeof(layers), "\"layers\": [{\"preset\": \"%s\", \"depth\": %g}],", layer, depth);
+    snprintf(buf, sizeof(buf),
+             "{\"units\": \"mm\","
+             " \"camera\": {\"type\": \"perspective\", \"position\": [0, 11, 33], \"target\": [0, 6, 0], \"fov\": 28},"
+             " \"environment\": [0, 0, 0],"
+             " \"materials\": {\"skin\": {\"preset\": \"%s\", \"eta\": 1.4, %s \"specular\": 0}},"
+             " \"lights\": [{\"type\": \"directional\", \"direction\": [-0.5, -0.6, -0.62], \"irradiance\": [3, 2.9, 2.7]}],"
+             " \"objects\": [{\"name\": \"ball\", \"shape\": {\"type\": \"sphere\", \"radius\": 6, \"segments\": 64,"
+             "   \"rings\": 32}, \"material\": \"skin\", \"transform\": {\"translate\": [0, 6, 0]}}]}",
+             core, layers);
+    return load(buf);
+}
+
+/* Largest per-pixel difference relative to the brightest value of b. */
+static double max_diff(const nacre_image *a, const nacre_image *b)
+{
+    double peak = 0, d = 0;
+    for (int y = 0; y < H; y++)
+        for (int x = 0; x < W; x++)
+            for (int c = 0; c < 3; c++) {
+                peak = fmax(peak, px(b, x, y, c));
+                d = fmax(d, fabs(px(a, x, y, c) - px(b, x, y, c)));
+            }
+    return peak > 0 ? d / peak : INFINITY;
+}
+
+static void test_diffusion_of_layers(void)
+{
+#ifdef NACRE_HAVE_EMBREE
+    nacre_scene *skin2 = two_media("skin2", NULL, 0), *same = two_media("skin2", "skin2", 1.5);
+    nacre_scene *skin1 = two_media("skin1", NULL, 0), *deep = two_media("skin2", "skin1", 20);
+    char buf[4096];
+    nacre_scene *layered = load(scene_json(buf, sizeof(buf), "", true));
+    nacre_renderer *r = NULL;
+    CHECK(nacre_renderer_create(ctx, &r) == NACRE_OK);
+    nacre_image a = {0}, b = {0}, c = {0}, d = {0}, e = {0};
+    nacre_render_settings rs = settings(NACRE_METHOD_DIFFUSION);
+    bool ok = skin2 && same && skin1 && deep && layered && r;
+    ok = ok && render(r, skin2, &rs, &a, NULL) && render(r, same, &rs, &b, NULL);
+    ok = ok && render(r, skin1, &rs, &c, NULL) && render(r, deep, &rs, &d, NULL);
+    ok = ok && render(r, layered, &rs, &e, NULL);
+    CHECK(ok);
+    if (ok) {
+        double same_d = max_diff(&b, &a), deep_d = max_diff(&d, &c), thin_d = max_diff(&e, &a);
+        printf("diffusion of layers: same as core %.2e, deep layer %.2e, thin skin layers %.3f\n", same_d, deep_d,
+               thin_d);
+        /* Float rounding of the heterogeneous path against the constant one. */
+        CHECK(same_d < 1e-3);
+        CHECK(deep_d < 1e-3);
+        CHECK(thin_d > 0.05);
+    }
+    nacre_image_free(ctx, &a);
+    nacre_image_free(ctx, &b);
+    nacre_image_free(ctx, &c);
+    nacre_image_free(ctx, &d);
+    nacre_image_free(ctx, &e);
+    nacre_renderer_destroy(r);
+    nacre_scene_destroy(skin2);
+    nacre_scene_destroy(same);
+    nacre_scene_destroy(skin1);
+    nacre_scene_destroy(deep);
+    nacre_scene_destroy(layered);
+#endif
+}
+
 /* Unknown values name the field; the CLI exits 2 with one line; a saved scene keeps the option. */
 static void test_bad_input_and_save(void)
 {
@@ -298,6 +370,7 @@ int main(void)
     CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
     test_bad_input_and_save();
     test_none_is_single();
+    test_diffusion_of_layers();
     test_against_pathtrace();
     nacre_context_destroy(ctx);
     return TEST_MAIN_END();

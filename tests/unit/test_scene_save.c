@@ -135,8 +135,7 @@ static nacre_result render(nacre_scene *scene, double time, nacre_method method,
     return nacre_render(scene, &rs, img, NULL);
 }
 
-/* Phong and diffusion images of the two scenes are bit-identical (or both methods fail alike:
- * diffusion refuses layered materials). */
+/* Phong and diffusion images of the two scenes are bit-identical (or both methods fail alike). */
 static void check_same_images(nacre_context *ctx, nacre_scene *a, double ta, nacre_scene *b,
                               double tb, const char *what)
 {
