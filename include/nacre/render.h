@@ -363,6 +363,9 @@ typedef struct nacre_gltf_options {
     float unit_mm;       /* millimetres per scene unit to import into; 0: metres (glTF's own) */
     bool skip_lights;    /* add none of the file's lights */
     bool skip_camera;    /* leave the scene's camera alone */
+    bool thickness_layer; /* a translucent material's KHR_materials_volume thickness texture
+                             becomes a one-layer depth map (docs/scene-format.md); default: not
+                             read, the medium fills the mesh as glTF defines it */
 } nacre_gltf_options;
 
 /* What an import mapped. Extension names are those the file lists in extensionsUsed. */

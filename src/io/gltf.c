@@ -48,6 +48,9 @@
 /* glTF has no scattering coefficient; the default for translucent materials, per millimetre
  * (the order of the measured materials of nacre's presets, which have sigma_s' 0.5..2.7/mm). */
 #define GLTF_SIGMA_S_PER_MM 1.0f
+/* With options->thickness_layer, the scattering left in the core under the thickness layer, as a
+ * part of the layer's: a positive extinction that the diffusion method can still solve for. */
+#define GLTF_CORE_SCATTERING 0.01f
 
 /* Extensions nacre maps; a file may require any of these. */
 static const char *const mapped_extensions[] = {
@@ -807,47 +810,51 @@ static unsigned char *image_bytes(gltf_state *g, int i, size_t *size, char **pat
     return b;
 }
 
-/* The scene texture of material `mi`'s pbrMetallicRoughness.baseColorTexture (sRGB PNG or JPEG
- * decoded to linear), in *out; id 0 when it has none or it cannot be used here, which is warned
- * about (another image format; texCoord other than 0, nacre keeps TEXCOORD_0 only). */
-static nacre_result base_color_texture(gltf_state *g, const cJSON *m, int mi, nacre_texture *out)
+/* The glTF image behind a material's texture reference `info` (`what`: its key, for messages):
+ * *ii its index, -1 when the reference cannot be used here (texCoord other than 0: nacre keeps
+ * TEXCOORD_0 only; a texture without a source), which is warned about. */
+static nacre_result texture_source(gltf_state *g, const cJSON *info, int mi, const char *what, int *ii)
 {
-    out->id = 0;
-    const cJSON *info = get(get(m, "pbrMetallicRoughness"), "baseColorTexture");
-    if (!info)
-        return NACRE_OK;
+    *ii = -1;
     const cJSON *tex_index = get(info, "index");
     const cJSON *textures = get(g->root, "textures");
     if (!cJSON_IsNumber(tex_index) || tex_index->valuedouble < 0 || tex_index->valuedouble >= array_size(textures) ||
         tex_index->valuedouble != floor(tex_index->valuedouble))
-        return nc_fail(g->ctx, NACRE_ERROR_PARSE,
-                       "%s: materials[%d].pbrMetallicRoughness.baseColorTexture.index: out of range (%d textures)",
-                       g->path, mi, array_size(textures));
+        return nc_fail(g->ctx, NACRE_ERROR_PARSE, "%s: materials[%d].%s.index: out of range (%d textures)", g->path,
+                       mi, what, array_size(textures));
     if (num(info, "texCoord", 0) != 0) {
-        nc_warn(g->ctx, "%s: materials[%d]: baseColorTexture uses TEXCOORD_%g; nacre keeps TEXCOORD_0 only, the "
-                        "texture was ignored", g->path, mi, (double)num(info, "texCoord", 0));
+        nc_warn(g->ctx, "%s: materials[%d]: %s uses TEXCOORD_%g; nacre keeps TEXCOORD_0 only, the texture was ignored",
+                g->path, mi, what, (double)num(info, "texCoord", 0));
         return NACRE_OK;
     }
     int ti = (int)tex_index->valuedouble;
     const cJSON *source = get(cJSON_GetArrayItem(textures, ti), "source");
     if (!cJSON_IsNumber(source)) {
-        nc_warn(g->ctx, "%s: textures[%d]: no source image nacre can read (only PNG is decoded); the base colour "
-                        "texture of materials[%d] was ignored", g->path, ti, mi);
+        nc_warn(g->ctx, "%s: textures[%d]: no source image nacre can read (only PNG and JPEG are decoded); the %s of "
+                        "materials[%d] was ignored", g->path, ti, what, mi);
         return NACRE_OK;
     }
-    int ii = (int)source->valuedouble;
-    if (ii < 0 || ii >= g->image_count || source->valuedouble != floor(source->valuedouble))
+    if (source->valuedouble < 0 || source->valuedouble >= g->image_count ||
+        source->valuedouble != floor(source->valuedouble))
         return nc_fail(g->ctx, NACRE_ERROR_PARSE, "%s: textures[%d].source: out of range (%d images)", g->path, ti,
                        g->image_count);
-    if (g->image_textures[ii].id != 0) {
-        *out = g->image_textures[ii];
-        return NACRE_OK;
-    }
+    *ii = (int)source->valuedouble;
+    return NACRE_OK;
+}
+
+/* Image `ii` decoded (PNG or JPEG; sRGB to linear when `srgb`, else as data) into *img, and the
+ * absolute path of its file in *path (NULL when it is embedded). Another format leaves *img
+ * empty with a warning. */
+static nacre_result decode_image(gltf_state *g, int ii, int mi, const char *what, bool srgb, nacre_image *img,
+                                 char **path)
+{
+    *img = (nacre_image){0};
+    *path = NULL;
     size_t size = 0;
-    char *path = NULL;
-    unsigned char *bytes = image_bytes(g, ii, &size, &path);
+    char *file = NULL;
+    unsigned char *bytes = image_bytes(g, ii, &size, &file);
     if (!bytes) {
-        nc_free(g->ctx, path);
+        nc_free(g->ctx, file);
         nacre_result r = nacre_context_last_result(g->ctx);
         return r != NACRE_OK ? r : NACRE_ERROR_OUT_OF_MEMORY;
     }
@@ -856,26 +863,91 @@ static nacre_result base_color_texture(gltf_state *g, const cJSON *m, int mi, na
     bool png = size >= 8 && memcmp(bytes, png_sig, 8) == 0;
     bool jpeg = size >= 3 && bytes[0] == 0xFF && bytes[1] == 0xD8 && bytes[2] == 0xFF;
     if (!png && !jpeg) {
-        nc_warn(g->ctx, "%s: images[%d]: neither PNG nor JPEG; the base colour texture of materials[%d] was ignored",
-                g->path, ii, mi);
+        nc_warn(g->ctx, "%s: images[%d]: neither PNG nor JPEG; the %s of materials[%d] was ignored", g->path, ii, what,
+                mi);
     } else {
         char name[600];
         snprintf(name, sizeof(name), "%s: images[%d]", g->path, ii);
-        nacre_image img = {0};
-        r = png ? nc_image_read_png_memory(g->ctx, name, bytes, size, true, &img)
-                : nc_image_read_jpeg_memory(g->ctx, name, bytes, size, true, &img);
-        if (r == NACRE_OK)
-            r = nacre_scene_add_texture(g->scene, &img, out);
-        nacre_image_free(g->ctx, &img);
-        if (r == NACRE_OK && path) {
-            char *absolute = nc_absolute_path(g->ctx, path);
-            r = absolute ? nc_scene_set_texture_source(g->scene, *out, absolute) : NACRE_ERROR_OUT_OF_MEMORY;
-            nc_free(g->ctx, absolute);
-        }
+        r = png ? nc_image_read_png_memory(g->ctx, name, bytes, size, srgb, img)
+                : nc_image_read_jpeg_memory(g->ctx, name, bytes, size, srgb, img);
+        if (r == NACRE_OK && file && !(*path = nc_absolute_path(g->ctx, file)))
+            r = NACRE_ERROR_OUT_OF_MEMORY;
+        if (r != NACRE_OK)
+            nacre_image_free(g->ctx, img);
+    }
+    nc_free(g->ctx, bytes);
+    nc_free(g->ctx, file);
+    return r;
+}
+
+/* The scene texture of material `mi`'s pbrMetallicRoughness.baseColorTexture (sRGB PNG or JPEG
+ * decoded to linear), in *out; id 0 when it has none or it cannot be used here (warned). */
+static nacre_result base_color_texture(gltf_state *g, const cJSON *m, int mi, nacre_texture *out)
+{
+    out->id = 0;
+    const char *what = "pbrMetallicRoughness.baseColorTexture";
+    const cJSON *info = get(get(m, "pbrMetallicRoughness"), "baseColorTexture");
+    int ii = -1;
+    nacre_result r = info ? texture_source(g, info, mi, what, &ii) : NACRE_OK;
+    if (r != NACRE_OK || ii < 0)
+        return r;
+    if (g->image_textures[ii].id != 0) {
+        *out = g->image_textures[ii];
+        return NACRE_OK;
+    }
+    nacre_image img = {0};
+    char *path = NULL;
+    r = decode_image(g, ii, mi, what, true, &img, &path);
+    if (r == NACRE_OK && img.pixels) {
+        r = nacre_scene_add_texture(g->scene, &img, out);
+        if (r == NACRE_OK && path)
+            r = nc_scene_set_texture_source(g->scene, *out, path);
         if (r == NACRE_OK)
             g->image_textures[ii] = *out;
     }
-    nc_free(g->ctx, bytes);
+    nacre_image_free(g->ctx, &img);
+    nc_free(g->ctx, path);
+    return r;
+}
+
+/* With options->thickness_layer, a translucent material's KHR_materials_volume.thicknessTexture
+ * becomes a one-layer depth map (docs/scene-format.md, "glTF 2.0 scenes"): the layer is the
+ * material's medium, `thicknessFactor` deep where the texture's G is 1; under it the core keeps
+ * the attenuation and a hundredth of the scattering. The map is read as data and its G channel
+ * (glTF's thickness) copied into R (the first layer's channel); not shared with base colours,
+ * which are sRGB-decoded. */
+static nacre_result thickness_layer(gltf_state *g, const cJSON *m, int mi, nacre_material_desc *d)
+{
+    const char *what = "extensions.KHR_materials_volume.thicknessTexture";
+    const cJSON *info = get(get(get(m, "extensions"), "KHR_materials_volume"), "thicknessTexture");
+    int ii = -1;
+    nacre_result r = info ? texture_source(g, info, mi, what, &ii) : NACRE_OK;
+    if (r != NACRE_OK || ii < 0)
+        return r;
+    nacre_image img = {0};
+    char *path = NULL;
+    r = decode_image(g, ii, mi, what, false, &img, &path);
+    if (r == NACRE_OK && img.pixels) {
+        if (img.channels >= 2)
+            for (int32_t y = 0; y < img.height; y++)
+                for (int32_t x = 0; x < img.width; x++) {
+                    float *p = img.pixels + img.stride * (size_t)y + (size_t)img.channels * (size_t)x;
+                    p[0] = p[1];
+                }
+        nacre_layer *layer = &d->layering.layers[0];
+        *layer = (nacre_layer){.g = d->g, .depth = num(get(get(m, "extensions"), "KHR_materials_volume"),
+                                                       "thicknessFactor", 0.0f) * g->scale};
+        for (int c = 0; c < 3; c++) {
+            layer->sigma_a[c] = d->sigma_a[c];
+            layer->sigma_s[c] = d->sigma_s[c];
+            d->sigma_s[c] *= GLTF_CORE_SCATTERING;
+        }
+        d->layering.count = 1;
+        /* No source file: the map is not the file's image (G moved to R), so a saved scene
+         * writes it out. */
+        r = nacre_scene_add_texture(g->scene, &img, &d->layering.depth_map);
+    }
+    nacre_image_free(g->ctx, &img);
     nc_free(g->ctx, path);
     return r;
 }
@@ -902,6 +974,8 @@ static nacre_result add_materials(gltf_state *g, nacre_material **handles_out, i
         /* The base colour texture multiplies the opaque diffuse colour; a translucent material
          * has none (its colour is its medium's) */
         nacre_result r = translucent ? NACRE_OK : base_color_texture(g, m, i, &d.diffuse_map);
+        if (r == NACRE_OK && translucent && g->opt && g->opt->thickness_layer)
+            r = thickness_layer(g, m, i, &d);
         if (r == NACRE_OK)
             r = nacre_scene_add_material(g->scene, &d, &h[i]);
         if (r != NACRE_OK)

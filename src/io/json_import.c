@@ -12,10 +12,29 @@
 
 void nc_json_parse_import(loader *ld, const cJSON *root, bool has_units)
 {
-    const char *rel = nc_json_get_string(ld, root, "import");
-    if (!rel || ld->err)
+    /* "import": "model.glb", or {"file": "model.glb", "thickness": "layer" | "ignore"} */
+    const cJSON *spec = nc_json_member(root, "import");
+    if (!spec)
         return;
+    bool thickness_layer = false;
+    const char *rel = NULL;
     size_t mark = nc_json_push_key(ld, "import");
+    if (cJSON_IsObject(spec)) {
+        static const char *const keys[] = {"file", "thickness"};
+        static const char *const thickness[] = {"ignore", "layer"};
+        nc_json_check_keys(ld, spec, keys, 2);
+        if (nc_json_require(ld, spec, "file"))
+            rel = nc_json_get_string(ld, spec, "file");
+        thickness_layer = nc_json_get_choice(ld, spec, "thickness", "thickness mapping", thickness, 2) == 1;
+    } else {
+        nc_json_pop(ld, mark);
+        rel = nc_json_get_string(ld, root, "import");
+        mark = nc_json_push_key(ld, "import");
+    }
+    if (!rel || ld->err) {
+        nc_json_pop(ld, mark);
+        return;
+    }
     if (!nc_gltf_is_path(rel)) {
         char buf[NAME_SHOWN_MAX + 8];
         nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "\"%s\": expected a .gltf or .glb file",
@@ -39,6 +58,7 @@ void nc_json_parse_import(loader *ld, const cJSON *root, bool has_units)
     opt.unit_mm = ld->unit_mm;
     opt.skip_lights = nc_json_member(root, "lights") != NULL;
     opt.skip_camera = nc_json_member(root, "camera") != NULL;
+    opt.thickness_layer = thickness_layer;
     nacre_result r = nc_gltf_import(ld->scene, path, &opt, rep);
     if (r != NACRE_OK) {
         nc_json_fail_inner(ld, r);

@@ -116,6 +116,8 @@ static const char render_help[] =
     "  --stats             print one JSON object with per-stage timings in microseconds\n"
     "  --camera NAME       glTF: render from the camera of this name (camera or node; default:\n"
     "                      the first); glTF is in metres, lights in lux and candela (683 lm/W)\n"
+    "  --thickness-layer   glTF: a translucent material's thickness texture becomes a one-layer\n"
+    "                      depth map (docs/scene-format.md; default: the medium fills the mesh)\n"
     "  --save-scene FILE   also write the scene as a .json scene file, with this run's settings\n"
     "                      (size, method, time, ...) in its render block, before rendering;\n"
     "                      `nacre render FILE` then renders the same image\n"
@@ -225,6 +227,7 @@ static int cmd_render(int argc, char **argv)
     const char *scene_path = NULL, *out_path = "nacre.png", *method_name = NULL, *variance_path = NULL,
                *save_path = NULL;
     const char *solver_name = NULL, *source_name = NULL, *camera_name = NULL, *particles_name = NULL;
+    bool thickness_layer = false;
     nacre_particles_draw particles_draw = NACRE_PARTICLES_DRAW_BILLBOARDS;
     nacre_diffusion_solver solver = NACRE_SOLVER_MULTIGRID;
     nacre_diffusion_source source = NACRE_SOURCE_VOLUME;
@@ -373,6 +376,8 @@ static int cmd_render(int argc, char **argv)
             if (!has_value)
                 return nc_tool_usage("render", "--camera needs a camera name");
             camera_name = argv[++i];
+        } else if (strcmp(a, "--thickness-layer") == 0) {
+            thickness_layer = true;
         } else if (strcmp(a, "--exr-float") == 0) {
             exr_float = true;
         } else if (a[0] == '-' && a[1] != '\0') {
@@ -398,6 +403,9 @@ static int cmd_render(int argc, char **argv)
     const bool gltf = scene_path && (has_suffix(scene_path, ".gltf") || has_suffix(scene_path, ".glb"));
     if (camera_name && !gltf)
         return nc_tool_usage("render", "--camera needs a .gltf or .glb scene");
+    if (thickness_layer && !gltf)
+        return nc_tool_usage("render", "--thickness-layer needs a .gltf or .glb scene (a scene file says "
+                                       "\"import\": {\"file\": ..., \"thickness\": \"layer\"})");
 
     nacre_context *ctx = nc_tool_context((int)threads);
     if (!ctx)
@@ -412,7 +420,7 @@ static int cmd_render(int argc, char **argv)
     uint64_t t_start = nc_tool_now_us();
     nacre_result res;
     if (gltf)
-        res = nacre_scene_load_gltf(ctx, scene_path, &(nacre_gltf_options){.camera = camera_name}, &scene, &fs,
+        res = nacre_scene_load_gltf(ctx, scene_path, &(nacre_gltf_options){.camera = camera_name, .thickness_layer = thickness_layer}, &scene, &fs,
                                     NULL);
     else if (scene_path)
         res = nacre_scene_load_file(ctx, scene_path, &scene, &fs);
@@ -592,14 +600,15 @@ out:
 /* ---------------------------------------------------------------------------------------- */
 
 static const char info_help[] =
-    "usage: nacre info MESH [--json]\n"
+    "usage: nacre info MESH [--json] [--thickness-layer]\n"
     "Load a mesh (OBJ, PLY, glTF) and report vertex and triangle counts, bounds, surface area,\n"
     "and its topology after welding exactly coincident vertices: boundary (open) edges,\n"
     "non-manifold edges, degenerate triangles, closedness. For a glTF (.gltf, .glb) also its\n"
     "scene: meshes, materials (opaque or translucent), lights, cameras, and which extensions\n"
     "were mapped and which ignored (each ignored one also warns on stderr).\n"
     "\n"
-    "  --json   one JSON object\n"
+    "  --json              one JSON object\n"
+    "  --thickness-layer   glTF: map thickness textures to one-layer depth maps (as render does)\n"
     "  --help, --version\n";
 
 static void print_json_string(const char *str)
@@ -660,13 +669,15 @@ static int cmd_info(int argc, char **argv)
     nacre_gltf_report gltf_report;
     memset(&gltf_report, 0, sizeof(gltf_report));
     const char *path = NULL;
-    bool json = false;
+    bool json = false, thickness_layer = false;
     int code;
     for (int i = 0; i < argc; i++) {
         if (nc_tool_common_flag("info", argv[i], info_help, &code))
             return code;
         if (strcmp(argv[i], "--json") == 0)
             json = true;
+        else if (strcmp(argv[i], "--thickness-layer") == 0)
+            thickness_layer = true;
         else if (argv[i][0] == '-')
             return nc_tool_usage("info", "unknown option '%s'", argv[i]);
         else if (!path)
@@ -697,7 +708,8 @@ static int cmd_info(int argc, char **argv)
     if (gltf) {
         t0 = nc_tool_now_us();
         nacre_scene *scene = NULL;
-        if (nacre_scene_load_gltf(ctx, path, NULL, &scene, NULL, &gltf_report) != NACRE_OK) {
+        if (nacre_scene_load_gltf(ctx, path, &(nacre_gltf_options){.thickness_layer = thickness_layer}, &scene, NULL,
+                                  &gltf_report) != NACRE_OK) {
             nc_tool_fail(ctx);
             goto out;
         }
@@ -765,7 +777,8 @@ static const char compare_help[] =
     "left out of the metrics; if either image has any, compare prints the metrics and an error\n"
     "and exits with status 2.\n"
     "\n"
-    "  --json   one JSON object\n"
+    "  --json              one JSON object\n"
+    "  --thickness-layer   glTF: map thickness textures to one-layer depth maps (as render does)\n"
     "  --help, --version\n";
 
 static void print_number(double v)

@@ -27,6 +27,7 @@ static const char view_help[] =
     "  --spp N             samples per pixel each path-traced frame adds (default 1)\n"
     "  --threads N         worker threads (default: all cores)\n"
     "  --camera NAME       glTF: view from the camera of this name (default: the first)\n"
+    "  --thickness-layer   glTF: thickness textures become one-layer depth maps (see nacre render)\n"
     "headless (tests, scripts):\n"
     "  --frames N          render N frames, then exit (the timeline steps 1/30 s per frame)\n"
     "  --script FILE       timed events, one per line: FRAME COMMAND ARGS (README, `nacre view`)\n"
@@ -44,6 +45,7 @@ static const char view_help[] =
 typedef struct view_options {
     const char *scene, *method, *script, *screenshot, *window_shot, *save_scene, *camera;
     long width, height, frames, voxel_res, spp, threads;
+    bool thickness_layer;
 } view_options;
 
 /* Case-insensitive suffix test (file extensions). */
@@ -82,6 +84,8 @@ static int parse_options(int argc, char **argv, view_options *o, bool *done)
             o->method = argv[++i];
         } else if (strcmp(a, "--camera") == 0 && v) {
             o->camera = argv[++i];
+        } else if (strcmp(a, "--thickness-layer") == 0) {
+            o->thickness_layer = true;
         } else if (strcmp(a, "--script") == 0 && v) {
             o->script = argv[++i];
         } else if (strcmp(a, "--screenshot") == 0 && v) {
@@ -112,8 +116,11 @@ static int parse_options(int argc, char **argv, view_options *o, bool *done)
     }
     if ((o->screenshot || o->window_shot || o->save_scene) && !o->frames)
         return nc_tool_usage("view", "--screenshot, --window-shot and --save-scene need --frames N (headless run)");
-    if (o->camera && !(o->scene && (ends_with(o->scene, ".glb") || ends_with(o->scene, ".gltf"))))
+    const bool gltf = o->scene && (ends_with(o->scene, ".glb") || ends_with(o->scene, ".gltf"));
+    if (o->camera && !gltf)
         return nc_tool_usage("view", "--camera needs a .gltf or .glb scene");
+    if (o->thickness_layer && !gltf)
+        return nc_tool_usage("view", "--thickness-layer needs a .gltf or .glb scene");
     return 0;
 }
 
@@ -123,8 +130,10 @@ static bool open_view(nc_view *v, nacre_context *ctx, const view_options *o)
     nacre_scene *scene = NULL;
     nacre_scene_file_settings fs = {.render = nacre_render_settings_defaults()};
     nacre_result res;
-    if (o->camera)
-        res = nacre_scene_load_gltf(ctx, o->scene, &(nacre_gltf_options){.camera = o->camera}, &scene, &fs, NULL);
+    if (o->camera || o->thickness_layer)
+        res = nacre_scene_load_gltf(ctx, o->scene,
+                                    &(nacre_gltf_options){.camera = o->camera, .thickness_layer = o->thickness_layer},
+                                    &scene, &fs, NULL);
     else if (o->scene)
         res = nacre_scene_load_file(ctx, o->scene, &scene, &fs);
     else
