@@ -109,10 +109,10 @@ typedef struct nacre_layered_settings {
                                               radius -log(eps) / sigma_t of the fitted planes and
                                               the depth where marching stops */
     nacre_layered_integration integration; /* default ANALYTIC */
-    float half_res;                        /* 0 (default): every pixel is marched; in (0, 1): pixels
-                                              of even x and y are, and a pixel between them takes
-                                              their mean where they show its object at a close depth
-                                              and normal and their radiances differ by at most
+    float half_res;                        /* 0: every pixel is marched; in (0, 1) (default 0.05):
+                                              pixels of even x and y are, and a pixel between them
+                                              takes their mean where they show its object at a close
+                                              depth and normal and their radiances differ by at most
                                               half_res times the mean (else it is marched too) */
 } nacre_layered_settings;
 

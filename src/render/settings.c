@@ -26,6 +26,7 @@ nacre_render_settings nacre_render_settings_defaults(void)
     s.layered.samples = 16;
     s.layered.epsilon = 0.01f;
     s.layered.integration = NACRE_LAYERED_ANALYTIC;
+    s.layered.half_res = 0.05f;
     s.volumetrics.mode = NACRE_VOLUMETRICS_OFF;
     s.volumetrics.froxel_width = 160;
     s.volumetrics.froxel_height = 90;

@@ -502,6 +502,8 @@ static void test_half_res(void)
     rs.height = 150;
     rs.layered.samples = 4;
     rs.layered.integration = NACRE_LAYERED_ANALYTIC;
+    CHECK(rs.layered.half_res == 0.05f); /* the default */
+    rs.layered.half_res = 0;
     nacre_image full = {0}, half = {0}, phong = {0};
     CHECK(nacre_render(s, &rs, &full, NULL) == NACRE_OK);
     /* The sphere's pixels: the others are phong's */

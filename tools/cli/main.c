@@ -147,7 +147,7 @@ static const char render_help[] =
     "                      planes, -log(E) / sigma_t, and the depth where marching stops\n"
     "  --half-res T        march every other pixel in x and y, and interpolate the others where\n"
     "                      their marched neighbours agree within relative tolerance T in (0, 1)\n"
-    "                      (default 0: every pixel marched; docs/performance.md gives the error)\n"
+    "                      (default 0.05; 0 marches every pixel; docs/performance.md: the error)\n"
     "fog over phong and diffusion (docs/scene-format.md, \"Volumetrics\"):\n"
     "  --volumetrics V     off (default: analytic fog, directional lights and ambient, unshadowed)\n"
     "                      | froxel (frustum grid: every fog and light, shadow maps, the fog's own\n"
