@@ -10,7 +10,9 @@
  *             the pixel's depth, for opaque and translucent surfaces and the background alike.
  *   raymarch  (§2.3.1) the same lighting at the midpoints of raymarch_steps equal steps along
  *             each pixel's ray, integrated with the same segment integral: the froxels' check
- *             and the choice for close-ups (no grid to resolve).
+ *             and the choice for close-ups (no grid to resolve). It also draws the isosurfaces
+ *             of particle systems drawn as voxels (§3.2.2, figure 3.15; iso_shade below): the
+ *             march stops at the surface, which reflects and refracts into the medium behind it.
  * Lighting of a point (§1.2.8 - 1.2.9): the source is sigma_s (sum over lights of E p(cos) V Tr
  * + L_env), E the light's irradiance there (directional: its strength; point and spot:
  * intensity / distance^2 with the spot's falloff of scene/lights.h), p the Henyey-Greenstein
