@@ -3,10 +3,11 @@
  * One particle's density is d0 exp(-4.5 r^2 / R^2), so the level L is crossed on the sphere of
  * radius R sqrt(ln(d0 / L) / 4.5): the traced hits and normals against that sphere, the surface
  * shading of the ray-march pass against the analytic shading of the sphere (no medium: Fresnel
- * reflection of the environment, GGX highlight of the sun, the rest of the scene behind), the
- * option off (or never reached) giving the image without it bit for bit, the froxel and analytic
- * fog settings routed to the march, bad values failing with one line naming the field, and the
- * scene file round trip.
+ * reflection of the environment, GGX highlight of the sun, the rest of the scene behind; an
+ * absorbing medium: the analytic transmittances along the same rays, the refracted ones
+ * included), the option off (or never reached) giving the image without it bit for bit, one
+ * thread the same image as two, the froxel and analytic fog settings routed to the march, bad
+ * values failing with one line naming the field, and the scene file round trip.
  */
 #include "test_util.h"
 
@@ -174,7 +175,7 @@ static bool same_image(const nacre_image *a, const nacre_image *b)
 
 static void test_shading(void)
 {
-    nacre_context *ctx = make_ctx(0);
+    nacre_context *ctx = make_ctx(2);
     nacre_scene *off = load(ctx, ""), *on = load(ctx, ", \"isosurface\": {\"density\": 1, \"ior\": 1.5, \"roughness\": 0.3}");
     nacre_scene *high = load(ctx, ", \"isosurface\": {\"density\": 50}");
     CHECK(off && on && high);
@@ -259,6 +260,15 @@ static void test_shading(void)
     CHECK(outside_changed == 0);
     CHECK(sum / n < 1e-3);
     CHECK(worst < 5e-3);
+    /* One thread gives the same image as two. */
+    nacre_context *ctx1 = make_ctx(1);
+    nacre_scene *on1 = load(ctx1, ", \"isosurface\": {\"density\": 1, \"ior\": 1.5, \"roughness\": 0.3}");
+    nacre_image one = {0};
+    rs.volumetrics.mode = NACRE_VOLUMETRICS_RAYMARCH;
+    CHECK(on1 && nacre_render(on1, &rs, &one, NULL) == NACRE_OK && same_image(&img, &one));
+    nacre_image_free(ctx1, &one);
+    nacre_scene_destroy(on1);
+    nacre_context_destroy(ctx1);
     nacre_image *all[] = {&base, &img, &never, &fro, &ana};
     for (size_t i = 0; i < 5; i++)
         nacre_image_free(ctx, all[i]);
