@@ -162,6 +162,9 @@ static nacre_scene *load_absorbing(nacre_context *ctx, const char *sigma_a, cons
     return s;
 }
 
+/* The surface of the shading checks: level 1, eta 1.5, GGX alpha 0.3. */
+static const char ISO[] = ", \"isosurface\": {\"density\": 1, \"ior\": 1.5, \"roughness\": 0.3}";
+
 static nacre_scene *load(nacre_context *ctx, const char *iso) { return load_absorbing(ctx, "0", iso); }
 
 static bool same_image(const nacre_image *a, const nacre_image *b)
@@ -176,7 +179,7 @@ static bool same_image(const nacre_image *a, const nacre_image *b)
 static void test_shading(void)
 {
     nacre_context *ctx = make_ctx(2);
-    nacre_scene *off = load(ctx, ""), *on = load(ctx, ", \"isosurface\": {\"density\": 1, \"ior\": 1.5, \"roughness\": 0.3}");
+    nacre_scene *off = load(ctx, ""), *on = load(ctx, ISO);
     nacre_scene *high = load(ctx, ", \"isosurface\": {\"density\": 50}");
     CHECK(off && on && high);
     if (!off || !on || !high)
@@ -233,7 +236,8 @@ static void test_shading(void)
             if (cs < 0.3)
                 continue;
             double F = nc_fresnel_dielectric(cs, eta);
-            double hv[3] = {l[0] + v[0], l[1] + v[1], l[2] + v[2]}, hl = sqrt(hv[0] * hv[0] + hv[1] * hv[1] + hv[2] * hv[2]);
+            double hv[3] = {l[0] + v[0], l[1] + v[1], l[2] + v[2]};
+            double hl = sqrt(hv[0] * hv[0] + hv[1] * hv[1] + hv[2] * hv[2]);
             double nh = (nrm[0] * hv[0] + nrm[1] * hv[1] + nrm[2] * hv[2]) / hl;
             double lh = (l[0] * hv[0] + l[1] * hv[1] + l[2] * hv[2]) / hl;
             double nl = nrm[0] * l[0] + nrm[1] * l[1] + nrm[2] * l[2], spec = 0.0;
@@ -262,7 +266,7 @@ static void test_shading(void)
     CHECK(worst < 5e-3);
     /* One thread gives the same image as two. */
     nacre_context *ctx1 = make_ctx(1);
-    nacre_scene *on1 = load(ctx1, ", \"isosurface\": {\"density\": 1, \"ior\": 1.5, \"roughness\": 0.3}");
+    nacre_scene *on1 = load(ctx1, ISO);
     nacre_image one = {0};
     rs.volumetrics.mode = NACRE_VOLUMETRICS_RAYMARCH;
     CHECK(on1 && nacre_render(on1, &rs, &one, NULL) == NACRE_OK && same_image(&img, &one));
@@ -309,7 +313,7 @@ static void test_absorbing(void)
 {
     nacre_context *ctx = make_ctx(0);
     nacre_scene *plain = load(ctx, "");
-    nacre_scene *on = load_absorbing(ctx, "[0.05, 0.1, 0.2]", ", \"isosurface\": {\"density\": 1, \"ior\": 1.5, \"roughness\": 0.3}");
+    nacre_scene *on = load_absorbing(ctx, "[0.05, 0.1, 0.2]", ISO);
     CHECK(plain && on);
     if (!plain || !on)
         return;
@@ -345,7 +349,8 @@ static void test_absorbing(void)
             if (cs < 0.3)
                 continue;
             double F = nc_fresnel_dielectric(cs, eta);
-            double hv[3] = {l[0] + v[0], l[1] + v[1], l[2] + v[2]}, hl = sqrt(hv[0] * hv[0] + hv[1] * hv[1] + hv[2] * hv[2]);
+            double hv[3] = {l[0] + v[0], l[1] + v[1], l[2] + v[2]};
+            double hl = sqrt(hv[0] * hv[0] + hv[1] * hv[1] + hv[2] * hv[2]);
             double nh = (nrm[0] * hv[0] + nrm[1] * hv[1] + nrm[2] * hv[2]) / hl;
             double lh = (l[0] * hv[0] + l[1] * hv[1] + l[2] * hv[2]) / hl;
             double nl = nrm[0] * l[0] + nrm[1] * l[1] + nrm[2] * l[2], spec = 0.0;
