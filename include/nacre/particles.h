@@ -86,6 +86,14 @@ typedef struct nacre_particles_desc {
     float g;                      /* Henyey-Greenstein anisotropy, in (-1, 1) */
     uint32_t grid_resolution;     /* density grid samples per axis over the particles' bounds,
                                      NACRE_PARTICLES_GRID_MIN..MAX (0: the default, 128) */
+    /* Optional isosurface (seed 003 §3.2.2-3.2.3, figure 3.15): a smooth dielectric boundary
+     * where the system's trilinear density D crosses `density`, drawn by the ray-march fog pass
+     * when particles are drawn as voxels (see nacre_particles_draw). */
+    struct {
+        float density;   /* D at the surface, >= 0; 0: no surface */
+        float ior;       /* index of refraction of the inside, in [1, 4] (Fresnel, refraction) */
+        float roughness; /* GGX alpha of the lights' highlights, in [0, 1]; 0: none */
+    } isosurface;
 } nacre_particles_desc;
 
 /* How the raster methods (phong, diffusion) draw particles (nacre_render_settings.particles);
@@ -97,7 +105,10 @@ typedef struct nacre_particles_desc {
  *   SPRITES: sorted alpha-blended billboards with soft-particle depth fade (§2.2.1), each
  *     particle lit once without shadowing, the baseline the seed compares against;
  *   VOXEL: the density grid as a fog, drawn by the scene's fog passes (seed 003 §3.2: the
- *     ray-marched fog pass renders its shape; the analytic fog pass only its mean). */
+ *     ray-marched fog pass renders its shape; the analytic fog pass only its mean). A system
+ *     with an isosurface makes the ray-march pass draw all fogs whatever the volumetrics mode
+ *     (froxels cannot hold a surface); billboards, sprites and the path tracer draw such a
+ *     system's medium without its surface. */
 typedef enum nacre_particles_draw {
     NACRE_PARTICLES_DRAW_BILLBOARDS = 0,
     NACRE_PARTICLES_DRAW_SPRITES,
@@ -111,7 +122,7 @@ NACRE_API bool nacre_particles_draw_from_name(const char *name, nacre_particles_
 
 /* Defaults: a point emitter at the origin, 100 particles per second living 2 s, velocity
  * (0, 1, 0), spread 15 degrees, no gravity or drag, radius 0.2, density 1, no fade; grey smoke
- * sigma_s 1, sigma_a 0.1 per unit, g 0; grid 128^3. */
+ * sigma_s 1, sigma_a 0.1 per unit, g 0; grid 128^3; no isosurface (ior 1.33, roughness 0.2). */
 NACRE_API nacre_particles_desc nacre_particles_desc_defaults(nacre_particles_type type);
 /* Add a particle system (desc and list arrays copied, validated: a bad field fails with
  * INVALID_ARGUMENT naming it). A scene's particle systems and fogs together are at most

@@ -57,7 +57,8 @@ void nc_json_parse_particles(loader *ld, const cJSON *obj)
     static const char *const keys[] = {"type", "shape", "center", "size", "emit_radius", "rate", "lifetime",
                                        "velocity", "spread", "speed_jitter", "gravity", "drag", "radius",
                                        "radius_jitter", "radius_rate", "density", "fade", "seed", "positions",
-                                       "radii", "densities", "sigma_a", "sigma_s", "g", "grid_resolution"};
+                                       "radii", "densities", "sigma_a", "sigma_s", "g", "grid_resolution",
+                                       "isosurface"};
     static const char *const emitter_only[] = {"shape", "center", "size", "emit_radius", "rate", "lifetime",
                                                "velocity", "spread", "speed_jitter", "gravity", "drag",
                                                "radius_jitter", "radius_rate", "fade", "seed"};
@@ -109,6 +110,19 @@ void nc_json_parse_particles(loader *ld, const cJSON *obj)
     int64_t res;
     if (nc_json_get_integer(ld, obj, "grid_resolution", NACRE_PARTICLES_GRID_MIN, NACRE_PARTICLES_GRID_MAX, &res))
         d.grid_resolution = (uint32_t)res;
+    const cJSON *iso = nc_json_member(obj, "isosurface");
+    if (iso && !ld->err) {
+        static const char *const iso_keys[] = {"density", "ior", "roughness"};
+        static const range ior_range = {1.0, 4.0, false, false};
+        size_t mark = nc_json_push_key(ld, "isosurface");
+        if (nc_json_expect_object(ld, iso) && nc_json_check_keys(ld, iso, iso_keys, COUNT_OF(iso_keys)) &&
+            nc_json_require(ld, iso, "density")) {
+            nc_json_get_number(ld, iso, "density", R_POSITIVE, &d.isosurface.density);
+            nc_json_get_number(ld, iso, "ior", ior_range, &d.isosurface.ior);
+            nc_json_get_number(ld, iso, "roughness", R_UNIT, &d.isosurface.roughness);
+        }
+        nc_json_pop(ld, mark);
+    }
     float *pos = NULL, *rad = NULL, *den = NULL;
     if (type == 1 && !ld->err && nc_json_require(ld, obj, "positions")) {
         d.count = list_length(ld, obj, "positions", 0);

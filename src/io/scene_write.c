@@ -827,6 +827,13 @@ static cJSON *particles_object(writer *w, const nacre_particles_desc *d)
     add_floats(w, o, "sigma_s", d->sigma_s, 3);
     add_float(w, o, "g", d->g);
     add_uint(w, o, "grid_resolution", d->grid_resolution);
+    if (d->isosurface.density > 0.0f) {
+        cJSON *iso = cJSON_CreateObject();
+        add_float(w, iso, "density", d->isosurface.density);
+        add_float(w, iso, "ior", d->isosurface.ior);
+        add_float(w, iso, "roughness", d->isosurface.roughness);
+        add(w, o, "isosurface", iso);
+    }
     return o;
 }
 

@@ -58,6 +58,24 @@ struct nacre_scene;
 const nc_particle_set *nc_scene_particle_set(const struct nacre_scene *scene, uint32_t index,
                                              const nacre_particles_desc **desc);
 
+/* Isosurface (isosurface.c): the trilinear density at world point p (0 outside the samples). */
+float nc_particle_grid_density(const nc_particle_grid *grid, const float p[3]);
+/* The first t in [t0, t1] where the density along o + t d rises through `level`; false if the
+ * ray misses, never reaches it, or starts at or above it. */
+bool nc_particle_iso_hit(const nc_particle_grid *grid, float level, const float o[3], const float d[3], double t0,
+                         double t1, double *t_hit);
+/* The outward unit normal (minus the density's gradient) at p; false where it vanishes. */
+bool nc_particle_iso_normal(const nc_particle_grid *grid, const float p[3], float n[3]);
+/* Distance along d from p (inside) to where the ray leaves the grid's samples; 0 if outside. */
+double nc_particle_grid_exit(const nc_particle_grid *grid, const float p[3], const float d[3]);
+/* The density grid of system `index` at the last commit with its desc; NULL if none. */
+const nc_particle_grid *nc_scene_particle_grid(const struct nacre_scene *scene, uint32_t index,
+                                               const nacre_particles_desc **desc);
+/* Whether particles drawn as voxels (settings) include a system with an isosurface, which
+ * makes the ray-march fog pass draw the fogs whatever the volumetrics mode. */
+struct nacre_render_settings;
+bool nc_scene_particles_iso_drawn(const struct nacre_scene *scene, const struct nacre_render_settings *settings);
+
 /* Sum of the particles' masses, d0 (K R)^3, in double. */
 double nc_particles_mass(const nc_particle_set *set);
 

@@ -10,6 +10,8 @@
 
 #include "scene/scene.h"
 
+#include <nacre/render.h>
+
 #include <math.h>
 #include <string.h>
 
@@ -36,6 +38,8 @@ nacre_particles_desc nacre_particles_desc_defaults(nacre_particles_type type)
     d.sigma_a[0] = d.sigma_a[1] = d.sigma_a[2] = 0.1f;
     d.sigma_s[0] = d.sigma_s[1] = d.sigma_s[2] = 1.0f;
     d.grid_resolution = NACRE_PARTICLES_GRID_DEFAULT;
+    d.isosurface.ior = 1.33f;
+    d.isosurface.roughness = 0.2f;
     return d;
 }
 
@@ -245,6 +249,25 @@ const nc_particle_set *nc_scene_particle_set(const nacre_scene *s, uint32_t inde
     if (desc)
         *desc = &s->particles[index].desc;
     return &s->particles[index].set;
+}
+
+const nc_particle_grid *nc_scene_particle_grid(const nacre_scene *s, uint32_t index, const nacre_particles_desc **desc)
+{
+    if (!s->particles_built || index >= s->particles_count || s->particles[index].grid.dims[0] == 0)
+        return NULL;
+    if (desc)
+        *desc = &s->particles[index].desc;
+    return &s->particles[index].grid;
+}
+
+bool nc_scene_particles_iso_drawn(const nacre_scene *s, const nacre_render_settings *settings)
+{
+    if (settings->particles != NACRE_PARTICLES_DRAW_VOXEL)
+        return false;
+    for (uint32_t i = 0; i < s->particles_count; i++)
+        if (s->particles[i].desc.isosurface.density > 0.0f)
+            return true;
+    return false;
 }
 
 static const char *const draw_names[] = {"billboards", "sprites", "voxel"};

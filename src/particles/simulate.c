@@ -53,6 +53,14 @@ nacre_result nc_particles_check(nacre_context *ctx, const nacre_particles_desc *
         (d->grid_resolution < NACRE_PARTICLES_GRID_MIN || d->grid_resolution > NACRE_PARTICLES_GRID_MAX))
         return nc_fail(ctx, bad, "particles: grid_resolution: must be %u..%u (got %u)", NACRE_PARTICLES_GRID_MIN,
                        NACRE_PARTICLES_GRID_MAX, d->grid_resolution);
+    if (!(isfinite(d->isosurface.density) && d->isosurface.density >= 0))
+        return nc_fail(ctx, bad, "particles: isosurface.density: must be finite and >= 0 (got %g)",
+                       (double)d->isosurface.density);
+    if (d->isosurface.density > 0 && !(d->isosurface.ior >= 1 && d->isosurface.ior <= 4))
+        return nc_fail(ctx, bad, "particles: isosurface.ior: must be in [1, 4] (got %g)", (double)d->isosurface.ior);
+    if (d->isosurface.density > 0 && !(d->isosurface.roughness >= 0 && d->isosurface.roughness <= 1))
+        return nc_fail(ctx, bad, "particles: isosurface.roughness: must be in [0, 1] (got %g)",
+                       (double)d->isosurface.roughness);
     if (!(isfinite(d->radius) && d->radius > 0))
         return nc_fail(ctx, bad, "particles: radius: must be finite and > 0 (got %g)", (double)d->radius);
     if (!(isfinite(d->density) && d->density >= 0))

@@ -34,6 +34,7 @@
  * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
  */
 #include "core/core.h"
+#include "particles/particles.h"
 #include "render/method.h"
 #include "scene/medium.h"
 #include "volume/volume.h"
@@ -85,7 +86,8 @@ typedef struct fog_state {
 static bool fog_wanted(const nacre_scene *scene, const nacre_render_settings *settings)
 {
     const nc_method *m = nc_method_get(settings->method);
-    return nc_post_fogs_drawn(scene, settings) > 0 && m && !m->renders_fog && settings->volumetrics.mode == NACRE_VOLUMETRICS_OFF;
+    return nc_post_fogs_drawn(scene, settings) > 0 && m && !m->renders_fog && settings->volumetrics.mode == NACRE_VOLUMETRICS_OFF &&
+           !nc_scene_particles_iso_drawn(scene, settings);
 }
 
 static void fog_destroy(nacre_context *ctx, void *state)

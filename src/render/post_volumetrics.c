@@ -10,7 +10,9 @@
  *             the pixel's depth, for opaque and translucent surfaces and the background alike.
  *   raymarch  (§2.3.1) the same lighting at the midpoints of raymarch_steps equal steps along
  *             each pixel's ray, integrated with the same segment integral: the froxels' check
- *             and the choice for close-ups (no grid to resolve).
+ *             and the choice for close-ups (no grid to resolve). It also draws the isosurfaces
+ *             of particle systems drawn as voxels (§3.2.2, figure 3.15; iso_shade below): the
+ *             march stops at the surface, which reflects and refracts into the medium behind it.
  * Lighting of a point (§1.2.8 - 1.2.9): the source is sigma_s (sum over lights of E p(cos) V Tr
  * + L_env), E the light's irradiance there (directional: its strength; point and spot:
  * intensity / distance^2 with the spot's falloff of scene/lights.h), p the Henyey-Greenstein
@@ -37,7 +39,9 @@
  * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
  */
 #include "core/core.h"
+#include "core/optics.h"
 #include "core/simd.h"
+#include "particles/particles.h"
 #include "render/method.h"
 #include "scene/lights.h"
 #include "scene/medium.h"
@@ -143,14 +147,15 @@ static bool froxel_wanted(const nacre_scene *scene, const nacre_render_settings 
 {
     const nc_method *m = nc_method_get(settings->method);
     return nc_post_fogs_drawn(scene, settings) > 0 && m && !m->renders_fog &&
-           settings->volumetrics.mode == NACRE_VOLUMETRICS_FROXEL;
+           settings->volumetrics.mode == NACRE_VOLUMETRICS_FROXEL && !nc_scene_particles_iso_drawn(scene, settings);
 }
 
 static bool raymarch_wanted(const nacre_scene *scene, const nacre_render_settings *settings)
 {
     const nc_method *m = nc_method_get(settings->method);
+    /* An isosurface needs a ray per pixel: froxels cannot hold a surface. */
     return nc_post_fogs_drawn(scene, settings) > 0 && m && !m->renders_fog &&
-           settings->volumetrics.mode == NACRE_VOLUMETRICS_RAYMARCH;
+           (settings->volumetrics.mode == NACRE_VOLUMETRICS_RAYMARCH || nc_scene_particles_iso_drawn(scene, settings));
 }
 
 static void camera_setup(const nc_raster_view *v, camera_rays *cr)
@@ -1081,6 +1086,110 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
 
 /* ---- ray marching ------------------------------------------------------------------------ */
 
+/* A particle system's isosurface as the march needs it. */
+typedef struct viso {
+    const nc_particle_grid *grid;
+    float level, eta, alpha;
+} viso;
+
+/* March the fogs along o + t d, t in [t0, t1], at the midpoints of n equal steps (sc: the
+ * thread's scratch). */
+static void march_segment(const vol_state *st, const float o[3], const float d[3], double t0, double t1, uint32_t n,
+                          float *sc, nc_vol_march m[3])
+{
+    float *p = sc, *sig_t = sc + 3u * n, *src = sc + 6u * n, *g = sc + 9u * n, *ev = sc + 13u * n;
+    float *tau = ev + NC_FOG_EVAL_SCRATCH(n);
+    double dt = (t1 - t0) / n;
+    for (uint32_t k = 0; k < n; k++) {
+        float t = (float)(t0 + (k + 0.5) * dt);
+        for (int c = 0; c < 3; c++)
+            p[3 * k + c] = o[c] + t * d[c];
+    }
+    nc_fog_field_eval(&st->field, n, p, sig_t, src, g, ev);
+    light_points(st, n, p, d, src, g, src, tau);
+    for (int c = 0; c < 3; c++)
+        m[c] = nc_vol_march_begin();
+    for (uint32_t k = 0; k < n; k++)
+        for (int c = 0; c < 3; c++)
+            nc_vol_march_step(&m[c], sig_t[3 * k + c], src[3 * k + c], dt);
+}
+
+/* GGX (Trowbridge-Reitz) reflection with Smith's separable masking, times cos_l: the highlight
+ * of a light of unit irradiance on a rough dielectric, Fresnel weighted. */
+static double ggx_highlight(const float n[3], const float v[3], const float l[3], double alpha, double eta)
+{
+    double nl = n[0] * l[0] + n[1] * l[1] + n[2] * l[2], nv = n[0] * v[0] + n[1] * v[1] + n[2] * v[2];
+    if (!(nl > 0.0 && nv > 0.0 && alpha > 0.0))
+        return 0.0;
+    double h[3] = {v[0] + l[0], v[1] + l[1], v[2] + l[2]};
+    double hl = sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2]);
+    if (!(hl > 0.0))
+        return 0.0;
+    double nh = (n[0] * h[0] + n[1] * h[1] + n[2] * h[2]) / hl, lh = (l[0] * h[0] + l[1] * h[1] + l[2] * h[2]) / hl;
+    double a2 = alpha * alpha, q = nh * nh * (a2 - 1.0) + 1.0, D = a2 / (NC_PI * q * q);
+    double g1l = 2.0 * nl / (nl + sqrt(a2 + (1.0 - a2) * nl * nl));
+    double g1v = 2.0 * nv / (nv + sqrt(a2 + (1.0 - a2) * nv * nv));
+    return D * g1l * g1v * nc_fresnel_dielectric(lh > 0.0 ? lh : 0.0, eta) / (4.0 * nv);
+}
+
+/* The radiance leaving the isosurface of `iso` at ray distance th towards the eye: reflection
+ * (the environment, Fresnel weighted; the lights' GGX highlights, shadow-mapped and attenuated by
+ * the fogs towards them) plus the refracted part, marched through the fogs from the surface
+ * along the refracted ray to where it leaves the grid, then the scene behind (`behind`, the
+ * pixel's colour: the screen does not know what lies along the bent ray). */
+static void iso_shade(const vol_state *st, const viso *iso, const float o[3], const float d[3], double th,
+                      double inside_max, uint32_t n, float *sc, const double behind[3], double out[3])
+{
+    float p[3], nrm[3], v[3] = {-d[0], -d[1], -d[2]};
+    for (int c = 0; c < 3; c++)
+        p[c] = (float)(o[c] + th * d[c]);
+    if (!nc_particle_iso_normal(iso->grid, p, nrm))
+        memcpy(nrm, v, sizeof(nrm));
+    double cos_i = v[0] * nrm[0] + v[1] * nrm[1] + v[2] * nrm[2];
+    if (cos_i < 0.0) { /* a grazing crossing whose difference normal tips away: face the eye */
+        for (int c = 0; c < 3; c++)
+            nrm[c] -= (float)(2.0 * cos_i) * v[c];
+        cos_i = -cos_i;
+    }
+    double F = nc_fresnel_dielectric(cos_i > 1.0 ? 1.0 : cos_i, iso->eta);
+    for (int c = 0; c < 3; c++)
+        out[c] = F * st->env[c];
+    float *tau_scratch = sc + 13u * n + NC_FOG_EVAL_SCRATCH(n);
+    for (uint32_t l = 0; l < st->light_count && iso->alpha > 0.0f; l++) {
+        const vlight *li = &st->lights[l];
+        float wi[3], dist, scale;
+        if (!light_at(li, p, wi, &dist, &scale))
+            continue;
+        float w[3] = {-wi[0], -wi[1], -wi[2]};
+        double f = ggx_highlight(nrm, v, w, iso->alpha, iso->eta) * scale;
+        if (!(f > 0.0))
+            continue;
+        if (li->shadow) {
+            f *= nc_shadow_lookup_volume(li->shadow, nc_v3a(p), st->pcf, st->bias);
+            if (!(f > 0.0))
+                continue;
+        }
+        double td[3];
+        nc_fog_field_optical_depth(&st->field, p, w, dist, NC_FOG_ALL, td, tau_scratch);
+        for (int c = 0; c < 3; c++)
+            out[c] += f * li->e[c] * exp(-(td[c] < TAU_MAX ? td[c] : TAU_MAX));
+    }
+    float dr[3];
+    if (!nc_refract(d, nrm, iso->eta, dr))
+        return;
+    double len = nc_particle_grid_exit(iso->grid, p, dr);
+    len = len < inside_max ? len : inside_max;
+    nc_vol_march m[3];
+    if (len > 0.0) {
+        march_segment(st, p, dr, 0.0, len, n, sc, m);
+    } else {
+        for (int c = 0; c < 3; c++)
+            m[c] = nc_vol_march_begin();
+    }
+    for (int c = 0; c < 3; c++)
+        out[c] += (1.0 - F) * (m[c].radiance + m[c].transmittance * behind[c]);
+}
+
 static nacre_result raymarch_apply(void *state, const nc_post_input *in, nacre_image *image,
                                    nacre_render_stats *stats)
 {
@@ -1091,6 +1200,14 @@ static nacre_result raymarch_apply(void *state, const nc_post_input *in, nacre_i
     nacre_result res = vol_setup(st, in, n);
     if (res != NACRE_OK)
         return res;
+    viso isos[NACRE_MAX_FOGS];
+    uint32_t iso_count = 0;
+    for (uint32_t i = 0; i < in->scene->particles_count && in->settings->particles == NACRE_PARTICLES_DRAW_VOXEL; i++) {
+        const nacre_particles_desc *pd;
+        const nc_particle_grid *g = nc_scene_particle_grid(in->scene, i, &pd);
+        if (g && pd->isosurface.density > 0.0f && g->max_value >= pd->isosurface.density && iso_count < NACRE_MAX_FOGS)
+            isos[iso_count++] = (viso){g, pd->isosurface.density, pd->isosurface.ior, pd->isosurface.roughness};
+    }
     /* The far plane as the froxels see it: the march stops there, the tail goes on. */
     double far = st->cam.far;
     int32_t w = image->width, h = image->height;
@@ -1098,8 +1215,7 @@ static nacre_result raymarch_apply(void *state, const nc_post_input *in, nacre_i
 #pragma omp parallel for schedule(dynamic, 1) num_threads(in->ctx->threads)
     for (int32_t y = 0; y < h; y++) {
         float *sc = thread_scratch(st);
-        float *p = sc, *sig_t = sc + 3u * n, *src = sc + 6u * n, *g = sc + 9u * n, *ev = sc + 13u * n;
-        float *tau = ev + NC_FOG_EVAL_SCRATCH(n);
+        float *tau = sc + 13u * n + NC_FOG_EVAL_SCRATCH(n);
         float *row = image->pixels + (size_t)y * image->stride;
         for (int32_t x = 0; x < w; x++) {
             float o[3], d[3];
@@ -1107,22 +1223,29 @@ static nacre_result raymarch_apply(void *state, const nc_post_input *in, nacre_i
             camera_ray(&st->cam, (x + 0.5) * 2.0 / w - 1.0, 1.0 - (y + 0.5) * 2.0 / h, o, d, &scale, &offset);
             float z = depth[(size_t)y * (size_t)w + (size_t)x];
             bool background = isinf(z);
-            double tend = ray_t(z < far ? z : far, scale, offset), dt = tend / n;
-            for (uint32_t k = 0; k < n; k++) {
-                float t = (float)((k + 0.5) * dt);
-                for (int c = 0; c < 3; c++)
-                    p[3 * k + c] = o[c] + t * d[c];
+            double tend = ray_t(z < far ? z : far, scale, offset);
+            double th = INFINITY;
+            const viso *hit = NULL;
+            for (uint32_t s = 0; s < iso_count; s++) {
+                double t;
+                if (nc_particle_iso_hit(isos[s].grid, isos[s].level, o, d, 0.0, tend, &t) && t < th)
+                    th = t, hit = &isos[s];
             }
-            nc_fog_field_eval(&st->field, n, p, sig_t, src, g, ev);
-            light_points(st, n, p, d, src, g, src, tau);
-            nc_vol_march m[3] = {nc_vol_march_begin(), nc_vol_march_begin(), nc_vol_march_begin()};
-            for (uint32_t k = 0; k < n; k++)
-                for (int c = 0; c < 3; c++)
-                    nc_vol_march_step(&m[c], sig_t[3 * k + c], src[3 * k + c], dt);
+            nc_vol_march m[3];
+            march_segment(st, o, d, 0.0, hit ? th : tend, n, sc, m);
             double L[3] = {0, 0, 0}, T[3] = {1, 1, 1};
             if (background)
                 tail(st, o, d, tend, L, T, tau);
             float *px = row + 3 * (size_t)x;
+            if (hit) {
+                double behind[3], surf[3];
+                for (int c = 0; c < 3; c++)
+                    behind[c] = px[c] * T[c] + L[c];
+                iso_shade(st, hit, o, d, th, background ? INFINITY : tend - th, n, sc, behind, surf);
+                for (int c = 0; c < 3; c++)
+                    px[c] = (float)(m[c].radiance + m[c].transmittance * surf[c]);
+                continue;
+            }
             for (int c = 0; c < 3; c++)
                 px[c] = (float)(px[c] * m[c].transmittance * T[c] + m[c].radiance + m[c].transmittance * L[c]);
         }

@@ -198,8 +198,9 @@ def nrrd(header_lines, body):
 
 # Examples whose commit is heavy: particles.json splats 10k large particles into 128^3 (100M
 # additions, 70 ms in a release build), which under the fuzz build's sanitizers and coverage
-# takes seconds, and its mutations reached the 10 s timeout. gen-particles.json stands in.
-HEAVY_EXAMPLES = {"particles.json"}
+# takes seconds, and its mutations reached the 10 s timeout. gen-particles.json stands in (for
+# particles_iso.json too: 11M additions into 96^3 and a ray-marched isosurface).
+HEAVY_EXAMPLES = {"particles.json", "particles_iso.json"}
 
 PARTICLES_SEED = {
     "materials": {"m": {"type": "opaque"}},
@@ -210,7 +211,7 @@ PARTICLES_SEED = {
          "lifetime": 2, "velocity": [0, 2, 0], "spread": 15, "gravity": [0, -1, 0], "drag": 0.3,
          "radius": 0.3, "radius_rate": 0.1, "fade": 0.5, "seed": 3, "sigma_s": 0.5, "grid_resolution": 16},
         {"type": "list", "positions": [[0, 2, 0], [1, 2, 0.5]], "radii": [0.4, 0.6], "density": 2,
-         "sigma_s": 0.5, "grid_resolution": 12}]}
+         "sigma_s": 0.5, "grid_resolution": 12, "isosurface": {"density": 1, "ior": 1.4, "roughness": 0.2}}]}
 
 
 def main():
