@@ -771,6 +771,8 @@ static cJSON *fog_object(writer *w, const nacre_fog_desc *d)
     add_float(w, o, "g", d->g);
     add_float(w, o, "height_falloff", d->height_falloff);
     add_float(w, o, "height_base", d->height_base);
+    if (d->emission[0] != 0.0f || d->emission[1] != 0.0f || d->emission[2] != 0.0f)
+        add_floats(w, o, "emission", d->emission, 3);
     add_pattern(w, o, &d->pattern);
     return o;
 }
