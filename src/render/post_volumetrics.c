@@ -12,7 +12,7 @@
  *             each pixel's ray, integrated with the same segment integral: the froxels' check
  *             and the choice for close-ups (no grid to resolve).
  * Lighting of a point (§1.2.8 - 1.2.9): the source is sigma_s (sum over lights of E p(cos) V Tr
- * + L_env), E the light's irradiance there (directional: its strength; point and spot:
+ * + L_env) + eps, eps the fogs' emission there (§1.2.11; it lights nothing else here), E the light's irradiance there (directional: its strength; point and spot:
  * intensity / distance^2 with the spot's falloff of scene/lights.h), p the Henyey-Greenstein
  * phase with the froxel's sigma_s-weighted g, V the opaque shadow from the light's shadow map
  * (the phong pass's maps; none when shadows are off), Tr the transmittance from the point
@@ -88,6 +88,8 @@ typedef struct vol_state {
     /* froxel grid: W x H columns of D froxels, column-major in depth (index col * D + k) */
     uint32_t W, H, D;
     float *st, *src, *g; /* 3N, 3N (sigma_s after fill, the source after light), N */
+    float *em;           /* 3N: emission (fill), added to the source by light; only if some fog emits */
+    size_t em_capacity;
     /* Radiance and transmittance from the eye to boundaries 1 .. D and infinity of every column,
      * slice-major ([(b - 1) cols + col] x 3): neighbouring pixels at similar depths read
      * neighbouring words. */
@@ -119,6 +121,7 @@ static void vol_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->lights);
     nc_free(ctx, st->st);
     nc_free(ctx, st->src);
+    nc_free(ctx, st->em);
     nc_free(ctx, st->g);
     nc_free(ctx, st->acc_l);
     nc_free(ctx, st->acc_t);
@@ -407,6 +410,8 @@ static void tail(const vol_state *st, const float o[3], const float d[3], double
             memcpy(sa, fo->sigma_a, sizeof(sa));
             memcpy(ss, fo->sigma_s, sizeof(ss));
         }
+        float em[3];
+        nc_fog_one_emission(f, fo, x, em);
         double S[3] = {st->env[0], st->env[1], st->env[2]};
         for (uint32_t l = 0; l < st->light_count; l++) {
             const vlight *li = &st->lights[l];
@@ -423,14 +428,18 @@ static void tail(const vol_state *st, const float o[3], const float d[3], double
         bool diverges = isinf(G);
         for (int c = 0; c < 3; c++) {
             double sig_t = (double)sa[c] + ss[c];
-            if (!(sig_t > 0.0))
+            if (!(sig_t > 0.0)) {
+                /* Emission in clear air: its integral, unattenuated (infinite: no limit). */
+                if (em[c] > 0.0f)
+                    acc[c] += diverges ? INFINITY : em[c] * G;
                 continue;
+            }
             if (diverges) {
                 tau_inf[c] += sig_t;
-                acc_inf[c] += ss[c] * S[c];
+                acc_inf[c] += ss[c] * S[c] + em[c];
             } else {
                 tau[c] += sig_t * G;
-                acc[c] += ss[c] * G * S[c];
+                acc[c] += (ss[c] * S[c] + em[c]) * G;
             }
         }
     }
@@ -472,6 +481,8 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
             return NACRE_ERROR_OUT_OF_MEMORY;
         st->grid_capacity = n;
     }
+    if (st->field.emissive && !nc_reserve(ctx, &st->em, &st->em_capacity, 3 * n, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
     const camera_rays *cr = &st->cam;
     uint32_t D = st->D;
     if (!nc_reserve(ctx, &st->boundf, &st->boundf_capacity, 2 * (size_t)D + 1, sizeof(float)))
@@ -528,6 +539,8 @@ static void froxel_fill(vol_state *st, int threads)
         column_points(st, o, d, scale, offset, p);
         size_t base = (size_t)col * st->D;
         nc_fog_field_eval(&st->field, st->D, p, st->st + 3 * base, st->src + 3 * base, st->g + base, ev);
+        if (st->field.emissive)
+            nc_fog_field_emission(&st->field, st->D, p, st->em + 3 * base, ev);
     }
 }
 
@@ -894,6 +907,9 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
         size_t base = (size_t)col * st->D;
         froxel_light_column(st, n, p, d, st->src + 3 * base, st->g + base, st->src + 3 * base, patterned ? cn : NULL,
                             cw, ls, tau);
+        if (st->field.emissive) /* emission: a source term beside sigma_s L (§1.2.11) */
+            for (size_t k = 3 * base; k < 3 * (base + n); k++)
+                st->src[k] += st->em[k];
         memset(st->src + 3 * (base + n), 0, 3 * (size_t)(st->D - n) * sizeof(float));
     }
     return NACRE_OK;
@@ -1098,7 +1114,8 @@ static nacre_result raymarch_apply(void *state, const nc_post_input *in, nacre_i
 #pragma omp parallel for schedule(dynamic, 1) num_threads(in->ctx->threads)
     for (int32_t y = 0; y < h; y++) {
         float *sc = thread_scratch(st);
-        float *p = sc, *sig_t = sc + 3u * n, *src = sc + 6u * n, *g = sc + 9u * n, *ev = sc + 13u * n;
+        float *p = sc, *sig_t = sc + 3u * n, *src = sc + 6u * n, *g = sc + 9u * n, *em = sc + 10u * n;
+        float *ev = sc + 13u * n;
         float *tau = ev + NC_FOG_EVAL_SCRATCH(n);
         float *row = image->pixels + (size_t)y * image->stride;
         for (int32_t x = 0; x < w; x++) {
@@ -1115,6 +1132,11 @@ static nacre_result raymarch_apply(void *state, const nc_post_input *in, nacre_i
             }
             nc_fog_field_eval(&st->field, n, p, sig_t, src, g, ev);
             light_points(st, n, p, d, src, g, src, tau);
+            if (st->field.emissive) { /* emission: a source term beside sigma_s L (§1.2.11) */
+                nc_fog_field_emission(&st->field, n, p, em, ev);
+                for (size_t k = 0; k < 3 * (size_t)n; k++)
+                    src[k] += em[k];
+            }
             nc_vol_march m[3] = {nc_vol_march_begin(), nc_vol_march_begin(), nc_vol_march_begin()};
             for (uint32_t k = 0; k < n; k++)
                 for (int c = 0; c < 3; c++)
