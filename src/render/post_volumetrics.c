@@ -31,7 +31,8 @@
  * infinite depth), each column ray's remaining fog is added in closed
  * form as in the analytic pass: the optical depth of every fog to infinity (height integral;
  * patterns at the segment's start), lit by the directional lights with the fog's transmittance
- * towards them at that start and by the environment; point and spot lights add nothing there.
+ * towards them at that start and by the environment, plus its emission (the pattern at that
+ * start); point and spot lights add nothing there.
  *
  * Results do not depend on the thread count: every column and pixel is computed alone.
  * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
