@@ -552,8 +552,9 @@ static void setup_fogs(nc_pathtracer *pt, const nacre_scene *s, nc_pt_medium_max
         f->hexp = nc_vol_height_exp_cap(f->height, f->maj);
         f->emissive = rec->emissive;
         /* Emission is gathered at tentative collisions (media.c): a bounded fog that emits gets
-         * at least ~4 per crossing of its smallest half edge, even where it barely absorbs (or
-         * not at all: its light is then e d). After the cap above, which stays the other passes'. */
+         * a majorant of at least 2 / (smallest half edge), 4 collisions across that edge on
+         * average, even where it barely absorbs (or not at all: its light is then e d). Set
+         * after the cap above, which stays the one the other passes use. */
         if (f->emissive && (f->box || f->ellipsoid)) {
             float h = fminf(f->half[0], fminf(f->half[1], f->half[2]));
             f->maj = fmaxf(f->maj, 2.0f / h);
