@@ -154,6 +154,11 @@ typedef struct nacre_volumetrics_settings {
     uint32_t shadow_steps;       /* steps of the march towards a light through patterned fog
                                     (homogeneous and height fog are integrated in closed form),
                                     default 8 (1..256) */
+    float temporal;              /* FROXEL: temporal reprojection, the previous frame's weight in
+                                    [0, 1) (0, the default: off; 0.9 typical for a viewer). Each
+                                    frame samples the slices at a jittered depth and blends the
+                                    lit froxels with the previous frame's, reprojected through
+                                    the previous camera (docs/scene-format.md "Volumetrics") */
 } nacre_volumetrics_settings;
 
 typedef struct nacre_render_settings {

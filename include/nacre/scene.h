@@ -341,11 +341,16 @@ typedef struct nacre_fog_desc {
     float height_falloff;         /* per scene unit, >= 0; 0: no height dependence */
     float height_base;            /* world y where height() = 1 */
     nacre_medium_pattern pattern; /* default NONE; medium 2 may be 0 (clear air) */
+    float emission[3];            /* radiance emitted per unit length (per scene unit, linear RGB),
+                                     >= 0, default 0; scaled at p by height(p) and by the pattern
+                                     as sigma is, medium 2 not emitting: x (1 - w) for RANDOM_MIX,
+                                     CHECKER, NOISE, x d for VOLUME */
 } nacre_fog_desc;
 
 #define NACRE_MAX_FOGS 32
 
-/* Defaults: GLOBAL, sigma_a 0, sigma_s 0.001 per unit, g 0, no height falloff, size 1. */
+/* Defaults: GLOBAL, sigma_a 0, sigma_s 0.001 per unit, g 0, no height falloff, size 1, no
+ * emission. */
 NACRE_API nacre_fog_desc nacre_fog_desc_defaults(nacre_fog_shape shape);
 /* At most NACRE_MAX_FOGS per scene. */
 NACRE_API nacre_result nacre_scene_add_fog(nacre_scene *scene, const nacre_fog_desc *desc, nacre_fog *out);

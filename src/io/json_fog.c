@@ -10,7 +10,7 @@ void nc_json_parse_fog(loader *ld, const cJSON *obj)
 {
     static const char *const shapes[] = {"global", "box", "sphere"};
     static const char *const keys[] = {"shape", "center", "size", "rotate", "sigma_a", "sigma_s", "g",
-                                       "height_falloff", "height_base", "pattern"};
+                                       "height_falloff", "height_base", "pattern", "emission"};
     if (!nc_json_expect_object(ld, obj) || !nc_json_require(ld, obj, "shape"))
         return;
     int shape = nc_json_get_choice(ld, obj, "shape", "fog shape", shapes, COUNT_OF(shapes));
@@ -28,6 +28,7 @@ void nc_json_parse_fog(loader *ld, const cJSON *obj)
     nc_json_get_floats(ld, obj, "rotate", 3, R_FINITE, false, d.rotate);
     nc_json_get_floats(ld, obj, "sigma_a", 3, R_NONNEG, true, d.sigma_a);
     nc_json_get_floats(ld, obj, "sigma_s", 3, R_NONNEG, true, d.sigma_s);
+    nc_json_get_floats(ld, obj, "emission", 3, R_NONNEG, true, d.emission);
     nc_json_get_number(ld, obj, "g", g_range, &d.g);
     nc_json_get_number(ld, obj, "height_falloff", R_NONNEG, &d.height_falloff);
     nc_json_get_number(ld, obj, "height_base", R_FINITE, &d.height_base);

@@ -50,7 +50,7 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
                                        "tolerance", "seed_iterations", "time_limit", "max_scatter",
                                        "layered_samples", "layered_epsilon", "layered_half_res", "layered_integration",
                                        "particles", "volumetrics", "froxel_width", "froxel_height",
-                                       "froxel_slices", "raymarch_steps", "shadow_steps"};
+                                       "froxel_slices", "raymarch_steps", "shadow_steps", "froxel_temporal"};
     /* indexed by the enums' values */
     const char *const solvers[] = {nacre_solver_name(NACRE_SOLVER_MULTIGRID), nacre_solver_name(NACRE_SOLVER_SEED)};
     const char *const sources[] = {nacre_source_name(NACRE_SOURCE_VOLUME), nacre_source_name(NACRE_SOURCE_FACE)};
@@ -139,5 +139,7 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
         s->volumetrics.raymarch_steps = (uint32_t)v;
     if (nc_json_get_integer(ld, obj, "shadow_steps", 1, 256, &v))
         s->volumetrics.shadow_steps = (uint32_t)v;
+    static const range temporal_range = {0.0, 1.0, false, true};
+    nc_json_get_number(ld, obj, "froxel_temporal", temporal_range, &s->volumetrics.temporal);
     nc_json_pop(ld, mark);
 }

@@ -457,6 +457,7 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
         {s->volumetrics.froxel_slices >= 1 && s->volumetrics.froxel_slices <= 1024, "froxel_slices"},
         {s->volumetrics.raymarch_steps >= 1 && s->volumetrics.raymarch_steps <= 4096, "raymarch_steps"},
         {s->volumetrics.shadow_steps >= 1 && s->volumetrics.shadow_steps <= 256, "shadow_steps"},
+        {s->volumetrics.temporal >= 0.0f && s->volumetrics.temporal < 1.0f, "froxel_temporal"},
     };
     for (size_t i = 0; i < COUNT_OF(checks); i++)
         if (!checks[i].ok) {
@@ -498,6 +499,8 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
     add_uint(w, o, "froxel_slices", s->volumetrics.froxel_slices);
     add_uint(w, o, "raymarch_steps", s->volumetrics.raymarch_steps);
     add_uint(w, o, "shadow_steps", s->volumetrics.shadow_steps);
+    if (s->volumetrics.temporal != 0.0f)
+        add_float(w, o, "froxel_temporal", s->volumetrics.temporal);
     return o;
 }
 
@@ -771,6 +774,8 @@ static cJSON *fog_object(writer *w, const nacre_fog_desc *d)
     add_float(w, o, "g", d->g);
     add_float(w, o, "height_falloff", d->height_falloff);
     add_float(w, o, "height_base", d->height_base);
+    if (d->emission[0] != 0.0f || d->emission[1] != 0.0f || d->emission[2] != 0.0f)
+        add_floats(w, o, "emission", d->emission, 3);
     add_pattern(w, o, &d->pattern);
     return o;
 }

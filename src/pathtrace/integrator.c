@@ -229,7 +229,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
                     query = false;
                 }
             } else if (clear > 0) {
-                ev = nc_pt_free_flight(ps, mo, o, d, clear, rng, &beta, &ts, &g);
+                ev = nc_pt_free_flight(ps, mo, o, d, clear, rng, &beta, &ts, &g, NULL);
                 if (ev == FF_PASS)
                     o = ray_at(o, d, clear);
                 else
@@ -257,7 +257,7 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
             }
             float tmax = isfinite(t_end) ? t_end : 1e30f;
             if (mo)
-                ev = mo->heterogeneous ? nc_pt_free_flight(ps, mo, o, d, tmax, rng, &beta, &ts, &g)
+                ev = mo->heterogeneous ? nc_pt_free_flight(ps, mo, o, d, tmax, rng, &beta, &ts, &g, NULL)
                                        : nc_pt_flight_resolve_homogeneous(mo, t_hom, tmax, &beta, &ts);
             else if (pt->fog_count) {
                 if (eq_lights && !(ps->max_scatter && scatters + 1 > ps->max_scatter) &&
@@ -268,7 +268,11 @@ static nc_vec3 trace_path(const pt_scene *ps, nc_vec3 o, nc_vec3 d, nc_rng *rng)
                     eq.tmax = tmax;
                     L = nc_add(L, equiangular(ps, &eq, beta, rng));
                 }
-                ev = nc_pt_free_flight(ps, NULL, o, d, tmax, rng, &beta, &ts, &g);
+                /* Fog emission along this flight: order `scatters` (seen directly: 0), kept
+                 * under --max-scatter k for flights after at most k scatterings. */
+                nc_vec3 emitted = nc_v3(0, 0, 0);
+                ev = nc_pt_free_flight(ps, NULL, o, d, tmax, rng, &beta, &ts, &g, &emitted);
+                L = nc_add(L, emitted);
             }
         }
         if (ev == FF_ABSORB)

@@ -29,7 +29,13 @@
  * coefficients by the same spectral tracking and ratio tracking, over majorant pieces cut where
  * a fog begins or ends and where height fog changes by a factor of 2 (see "fog" below); shadow
  * rays through air are attenuated by it, scattering vertices in it use NEE and phase sampling.
- * Translucent objects displace fog (inside one, only its medium counts).
+ * Translucent objects displace fog (inside one, only its medium counts). Fog emission (radiance
+ * per unit length, seed 003 §1.2.11) is gathered by the collision estimator of the same walk: at
+ * each tentative collision, before the event is chosen, beta x emission / majorant. With the
+ * majorant form of the RTE, L = integral m e^(-m t) [eps / m + (sigma_a / m) 0 + (sigma_s / m) L_s
+ * + (sigma_n / m) L] dt, this term is the deterministic part of each collision, so adding it and
+ * then sampling the event as before stays unbiased (for each channel, with spectral tracking's
+ * weights in beta).
  *
  * The closed forms (Beer-Lambert transmittance, the height factor and its caps) are the shared
  * ones of volume/volume.h, which the real-time fog pass uses too.
@@ -381,6 +387,28 @@ static bool fog_one(const fog_iter *it, uint32_t i, float t, nc_vec3 p, float sa
     return true;
 }
 
+/* The fogs' emission at the point of parameter t (summed; height factor and pattern as sigma). */
+static void fog_emission_at(const fog_iter *it, float t, nc_vec3 p, float em[3])
+{
+    em[0] = em[1] = em[2] = 0.0f;
+    for (uint32_t i = 0; i < it->ps->pt->fog_count; i++) {
+        const pt_fog *f = &it->ps->pt->fogs[i];
+        if (!f->emissive || !(it->a[i] <= t && t < it->b[i]))
+            continue;
+        float e[3], unused[3];
+        if (f->patterned) {
+            nc_vec3 q = nc_mat4_point(&f->rec->world_to_local, p);
+            float qv[3] = {q.x, q.y, q.z};
+            it->ps->eval(it->ps->scene, &f->rec->emission, qv, 1, e, unused);
+        } else {
+            memcpy(e, f->rec->desc.emission, sizeof(e));
+        }
+        float h = fog_height(f, p.y);
+        for (int c = 0; c < 3; c++)
+            em[c] += e[c] * h;
+    }
+}
+
 static void fog_at(const fog_iter *it, float t, nc_vec3 p, float sa[3], float ss[3])
 {
     sa[0] = sa[1] = sa[2] = ss[0] = ss[1] = ss[2] = 0.0f;
@@ -557,18 +585,25 @@ ff_event nc_pt_flight_resolve_homogeneous(const pt_object *o, float t, float tma
 
 /* Spectral tracking from org along dir over [0, tmax] in a heterogeneous medium (o) or the fog
  * (o == NULL): FF_SCATTER with *t_out and the phase's *g_out, FF_PASS at tmax, or FF_ABSORB.
- * beta is updated by the per-channel weights. */
+ * beta is updated by the per-channel weights. In fog, *emitted (if not NULL) gets the emission
+ * gathered on the way, weighted by the throughput (the caller adds it to the path's radiance). */
 ff_event nc_pt_free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax,
-                           nc_rng *rng, nc_vec3 *beta, float *t_out, float *g_out)
+                           nc_rng *rng, nc_vec3 *beta, float *t_out, float *g_out, nc_vec3 *emitted)
 {
     collision_walk w;
     walk_init(&w, ps, o, org, dir, tmax);
+    bool emission = !o && emitted && ps->pt->fog_emissive;
     float t, m;
     while (walk_next(&w, rng, &t, &m)) {
         float sa[3], ss[3], g = 0.0f;
         nc_vec3 p = ray_at(org, dir, t);
         walk_medium(ps, &w, t, p, sa, ss, &g);
         float b[3] = {beta->x, beta->y, beta->z};
+        if (emission) {
+            float em[3];
+            fog_emission_at(&w.fog, t, p, em);
+            *emitted = nc_add(*emitted, nc_v3(b[0] * em[0] / m, b[1] * em[1] / m, b[2] * em[2] / m));
+        }
         float pa = 0, pss = 0, pn = 0;
         for (int c = 0; c < 3; c++) {
             pa += b[c] * sa[c];

@@ -95,7 +95,7 @@ typedef struct pt_light {
 /* A fog of the scene (see "fog" in media.c). */
 typedef struct pt_fog {
     const nc_fog_rec *rec;
-    bool box, ellipsoid, patterned, height;
+    bool box, ellipsoid, patterned, height, emissive;
     float half[3];        /* box: half edge lengths (ellipsoid: semi-axes) */
     float maj;            /* scalar bound of sigma_t where height() = 1 */
     float falloff, base, g;
@@ -114,6 +114,7 @@ struct nc_pathtracer {
     pt_fog fogs[NACRE_MAX_FOGS];
     uint32_t fog_count;
     bool fog_mixed_g;      /* fogs differ in g: a scattering picks one fog's phase */
+    bool fog_emissive;     /* some fog emits (nc_pt_free_flight gathers it) */
     bool any_matched;      /* some object is index matched (shadow rays may pass surfaces) */
     bool any_noncaster;    /* some opaque object has cast_shadows = false */
     bool nee_only;         /* shadow rays see another world than paths: no MIS (see integrator.c)  */
@@ -240,7 +241,7 @@ typedef struct guide_walk {
 void nc_pt_rest_point(const pt_object *o, nc_vec3 p, float out[3]);
 ff_event nc_pt_flight_resolve_homogeneous(const pt_object *o, float t, float tmax, nc_vec3 *beta, float *t_out);
 ff_event nc_pt_free_flight(const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax,
-                           nc_rng *rng, nc_vec3 *beta, float *t_out, float *g_out);
+                           nc_rng *rng, nc_vec3 *beta, float *t_out, float *g_out, nc_vec3 *emitted);
 nc_vec3 nc_pt_transmittance(const pt_scene *ps, const pt_object *o, nc_vec3 org, nc_vec3 dir, float tmax, nc_rng *rng);
 bool nc_pt_fog_span(const pt_scene *ps, nc_vec3 org, nc_vec3 dir, float tmax, float *t0, float *t1);
 float nc_pt_fog_point(const pt_scene *ps, nc_vec3 org, nc_vec3 dir, float tmax, float t, float sa[3], float ss[3],

@@ -535,6 +535,7 @@ static void setup_fogs(nc_pathtracer *pt, const nacre_scene *s, nc_pt_medium_max
 {
     pt->fog_count = s->fog_count;
     pt->fog_mixed_g = false;
+    pt->fog_emissive = false;
     for (uint32_t i = 0; i < s->fog_count; i++) {
         const nc_fog_rec *rec = &s->fogs[i];
         pt_fog *f = &pt->fogs[i];
@@ -549,6 +550,16 @@ static void setup_fogs(nc_pathtracer *pt, const nacre_scene *s, nc_pt_medium_max
         f->maj = fmaxf(mx[0], fmaxf(mx[1], mx[2]));
         f->height = rec->desc.height_falloff > 0;
         f->hexp = nc_vol_height_exp_cap(f->height, f->maj);
+        f->emissive = rec->emissive;
+        /* Emission is gathered at tentative collisions (media.c): a bounded fog that emits gets
+         * a majorant of at least 2 / (smallest half edge), 4 collisions across that edge on
+         * average, even where it barely absorbs (or not at all: its light is then e d). Set
+         * after the cap above, which stays the one the other passes use. */
+        if (f->emissive && (f->box || f->ellipsoid)) {
+            float h = fminf(f->half[0], fminf(f->half[1], f->half[2]));
+            f->maj = fmaxf(f->maj, 2.0f / h);
+        }
+        pt->fog_emissive |= f->emissive;
         f->falloff = rec->desc.height_falloff;
         f->base = rec->desc.height_base;
         f->g = rec->desc.g;

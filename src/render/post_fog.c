@@ -12,24 +12,27 @@
  * (nc_vol_height_integral), so its optical depth per channel is sigma_t,i G_i. The pixel's
  * colour c becomes c T + L, per channel, with
  *   T = e^(-tau),  tau = sum_i sigma_t,i G_i,
- *   L = (1 - T) / tau x sum_i sigma_s,i G_i S_i,
+ *   L = (1 - T) / tau x sum_i (sigma_s,i S_i + eps_i) G_i,
  *   S_i = sum over directional lights l of E_l p_i(cos theta_l) + L_env,
  * E_l the light's irradiance, p_i fog i's Henyey-Greenstein phase at the angle between the
  * light's direction and the way to the eye, L_env the environment radiance taken as isotropic
- * ambient light (the phase integrates to 1 over directions). For one fog of constant density
+ * ambient light (the phase integrates to 1 over directions), eps_i fog i's emission (radiance per
+ * unit length where its height factor is 1, §1.2.11: a source like sigma_s S). For one fog of constant density
  * this is the exact single scattering of a medium lit without occlusion, sigma_s / sigma_t
  * (1 - T) S (the segment integral of §1.2.10); for height fog too, since S is constant along the
  * ray. Several fogs share the scattered light in proportion to their optical depths: exact when
  * their densities are proportional along the ray, energy-conserving always. Where the optical
  * depth diverges (the background through a global fog without falloff, or through height fog
  * along a level or descending ray) T = 0 and L is the diverging fogs' own colour,
- * sum sigma_s,i S_i / sum sigma_t,i.
+ * sum (sigma_s,i S_i + eps_i) / sum sigma_t,i. A bounded fog that emits without extinction
+ * adds eps G unattenuated by itself (the sigma_t -> 0 limit).
  *
  * Not modelled here (the froxel pass of issue 24 is where they belong): shadows in the fog and
  * the fog's attenuation of the light on its way in (every point is lit fully), point and spot
- * lights (they add no fog light; nacre render notes it), multiple scattering, emission.
- * Patterned fogs use their mean coefficients over 16^3 points of the box (global fogs: of the
- * scene's bounds), computed when the fogs or the geometry change.
+ * lights (they add no fog light; nacre render notes it), multiple scattering, the light that
+ * emitting fog casts on surfaces and other fog. Patterned fogs use their mean coefficients and
+ * mean emission over 16^3 points of the box (global fogs: of the scene's bounds), computed when
+ * the fogs or the geometry change.
  *
  * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
  */
@@ -51,6 +54,7 @@ typedef struct fog_const {
     double half[3];   /* box: half edge lengths (ellipsoid: semi-axes) */
     nc_vol_height h;
     double sigma_t[3], sigma_s[3]; /* where the height factor is 1 (patterns: their mean) */
+    double emission[3];            /* likewise */
     double g;
 } fog_const;
 
@@ -76,7 +80,7 @@ typedef struct fog_state {
     /* Mean coefficients of the fogs, for the scene, fog and geometry versions they came from. */
     bool mean_valid;
     uint64_t mean_uid, mean_env, mean_geo;
-    float mean_sa[NACRE_MAX_FOGS][3], mean_ss[NACRE_MAX_FOGS][3];
+    float mean_sa[NACRE_MAX_FOGS][3], mean_ss[NACRE_MAX_FOGS][3], mean_em[NACRE_MAX_FOGS][3];
     float *points, *eval_sa, *eval_ss; /* MEAN_POINTS x 3 each */
 } fog_state;
 
@@ -122,7 +126,8 @@ static nacre_result fog_create(nacre_context *ctx, void **state)
 /* Mean sigma_a, sigma_s of a patterned fog over a stratified grid of the region it is seen in:
  * its box (an ellipsoid: the grid's points inside it), or for a global fog the scene's bounds
  * (where the camera looks). */
-static void pattern_mean(fog_state *st, const nacre_scene *s, const nc_fog_rec *rec, float sa[3], float ss[3])
+static void pattern_mean(fog_state *st, const nacre_scene *s, const nc_fog_rec *rec, const nacre_material_desc *m,
+                         float sa[3], float ss[3])
 {
     bool box = rec->desc.shape != NACRE_FOG_GLOBAL, ellipsoid = rec->desc.shape == NACRE_FOG_SPHERE;
     for (int k = 0; k < MEAN_RES; k++)
@@ -141,7 +146,7 @@ static void pattern_mean(fog_state *st, const nacre_scene *s, const nc_fog_rec *
                                             s->bounds_min[2] + u[2] * (s->bounds_max[2] - s->bounds_min[2])));
                 p[0] = q.x, p[1] = q.y, p[2] = q.z;
             }
-    nc_medium_eval(s, &rec->medium, st->points, MEAN_POINTS, st->eval_sa, st->eval_ss);
+    nc_medium_eval(s, m, st->points, MEAN_POINTS, st->eval_sa, st->eval_ss);
     double a[3] = {0, 0, 0}, b[3] = {0, 0, 0};
     const float half[3] = {0.5f * rec->desc.size[0], 0.5f * rec->desc.size[1], 0.5f * rec->desc.size[2]};
     size_t counted = 0;
@@ -169,10 +174,16 @@ static nacre_result fog_setup(fog_state *st, nacre_context *ctx, const nacre_sce
         for (uint32_t i = 0; i < s->fog_count; i++) {
             const nc_fog_rec *rec = &s->fogs[i];
             if (nc_medium_heterogeneous(&rec->medium)) {
-                pattern_mean(st, s, rec, st->mean_sa[i], st->mean_ss[i]);
+                pattern_mean(st, s, rec, &rec->medium, st->mean_sa[i], st->mean_ss[i]);
+                float unused[3];
+                if (rec->emissive)
+                    pattern_mean(st, s, rec, &rec->emission, st->mean_em[i], unused);
+                else
+                    memset(st->mean_em[i], 0, sizeof(st->mean_em[i]));
             } else {
                 memcpy(st->mean_sa[i], rec->desc.sigma_a, sizeof(st->mean_sa[i]));
                 memcpy(st->mean_ss[i], rec->desc.sigma_s, sizeof(st->mean_ss[i]));
+                memcpy(st->mean_em[i], rec->desc.emission, sizeof(st->mean_em[i]));
             }
         }
         st->mean_valid = true;
@@ -201,6 +212,7 @@ static nacre_result fog_setup(fog_state *st, nacre_context *ctx, const nacre_sce
         for (int c = 0; c < 3; c++) {
             f->sigma_s[c] = st->mean_ss[i][c];
             f->sigma_t[c] = (double)st->mean_sa[i][c] + st->mean_ss[i][c];
+            f->emission[c] = st->mean_em[i][c];
         }
         f->g = rec->desc.g;
     }
@@ -310,14 +322,19 @@ static void fog_pixel(const fog_state *st, const double o[3], const double d[3],
         }
         bool diverges = isinf(G);
         for (int c = 0; c < 3; c++) {
-            if (!(f->sigma_t[c] > 0.0))
-                continue; /* clear in this channel (and no 0 x inf) */
+            if (!(f->sigma_t[c] > 0.0)) {
+                /* Clear in this channel (no 0 x inf): only a bounded fog's emission (a global
+                 * one that emits has sigma_t > 0, nacre_scene_add_fog checks). */
+                if (f->emission[c] > 0.0 && !diverges)
+                    acc[c] += f->emission[c] * G;
+                continue;
+            }
             if (diverges) {
                 tau_inf[c] += f->sigma_t[c];
-                acc_inf[c] += f->sigma_s[c] * S[c];
+                acc_inf[c] += f->sigma_s[c] * S[c] + f->emission[c];
             } else {
                 tau[c] += f->sigma_t[c] * G;
-                acc[c] += f->sigma_s[c] * G * S[c];
+                acc[c] += (f->sigma_s[c] * S[c] + f->emission[c]) * G;
             }
         }
     }

@@ -14,7 +14,7 @@
  *             of particle systems drawn as voxels (§3.2.2, figure 3.15; iso_shade below): the
  *             march stops at the surface, which reflects and refracts into the medium behind it.
  * Lighting of a point (§1.2.8 - 1.2.9): the source is sigma_s (sum over lights of E p(cos) V Tr
- * + L_env), E the light's irradiance there (directional: its strength; point and spot:
+ * + L_env) + eps, eps the fogs' emission there (§1.2.11; it lights nothing else here), E the light's irradiance there (directional: its strength; point and spot:
  * intensity / distance^2 with the spot's falloff of scene/lights.h), p the Henyey-Greenstein
  * phase with the froxel's sigma_s-weighted g, V the opaque shadow from the light's shadow map
  * (the phong pass's maps; none when shadows are off), Tr the transmittance from the point
@@ -33,7 +33,8 @@
  * infinite depth), each column ray's remaining fog is added in closed
  * form as in the analytic pass: the optical depth of every fog to infinity (height integral;
  * patterns at the segment's start), lit by the directional lights with the fog's transmittance
- * towards them at that start and by the environment; point and spot lights add nothing there.
+ * towards them at that start and by the environment, plus its emission (the pattern at that
+ * start); point and spot lights add nothing there.
  *
  * Results do not depend on the thread count: every column and pixel is computed alone.
  * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
@@ -92,6 +93,8 @@ typedef struct vol_state {
     /* froxel grid: W x H columns of D froxels, column-major in depth (index col * D + k) */
     uint32_t W, H, D;
     float *st, *src, *g; /* 3N, 3N (sigma_s after fill, the source after light), N */
+    float *em;           /* 3N: emission (fill), added to the source by light; only if some fog emits */
+    size_t em_capacity;
     /* Radiance and transmittance from the eye to boundaries 1 .. D and infinity of every column,
      * slice-major ([(b - 1) cols + col] x 3): neighbouring pixels at similar depths read
      * neighbouring words. */
@@ -111,6 +114,22 @@ typedef struct vol_state {
     /* per-thread scratch */
     float *scratch;
     size_t scratch_per_thread, scratch_capacity;
+    /* Temporal reprojection (volumetrics.temporal > 0): where in its slice each froxel samples
+     * this frame (0.5 without), and the previous frame's blended sigma_t and source with what
+     * locates them: its camera (world -> view, view -> clip), slice boundaries and jitter. */
+    float jitter;
+    uint32_t frame;       /* frames since the history began: picks the jitter */
+    bool hist_valid;
+    uint64_t hist_uid;
+    uint32_t hW, hH, hD;
+    float *hist_st, *hist_src; /* 3N each */
+    size_t hist_capacity, hist_src_capacity;
+    uint32_t *hist_lit;   /* per column: the slices that were lit (the others hold no source) */
+    size_t hist_lit_capacity;
+    double *hist_bound;   /* D + 1 */
+    size_t hist_bound_capacity;
+    double hist_view[3][4], hist_proj[4][4];
+    float hist_jitter;
 } vol_state;
 
 /* ---- set-up ------------------------------------------------------------------------------ */
@@ -123,6 +142,7 @@ static void vol_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->lights);
     nc_free(ctx, st->st);
     nc_free(ctx, st->src);
+    nc_free(ctx, st->em);
     nc_free(ctx, st->g);
     nc_free(ctx, st->acc_l);
     nc_free(ctx, st->acc_t);
@@ -131,6 +151,10 @@ static void vol_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->tau_grid);
     nc_free(ctx, st->col_depth);
     nc_free(ctx, st->scratch);
+    nc_free(ctx, st->hist_st);
+    nc_free(ctx, st->hist_src);
+    nc_free(ctx, st->hist_bound);
+    nc_free(ctx, st->hist_lit);
     nc_free(ctx, st);
 }
 
@@ -412,6 +436,8 @@ static void tail(const vol_state *st, const float o[3], const float d[3], double
             memcpy(sa, fo->sigma_a, sizeof(sa));
             memcpy(ss, fo->sigma_s, sizeof(ss));
         }
+        float em[3];
+        nc_fog_one_emission(f, fo, x, em);
         double S[3] = {st->env[0], st->env[1], st->env[2]};
         for (uint32_t l = 0; l < st->light_count; l++) {
             const vlight *li = &st->lights[l];
@@ -428,14 +454,18 @@ static void tail(const vol_state *st, const float o[3], const float d[3], double
         bool diverges = isinf(G);
         for (int c = 0; c < 3; c++) {
             double sig_t = (double)sa[c] + ss[c];
-            if (!(sig_t > 0.0))
+            if (!(sig_t > 0.0)) {
+                /* Emission in clear air: its integral, unattenuated (infinite: no limit). */
+                if (em[c] > 0.0f)
+                    acc[c] += diverges ? INFINITY : em[c] * G;
                 continue;
+            }
             if (diverges) {
                 tau_inf[c] += sig_t;
-                acc_inf[c] += ss[c] * S[c];
+                acc_inf[c] += ss[c] * S[c] + em[c];
             } else {
                 tau[c] += sig_t * G;
-                acc[c] += ss[c] * G * S[c];
+                acc[c] += (ss[c] * S[c] + em[c]) * G;
             }
         }
     }
@@ -477,6 +507,8 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
             return NACRE_ERROR_OUT_OF_MEMORY;
         st->grid_capacity = n;
     }
+    if (st->field.emissive && !nc_reserve(ctx, &st->em, &st->em_capacity, 3 * n, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
     const camera_rays *cr = &st->cam;
     uint32_t D = st->D;
     if (!nc_reserve(ctx, &st->boundf, &st->boundf_capacity, 2 * (size_t)D + 1, sizeof(float)))
@@ -515,7 +547,9 @@ static void column_points(const vol_state *st, const float o[3], const float d[3
                           float *p)
 {
     for (uint32_t k = 0; k < st->D; k++) {
-        float t = (float)ray_t(0.5 * (st->bound[k] + st->bound[k + 1]), scale, offset);
+        double z = st->jitter == 0.5f ? 0.5 * (st->bound[k] + st->bound[k + 1])
+                                      : st->bound[k] + st->jitter * (st->bound[k + 1] - st->bound[k]);
+        float t = (float)ray_t(z, scale, offset);
         for (int c = 0; c < 3; c++)
             p[3 * k + c] = o[c] + t * d[c];
     }
@@ -533,6 +567,8 @@ static void froxel_fill(vol_state *st, int threads)
         column_points(st, o, d, scale, offset, p);
         size_t base = (size_t)col * st->D;
         nc_fog_field_eval(&st->field, st->D, p, st->st + 3 * base, st->src + 3 * base, st->g + base, ev);
+        if (st->field.emissive)
+            nc_fog_field_emission(&st->field, st->D, p, st->em + 3 * base, ev);
     }
 }
 
@@ -899,8 +935,166 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
         size_t base = (size_t)col * st->D;
         froxel_light_column(st, n, p, d, st->src + 3 * base, st->g + base, st->src + 3 * base, patterned ? cn : NULL,
                             cw, ls, tau);
+        if (st->field.emissive) /* emission: a source term beside sigma_s L (§1.2.11) */
+            for (size_t k = 3 * base; k < 3 * (base + n); k++)
+                st->src[k] += st->em[k];
         memset(st->src + 3 * (base + n), 0, 3 * (size_t)(st->D - n) * sizeof(float));
     }
+    return NACRE_OK;
+}
+
+/* ---- temporal reprojection ------------------------------------------------------------------
+ *
+ * With volumetrics.temporal = a > 0 (Wronski 2014, Hillaire 2015: the froxel grid is too coarse in
+ * depth to sample thin features, so successive frames sample different depths and are blended):
+ * frame f samples every froxel at the fraction j_f = frac(0.5 + f phi^-1) of its slice (the R1
+ * sequence: 0.5 first, then evenly spread), and after the lighting each froxel's sigma_t and
+ * source become (1 - a) x this frame's + a x the previous frame's blended grid at the same world
+ * point, found through the previous camera and slices (trilinear between the previous samples;
+ * taps outside the previous grid or in slices it did not light are left out, and a froxel with
+ * less than half of its weight in valid taps keeps this frame's values). The history restarts
+ * when the scene object or the grid's size changes, or the setting is 0. What moved since (the
+ * camera is followed, lights and fogs are not) lags by about 1 / (1 - a) frames: ghosting,
+ * measured in docs/accuracy.md. */
+
+static void temporal_begin(vol_state *st, const nc_post_input *in)
+{
+    float a = in->settings->volumetrics.temporal;
+    bool same = st->hist_valid && st->hist_uid == in->scene->uid && st->hW == st->W && st->hH == st->H &&
+                st->hD == st->D;
+    if (!(a > 0.0f) || !same) {
+        st->hist_valid = false;
+        st->frame = 0;
+    }
+    if (!(a > 0.0f)) {
+        st->jitter = 0.5f;
+        return;
+    }
+    double j = 0.5 + st->frame * 0.61803398874989485;
+    st->jitter = (float)(j - floor(j));
+}
+
+/* The previous frame's slice coordinate of view-axis depth z (samples at integers), or -1
+ * outside its slices. */
+static double hist_slice(const vol_state *st, double z)
+{
+    const double *b = st->hist_bound;
+    uint32_t D = st->hD;
+    if (!(z >= b[0] && z < b[D]))
+        return -1.0;
+    uint32_t lo = 0, hi = D; /* b[lo] <= z < b[hi] */
+    while (hi - lo > 1) {
+        uint32_t mid = (lo + hi) / 2;
+        if (z >= b[mid])
+            lo = mid;
+        else
+            hi = mid;
+    }
+    return lo + (z - b[lo]) / (b[lo + 1] - b[lo]) - st->hist_jitter;
+}
+
+static void temporal_blend_column(const vol_state *st, float a, size_t col, const float *p)
+{
+    uint32_t W = st->W, H = st->H, D = st->D;
+    for (uint32_t k = 0; k < D; k++) {
+        const float *x = p + 3 * (size_t)k;
+        double v[3], c[4];
+        for (int r = 0; r < 3; r++)
+            v[r] = st->hist_view[r][0] * x[0] + st->hist_view[r][1] * x[1] + st->hist_view[r][2] * x[2] +
+                   st->hist_view[r][3];
+        for (int r = 0; r < 4; r++)
+            c[r] = st->hist_proj[r][0] * v[0] + st->hist_proj[r][1] * v[1] + st->hist_proj[r][2] * v[2] +
+                   st->hist_proj[r][3];
+        if (!(c[3] > 0.0))
+            continue;
+        double u = (c[0] / c[3] + 1.0) * 0.5 * W - 0.5, w = (1.0 - c[1] / c[3]) * 0.5 * H - 0.5;
+        double sl = hist_slice(st, -v[2]);
+        if (!(u >= -0.5 && u <= W - 0.5 && w >= -0.5 && w <= H - 0.5 && sl >= -0.5 && sl <= D - 0.5))
+            continue;
+        double f[3] = {u, w, sl}, lim[3] = {W - 1.0, H - 1.0, D - 1.0};
+        int32_t i0[3];
+        double t[3];
+        for (int q = 0; q < 3; q++) {
+            double g = f[q] < 0.0 ? 0.0 : f[q] > lim[q] ? lim[q] : f[q];
+            i0[q] = (int32_t)floor(g);
+            if (i0[q] > (int32_t)lim[q] - 1)
+                i0[q] = lim[q] >= 1.0 ? (int32_t)lim[q] - 1 : 0;
+            t[q] = g - i0[q];
+            if (t[q] > 1.0)
+                t[q] = 1.0;
+        }
+        double hs[3] = {0, 0, 0}, hr[3] = {0, 0, 0}, wsum = 0.0;
+        for (int corner = 0; corner < 8; corner++) {
+            int32_t ci = i0[0] + (corner & 1), cj = i0[1] + ((corner >> 1) & 1), ck = i0[2] + ((corner >> 2) & 1);
+            double wt = ((corner & 1) ? t[0] : 1.0 - t[0]) * (((corner >> 1) & 1) ? t[1] : 1.0 - t[1]) *
+                        (((corner >> 2) & 1) ? t[2] : 1.0 - t[2]);
+            if (wt == 0.0 || ci >= (int32_t)W || cj >= (int32_t)H || ck >= (int32_t)D)
+                continue;
+            size_t hc = (size_t)cj * W + (size_t)ci;
+            if ((uint32_t)ck >= st->hist_lit[hc])
+                continue;
+            size_t at = 3 * (hc * D + (size_t)ck);
+            for (int ch = 0; ch < 3; ch++) {
+                hs[ch] += wt * st->hist_st[at + ch];
+                hr[ch] += wt * st->hist_src[at + ch];
+            }
+            wsum += wt;
+        }
+        if (!(wsum >= 0.5))
+            continue;
+        size_t at = 3 * (col * D + k);
+        for (int ch = 0; ch < 3; ch++) {
+            st->st[at + ch] = (1.0f - a) * st->st[at + ch] + a * (float)(hs[ch] / wsum);
+            st->src[at + ch] = (1.0f - a) * st->src[at + ch] + a * (float)(hr[ch] / wsum);
+        }
+    }
+}
+
+/* Blend the lit grid with the history (if any), then keep the result as the next history. */
+static nacre_result temporal_end(vol_state *st, const nc_post_input *in, int threads)
+{
+    float a = in->settings->volumetrics.temporal;
+    if (!(a > 0.0f))
+        return NACRE_OK;
+    nacre_context *ctx = in->ctx;
+    size_t cols = (size_t)st->W * st->H, n = cols * st->D;
+    if (st->hist_valid) {
+#pragma omp parallel for schedule(static) num_threads(threads)
+        for (int64_t col = 0; col < (int64_t)cols; col++) {
+            float *p = thread_scratch(st), o[3], d[3];
+            double scale, offset;
+            column_ray(st, (uint32_t)(col % st->W), (uint32_t)(col / st->W), o, d, &scale, &offset);
+            column_points(st, o, d, scale, offset, p);
+            temporal_blend_column(st, a, (size_t)col, p);
+        }
+    }
+    if (!nc_reserve(ctx, &st->hist_st, &st->hist_capacity, 3 * n, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    if (!nc_reserve(ctx, &st->hist_src, &st->hist_src_capacity, 3 * n, sizeof(float)) ||
+        !nc_reserve(ctx, &st->hist_lit, &st->hist_lit_capacity, cols, sizeof(uint32_t)) ||
+        !nc_reserve(ctx, &st->hist_bound, &st->hist_bound_capacity, (size_t)st->D + 1, sizeof(double))) {
+        st->hist_valid = false;
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    }
+    memcpy(st->hist_st, st->st, 3 * n * sizeof(float));
+    memcpy(st->hist_src, st->src, 3 * n * sizeof(float));
+    for (size_t c = 0; c < cols; c++)
+        st->hist_lit[c] = lit_slices(st, st->col_depth[c]);
+    memcpy(st->hist_bound, st->bound, ((size_t)st->D + 1) * sizeof(double));
+    const nc_raster_view *view = in->view;
+    for (int r = 0; r < 4; r++)
+        for (int c = 0; c < 4; c++) {
+            st->hist_proj[r][c] = view->proj.m[r][c];
+            if (r < 3)
+                st->hist_view[r][c] = view->view.m[r][c];
+        }
+    st->hist_jitter = st->jitter;
+    st->hist_uid = in->scene->uid;
+    st->hW = st->W;
+    st->hH = st->H;
+    st->hD = st->D;
+    st->hist_valid = true;
+    st->frame++;
     return NACRE_OK;
 }
 
@@ -1067,11 +1261,13 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
     if (res != NACRE_OK)
         return res;
     int threads = in->ctx->threads;
+    temporal_begin(st, in);
     froxel_fill(st, threads);
     stage_done(stats, NACRE_STAGE_FROXEL_FILL, t0);
     t0 = nc_now_us();
     if ((res = column_depths(st, in->ctx, in->depth, image->width, image->height, threads)) != NACRE_OK ||
-        (res = froxel_light(st, in->ctx, threads, batch)) != NACRE_OK)
+        (res = froxel_light(st, in->ctx, threads, batch)) != NACRE_OK ||
+        (res = temporal_end(st, in, threads)) != NACRE_OK)
         return res;
     stage_done(stats, NACRE_STAGE_FROXEL_LIGHT, t0);
     t0 = nc_now_us();
@@ -1097,7 +1293,8 @@ typedef struct viso {
 static void march_segment(const vol_state *st, const float o[3], const float d[3], double t0, double t1, uint32_t n,
                           float *sc, nc_vol_march m[3])
 {
-    float *p = sc, *sig_t = sc + 3u * n, *src = sc + 6u * n, *g = sc + 9u * n, *ev = sc + 13u * n;
+    float *p = sc, *sig_t = sc + 3u * n, *src = sc + 6u * n, *g = sc + 9u * n, *em = sc + 10u * n;
+    float *ev = sc + 13u * n;
     float *tau = ev + NC_FOG_EVAL_SCRATCH(n);
     double dt = (t1 - t0) / n;
     for (uint32_t k = 0; k < n; k++) {
@@ -1107,6 +1304,11 @@ static void march_segment(const vol_state *st, const float o[3], const float d[3
     }
     nc_fog_field_eval(&st->field, n, p, sig_t, src, g, ev);
     light_points(st, n, p, d, src, g, src, tau);
+    if (st->field.emissive) { /* emission: a source term beside sigma_s L (§1.2.11) */
+        nc_fog_field_emission(&st->field, n, p, em, ev);
+        for (size_t k = 0; k < 3 * (size_t)n; k++)
+            src[k] += em[k];
+    }
     for (int c = 0; c < 3; c++)
         m[c] = nc_vol_march_begin();
     for (uint32_t k = 0; k < n; k++)

@@ -118,6 +118,8 @@ static nacre_result check_settings(nacre_context *ctx, const nacre_render_settin
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: raymarch_steps: must be 1..4096");
     if (v->shadow_steps < 1 || v->shadow_steps > 256)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: shadow_steps: must be 1..256");
+    if (!(v->temporal >= 0.0f && v->temporal < 1.0f))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: froxel_temporal: must be in [0, 1)");
     *out = m;
     return m->check ? m->check(ctx, s) : NACRE_OK;
 }

@@ -933,6 +933,13 @@ static nacre_result check_fog(const nacre_scene *s, const nacre_fog_desc *d)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: sigma_a: must be finite and >= 0");
     if (!nonneg3(d->sigma_s))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: sigma_s: must be finite and >= 0");
+    if (!nonneg3(d->emission))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: emission: must be finite and >= 0");
+    for (int c = 0; d->shape == NACRE_FOG_GLOBAL && c < 3; c++)
+        if (d->emission[c] > 0 && !(d->sigma_a[c] + d->sigma_s[c] > 0))
+            return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                           "fog: emission: a global fog that emits must absorb or scatter in that channel "
+                           "(sigma_a + sigma_s > 0), or its light is infinite");
     if (!(isfinite(d->g) && d->g > -1 && d->g < 1))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: g: must be in (-1, 1)");
     if (!(isfinite(d->height_falloff) && d->height_falloff >= 0))
@@ -952,6 +959,14 @@ void nc_scene_store_fog(nc_fog_rec *rec, const nacre_fog_desc *d)
     m.eta = 1.0f;
     m.pattern = d->pattern;
     rec->medium = m;
+    /* Emission as the absorption of a medium whose medium 2 is clear: nc_medium_eval then
+     * scales it by the pattern exactly as it scales sigma (x (1 - w), x density). */
+    m.sigma_s[0] = m.sigma_s[1] = m.sigma_s[2] = 0.0f;
+    memcpy(m.sigma_a, d->emission, sizeof(m.sigma_a));
+    memset(m.pattern.sigma_a2, 0, sizeof(m.pattern.sigma_a2));
+    memset(m.pattern.sigma_s2, 0, sizeof(m.pattern.sigma_s2));
+    rec->emission = m;
+    rec->emissive = d->emission[0] > 0.0f || d->emission[1] > 0.0f || d->emission[2] > 0.0f;
     nacre_transform t;
     memset(&t, 0, sizeof(t));
     memcpy(t.translate, d->center, sizeof(t.translate));

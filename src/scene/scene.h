@@ -59,6 +59,9 @@ typedef struct nc_fog_rec {
     nacre_fog_desc desc;
     nacre_material_desc medium; /* sigma_a, sigma_s, g, pattern as a translucent material, so that
                                    nc_medium_eval serves fogs and objects alike */
+    nacre_material_desc emission; /* sigma_a: the emission, pattern as `medium` with a clear
+                                     medium 2, so that nc_medium_eval gives emission at points */
+    bool emissive;              /* some channel of desc.emission > 0 */
     nc_mat4 world_to_local;     /* p -> R^-1 (p - center) */
 } nc_fog_rec;
 

@@ -40,6 +40,10 @@ void nc_fog_field_init(nc_fog_field *f, const nacre_scene *s, uint32_t count, ui
         o->h = (nc_vol_height){.falloff = o->hf_falloff, .base = o->hf_base, .cap = o->hf_cap};
         o->g = rec->desc.g;
         o->medium = &rec->medium;
+        o->emissive = rec->emissive;
+        memcpy(o->emission, rec->desc.emission, sizeof(o->emission));
+        o->emission_medium = &rec->emission;
+        f->emissive |= o->emissive;
     }
 }
 
@@ -143,6 +147,47 @@ void nc_fog_field_eval(const nc_fog_field *f, uint32_t n, const float *p, float 
     for (uint32_t k = 0; k < n; k++) {
         float m = sigma_s[3 * k] + sigma_s[3 * k + 1] + sigma_s[3 * k + 2];
         g[k] = m > 0.0f ? g[k] / m : 0.0f;
+    }
+}
+
+void nc_fog_field_emission(const nc_fog_field *f, uint32_t n, const float *p, float *emission, float *scratch)
+{
+    float *local = scratch, *em = scratch + 3 * (size_t)n, *unused = scratch + 6 * (size_t)n;
+    memset(emission, 0, 3 * (size_t)n * sizeof(float));
+    for (uint32_t i = 0; i < f->count; i++) {
+        const nc_fog_one *o = &f->fogs[i];
+        if (!o->emissive)
+            continue;
+        for (uint32_t k = 0; k < n; k++)
+            to_local(o, p + 3 * (size_t)k, local + 3 * (size_t)k);
+        if (o->patterned) {
+            nc_medium_eval(f->scene, o->emission_medium, local, n, em, unused);
+        } else {
+            for (uint32_t k = 0; k < n; k++)
+                memcpy(em + 3 * (size_t)k, o->emission, sizeof(o->emission));
+        }
+        for (uint32_t k = 0; k < n; k++) {
+            if (o->box && !inside(o, local + 3 * (size_t)k))
+                continue;
+            float hf = nc_vol_height_factor(o->height, o->hf_falloff, o->hf_base, o->hf_cap, p[3 * (size_t)k + 1]);
+            for (int c = 0; c < 3; c++)
+                emission[3 * k + c] += em[3 * k + c] * hf;
+        }
+    }
+}
+
+void nc_fog_one_emission(const nc_fog_field *f, const nc_fog_one *o, const float p[3], float emission[3])
+{
+    emission[0] = emission[1] = emission[2] = 0.0f;
+    if (!o->emissive)
+        return;
+    float q[3];
+    to_local(o, p, q);
+    if (o->patterned) {
+        float unused[3];
+        nc_medium_eval(f->scene, o->emission_medium, q, 1, emission, unused);
+    } else {
+        memcpy(emission, o->emission, sizeof(o->emission));
     }
 }
 

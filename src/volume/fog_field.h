@@ -8,6 +8,9 @@
  * march of `shadow_steps` steps through patterned fogs (each step's pattern at its midpoint times
  * the closed-form height integral over the step, so a constant pattern is exact at any count).
  *
+ * Emission (radiance per unit length) is a separate field (nc_fog_field_emission): the source
+ * term added to sigma_s L in each step's segment integral (§1.2.11).
+ *
  * The coefficients are those the path tracer tracks (same density cap). Translucent objects do
  * not displace the fog here (the path tracer's fog stops inside them).
  *
@@ -30,6 +33,9 @@ typedef struct nc_fog_one {
     float sigma_a[3], sigma_s[3];        /* where the height factor is 1 (pattern: medium 1) */
     float g;
     const nacre_material_desc *medium;   /* pattern source (the scene's, borrowed) */
+    bool emissive;
+    float emission[3];                   /* where the height factor is 1 (pattern: medium 1) */
+    const nacre_material_desc *emission_medium; /* emission as sigma_a (nc_fog_rec.emission) */
 } nc_fog_one;
 
 typedef struct nc_fog_field {
@@ -38,6 +44,7 @@ typedef struct nc_fog_field {
     nc_fog_one fogs[NACRE_MAX_FOGS];
     float bounds_min[3], bounds_max[3]; /* committed scene bounds: a global pattern is marched in them */
     uint32_t shadow_steps;
+    bool emissive; /* some fog emits */
 } nc_fog_field;
 
 /* Floats of scratch that nc_fog_field_eval needs for n points, and nc_fog_field_optical_depth. */
@@ -51,6 +58,15 @@ void nc_fog_field_init(nc_fog_field *f, const nacre_scene *s, uint32_t count, ui
  * of all fogs at n world points (3 floats each). */
 void nc_fog_field_eval(const nc_fog_field *f, uint32_t n, const float *p, float *sigma_t, float *sigma_s, float *g,
                        float *scratch);
+
+/* Emission (radiance per unit length, 3 per point) of all fogs at n world points, as the
+ * scene format defines it (height factor, pattern with a clear medium 2); zeros when no fog
+ * emits. Scratch: NC_FOG_EVAL_SCRATCH(n). */
+void nc_fog_field_emission(const nc_fog_field *f, uint32_t n, const float *p, float *emission, float *scratch);
+
+/* One fog's emission at world point p where its height factor is 1 (its pattern at p; p is not
+ * tested against its shape), for closed-form tails that integrate the height factor. */
+void nc_fog_one_emission(const nc_fog_field *f, const nc_fog_one *o, const float p[3], float emission[3]);
 
 /* Which fogs nc_fog_field_optical_depth integrates. */
 #define NC_FOG_ANALYTIC 1u  /* fogs without pattern (closed form) */

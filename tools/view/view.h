@@ -101,7 +101,7 @@ bool nc_view_solver(nc_view *v, nacre_diffusion_solver solver);
 /* Render settings of the layered method, the volumetric fog and the particles, by the names of
  * the scene file's render block (docs/scene-format.md): layered_samples, layered_epsilon,
  * layered_integration, volumetrics, froxel_width, froxel_height, froxel_slices, raymarch_steps,
- * shadow_steps, particles. `value` is the text as in a script ("froxel", "8", "0.01"); the same
+ * shadow_steps, froxel_temporal, particles. `value` is the text as in a script ("froxel", "8", "0.01"); the same
  * ranges as the scene loader. */
 bool nc_view_render_setting(nc_view *v, const char *name, const char *value, bool check_only);
 void nc_view_set_time(nc_view *v, double time);

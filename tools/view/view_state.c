@@ -410,6 +410,15 @@ bool nc_view_render_setting(nc_view *v, const char *name, const char *value, boo
         ok = setting_uint(v, name, value, 1, 4096, &vol->raymarch_steps);
     } else if (strcmp(name, "shadow_steps") == 0) {
         ok = setting_uint(v, name, value, 1, 256, &vol->shadow_steps);
+    } else if (strcmp(name, "froxel_temporal") == 0) {
+        char *end = NULL;
+        errno = 0;
+        double e = strtod(value, &end);
+        ok = !errno && end != value && !*end && e >= 0.0 && e < 1.0;
+        if (ok)
+            vol->temporal = (float)e;
+        else
+            snprintf(v->message, sizeof(v->message), "froxel_temporal '%s': expected a number in [0, 1)", value);
     } else if (strcmp(name, "particles") == 0) {
         ok = nacre_particles_draw_from_name(value, &rs.particles);
         if (!ok)
@@ -417,7 +426,7 @@ bool nc_view_render_setting(nc_view *v, const char *name, const char *value, boo
     } else {
         snprintf(v->message, sizeof(v->message),
                  "unknown setting '%s' (layered_samples, layered_epsilon, layered_integration, volumetrics, "
-                 "froxel_width, froxel_height, froxel_slices, raymarch_steps, shadow_steps, particles)",
+                 "froxel_width, froxel_height, froxel_slices, froxel_temporal, raymarch_steps, shadow_steps, particles)",
                  name);
         return false;
     }

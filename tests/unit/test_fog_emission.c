@@ -1,0 +1,385 @@
+/*
+ * test_fog_emission.c: fog emission ("emission" of a fog: radiance per unit length, seed 003
+ * §1.2.11) in every technique that renders fog, against closed forms and the path tracer:
+ *   - an emitting, absorbing, non-scattering fog box (edge 2) seen head-on through an
+ *     orthographic camera in front of an environment of 0.5: per pixel inside the box,
+ *     L = eps / sigma_t (1 - e^(-2 sigma_t)) + 0.5 e^(-2 sigma_t), one channel with sigma_t = 0
+ *     (the limit eps d); the analytic fog pass to 1e-5 (every pixel, the box edges included),
+ *     froxels and the ray march to 2%, and the same with 8 slices or steps as with 64 (the
+ *     box faces on slice boundaries: the segment integral is exact for homogeneous media), and
+ *     the path tracer per band of rows within 4 standard errors of its mean (from its variance
+ *     image);
+ *   - a global emitting fog in the analytic pass to 1e-5: over the background (infinite depth)
+ *     eps / sigma_t, on a black cube's flat face eps / sigma_t (1 - e^(-sigma_t d));
+ *   - a heterogeneous (noise) emitting, absorbing fog: the ray march (512 steps) and the path
+ *     tracer agree per band of rows within 4 standard errors plus 1%;
+ *   - scene files: "emission" loads, saves and reloads to the same bits; negative, wrong-sized
+ *     and non-numeric values, and a global fog that emits without extinction, give one-line
+ *     errors naming the field; the API rejects NaN.
+ */
+#include "test_util.h"
+
+#include <nacre/nacre.h>
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static nacre_context *ctx;
+
+static nacre_scene *load(const char *json, nacre_render_settings *rs)
+{
+    nacre_scene *s = NULL;
+    nacre_scene_file_settings fs;
+    nacre_result r = nacre_scene_load_json(ctx, json, strlen(json), "emission.json", ".", &s, &fs);
+    CHECK(r == NACRE_OK);
+    if (r != NACRE_OK) {
+        printf("  %s\n", nacre_context_last_error(ctx));
+        return NULL;
+    }
+    if (rs)
+        *rs = fs.render;
+    CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
+    return s;
+}
+
+static bool render(const char *json, const nacre_render_settings *want, nacre_image *img, nacre_image *var)
+{
+    nacre_render_settings rs;
+    nacre_scene *s = load(json, &rs);
+    if (!s)
+        return false;
+    rs.method = want->method;
+    rs.width = want->width;
+    rs.height = want->height;
+    rs.volumetrics = want->volumetrics;
+    rs.pathtrace = want->pathtrace;
+    nacre_renderer *r = NULL;
+    CHECK(nacre_renderer_create(ctx, &r) == NACRE_OK);
+    nacre_result res = nacre_renderer_render(r, s, &rs, img, NULL);
+    CHECK(res == NACRE_OK);
+    if (res != NACRE_OK)
+        printf("  %s\n", nacre_context_last_error(ctx));
+    if (res == NACRE_OK && var)
+        CHECK(nacre_renderer_variance(r, var) == NACRE_OK);
+    nacre_renderer_destroy(r);
+    nacre_scene_destroy(s);
+    return res == NACRE_OK;
+}
+
+static float px(const nacre_image *img, int x, int y, int c)
+{
+    return img->pixels[(size_t)y * img->stride + 3 * (size_t)x + (size_t)c];
+}
+
+/* Mean of a block of pixels and, with the variance image of the mean, its standard error. */
+static void region(const nacre_image *img, const nacre_image *var, int x0, int x1, int y0, int y1, double m[3],
+                   double se[3])
+{
+    double s[3] = {0, 0, 0}, v[3] = {0, 0, 0};
+    int n = 0;
+    for (int y = y0; y < y1; y++)
+        for (int x = x0; x < x1; x++, n++)
+            for (int c = 0; c < 3; c++) {
+                s[c] += px(img, x, y, c);
+                v[c] += var ? px(var, x, y, c) : 0.0;
+            }
+    for (int c = 0; c < 3; c++) {
+        m[c] = s[c] / n;
+        se[c] = sqrt(v[c]) / n;
+    }
+}
+
+static nacre_render_settings settings(nacre_method method, nacre_volumetrics_mode mode, int w, int h)
+{
+    nacre_render_settings rs = nacre_render_settings_defaults();
+    rs.method = method;
+    rs.width = w;
+    rs.height = h;
+    rs.volumetrics.mode = mode;
+    return rs;
+}
+
+/* ---- an emitting box seen head-on ------------------------------------------------------------ */
+
+/* Orthographic camera at z = 5 looking down -z over [-2, 2]^2, near 1 and far 9: rays start at
+ * z = 4 and cross the box (|z| <= 1) over d = 2; 8, 16 or 64 equal slices put boundaries on its
+ * faces. A black sphere behind the camera is the object the raster methods need. */
+#define BOX_SCENE(FOG)                                                                              \
+    "{\"camera\": {\"type\": \"orthographic\", \"position\": [0, 0, 5], \"target\": [0, 0, 0], "    \
+    "\"height\": 4, \"near\": 1, \"far\": 9}, \"environment\": 0.5,"                                \
+    "\"materials\": {\"black\": {\"type\": \"opaque\", \"diffuse\": 0, \"specular\": 0}},"          \
+    "\"objects\": [{\"shape\": {\"type\": \"sphere\", \"radius\": 0.1}, \"material\": \"black\","   \
+    "\"transform\": {\"translate\": [0, 0, 20]}, \"shadows\": false}],"                             \
+    "\"fog\": [" FOG "]}"
+
+#define EMIT_BOX BOX_SCENE("{\"shape\": \"box\", \"size\": 2, \"sigma_a\": [0.5, 1.5, 0], \"sigma_s\": 0, " \
+                           "\"emission\": [0.3, 0.6, 0.9]}")
+
+static const double BOX_SA[3] = {0.5, 1.5, 0.0}, BOX_EM[3] = {0.3, 0.6, 0.9};
+
+/* The closed form at pixel (x, y) of a 32 x 32 image (8 pixels per unit). */
+static double box_exact(int x, int y, int c)
+{
+    double xx = (x + 0.5) / 8 - 2, yy = 2 - (y + 0.5) / 8;
+    if (fabs(xx) > 1 || fabs(yy) > 1)
+        return 0.5;
+    const double d = 2.0, st = BOX_SA[c];
+    double T = exp(-st * d), w = st > 0 ? (1 - T) / st : d;
+    return BOX_EM[c] * w + 0.5 * T;
+}
+
+static double worst_box_error(const nacre_image *img, bool inner)
+{
+    double worst = 0;
+    for (int y = 0; y < 32; y++)
+        for (int x = 0; x < 32; x++) {
+            double xx = (x + 0.5) / 8 - 2, yy = 2 - (y + 0.5) / 8;
+            if (inner && (fabs(xx) > 0.9 || fabs(yy) > 0.9))
+                continue;
+            for (int c = 0; c < 3; c++) {
+                double e = box_exact(x, y, c), err = fabs(px(img, x, y, c) - e) / e;
+                worst = err > worst ? err : worst;
+            }
+        }
+    return worst;
+}
+
+static double max_rel_diff(const nacre_image *a, const nacre_image *b)
+{
+    double worst = 0;
+    for (int y = 0; y < a->height; y++)
+        for (int x = 0; x < a->width; x++)
+            for (int c = 0; c < 3; c++) {
+                double u = px(a, x, y, c), v = px(b, x, y, c), d = fabs(u - v) / fmax(fabs(v), 1e-6);
+                worst = d > worst ? d : worst;
+            }
+    return worst;
+}
+
+static void emitting_box(void)
+{
+    const int W = 32, H = 32;
+    nacre_image fog = {0}, fx = {0}, fx8 = {0}, rm = {0}, rm8 = {0};
+    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_OFF, W, H);
+    bool ok = render(EMIT_BOX, &rs, &fog, NULL);
+    rs.volumetrics.mode = NACRE_VOLUMETRICS_FROXEL;
+    rs.volumetrics.froxel_width = W;
+    rs.volumetrics.froxel_height = H;
+    rs.volumetrics.froxel_slices = 64;
+    ok = ok && render(EMIT_BOX, &rs, &fx, NULL);
+    rs.volumetrics.froxel_slices = 8;
+    ok = ok && render(EMIT_BOX, &rs, &fx8, NULL);
+    rs.volumetrics.mode = NACRE_VOLUMETRICS_RAYMARCH;
+    rs.volumetrics.raymarch_steps = 64;
+    ok = ok && render(EMIT_BOX, &rs, &rm, NULL);
+    rs.volumetrics.raymarch_steps = 8;
+    ok = ok && render(EMIT_BOX, &rs, &rm8, NULL);
+    if (ok) {
+        double e_fog = worst_box_error(&fog, false), e_fx = worst_box_error(&fx, true),
+               e_rm = worst_box_error(&rm, true);
+        double s_fx = max_rel_diff(&fx8, &fx), s_rm = max_rel_diff(&rm8, &rm);
+        printf("  emitting box: largest relative error fog pass %.2e (all pixels), froxel %.2e, raymarch %.2e;\n"
+               "  8 vs 64 slices %.2e, 8 vs 64 steps %.2e\n",
+               e_fog, e_fx, e_rm, s_fx, s_rm);
+        CHECK(e_fog < 1e-5);
+        CHECK(e_fx < 0.02);
+        CHECK(e_rm < 0.02);
+        CHECK(s_fx < 1e-4);
+        CHECK(s_rm < 1e-4);
+        /* The sigma_t = 0 channel is eps d + background, exactly. */
+        CHECK_NEAR(px(&fog, 16, 16, 2), BOX_EM[2] * 2 + 0.5, 1e-5);
+        CHECK_NEAR(px(&rm, 16, 16, 2), BOX_EM[2] * 2 + 0.5, 1e-4);
+        CHECK_NEAR(px(&fx, 16, 16, 2), BOX_EM[2] * 2 + 0.5, 2e-3);
+    }
+    nacre_image_free(ctx, &fog);
+    nacre_image_free(ctx, &fx);
+    nacre_image_free(ctx, &fx8);
+    nacre_image_free(ctx, &rm);
+    nacre_image_free(ctx, &rm8);
+
+    /* The path tracer, per band of 4 rows over the inner 14 columns. */
+    nacre_render_settings pr = settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
+    pr.pathtrace.spp = 128;
+    pr.pathtrace.seed = 5;
+    nacre_image ref = {0}, var = {0};
+    if (render(EMIT_BOX, &pr, &ref, &var)) {
+        double worst_sigma = 0;
+        for (int y0 = 9; y0 + 4 <= 23; y0 += 4) {
+            double m[3], se[3], e[3];
+            region(&ref, &var, 9, 23, y0, y0 + 4, m, se);
+            for (int c = 0; c < 3; c++) {
+                e[c] = box_exact(16, y0, c);
+                CHECK_NEAR(m[c], e[c], 4 * se[c]);
+                double z = fabs(m[c] - e[c]) / se[c];
+                worst_sigma = z > worst_sigma ? z : worst_sigma;
+            }
+            printf("  rows %2d-%2d: path tracer %.5f %.5f %.5f (se %.5f %.5f %.5f), exact %.5f %.5f %.5f\n", y0,
+                   y0 + 3, m[0], m[1], m[2], se[0], se[1], se[2], e[0], e[1], e[2]);
+        }
+        printf("  path tracer: largest deviation %.2f standard errors (tolerance 4)\n", worst_sigma);
+        /* Outside the box only the environment. */
+        CHECK_NEAR(px(&ref, 2, 2, 0), 0.5, 1e-6);
+    }
+    nacre_image_free(ctx, &ref);
+    nacre_image_free(ctx, &var);
+}
+
+/* ---- a global emitting fog in the analytic pass ------------------------------------------------ */
+
+static void global_fog_pass(void)
+{
+    /* A black cube of edge 2 at the origin: its front face at z = 1, d = 4 - 1 = 3 from the rays'
+     * start on the near plane. */
+    const char *json =
+        "{\"camera\": {\"type\": \"orthographic\", \"position\": [0, 0, 5], \"target\": [0, 0, 0], "
+        "\"height\": 4, \"near\": 1, \"far\": 9}, \"environment\": 0.5,"
+        "\"materials\": {\"black\": {\"type\": \"opaque\", \"diffuse\": 0, \"specular\": 0}},"
+        "\"objects\": [{\"shape\": {\"type\": \"box\", \"size\": [2, 2, 2]}, \"material\": \"black\"}],"
+        "\"fog\": [{\"shape\": \"global\", \"sigma_a\": [0.2, 0.1, 0.05], \"sigma_s\": 0,"
+        "\"emission\": [0.1, 0.2, 0.3]}]}";
+    const double sa[3] = {0.2, 0.1, 0.05}, em[3] = {0.1, 0.2, 0.3};
+    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_OFF, 32, 32);
+    nacre_image img = {0};
+    if (render(json, &rs, &img, NULL)) {
+        double worst_bg = 0, worst_face = 0;
+        for (int c = 0; c < 3; c++) {
+            double bg = em[c] / sa[c], face = em[c] / sa[c] * (1 - exp(-3 * sa[c]));
+            worst_bg = fmax(worst_bg, fabs(px(&img, 1, 1, c) - bg) / bg);
+            worst_face = fmax(worst_face, fabs(px(&img, 16, 16, c) - face) / face);
+        }
+        printf("  global emitting fog, fog pass: relative error background %.2e, cube face %.2e\n", worst_bg,
+               worst_face);
+        CHECK(worst_bg < 1e-5);
+        CHECK(worst_face < 1e-5);
+    }
+    nacre_image_free(ctx, &img);
+}
+
+/* ---- heterogeneous emission: the march against the path tracer -------------------------------- */
+
+#define NOISE_BOX BOX_SCENE("{\"shape\": \"box\", \"size\": 2, \"sigma_a\": [0.6, 0.3, 0.1], \"sigma_s\": 0, " \
+                            "\"emission\": [1, 0.8, 0.5], \"pattern\": {\"type\": \"noise\", \"cell_size\": 1, " \
+                            "\"octaves\": 2, \"sigma_a2\": 0, \"sigma_s2\": 0}}")
+
+static void noise_box(void)
+{
+    const int W = 32, H = 32;
+    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_RAYMARCH, W, H);
+    rs.volumetrics.raymarch_steps = 512;
+    nacre_image rm = {0}, pt = {0}, var = {0}, fx = {0};
+    bool ok = render(NOISE_BOX, &rs, &rm, NULL);
+    rs.volumetrics.mode = NACRE_VOLUMETRICS_FROXEL;
+    rs.volumetrics.froxel_width = W;
+    rs.volumetrics.froxel_height = H;
+    rs.volumetrics.froxel_slices = 128;
+    ok = ok && render(NOISE_BOX, &rs, &fx, NULL);
+    nacre_render_settings pr = settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
+    pr.pathtrace.spp = 512;
+    pr.pathtrace.seed = 9;
+    ok = ok && render(NOISE_BOX, &pr, &pt, &var);
+    if (ok) {
+        double worst = 0, worst_fx = 0, lo = INFINITY, hi = 0, se_max = 0;
+        for (int y0 = 9; y0 + 2 <= 23; y0 += 2)
+            for (int x0 = 9; x0 + 7 <= 23; x0 += 7) {
+                double m[3], se[3], r[3], f[3], dummy[3];
+                region(&pt, &var, x0, x0 + 7, y0, y0 + 2, m, se);
+                region(&rm, NULL, x0, x0 + 7, y0, y0 + 2, r, dummy);
+                region(&fx, NULL, x0, x0 + 7, y0, y0 + 2, f, dummy);
+                lo = fmin(lo, r[0]);
+                hi = fmax(hi, r[0]);
+                se_max = fmax(se_max, se[0]);
+                for (int c = 0; c < 3; c++) {
+                    CHECK_NEAR(r[c], m[c], 4 * se[c] + 0.01 * m[c]);
+                    CHECK_NEAR(f[c], m[c], 4 * se[c] + 0.02 * m[c]);
+                    worst = fmax(worst, fabs(r[c] - m[c]) / se[c]);
+                    worst_fx = fmax(worst_fx, fabs(f[c] - m[c]) / m[c]);
+                }
+            }
+        printf("  noise emitting box: march vs path tracer at most %.2f standard errors; froxels (128 slices) "
+               "vs path tracer at most %.2f%%\n",
+               worst, 100 * worst_fx);
+        /* The pattern matters: the blocks differ by far more than the tolerance. */
+        printf("  blocks of the march (red): %.4f .. %.4f, path tracer's largest se %.4f\n", lo, hi, se_max);
+        CHECK(hi - lo > 8 * se_max);
+    }
+    nacre_image_free(ctx, &rm);
+    nacre_image_free(ctx, &fx);
+    nacre_image_free(ctx, &pt);
+    nacre_image_free(ctx, &var);
+}
+
+/* ---- scene files and the API ---------------------------------------------------------------- */
+
+static void expect_error(const char *fog, const char *needle)
+{
+    char json[1024];
+    snprintf(json, sizeof(json), "{\"fog\": [%s]}", fog);
+    nacre_scene *s = NULL;
+    nacre_scene_file_settings fs;
+    nacre_result r = nacre_scene_load_json(ctx, json, strlen(json), "bad.json", ".", &s, &fs);
+    const char *msg = nacre_context_last_error(ctx);
+    CHECK(r != NACRE_OK && s == NULL);
+    CHECK(msg && strstr(msg, needle) && !strchr(msg, '\n'));
+    printf("  %s -> %s\n", fog, msg ? msg : "(none)");
+    nacre_scene_destroy(s);
+}
+
+static void files_and_api(void)
+{
+    nacre_scene *s = load(NOISE_BOX, NULL);
+    if (s) {
+        char *json = NULL;
+        CHECK(nacre_scene_save_json(s, NULL, NACRE_TEST_TMP, &json, NULL) == NACRE_OK);
+        CHECK(json && strstr(json, "\"emission\""));
+        nacre_scene *t = NULL;
+        nacre_scene_file_settings fs2;
+        if (json)
+            CHECK(nacre_scene_load_json(ctx, json, strlen(json), "saved.json", NACRE_TEST_TMP, &t, &fs2) == NACRE_OK);
+        if (t) {
+            nacre_fog_desc a, b;
+            CHECK(nacre_scene_get_fog(s, (nacre_fog){1}, &a) == NACRE_OK);
+            CHECK(nacre_scene_get_fog(t, (nacre_fog){1}, &b) == NACRE_OK);
+            CHECK(memcmp(a.emission, b.emission, sizeof(a.emission)) == 0);
+            CHECK(a.emission[0] == 1.0f && a.emission[1] == 0.8f && a.emission[2] == 0.5f);
+            nacre_scene_destroy(t);
+        }
+        nacre_free(ctx, json);
+        /* The API: NaN and negative values name the field. */
+        nacre_fog_desc d = nacre_fog_desc_defaults(NACRE_FOG_BOX);
+        nacre_fog h;
+        d.emission[1] = NAN;
+        CHECK(nacre_scene_add_fog(s, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT);
+        CHECK(strstr(nacre_context_last_error(ctx), "emission") != NULL);
+        d.emission[1] = -1.0f;
+        CHECK(nacre_scene_add_fog(s, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT);
+        d.emission[1] = 1.0f;
+        CHECK(nacre_scene_add_fog(s, &d, &h) == NACRE_OK);
+        nacre_scene_destroy(s);
+    }
+    /* Without emission nothing is written (files stay as they were). */
+    nacre_scene *plain = load(BOX_SCENE("{\"shape\": \"box\", \"size\": 2, \"sigma_a\": 1, \"sigma_s\": 0}"), NULL);
+    if (plain) {
+        char *json = NULL;
+        CHECK(nacre_scene_save_json(plain, NULL, NACRE_TEST_TMP, &json, NULL) == NACRE_OK);
+        CHECK(json && !strstr(json, "emission"));
+        nacre_free(ctx, json);
+        nacre_scene_destroy(plain);
+    }
+    expect_error("{\"shape\": \"box\", \"size\": 1, \"emission\": [1, -0.5, 0]}", "emission");
+    expect_error("{\"shape\": \"box\", \"size\": 1, \"emission\": [1, 2]}", "emission");
+    expect_error("{\"shape\": \"box\", \"size\": 1, \"emission\": \"bright\"}", "emission");
+    expect_error("{\"shape\": \"global\", \"sigma_a\": 0, \"sigma_s\": [0.1, 0, 0.1], \"emission\": 1}", "emission");
+}
+
+int main(void)
+{
+    CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
+    files_and_api();
+    global_fog_pass();
+    emitting_box();
+    noise_box();
+    nacre_context_destroy(ctx);
+    return TEST_MAIN_END();
+}
