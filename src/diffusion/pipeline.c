@@ -650,6 +650,9 @@ nacre_result nc_diff_object_medium(nc_diff_object *o, const nacre_scene *s, uint
     return NACRE_OK;
 }
 
+/* How far a boundary cell's depth may move the surface from the staircase's h / 2, in units of
+ * the extrapolation length 2 A D (object_setup). */
+#define NC_DIFF_DEPTH_REACH 0.5f
 /* Build the solver's operators for the current grid and medium. */
 static nacre_result object_setup(nc_diff_object *o)
 {
@@ -674,7 +677,12 @@ static nacre_result object_setup(nc_diff_object *o)
      * from about 0 to a cell: with d the flux is D phi / (d + 2 A D). The factor on the cell's
      * boundary weight (one per cell: D is the mean over the channels, within a few percent of
      * each channel's factor for the materials here) is also the exitance's
-     * (nc_diff_compute_exitance), so the picture still shows what the solver lets out. */
+     * (nc_diff_compute_exitance), so the picture still shows what the solver lets out. The
+     * linear profile behind it holds over a fraction of the extrapolation length 2 A D: where
+     * cells are wider than that (marble at 32^3 on a 60 mm column: h = 2.8 x 2 A D), d is kept
+     * within NC_DIFF_DEPTH_REACH x 2 A D of h / 2; unlimited, the factor swung from 0.6 to 2.4
+     * between neighbouring cells of a twisted box and blotched it (docs/accuracy.md). On issue
+     * 28's sphere (h = 0.94 x 2 A D at 32^3) the limit does not bind. */
     const float A = o->robin_a, half = 0.5f * o->h;
     for (size_t i = 0; i < o->cells; i++) {
         float f = 1.0f;
@@ -686,8 +694,10 @@ static nacre_result object_setup(nc_diff_object *o)
                 dm += sa + sp > 0.0f ? 1.0f / (3.0f * (sa + sp)) : 0.0f;
             }
             dm *= 1.0f / 3.0f;
+            const float ext = 2.0f * A * dm, lim = NC_DIFF_DEPTH_REACH * ext;
+            const float d = fminf(fmaxf(o->depth[i], half - lim), half + lim);
             if (dm > 0.0f)
-                f = (half + 2.0f * A * dm) / (o->depth[i] + 2.0f * A * dm);
+                f = (half + ext) / (d + ext);
         }
         o->bscale[i] = f;
     }
