@@ -28,10 +28,7 @@
  * falls off over the first cells below a lit surface: the red exitance at the lit pole of a
  * jade sphere (r = 20 mm) at 16 / 32 / 64 / 128 cells is 0.24 / 0.43 / 0.57 / 0.63 one cell deep
  * against 0.46 / 0.60 / 0.65 / 0.66 half a cell deep. Per cell we store E with the cell's own D,
- * so heterogeneous media need no separate D interpolation. A boundary cell whose centre is not
- * h / 2 below the true surface (o->depth) has its Robin term scaled in the solver by
- * (h / 2 + 2 A D) / (depth + 2 A D) (pipeline.c, object_setup); E takes the same factor
- * (o->bscale), so it stays the flux the solver lets out.
+ * so heterogeneous media need no separate D interpolation.
  *
  * Interpolation: trilinear between cell centres over the boundary cells only (solid cells with an
  * exposed face; weights renormalized), so that neither empty space nor the interior leaks in. An
@@ -301,7 +298,6 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
     o->exit_valid = false;
     uint32_t *spans = o->exit_span;
     const uint8_t *solid = o->solid;
-    const float *bscale = o->bscale;
     const float h = o->h, delta = NC_DIFF_SAMPLE_DEPTH * h, A = o->robin_a, inv_1mfdr = 1.0f / (1.0f - o->fdr);
     const bool face = mode == NACRE_SOURCE_FACE;
     float *pk = o->packed;
@@ -345,11 +341,8 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
                 const float *restrict pc = phi[c] + u, *restrict dc = D[c] ? D[c] + u : NULL;
                 const float du = dc ? 0.0f : d_uniform[c];
                 float *restrict ec = E[c] + u;
-                /* times the boundary cell's depth factor, as in the solver (pipeline.c,
-                 * object_setup; 1 in other cells) */
-                const float *restrict bs = bscale + u;
                 for (size_t x = lo; x < hi; x++) { /* -O3 unswitches the test of dc */
-                    float e = nc_diff_exitance(pc[x], dc ? dc[x] : du, A, 2.0f * delta) * bs[x];
+                    float e = nc_diff_exitance(pc[x], dc ? dc[x] : du, A, 2.0f * delta);
                     ec[x] = e > 0.0f ? e : 0.0f;
                 }
                 /* FACE: the lit faces' own term replaces q in place (once per solve), read at
