@@ -6,7 +6,10 @@
 # ground, so that the lit pixels are the translucent objects alone.
 #
 #   scripts/accuracy_table.sh [--nacre PATH] [--size WxH] [--ref-seconds S] [--res "16 32 64 128"]
-#                             [--out DIR] [SCENE.json ...]
+#                             [--out DIR] [--reuse-ref] [SCENE.json ...]
+#
+# --reuse-ref keeps a reference already in DIR (same scene and size: compare before/after a change
+# against one reference).
 #
 # Prints one Markdown row per scene and resolution. tests/unit/test_accuracy.c asserts the
 # default resolution's row of the first two scenes at a coarse size and sample count.
@@ -17,6 +20,7 @@ size=128x128
 ref_seconds=60
 res="16 32 64 128"
 out=${TMPDIR:-/tmp}/nacre-accuracy
+reuse=0
 scenes=()
 while [ $# -gt 0 ]; do
     case "$1" in
@@ -25,7 +29,8 @@ while [ $# -gt 0 ]; do
         --ref-seconds) ref_seconds=$2; shift 2 ;;
         --res) res=$2; shift 2 ;;
         --out) out=$2; shift 2 ;;
-        -h|--help) sed -n 2,13p "$0"; exit 0 ;;
+        --reuse-ref) reuse=1; shift ;;
+        -h|--help) sed -n 2,16p "$0"; exit 0 ;;
         -*) echo "accuracy_table: unknown option $1" >&2; exit 2 ;;
         *) scenes+=("$1"); shift ;;
     esac
@@ -60,8 +65,10 @@ d.get("render", {}).pop("method", None)
 json.dump(d, open(sys.argv[2], "w"), indent=1)
 EOF
     ref="$out/$name.ref.exr"
-    "$nacre" render "$variant" --method pathtrace --size "$size" --spp 1000000 --time-limit "$ref_seconds" \
-        --exr-float -o "$ref" >/dev/null
+    if [ $reuse = 0 ] || [ ! -f "$ref" ]; then
+        "$nacre" render "$variant" --method pathtrace --size "$size" --spp 1000000 --time-limit "$ref_seconds" \
+            --exr-float -o "$ref" >/dev/null
+    fi
     for r in $res; do
         img="$out/$name.diffusion$r.exr"
         "$nacre" render "$variant" --method diffusion --size "$size" --voxel-res "$r" --exr-float -o "$img" >/dev/null

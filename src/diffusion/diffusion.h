@@ -40,6 +40,9 @@ typedef struct nc_diff_medium {
      * staircase exactly the area of its plane. true: every exposed face at full area (exact for
      * grid-aligned boxes, whose edges the estimate rounds off). */
     bool staircase_faces;
+    /* Per cell, a factor on its boundary weight (NULL: 1): the pipeline's correction for a
+     * boundary cell whose centre is not h / 2 below the true surface (pipeline.c, object_setup). */
+    const float *boundary_scale;
 } nc_diff_medium;
 
 typedef struct nc_diff_solve_opts {

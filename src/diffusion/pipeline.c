@@ -45,6 +45,9 @@ static void free_arrays(nc_diff_object *o)
 {
     nacre_context *ctx = o->ctx;
     nc_free(ctx, o->solid);
+    nc_free(ctx, o->depth);
+    nc_free(ctx, o->bscale);
+    o->depth = o->bscale = NULL;
     nc_free(ctx, o->rest);
     nc_free(ctx, o->eval_a);
     nc_free(ctx, o->eval_s);
@@ -99,7 +102,9 @@ static nacre_result ensure_arrays(nc_diff_object *o, size_t cells)
         return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: voxel grid too large");
     o->solid = nc_calloc(o->ctx, cells, 1);
     o->acc = nc_calloc(o->ctx, cells, 3 * sizeof(int64_t));
-    bool ok = o->solid != NULL && o->acc != NULL;
+    o->depth = nc_alloc(o->ctx, cells * sizeof(float));
+    o->bscale = nc_alloc(o->ctx, cells * sizeof(float));
+    bool ok = o->solid != NULL && o->acc != NULL && o->depth != NULL && o->bscale != NULL;
     for (int c = 0; c < 3 && ok; c++) {
         o->source[c] = nc_calloc(o->ctx, cells, sizeof(float));
         o->phi[c] = nc_calloc(o->ctx, cells, sizeof(float));
@@ -154,6 +159,163 @@ static nacre_mesh_data world_mesh(const nacre_scene *s, const nc_object_rec *obj
     m.tangents = NULL;
     m.uvs = NULL;
     return m;
+}
+
+/* Squared distance from p to triangle (a, b, c) (Ericson 2005, 5.1.5, the closest point by its
+ * Voronoi region). */
+static float point_triangle_d2(const float p[3], const float a[3], const float b[3], const float c[3])
+{
+    float ab[3], ac[3], ap[3], bp[3], cp[3];
+    for (int k = 0; k < 3; k++) {
+        ab[k] = b[k] - a[k];
+        ac[k] = c[k] - a[k];
+        ap[k] = p[k] - a[k];
+        bp[k] = p[k] - b[k];
+        cp[k] = p[k] - c[k];
+    }
+#define DOT3(u, v) (u[0] * v[0] + u[1] * v[1] + u[2] * v[2])
+    const float d1 = DOT3(ab, ap), d2 = DOT3(ac, ap), d3 = DOT3(ab, bp), d4 = DOT3(ac, bp), d5 = DOT3(ab, cp),
+                d6 = DOT3(ac, cp);
+    const float va = d3 * d6 - d5 * d4, vb = d5 * d2 - d1 * d6, vc = d1 * d4 - d3 * d2;
+    float v = 0.0f, w = 0.0f;
+    if (d1 <= 0 && d2 <= 0) {
+        v = w = 0.0f;
+    } else if (d3 >= 0 && d4 <= d3) {
+        v = 1.0f;
+    } else if (vc <= 0 && d1 >= 0 && d3 <= 0) {
+        v = d1 / (d1 - d3);
+    } else if (d6 >= 0 && d5 <= d6) {
+        w = 1.0f;
+    } else if (vb <= 0 && d2 >= 0 && d6 <= 0) {
+        w = d2 / (d2 - d6);
+    } else if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        v = 1.0f - w;
+    } else {
+        const float den = 1.0f / (va + vb + vc);
+        v = vb * den;
+        w = vc * den;
+    }
+#undef DOT3
+    float d = 0.0f;
+    for (int k = 0; k < 3; k++) {
+        const float q = ap[k] - v * ab[k] - w * ac[k];
+        d += q * q;
+    }
+    return d;
+}
+
+/* o->depth: for each boundary cell (solid with an exposed face, the cells whose Robin terms let
+ * light out), the distance from its centre to the nearest triangle of the mesh. Solid cells have
+ * their centres inside the mesh (the voxelizer's parity rule), so this is the centre's depth
+ * below the true surface, between 0 and about a cell: the face a cell centre's flux crosses
+ * (the staircase, h / 2 away) is not where the surface is, and object_setup corrects the
+ * boundary condition for it. The mesh crosses the segment from a boundary cell's centre to its
+ * empty neighbour's, so only triangles within a cell of a centre matter: each triangle visits
+ * the cells of its bounding box grown by one cell, about 27 distance tests for a triangle
+ * smaller than a cell. A mesh of more than NC_DIFF_DEPTH_TRIANGLES triangles per boundary cell
+ * keeps the staircase's depth (NAN everywhere): its triangles are smaller than the cells, the
+ * pass would cost more than the rest of the voxelization (Suzanne's 15.7k triangles at 28^3:
+ * a few ms against 0.45 ms), and the staircase of such a grid is no rougher than its mesh's
+ * detail. Threads take slabs of z and every triangle that reaches them, so each cell's minimum is
+ * over the same triangles whatever the thread count. */
+#define NC_DIFF_DEPTH_TRIANGLES 4
+static void boundary_depths(nc_diff_object *o, const nacre_mesh_data *dm)
+{
+    const uint32_t nx = o->dims[0], ny = o->dims[1], nz = o->dims[2];
+    const size_t sy = nx, sz = (size_t)nx * ny;
+    const uint8_t *solid = o->solid;
+    float *depth = o->depth;
+    size_t boundary = 0;
+    for (size_t i = 0; i < o->cells; i++)
+        depth[i] = NAN;
+    for (uint32_t z = o->lo[2]; z < o->hi[2]; z++)
+        for (uint32_t y = o->lo[1]; y < o->hi[1]; y++)
+            for (uint32_t x = o->lo[0]; x < o->hi[0]; x++) {
+                const size_t i = x + sy * y + sz * z;
+                if (!solid[i])
+                    continue;
+                const bool b = x == 0 || y == 0 || z == 0 || x == nx - 1 || y == ny - 1 || z == nz - 1 ||
+                               !solid[i - 1] || !solid[i + 1] || !solid[i - sy] || !solid[i + sy] ||
+                               !solid[i - sz] || !solid[i + sz];
+                if (b) {
+                    depth[i] = INFINITY;
+                    boundary++;
+                }
+            }
+    if ((double)dm->triangle_count > (double)NC_DIFF_DEPTH_TRIANGLES * (double)boundary) {
+        for (size_t i = 0; i < o->cells; i++)
+            depth[i] = NAN;
+        return;
+    }
+    const float h = o->h, inv_h = 1.0f / h;
+    const uint32_t dims[3] = {nx, ny, nz};
+    const int threads = nc_threads(o->ctx), slabs = threads > 1 && o->cells > 32768 ? threads : 1;
+#pragma omp parallel for schedule(static, 1) num_threads(slabs)
+    for (int slab = 0; slab < slabs; slab++) {
+        const int z0 = (int)((uint64_t)nz * (uint64_t)slab / (uint64_t)slabs),
+                  z1 = (int)((uint64_t)nz * (uint64_t)(slab + 1) / (uint64_t)slabs) - 1;
+        for (size_t t = 0; t < dm->triangle_count; t++) {
+            const uint32_t *ti = dm->indices + 3 * t;
+            if (ti[0] >= dm->vertex_count || ti[1] >= dm->vertex_count || ti[2] >= dm->vertex_count)
+                continue;
+            const float *v[3] = {dm->positions + 3 * (size_t)ti[0], dm->positions + 3 * (size_t)ti[1],
+                                 dm->positions + 3 * (size_t)ti[2]};
+            int lo[3], hi[3];
+            bool empty = false;
+            for (int a = 0; a < 3 && !empty; a++) {
+                const float mn = fminf(v[0][a], fminf(v[1][a], v[2][a])),
+                            mx = fmaxf(v[0][a], fmaxf(v[1][a], v[2][a]));
+                /* cells whose centre (k + 1/2) h + origin is within h of [mn, mx] */
+                const float gl = (mn - o->origin[a]) * inv_h - 1.5f, gh = (mx - o->origin[a]) * inv_h + 0.5f;
+                if (!(gl < 1e6f && gh > -1e6f)) { /* also NaN */
+                    empty = true;
+                    break;
+                }
+                lo[a] = gl < 0.0f ? 0 : (int)ceilf(gl);
+                hi[a] = gh >= (float)dims[a] ? (int)dims[a] - 1 : (int)floorf(gh);
+                empty = lo[a] > hi[a];
+            }
+            if (empty)
+                continue;
+            /* unit normal: the distance to the plane bounds the distance to the triangle from
+             * below, which skips most tests once a cell has a near triangle (0: degenerate) */
+            float e1[3], e2[3], n[3];
+            for (int a = 0; a < 3; a++) {
+                e1[a] = v[1][a] - v[0][a];
+                e2[a] = v[2][a] - v[0][a];
+            }
+            n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+            n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+            n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+            const float nl = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), inv_nl = nl > 0.0f ? 1.0f / nl : 0.0f;
+            for (int a = 0; a < 3; a++)
+                n[a] *= inv_nl;
+            lo[2] = lo[2] > z0 ? lo[2] : z0;
+            hi[2] = hi[2] < z1 ? hi[2] : z1;
+            for (int z = lo[2]; z <= hi[2]; z++)
+                for (int y = lo[1]; y <= hi[1]; y++)
+                    for (int x = lo[0]; x <= hi[0]; x++) {
+                        const size_t i = (size_t)x + sy * (size_t)y + sz * (size_t)z;
+                        if (!(depth[i] > 0.0f)) /* NaN: not a boundary cell; 0: on the surface */
+                            continue;
+                        const float p[3] = {o->origin[0] + ((float)x + 0.5f) * h,
+                                            o->origin[1] + ((float)y + 0.5f) * h,
+                                            o->origin[2] + ((float)z + 0.5f) * h};
+                        const float dp = (p[0] - v[0][0]) * n[0] + (p[1] - v[0][1]) * n[1] + (p[2] - v[0][2]) * n[2];
+                        if (dp * dp >= depth[i])
+                            continue;
+                        const float d2 = point_triangle_d2(p, v[0], v[1], v[2]);
+                        depth[i] = d2 < depth[i] ? d2 : depth[i];
+                    }
+        }
+    }
+    /* squared distances to distances; a boundary cell with no triangle within a cell (a mesh
+     * that is not closed, a thin sliver) keeps the staircase's depth */
+    const float reach2 = 2.0f * h * h;
+    for (size_t i = 0; i < o->cells; i++)
+        if (depth[i] >= 0.0f)
+            depth[i] = depth[i] <= reach2 ? sqrtf(depth[i]) : NAN;
 }
 
 nacre_result nc_diff_object_voxelize(nc_diff_object *o, const nacre_scene *s, uint32_t index, uint32_t resolution)
@@ -237,6 +399,7 @@ nacre_result nc_diff_object_voxelize(nc_diff_object *o, const nacre_scene *s, ui
         o->lo[k] = count ? lo[k] : 0;
         o->hi[k] = count ? hi[k] : 0;
     }
+    boundary_depths(o, &dm);
     o->vox_valid = true;
     return NACRE_OK;
 }
@@ -505,6 +668,39 @@ static nacre_result object_setup(nc_diff_object *o)
         m.sigma_sp_const[c] = o->sigma_sp_const[c];
     }
     m.eta = o->eta;
+    /* Boundary cells at their true depth. The solver's Robin term lets a boundary cell's flux
+     * out through its exposed faces as if the surface were there, h / 2 from the centre
+     * (J = D phi / (h / 2 + 2 A D)); the surface is at the centre's depth d below it (o->depth),
+     * from about 0 to a cell: with d the flux is D phi / (d + 2 A D), the factor
+     * f = (h / 2 + 2 A D) / (d + 2 A D) on the cell's boundary weight (one per cell: D is the
+     * mean over the channels, within a few percent of each channel's factor for the materials
+     * here). The shading pass reads phi at h / 2 below the true surface as D phi / (d + 2 A D)
+     * with d the interpolated depth of the cells it reads (nc_diff_compute_exitance). That
+     * linear profile holds where a cell is within a transport mean free path 1 / sigma_t'
+     * (issue 28's sphere: 0.69 at 32^3); below a lit surface phi follows the sources over the
+     * first mean free path, and on coarser cells the factor drew the grid's terraces as bands
+     * (the jade torus at 32^3: 2.1 mean free paths per cell) and blotches (marble at 32^3:
+     * 4.6). So f fades to 1 between one and two mean free paths per cell (docs/accuracy.md). */
+    const float A = o->robin_a, half = 0.5f * o->h;
+    for (size_t i = 0; i < o->cells; i++) {
+        float f = 1.0f;
+        if (o->solid[i] && o->depth[i] >= 0.0f) {
+            float dm = 0.0f;
+            for (int c = 0; c < 3; c++) {
+                const float sa = o->heterogeneous ? o->sigma_a[c][i] : o->sigma_a_const[c];
+                const float sp = o->heterogeneous ? o->sigma_sp[c][i] : o->sigma_sp_const[c];
+                dm += sa + sp > 0.0f ? 1.0f / (3.0f * (sa + sp)) : 0.0f;
+            }
+            dm *= 1.0f / 3.0f;
+            if (dm > 0.0f) {
+                const float ext = 2.0f * A * dm, mfp_cells = o->h / (3.0f * dm);
+                const float w = fminf(fmaxf(2.0f - mfp_cells, 0.0f), 1.0f);
+                f = 1.0f + w * ((half + ext) / (o->depth[i] + ext) - 1.0f);
+            }
+        }
+        o->bscale[i] = f;
+    }
+    m.boundary_scale = o->bscale;
     return nc_diff_setup(o->solver, &m);
 }
 

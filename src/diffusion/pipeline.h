@@ -42,6 +42,11 @@ typedef struct nc_diff_object {
     float h;                         /* cell side, scene units */
     size_t cells, capacity;          /* nx*ny*nz; floats allocated per array */
     uint8_t *solid;                  /* cells: 1 = in the domain */
+    float *depth;                    /* cells: a boundary cell's centre's distance to the mesh
+                                      * (its depth below the true surface); NAN elsewhere and
+                                      * where the mesh is not within a cell (pipeline.c) */
+    float *bscale;                   /* cells: a boundary cell's Robin factor for that depth
+                                      * (object_setup), the solver's and the exitance's */
     uint64_t solid_count;
     uint32_t lo[3], hi[3];           /* bounding box of the solid cells, [lo, hi) */
     /* Medium */

@@ -30,6 +30,16 @@
  * against 0.46 / 0.60 / 0.65 / 0.66 half a cell deep. Per cell we store E with the cell's own D,
  * so heterogeneous media need no separate D interpolation.
  *
+ * True depth. A boundary cell's centre is 0 to about a cell below the true surface, not h / 2
+ * (o->depth); the solver scales its Robin term by f = (h / 2 + 2 A D) / (d + 2 A D)
+ * (pipeline.c, object_setup, where f also fades to 1 on cells wider than a mean free path).
+ * The sample point p - n h / 2 is h / 2 below the true surface, and phi interpolated there from
+ * cells at depths d_i stands for phi at their mean depth: the exitance is
+ * D phi / (d + 2 A D) = sum w k phi / sum w g with g = 1 / f, so each cell's record is
+ * (k phi, g) instead of (k phi, 1), and the shading pass's renormalized sums do the rest
+ * (g = 1 where f = 1: the staircase's exitance as before). The fallbacks (o->exitance: ghost
+ * records of larger grids, points outside the grid, rare) keep k phi with weight 1.
+ *
  * Interpolation: trilinear between cell centres over the boundary cells only (solid cells with an
  * exposed face; weights renormalized), so that neither empty space nor the interior leaks in. An
  * interior cell's k phi is no exitance: below a lit surface phi grows over the first mean free
@@ -298,6 +308,7 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
     o->exit_valid = false;
     uint32_t *spans = o->exit_span;
     const uint8_t *solid = o->solid;
+    const float *bscale = o->bscale;
     const float h = o->h, delta = NC_DIFF_SAMPLE_DEPTH * h, A = o->robin_a, inv_1mfdr = 1.0f / (1.0f - o->fdr);
     const bool face = mode == NACRE_SOURCE_FACE;
     float *pk = o->packed;
@@ -363,10 +374,12 @@ nacre_result nc_diff_compute_exitance(nc_diff_object *o, const float *const D[3]
                 const bool b = solid[i] && (x == 0 || x == nx - 1 || yy == 0 || yy == ny - 1 || zz == 0 ||
                                             zz == nz - 1 || !solid[i - 1] || !solid[i + 1] || !solid[i - nx] ||
                                             !solid[i + nx] || !solid[i - nx * ny] || !solid[i + nx * ny]);
+                /* (k phi, g): the shading pass's sums give sum w k phi / sum w g (see above) */
+                const float f = bscale ? bscale[i] : 1.0f;
                 v[0] = b ? E[0][i] : 0.0f;
                 v[1] = b ? E[1][i] : 0.0f;
                 v[2] = b ? E[2][i] : 0.0f;
-                v[3] = b ? 1.0f : 0.0f;
+                v[3] = b ? 1.0f / f : 0.0f;
             }
         }
     memcpy(o->exit_dims, o->dims, sizeof(o->dims));

@@ -447,6 +447,17 @@ static nacre_result build_fine(nc_diff_solver *s, const nc_diff_medium *m, int t
         }
     if (!m->staircase_faces)
         smooth_weights(s, threads);
+    if (m->boundary_scale) {
+        const float *bs = m->boundary_scale;
+#pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
+        for (uint32_t z = 0; z < nz; z++)
+            for (uint32_t y = 0; y < cy; y++) {
+                const size_t u0 = (size_t)off[0] + (size_t)m->dims[0] * ((y + off[1]) + (size_t)m->dims[1] * (z + off[2]));
+                float *bw = l->bw + pidx(l, 0, y, z);
+                for (uint32_t x = 0; x < cx; x++)
+                    bw[x] *= bs[u0 + x];
+            }
+    }
     /* Pass 3: Robin terms and diagonal (finish_level gives cells outside a unit diagonal). The
      * fast path's k (the exposed faces until here, for the smoothing) becomes the solid
      * neighbour count its kernels read, 7 outside the domain. */
