@@ -1,10 +1,13 @@
 /*
- * face_stats.c: face_stats TEST REF sphere|checker: docs/accuracy.md's per-region measures of a
+ * face_stats.c: face_stats TEST REF sphere|checker [REF2]: docs/accuracy.md's per-region measures of a
  * diffusion image against the path tracer's on issue 28's scenes (the cameras of
  * examples/accuracy_sphere.json and examples/accuracy_checker.json, any square size).
  * checker: per visible face (+X, -Y, +Z; pixels within 0.03 of an edge left out) the mean ratio
  * per channel, the correlation of the G - B signal with the reference's and the ratio of their
- * standard deviations (the reference's noise is in its deviation: a lower bound).
+ * standard deviations (the reference's noise is in its deviation: a lower bound). With a second
+ * reference of another seed (REF2), also the noise-free forms: the truth's signal variance is the
+ * covariance of the two references' signals (their noise is independent), so the contrast is
+ * sqrt(var(test) / cov(ref, ref2)) and the correlation cov(test, ref) / sqrt(var(test) cov(ref, ref2)).
  * sphere: the mean ratio over lit pixels (n.l > 0) by the normal's angle to the nearest grid
  * axis, and over the shadowed crescent (n.l in (-0.3, 0)); pixels seen at more than 75 degrees
  * left out (anti-aliasing).
@@ -25,7 +28,10 @@ int main(int argc, char **argv)
         return 2;
     nacre_context *ctx; nacre_context_create(NULL, &ctx);
     nacre_image t = {0}, r = {0};
+    nacre_image r2 = {0};
     if (nacre_image_read(ctx, argv[1], &t) || nacre_image_read(ctx, argv[2], &r)) { printf("read fail\n"); return 2; }
+    if (argc > 4 && nacre_image_read(ctx, argv[4], &r2)) { printf("read fail\n"); return 2; }
+    double gc[8] = {0}, gcc[8] = {0}, grc[8] = {0};
     int checker = strcmp(argv[3], "checker") == 0;
     v3 pos = checker ? (v3){2.4, -3.2, 2.0} : (v3){0, 0, 4.5}, up = checker ? (v3){0, 0, 1} : (v3){0, 1, 0};
     v3 f = nrm(sub((v3){0, 0, 0}, pos)), rt = nrm(cross(f, up)), u = cross(rt, f);
@@ -66,6 +72,11 @@ int main(int argc, char **argv)
         for (int c = 0; c < 3; c++) { st[cls][c] += pt[c]; sr[cls][c] += pr[c]; }
         double a = pt[1] - pt[2], bb = pr[1] - pr[2];
         ga[cls] += a; gb[cls] += bb; gaa[cls] += a * a; gbb[cls] += bb * bb; gab[cls] += a * bb;
+        if (r2.pixels) {
+            const float *p2 = r2.pixels + (size_t)y * r2.stride + 3 * x;
+            double cc = p2[1] - p2[2];
+            gc[cls] += cc; gcc[cls] += cc * cc; grc[cls] += bb * cc;
+        }
     }
     const char *names_c[3] = {"+X", "-Y", "+Z"};
     const char *names_s[8] = {"lit ax<10", "lit 10-20", "lit 20-30", "lit 30-40", "lit 40-50", "lit >50", "dark nl>-.3", "dark nl<-.3"};
@@ -75,6 +86,11 @@ int main(int argc, char **argv)
         if (checker) {
             double N = n[k], ma = ga[k] / N, mb = gb[k] / N, va = gaa[k] / N - ma * ma, vb = gbb[k] / N - mb * mb, cv = gab[k] / N - ma * mb;
             printf("  G-B corr %.3f std ratio %.3f", cv / sqrt(va * vb), sqrt(va / vb));
+            if (r2.pixels) {
+                double mc = gc[k] / N, vc = gcc[k] / N - mc * mc, c12 = grc[k] / N - mb * mc;
+                printf("  | ref2 std ratio %.3f, refs' corr %.3f; noise-free: corr %.3f std ratio %.3f",
+                       sqrt(va / vc), c12 / sqrt(vb * vc), cv / sqrt(va * c12), sqrt(va / c12));
+            }
         }
         printf("\n");
     }
