@@ -170,5 +170,9 @@ nc_mat4 nc_mat4_look_at(nc_vec3 eye, nc_vec3 target, nc_vec3 up);
 nc_mat4 nc_mat4_perspective(float fov_y, float aspect, float znear, float zfar);
 /* View-to-clip for a box [l,r]x[b,t] and depths [znear, zfar] in front of the eye. */
 nc_mat4 nc_mat4_ortho(float l, float r, float b, float t, float znear, float zfar);
+/* Closest point of triangle abc to p (Ericson 2005, 5.1.5): its squared distance, and its
+ * barycentric weights of b and c in *wb, *wc (a degenerate triangle gives vertex a). */
+float nc_closest_on_triangle(const float p[3], const float a[3], const float b[3], const float c[3], float *wb,
+                             float *wc);
 
 #endif /* NACRE_MATH_H */

@@ -29,6 +29,7 @@
  * the objects it ran for in stage_runs.
  */
 #include "diffusion/pipeline.h"
+#include "core/math.h"
 #include "core/optics.h"
 #include "layered/layers.h"
 #include "scene/medium.h"
@@ -161,50 +162,6 @@ static nacre_mesh_data world_mesh(const nacre_scene *s, const nc_object_rec *obj
     return m;
 }
 
-/* Squared distance from p to triangle (a, b, c) (Ericson 2005, 5.1.5, the closest point by its
- * Voronoi region). */
-static float point_triangle_d2(const float p[3], const float a[3], const float b[3], const float c[3])
-{
-    float ab[3], ac[3], ap[3], bp[3], cp[3];
-    for (int k = 0; k < 3; k++) {
-        ab[k] = b[k] - a[k];
-        ac[k] = c[k] - a[k];
-        ap[k] = p[k] - a[k];
-        bp[k] = p[k] - b[k];
-        cp[k] = p[k] - c[k];
-    }
-#define DOT3(u, v) (u[0] * v[0] + u[1] * v[1] + u[2] * v[2])
-    const float d1 = DOT3(ab, ap), d2 = DOT3(ac, ap), d3 = DOT3(ab, bp), d4 = DOT3(ac, bp), d5 = DOT3(ab, cp),
-                d6 = DOT3(ac, cp);
-    const float va = d3 * d6 - d5 * d4, vb = d5 * d2 - d1 * d6, vc = d1 * d4 - d3 * d2;
-    float v = 0.0f, w = 0.0f;
-    if (d1 <= 0 && d2 <= 0) {
-        v = w = 0.0f;
-    } else if (d3 >= 0 && d4 <= d3) {
-        v = 1.0f;
-    } else if (vc <= 0 && d1 >= 0 && d3 <= 0) {
-        v = d1 / (d1 - d3);
-    } else if (d6 >= 0 && d5 <= d6) {
-        w = 1.0f;
-    } else if (vb <= 0 && d2 >= 0 && d6 <= 0) {
-        w = d2 / (d2 - d6);
-    } else if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
-        w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        v = 1.0f - w;
-    } else {
-        const float den = 1.0f / (va + vb + vc);
-        v = vb * den;
-        w = vc * den;
-    }
-#undef DOT3
-    float d = 0.0f;
-    for (int k = 0; k < 3; k++) {
-        const float q = ap[k] - v * ab[k] - w * ac[k];
-        d += q * q;
-    }
-    return d;
-}
-
 /* o->depth: for each boundary cell (solid with an exposed face, the cells whose Robin terms let
  * light out), the distance from its centre to the nearest triangle of the mesh. Solid cells have
  * their centres inside the mesh (the voxelizer's parity rule), so this is the centre's depth
@@ -305,7 +262,8 @@ static void boundary_depths(nc_diff_object *o, const nacre_mesh_data *dm)
                         const float dp = (p[0] - v[0][0]) * n[0] + (p[1] - v[0][1]) * n[1] + (p[2] - v[0][2]) * n[2];
                         if (dp * dp >= depth[i])
                             continue;
-                        const float d2 = point_triangle_d2(p, v[0], v[1], v[2]);
+                        float wb, wc;
+                        const float d2 = nc_closest_on_triangle(p, v[0], v[1], v[2], &wb, &wc);
                         depth[i] = d2 < depth[i] ? d2 : depth[i];
                     }
         }

@@ -16,6 +16,8 @@
  */
 #include "layered/layers.h"
 
+#include "core/math.h"
+
 #include <math.h>
 #include <string.h>
 
@@ -173,57 +175,6 @@ void nc_locator_destroy(nacre_context *ctx, nc_surface_locator *loc)
     nc_free(ctx, loc);
 }
 
-/* Closest point of triangle abc to p, as barycentric weights (of b and c) and squared distance:
- * the Voronoi-region walk of Ericson, "Real-Time Collision Detection" (2005), section 5.1.5. */
-static float closest_on_triangle(const float p[3], const float a[3], const float b[3], const float c[3],
-                                 float *wb, float *wc)
-{
-    float ab[3], ac[3], ap[3];
-    for (int k = 0; k < 3; k++)
-        ab[k] = b[k] - a[k], ac[k] = c[k] - a[k], ap[k] = p[k] - a[k];
-#define DOT(x, y) ((x)[0] * (y)[0] + (x)[1] * (y)[1] + (x)[2] * (y)[2])
-    float d1 = DOT(ab, ap), d2 = DOT(ac, ap);
-    float v, w;
-    if (d1 <= 0 && d2 <= 0) {
-        v = 0, w = 0; /* vertex a */
-    } else {
-        float bp[3], cp[3];
-        for (int k = 0; k < 3; k++)
-            bp[k] = p[k] - b[k], cp[k] = p[k] - c[k];
-        float d3 = DOT(ab, bp), d4 = DOT(ac, bp), d5 = DOT(ab, cp), d6 = DOT(ac, cp);
-        float vc = d1 * d4 - d3 * d2, vb = d5 * d2 - d1 * d6, va = d3 * d6 - d5 * d4;
-        if (d3 >= 0 && d4 <= d3) {
-            v = 1, w = 0; /* vertex b */
-        } else if (d6 >= 0 && d5 <= d6) {
-            v = 0, w = 1; /* vertex c */
-        } else if (vc <= 0 && d1 >= 0 && d3 <= 0) {
-            v = d1 / (d1 - d3), w = 0; /* edge ab */
-        } else if (vb <= 0 && d2 >= 0 && d6 <= 0) {
-            v = 0, w = d2 / (d2 - d6); /* edge ac */
-        } else if (va <= 0 && (d4 - d3) >= 0 && (d5 - d6) >= 0) {
-            w = (d4 - d3) / ((d4 - d3) + (d5 - d6)); /* edge bc */
-            v = 1 - w;
-        } else {
-            float den = va + vb + vc;
-            if (!(den > 0)) { /* degenerate triangle: fall back to vertex a */
-                v = 0, w = 0;
-            } else {
-                v = vb / den;
-                w = vc / den;
-            }
-        }
-    }
-#undef DOT
-    float q2 = 0;
-    for (int k = 0; k < 3; k++) {
-        float q = a[k] + v * ab[k] + w * ac[k] - p[k];
-        q2 += q * q;
-    }
-    *wb = v;
-    *wc = w;
-    return q2;
-}
-
 typedef struct nearest_query {
     const nacre_mesh_data *mesh;
     float p[3];
@@ -249,7 +200,7 @@ static bool nearest_cb(struct RTCPointQueryFunctionArguments *args)
     if (h * h >= q->best2 * nn && nn > 0)
         return false;
     float wb, wc;
-    float d2 = closest_on_triangle(q->p, a, b, c, &wb, &wc);
+    float d2 = nc_closest_on_triangle(q->p, a, b, c, &wb, &wc);
     if (d2 < q->best2) {
         q->best2 = d2;
         q->prim = args->primID;
@@ -272,7 +223,7 @@ float nc_locator_nearest(const nc_surface_locator *loc, const float p[3], float 
     if (hint && *hint < m->triangle_count) {
         const uint32_t *t = m->indices + 3 * (size_t)*hint;
         float wb, wc;
-        float d2 = closest_on_triangle(q.p, m->positions + 3 * (size_t)t[0], m->positions + 3 * (size_t)t[1],
+        float d2 = nc_closest_on_triangle(q.p, m->positions + 3 * (size_t)t[0], m->positions + 3 * (size_t)t[1],
                                        m->positions + 3 * (size_t)t[2], &wb, &wc);
         if (d2 < q.best2) {
             q.best2 = d2;
