@@ -320,6 +320,7 @@ typedef struct light_batch {
     float w[NC_MARCH_BATCH]; /* light_at.w, 0 where no light reaches (lit = w > 0) */
     float tau[3][NC_MARCH_BATCH];
     float cos_s[NC_MARCH_BATCH];
+    float k[3][NC_MARCH_BATCH]; /* light_at.k, where lit: M_max's is the entry point of its shadow lookup */
 } light_batch;
 
 static void eval_scalar(const ray_ctx *r, const nacre_light_desc *l, float co, float ci, const float *s, uint32_t n,
@@ -333,6 +334,8 @@ static void eval_scalar(const ray_ctx *r, const nacre_light_desc *l, float co, f
         for (int c = 0; c < 3; c++)
             out->tau[c][i] = lit ? la.tau[c] : 0.0f;
         out->cos_s[i] = lit ? la.cos_s : 0.0f;
+        for (int c = 0; c < 3; c++)
+            out->k[c][i] = la.k[c];
     }
 }
 
@@ -497,17 +500,21 @@ static void eval8(const ray_ctx *r, const nacre_light_desc *l, const float *sp, 
             tau[c] = _mm256_fmadd_ps(_mm256_set1_ps(m->st[m->count][c]), rest, tau[c]);
     }
     ok = _mm256_and_ps(ok, _mm256_cmp_ps(scale, zero, _CMP_GT_OQ));
-    float ow[8], ot[3][8], oc[8];
+    float ow[8], ot[3][8], oc[8], ok3[3][8];
     _mm256_storeu_ps(ow, _mm256_and_ps(scale, ok));
-    for (int c = 0; c < 3; c++)
+    for (int c = 0; c < 3; c++) {
         _mm256_storeu_ps(ot[c], _mm256_and_ps(tau[c], ok));
+        _mm256_storeu_ps(ok3[c], k[c]);
+    }
     _mm256_storeu_ps(oc, _mm256_and_ps(dot8(wt, (const __m256[3]){_mm256_set1_ps(r->d[0]), _mm256_set1_ps(r->d[1]),
                                                                    _mm256_set1_ps(r->d[2])}),
                                        ok));
     for (uint32_t i = 0; i < n && i < 8; i++) {
         out->w[at + i] = ow[i];
-        for (int c = 0; c < 3; c++)
+        for (int c = 0; c < 3; c++) {
             out->tau[c][at + i] = ot[c][i];
+            out->k[c][at + i] = ok3[c][i];
+        }
         out->cos_s[at + i] = oc[i];
     }
 }
@@ -715,20 +722,6 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
             continue;
         const float co = l->type == NACRE_LIGHT_SPOT ? cosf(l->outer_angle * NC_DEG2RAD) : 0.0f;
         const float ci = l->type == NACRE_LIGHT_SPOT ? cosf(l->inner_angle * NC_DEG2RAD) : 0.0f;
-        /* Visibility at P and at the entry point of M_max's light. */
-        float vis0 = 1, vis1 = 1;
-        if (lights[li].shadow) {
-            nc_vec3 n = nc_v3a(pt->n);
-            vis0 = nc_shadow_lookup(lights[li].shadow, nc_v3a(pt->p), n, prm->pcf_radius, prm->shadow_bias);
-            light_at far;
-            eval_light(&r, l, co, ci, r.len, &far);
-            vis1 = far.lit
-                       ? nc_shadow_lookup(lights[li].shadow, nc_v3a(far.k), nc_v3a(pt->ns), prm->pcf_radius,
-                                          prm->shadow_bias)
-                       : vis0;
-            if (vis0 <= 0 && vis1 <= 0)
-                continue;
-        }
         /* ANALYTIC evaluates the light at the pieces' ends in batches (eval_batch through
          * FETCH): point 0 is the first piece's start, point q the end of piece q - 1. */
         const uint32_t npts = np + 1;
@@ -746,6 +739,38 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
             eval_batch(&r, l, co, ci, spts, filled, &lb);                                                              \
         }                                                                                                              \
     } while (0)
+        /* Visibility at P and at the entry point of M_max's light. When all the pieces' ends fit
+         * in one batch, M_max is its last point (or one more lane): its entry point comes with
+         * the batch instead of a scalar evaluation of its own. */
+        float vis0 = 1, vis1 = 1;
+        if (lights[li].shadow) {
+            nc_vec3 n = nc_v3a(pt->n);
+            vis0 = nc_shadow_lookup(lights[li].shadow, nc_v3a(pt->p), n, prm->pcf_radius, prm->shadow_bias);
+            bool far_lit;
+            float far_k[3];
+            if (prm->analytic && npts < NC_MARCH_BATCH) {
+                for (uint32_t e = 0; e < npts; e++)
+                    spts[e] = POINT(e);
+                uint32_t fi = npts - 1;
+                if (spts[fi] != r.len)
+                    spts[++fi] = r.len;
+                eval_batch(&r, l, co, ci, spts, fi + 1, &lb);
+                filled = npts;
+                far_lit = lb.w[fi] > 0;
+                for (int c = 0; c < 3; c++)
+                    far_k[c] = lb.k[c][fi];
+            } else {
+                light_at far;
+                eval_light(&r, l, co, ci, r.len, &far);
+                far_lit = far.lit;
+                memcpy(far_k, far.k, sizeof(far_k));
+            }
+            vis1 = far_lit ? nc_shadow_lookup(lights[li].shadow, nc_v3a(far_k), nc_v3a(pt->ns), prm->pcf_radius,
+                                              prm->shadow_bias)
+                           : vis0;
+            if (vis0 <= 0 && vis1 <= 0)
+                continue;
+        }
         /* Per channel, ln of the integrand without sigma_s * strength (kc): the pieces' ends
          * share it when the layer does not change, and its difference gives the exponential's
          * rate without a logarithm per channel. */
