@@ -316,10 +316,11 @@ static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, fl
 
 /* Light at a batch of points of the view ray: what eval_light gives, structure of arrays. */
 #define NC_MARCH_BATCH 64
+#define NC_MARCH_PAD 8 /* the closed forms read 8 lanes past any point */
 typedef struct light_batch {
-    float w[NC_MARCH_BATCH]; /* light_at.w, 0 where no light reaches (lit = w > 0) */
-    float tau[3][NC_MARCH_BATCH];
-    float cos_s[NC_MARCH_BATCH];
+    float w[NC_MARCH_BATCH + NC_MARCH_PAD]; /* light_at.w, 0 where no light reaches (lit = w > 0) */
+    float tau[3][NC_MARCH_BATCH + NC_MARCH_PAD];
+    float cos_s[NC_MARCH_BATCH + NC_MARCH_PAD];
     float k[3][NC_MARCH_BATCH]; /* light_at.k, where lit: M_max's is the entry point of its shadow lookup */
 } light_batch;
 
@@ -578,6 +579,129 @@ typedef struct piece {
     uint8_t layer;
 } piece;
 
+#ifdef __AVX2__
+/* fast_log on 8 lanes, the same operations. */
+static inline __m256 fast_log8(__m256 x)
+{
+    const __m256i bits = _mm256_castps_si256(x);
+    __m256i e = _mm256_sub_epi32(_mm256_and_si256(_mm256_srli_epi32(bits, 23), _mm256_set1_epi32(0xff)),
+                                 _mm256_set1_epi32(127));
+    __m256 mf = _mm256_castsi256_ps(_mm256_or_si256(_mm256_and_si256(bits, _mm256_set1_epi32(0x007fffff)),
+                                                    _mm256_set1_epi32(0x3f800000)));
+    const __m256 big = _mm256_cmp_ps(mf, _mm256_set1_ps(1.41421356f), _CMP_GT_OQ);
+    mf = _mm256_blendv_ps(mf, _mm256_mul_ps(mf, _mm256_set1_ps(0.5f)), big);
+    e = _mm256_add_epi32(e, _mm256_and_si256(_mm256_castps_si256(big), _mm256_set1_epi32(1)));
+    const __m256 one = _mm256_set1_ps(1.0f);
+    const __m256 t = _mm256_div_ps(_mm256_sub_ps(mf, one), _mm256_add_ps(mf, one)), t2 = _mm256_mul_ps(t, t);
+    __m256 p = _mm256_fmadd_ps(t2, _mm256_set1_ps(0.22222222f), _mm256_set1_ps(0.28571429f));
+    p = _mm256_fmadd_ps(t2, p, _mm256_set1_ps(0.4f));
+    p = _mm256_fmadd_ps(t2, p, _mm256_set1_ps(0.66666667f));
+    p = _mm256_fmadd_ps(t2, p, _mm256_set1_ps(2.0f));
+    p = _mm256_mul_ps(t, p);
+    return _mm256_fmadd_ps(_mm256_cvtepi32_ps(e), _mm256_set1_ps(0.69314718f), p);
+}
+
+/* hg on 8 lanes. */
+static inline __m256 hg8(__m256 c, __m256 g)
+{
+    const __m256 one = _mm256_set1_ps(1.0f), g2 = _mm256_mul_ps(g, g);
+    const __m256 d = _mm256_sub_ps(_mm256_add_ps(one, g2), _mm256_mul_ps(_mm256_add_ps(g, g), c));
+    return _mm256_div_ps(_mm256_sub_ps(one, g2),
+                         _mm256_mul_ps(_mm256_mul_ps(_mm256_set1_ps(4.0f * (float)NC_PI), d), _mm256_sqrt_ps(d)));
+}
+
+/* The ANALYTIC sum of nc_layered_radiance over pieces 0..np-1 with every piece end in lb (np <
+ * NC_MARCH_BATCH), 8 pieces at a time: the same closed forms as its scalar loop, the integrand's
+ * log and exponential at both ends of every piece at once. A piece's start takes the previous
+ * piece's end values when the layer (so the phase) does not change, as the scalar loop does;
+ * the lanes' sums are added at the end, so the result differs from that loop's by float
+ * rounding only. */
+static void closed_forms8(const nc_layer_medium *m, const float strength[3], const piece *pcs, uint32_t np,
+                          const light_batch *lb, float vis0, float vis_rate, float sum[3])
+{
+    enum { N = NC_MARCH_BATCH + NC_MARCH_PAD };
+    float ts[3][N], te[3][N], len[N], s0[N], s1[N], g[N], kc[3][N], change[N];
+    float elf[3][N], ef[3][N], elit[N]; /* at point q: the end values of piece q - 1 */
+    float tau[3] = {0, 0, 0};
+    const uint32_t nr = (np + 7u) & ~7u;
+    for (uint32_t i = 0; i < nr; i++) {
+        const bool in = i < np;
+        const uint32_t j = in ? pcs[i].layer : 0;
+        len[i] = in ? pcs[i].s1 - pcs[i].s0 : 0.0f;
+        s0[i] = in ? pcs[i].s0 : 0.0f;
+        s1[i] = in ? pcs[i].s1 : 0.0f;
+        g[i] = m->g[j];
+        change[i] = (i == 0 || !in || pcs[i - 1].layer != j) ? -1.0f : 0.0f; /* sign bit: blend mask */
+        for (int c = 0; c < 3; c++) {
+            ts[c][i] = tau[c];
+            if (in)
+                tau[c] += m->st[j][c] * len[i];
+            te[c][i] = tau[c];
+            kc[c][i] = in ? m->ss[j][c] * strength[c] : 0.0f;
+        }
+    }
+    const __m256 zero = _mm256_setzero_ps(), fmin = _mm256_set1_ps(FLT_MIN), half = _mm256_set1_ps(0.5f);
+    const __m256 v0 = _mm256_set1_ps(vis0), vr = _mm256_set1_ps(vis_rate);
+    elit[0] = 0;
+    for (int c = 0; c < 3; c++)
+        elf[c][0] = ef[c][0] = 0;
+    /* The ends first: a chunk's starts read the previous piece's end, which may be in the chunk. */
+    for (uint32_t i0 = 0; i0 < nr; i0 += 8) {
+        const __m256 pb = _mm256_mul_ps(
+            _mm256_mul_ps(hg8(_mm256_loadu_ps(lb->cos_s + i0 + 1), _mm256_loadu_ps(g + i0)),
+                          _mm256_fmadd_ps(vr, _mm256_loadu_ps(s1 + i0), v0)),
+            _mm256_loadu_ps(lb->w + i0 + 1));
+        const __m256 b_lit = _mm256_cmp_ps(pb, fmin, _CMP_GT_OQ);
+        const __m256 lpb = _mm256_and_ps(fast_log8(_mm256_blendv_ps(_mm256_set1_ps(1.0f), pb, b_lit)), b_lit);
+        _mm256_storeu_ps(elit + i0 + 1, b_lit);
+        for (int c = 0; c < 3; c++) {
+            const __m256 lfb = _mm256_sub_ps(_mm256_sub_ps(lpb, _mm256_loadu_ps(lb->tau[c] + i0 + 1)),
+                                             _mm256_loadu_ps(te[c] + i0));
+            _mm256_storeu_ps(elf[c] + i0 + 1, lfb);
+            _mm256_storeu_ps(ef[c] + i0 + 1, _mm256_and_ps(fast_exp8(lfb), b_lit));
+        }
+    }
+    __m256 acc[3] = {zero, zero, zero};
+    for (uint32_t i0 = 0; i0 < nr; i0 += 8) {
+        const __m256 ch = _mm256_loadu_ps(change + i0);
+        const __m256 pa = _mm256_mul_ps(
+            _mm256_mul_ps(hg8(_mm256_loadu_ps(lb->cos_s + i0), _mm256_loadu_ps(g + i0)),
+                          _mm256_fmadd_ps(vr, _mm256_loadu_ps(s0 + i0), v0)),
+            _mm256_loadu_ps(lb->w + i0));
+        const __m256 new_lit = _mm256_cmp_ps(pa, fmin, _CMP_GT_OQ);
+        const __m256 lpa = fast_log8(_mm256_blendv_ps(_mm256_set1_ps(1.0f), pa, new_lit));
+        const __m256 a_lit = _mm256_blendv_ps(_mm256_loadu_ps(elit + i0), new_lit, ch);
+        const __m256 b_lit = _mm256_loadu_ps(elit + i0 + 1);
+        const __m256 both = _mm256_and_ps(a_lit, b_lit);
+        const __m256 l = _mm256_loadu_ps(len + i0);
+        const __m256 in = _mm256_cmp_ps(_mm256_add_ps(_mm256_set1_ps((float)i0), _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7)),
+                                        _mm256_set1_ps((float)np), _CMP_LT_OQ);
+        for (int c = 0; c < 3; c++) {
+            const __m256 lfa_new = _mm256_sub_ps(_mm256_sub_ps(lpa, _mm256_loadu_ps(lb->tau[c] + i0)),
+                                                 _mm256_loadu_ps(ts[c] + i0));
+            const __m256 lfa = _mm256_blendv_ps(_mm256_loadu_ps(elf[c] + i0), lfa_new, ch);
+            const __m256 ea = _mm256_and_ps(_mm256_blendv_ps(_mm256_loadu_ps(ef[c] + i0), fast_exp8(lfa_new), ch), a_lit);
+            const __m256 lfb = _mm256_loadu_ps(elf[c] + i0 + 1), fb = _mm256_loadu_ps(ef[c] + i0 + 1);
+            const __m256 k = _mm256_loadu_ps(kc[c] + i0);
+            const __m256 q = _mm256_sub_ps(lfa, lfb);
+            const __m256 aq = _mm256_andnot_ps(_mm256_set1_ps(-0.0f), q);
+            const __m256 exact = _mm256_div_ps(_mm256_mul_ps(l, _mm256_sub_ps(ea, fb)), q);
+            const __m256 trap = _mm256_mul_ps(_mm256_mul_ps(l, half), _mm256_add_ps(ea, fb));
+            const __m256 v = _mm256_and_ps(both, _mm256_cmp_ps(aq, _mm256_set1_ps(1e-4f), _CMP_GT_OQ));
+            acc[c] = _mm256_add_ps(acc[c], _mm256_and_ps(_mm256_mul_ps(k, _mm256_blendv_ps(trap, exact, v)), in));
+        }
+    }
+    for (int c = 0; c < 3; c++) {
+        float lanes[8];
+        _mm256_storeu_ps(lanes, acc[c]);
+        sum[c] = 0;
+        for (int q = 0; q < 8; q++)
+            sum[c] += lanes[q];
+    }
+}
+#endif
+
+
 /* A point of the view ray with its layer, and the layer bottoms there once read: the boundary
  * search reuses them for its secant. */
 typedef struct probe {
@@ -808,6 +932,15 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
                 rgb[c] += sum[c] * t_out;
             continue;
         }
+#ifdef __AVX2__
+        if (npts <= NC_MARCH_BATCH) {
+            FETCH(0);
+            closed_forms8(m, l->strength, pieces, np, &lb, vis0, vis_rate, sum);
+            for (int c = 0; c < 3; c++)
+                rgb[c] += sum[c] * t_out;
+            continue;
+        }
+#endif
         for (uint32_t i = 0; i < np; i++) {
             const piece *pc = &pieces[i];
             const uint32_t j = pc->layer;
