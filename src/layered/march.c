@@ -757,32 +757,33 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
         }
         return count;
     }
-    probe plo, ps, pa, pb, pm;
-    probe_at(r, 0.0f, &plo);
+    /* Probes by pointer: the bisection keeps its brackets without copying the bottoms. */
+    probe slot[2], mid[NC_MARCH_BISECT], after;
+    probe *plo = &slot[0], *ps = &slot[1];
+    probe_at(r, 0.0f, plo);
     float lo = 0;
-    uint32_t jl = plo.layer;
+    uint32_t jl = plo->layer;
     for (uint32_t i = 1; i <= n && tau_min < tau_stop; i++) {
         const float s = i == n ? r->len : (float)i * step;
-        probe_at(r, s, &ps);
-        const uint32_t j = ps.layer;
+        probe_at(r, s, ps);
+        const uint32_t j = ps->layer;
         while (j != jl && count < NC_MARCH_MAX_PIECES - 2) {
             /* First change of layer after lo: layer_at(a) == jl, layer_at(b) != jl. */
-            pa = plo;
-            pb = ps;
+            probe *pa = plo, *pb = ps;
             for (int it = 0; it < NC_MARCH_BISECT; it++) {
-                probe_at(r, 0.5f * (pa.s + pb.s), &pm);
-                if (pm.layer == jl)
-                    pa = pm;
+                probe_at(r, 0.5f * (pa->s + pb->s), &mid[it]);
+                if (mid[it].layer == jl)
+                    pa = &mid[it];
                 else
-                    pb = pm;
+                    pb = &mid[it];
             }
             /* The bracket's last step is a secant on depth - bottom: exact where the boundary
              * is flat, so a handful of halvings suffice. */
-            const float a = pa.s, b = pb.s;
-            const uint32_t jb = pb.layer;
+            const float a = pa->s, b = pb->s;
+            const uint32_t jb = pb->layer;
             const uint32_t edge = jb > jl ? jl : jl - 1; /* the bottom crossed */
-            const float fa = a * r->dz - probe_bottom(r, &pa, edge);
-            const float fb = b * r->dz - probe_bottom(r, &pb, edge);
+            const float fa = a * r->dz - probe_bottom(r, pa, edge);
+            const float fb = b * r->dz - probe_bottom(r, pb, edge);
             float cut = fa != fb ? a + (b - a) * fa / (fa - fb) : b;
             cut = cut >= a && cut <= b ? cut : b;
             out[count++] = (piece){lo, cut, (uint8_t)jl};
@@ -790,15 +791,19 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
             lo = cut;
             /* The layer just past the cut: a bracket that held two boundaries goes on with the
              * layer between them, not the one at its end. */
-            probe_at(r, cut + 1e-3f * (b - cut), &pm);
-            jl = pm.layer != jl ? pm.layer : jb;
-            plo = (probe){.s = cut, .layer = jl, .has_bot = false};
+            probe_at(r, cut + 1e-3f * (b - cut), &after);
+            jl = after.layer != jl ? after.layer : jb;
+            plo->s = cut;
+            plo->layer = jl;
+            plo->has_bot = false;
         }
         out[count++] = (piece){lo, s, (uint8_t)jl};
         tau_min += minf(m->st[jl][0], minf(m->st[jl][1], m->st[jl][2])) * (s - lo);
         lo = s;
         jl = j;
+        probe *t = plo; /* the end probe starts the next step */
         plo = ps;
+        ps = t;
         if (count >= NC_MARCH_MAX_PIECES - 2)
             break;
     }
