@@ -378,12 +378,46 @@ static inline void bottoms8(const nc_layer_stack *s, __m256 u, __m256 v, __m256 
         const __m256 bx = _mm256_sub_ps(one, ax), by = _mm256_sub_ps(one, ay);
         const __m256 w00 = _mm256_mul_ps(by, bx), w10 = _mm256_mul_ps(by, ax);
         const __m256 w01 = _mm256_mul_ps(ay, bx), w11 = _mm256_mul_ps(ay, ax);
-        for (uint32_t k = 0; k < s->count; k++) {
-            const float *d = t->data + k;
-            __m256 acc = _mm256_mul_ps(w00, _mm256_i32gather_ps(d, i00, 4));
-            acc = _mm256_fmadd_ps(w10, _mm256_i32gather_ps(d, i10, 4), acc);
-            acc = _mm256_fmadd_ps(w01, _mm256_i32gather_ps(d, i01, 4), acc);
-            mapv[k] = _mm256_fmadd_ps(w11, _mm256_i32gather_ps(d, i11, 4), acc);
+        if (t->channels == 4) {
+            /* RGBA: a lane's four texels are four 16-byte loads; the same products and sums
+             * per channel as the gathers below, then an 8 x 4 transpose. Gathers of 8 lanes are
+             * slow on some CPUs (Zen 2/3: several times 8 loads). */
+            int32_t o[4][8];
+            float wt[4][8];
+            _mm256_storeu_si256((__m256i *)o[0], i00);
+            _mm256_storeu_si256((__m256i *)o[1], i10);
+            _mm256_storeu_si256((__m256i *)o[2], i01);
+            _mm256_storeu_si256((__m256i *)o[3], i11);
+            _mm256_storeu_ps(wt[0], w00);
+            _mm256_storeu_ps(wt[1], w10);
+            _mm256_storeu_ps(wt[2], w01);
+            _mm256_storeu_ps(wt[3], w11);
+            __m128 lane[8];
+            for (int q = 0; q < 8; q++) {
+                __m128 acc = _mm_mul_ps(_mm_set1_ps(wt[0][q]), _mm_loadu_ps(t->data + o[0][q]));
+                acc = _mm_fmadd_ps(_mm_set1_ps(wt[1][q]), _mm_loadu_ps(t->data + o[1][q]), acc);
+                acc = _mm_fmadd_ps(_mm_set1_ps(wt[2][q]), _mm_loadu_ps(t->data + o[2][q]), acc);
+                lane[q] = _mm_fmadd_ps(_mm_set1_ps(wt[3][q]), _mm_loadu_ps(t->data + o[3][q]), acc);
+            }
+            /* rows q | q + 4 in the two halves, then a 4 x 4 transpose in each half */
+            const __m256 r0 = _mm256_set_m128(lane[4], lane[0]), r1 = _mm256_set_m128(lane[5], lane[1]);
+            const __m256 r2 = _mm256_set_m128(lane[6], lane[2]), r3 = _mm256_set_m128(lane[7], lane[3]);
+            const __m256 t0 = _mm256_unpacklo_ps(r0, r1), t1 = _mm256_unpackhi_ps(r0, r1);
+            const __m256 t2 = _mm256_unpacklo_ps(r2, r3), t3 = _mm256_unpackhi_ps(r2, r3);
+            const __m256 c[4] = {_mm256_castpd_ps(_mm256_unpacklo_pd(_mm256_castps_pd(t0), _mm256_castps_pd(t2))),
+                                 _mm256_castpd_ps(_mm256_unpackhi_pd(_mm256_castps_pd(t0), _mm256_castps_pd(t2))),
+                                 _mm256_castpd_ps(_mm256_unpacklo_pd(_mm256_castps_pd(t1), _mm256_castps_pd(t3))),
+                                 _mm256_castpd_ps(_mm256_unpackhi_pd(_mm256_castps_pd(t1), _mm256_castps_pd(t3)))};
+            for (uint32_t k = 0; k < s->count; k++)
+                mapv[k] = c[k];
+        } else {
+            for (uint32_t k = 0; k < s->count; k++) {
+                const float *d = t->data + k;
+                __m256 acc = _mm256_mul_ps(w00, _mm256_i32gather_ps(d, i00, 4));
+                acc = _mm256_fmadd_ps(w10, _mm256_i32gather_ps(d, i10, 4), acc);
+                acc = _mm256_fmadd_ps(w01, _mm256_i32gather_ps(d, i01, 4), acc);
+                mapv[k] = _mm256_fmadd_ps(w11, _mm256_i32gather_ps(d, i11, 4), acc);
+            }
         }
     }
     __m256 run = _mm256_setzero_ps();
