@@ -316,10 +316,12 @@ static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, fl
 
 /* Light at a batch of points of the view ray: what eval_light gives, structure of arrays. */
 #define NC_MARCH_BATCH 64
+#define NC_MARCH_PAD 8 /* the closed forms read 8 lanes past any point */
 typedef struct light_batch {
-    float w[NC_MARCH_BATCH]; /* light_at.w, 0 where no light reaches (lit = w > 0) */
-    float tau[3][NC_MARCH_BATCH];
-    float cos_s[NC_MARCH_BATCH];
+    float w[NC_MARCH_BATCH + NC_MARCH_PAD]; /* light_at.w, 0 where no light reaches (lit = w > 0) */
+    float tau[3][NC_MARCH_BATCH + NC_MARCH_PAD];
+    float cos_s[NC_MARCH_BATCH + NC_MARCH_PAD];
+    float k[3][NC_MARCH_BATCH]; /* light_at.k, where lit: M_max's is the entry point of its shadow lookup */
 } light_batch;
 
 static void eval_scalar(const ray_ctx *r, const nacre_light_desc *l, float co, float ci, const float *s, uint32_t n,
@@ -333,6 +335,8 @@ static void eval_scalar(const ray_ctx *r, const nacre_light_desc *l, float co, f
         for (int c = 0; c < 3; c++)
             out->tau[c][i] = lit ? la.tau[c] : 0.0f;
         out->cos_s[i] = lit ? la.cos_s : 0.0f;
+        for (int c = 0; c < 3; c++)
+            out->k[c][i] = la.k[c];
     }
 }
 
@@ -374,12 +378,46 @@ static inline void bottoms8(const nc_layer_stack *s, __m256 u, __m256 v, __m256 
         const __m256 bx = _mm256_sub_ps(one, ax), by = _mm256_sub_ps(one, ay);
         const __m256 w00 = _mm256_mul_ps(by, bx), w10 = _mm256_mul_ps(by, ax);
         const __m256 w01 = _mm256_mul_ps(ay, bx), w11 = _mm256_mul_ps(ay, ax);
-        for (uint32_t k = 0; k < s->count; k++) {
-            const float *d = t->data + k;
-            __m256 acc = _mm256_mul_ps(w00, _mm256_i32gather_ps(d, i00, 4));
-            acc = _mm256_fmadd_ps(w10, _mm256_i32gather_ps(d, i10, 4), acc);
-            acc = _mm256_fmadd_ps(w01, _mm256_i32gather_ps(d, i01, 4), acc);
-            mapv[k] = _mm256_fmadd_ps(w11, _mm256_i32gather_ps(d, i11, 4), acc);
+        if (t->channels == 4) {
+            /* RGBA: a lane's four texels are four 16-byte loads; the same products and sums
+             * per channel as the gathers below, then an 8 x 4 transpose. Gathers of 8 lanes are
+             * slow on some CPUs (Zen 2/3: several times 8 loads). */
+            int32_t o[4][8];
+            float wt[4][8];
+            _mm256_storeu_si256((__m256i *)o[0], i00);
+            _mm256_storeu_si256((__m256i *)o[1], i10);
+            _mm256_storeu_si256((__m256i *)o[2], i01);
+            _mm256_storeu_si256((__m256i *)o[3], i11);
+            _mm256_storeu_ps(wt[0], w00);
+            _mm256_storeu_ps(wt[1], w10);
+            _mm256_storeu_ps(wt[2], w01);
+            _mm256_storeu_ps(wt[3], w11);
+            __m128 lane[8];
+            for (int q = 0; q < 8; q++) {
+                __m128 acc = _mm_mul_ps(_mm_set1_ps(wt[0][q]), _mm_loadu_ps(t->data + o[0][q]));
+                acc = _mm_fmadd_ps(_mm_set1_ps(wt[1][q]), _mm_loadu_ps(t->data + o[1][q]), acc);
+                acc = _mm_fmadd_ps(_mm_set1_ps(wt[2][q]), _mm_loadu_ps(t->data + o[2][q]), acc);
+                lane[q] = _mm_fmadd_ps(_mm_set1_ps(wt[3][q]), _mm_loadu_ps(t->data + o[3][q]), acc);
+            }
+            /* rows q | q + 4 in the two halves, then a 4 x 4 transpose in each half */
+            const __m256 r0 = _mm256_set_m128(lane[4], lane[0]), r1 = _mm256_set_m128(lane[5], lane[1]);
+            const __m256 r2 = _mm256_set_m128(lane[6], lane[2]), r3 = _mm256_set_m128(lane[7], lane[3]);
+            const __m256 t0 = _mm256_unpacklo_ps(r0, r1), t1 = _mm256_unpackhi_ps(r0, r1);
+            const __m256 t2 = _mm256_unpacklo_ps(r2, r3), t3 = _mm256_unpackhi_ps(r2, r3);
+            const __m256 c[4] = {_mm256_castpd_ps(_mm256_unpacklo_pd(_mm256_castps_pd(t0), _mm256_castps_pd(t2))),
+                                 _mm256_castpd_ps(_mm256_unpackhi_pd(_mm256_castps_pd(t0), _mm256_castps_pd(t2))),
+                                 _mm256_castpd_ps(_mm256_unpacklo_pd(_mm256_castps_pd(t1), _mm256_castps_pd(t3))),
+                                 _mm256_castpd_ps(_mm256_unpackhi_pd(_mm256_castps_pd(t1), _mm256_castps_pd(t3)))};
+            for (uint32_t k = 0; k < s->count; k++)
+                mapv[k] = c[k];
+        } else {
+            for (uint32_t k = 0; k < s->count; k++) {
+                const float *d = t->data + k;
+                __m256 acc = _mm256_mul_ps(w00, _mm256_i32gather_ps(d, i00, 4));
+                acc = _mm256_fmadd_ps(w10, _mm256_i32gather_ps(d, i10, 4), acc);
+                acc = _mm256_fmadd_ps(w01, _mm256_i32gather_ps(d, i01, 4), acc);
+                mapv[k] = _mm256_fmadd_ps(w11, _mm256_i32gather_ps(d, i11, 4), acc);
+            }
         }
     }
     __m256 run = _mm256_setzero_ps();
@@ -497,17 +535,21 @@ static void eval8(const ray_ctx *r, const nacre_light_desc *l, const float *sp, 
             tau[c] = _mm256_fmadd_ps(_mm256_set1_ps(m->st[m->count][c]), rest, tau[c]);
     }
     ok = _mm256_and_ps(ok, _mm256_cmp_ps(scale, zero, _CMP_GT_OQ));
-    float ow[8], ot[3][8], oc[8];
+    float ow[8], ot[3][8], oc[8], ok3[3][8];
     _mm256_storeu_ps(ow, _mm256_and_ps(scale, ok));
-    for (int c = 0; c < 3; c++)
+    for (int c = 0; c < 3; c++) {
         _mm256_storeu_ps(ot[c], _mm256_and_ps(tau[c], ok));
+        _mm256_storeu_ps(ok3[c], k[c]);
+    }
     _mm256_storeu_ps(oc, _mm256_and_ps(dot8(wt, (const __m256[3]){_mm256_set1_ps(r->d[0]), _mm256_set1_ps(r->d[1]),
                                                                    _mm256_set1_ps(r->d[2])}),
                                        ok));
     for (uint32_t i = 0; i < n && i < 8; i++) {
         out->w[at + i] = ow[i];
-        for (int c = 0; c < 3; c++)
+        for (int c = 0; c < 3; c++) {
             out->tau[c][at + i] = ot[c][i];
+            out->k[c][at + i] = ok3[c][i];
+        }
         out->cos_s[at + i] = oc[i];
     }
 }
@@ -571,6 +613,129 @@ typedef struct piece {
     uint8_t layer;
 } piece;
 
+#ifdef __AVX2__
+/* fast_log on 8 lanes, the same operations. */
+static inline __m256 fast_log8(__m256 x)
+{
+    const __m256i bits = _mm256_castps_si256(x);
+    __m256i e = _mm256_sub_epi32(_mm256_and_si256(_mm256_srli_epi32(bits, 23), _mm256_set1_epi32(0xff)),
+                                 _mm256_set1_epi32(127));
+    __m256 mf = _mm256_castsi256_ps(_mm256_or_si256(_mm256_and_si256(bits, _mm256_set1_epi32(0x007fffff)),
+                                                    _mm256_set1_epi32(0x3f800000)));
+    const __m256 big = _mm256_cmp_ps(mf, _mm256_set1_ps(1.41421356f), _CMP_GT_OQ);
+    mf = _mm256_blendv_ps(mf, _mm256_mul_ps(mf, _mm256_set1_ps(0.5f)), big);
+    e = _mm256_add_epi32(e, _mm256_and_si256(_mm256_castps_si256(big), _mm256_set1_epi32(1)));
+    const __m256 one = _mm256_set1_ps(1.0f);
+    const __m256 t = _mm256_div_ps(_mm256_sub_ps(mf, one), _mm256_add_ps(mf, one)), t2 = _mm256_mul_ps(t, t);
+    __m256 p = _mm256_fmadd_ps(t2, _mm256_set1_ps(0.22222222f), _mm256_set1_ps(0.28571429f));
+    p = _mm256_fmadd_ps(t2, p, _mm256_set1_ps(0.4f));
+    p = _mm256_fmadd_ps(t2, p, _mm256_set1_ps(0.66666667f));
+    p = _mm256_fmadd_ps(t2, p, _mm256_set1_ps(2.0f));
+    p = _mm256_mul_ps(t, p);
+    return _mm256_fmadd_ps(_mm256_cvtepi32_ps(e), _mm256_set1_ps(0.69314718f), p);
+}
+
+/* hg on 8 lanes. */
+static inline __m256 hg8(__m256 c, __m256 g)
+{
+    const __m256 one = _mm256_set1_ps(1.0f), g2 = _mm256_mul_ps(g, g);
+    const __m256 d = _mm256_sub_ps(_mm256_add_ps(one, g2), _mm256_mul_ps(_mm256_add_ps(g, g), c));
+    return _mm256_div_ps(_mm256_sub_ps(one, g2),
+                         _mm256_mul_ps(_mm256_mul_ps(_mm256_set1_ps(4.0f * (float)NC_PI), d), _mm256_sqrt_ps(d)));
+}
+
+/* The ANALYTIC sum of nc_layered_radiance over pieces 0..np-1 with every piece end in lb (np <
+ * NC_MARCH_BATCH), 8 pieces at a time: the same closed forms as its scalar loop, the integrand's
+ * log and exponential at both ends of every piece at once. A piece's start takes the previous
+ * piece's end values when the layer (so the phase) does not change, as the scalar loop does;
+ * the lanes' sums are added at the end, so the result differs from that loop's by float
+ * rounding only. */
+static void closed_forms8(const nc_layer_medium *m, const float strength[3], const piece *pcs, uint32_t np,
+                          const light_batch *lb, float vis0, float vis_rate, float sum[3])
+{
+    enum { N = NC_MARCH_BATCH + NC_MARCH_PAD };
+    float ts[3][N], te[3][N], len[N], s0[N], s1[N], g[N], kc[3][N], change[N];
+    float elf[3][N], ef[3][N], elit[N]; /* at point q: the end values of piece q - 1 */
+    float tau[3] = {0, 0, 0};
+    const uint32_t nr = (np + 7u) & ~7u;
+    for (uint32_t i = 0; i < nr; i++) {
+        const bool in = i < np;
+        const uint32_t j = in ? pcs[i].layer : 0;
+        len[i] = in ? pcs[i].s1 - pcs[i].s0 : 0.0f;
+        s0[i] = in ? pcs[i].s0 : 0.0f;
+        s1[i] = in ? pcs[i].s1 : 0.0f;
+        g[i] = m->g[j];
+        change[i] = (i == 0 || !in || pcs[i - 1].layer != j) ? -1.0f : 0.0f; /* sign bit: blend mask */
+        for (int c = 0; c < 3; c++) {
+            ts[c][i] = tau[c];
+            if (in)
+                tau[c] += m->st[j][c] * len[i];
+            te[c][i] = tau[c];
+            kc[c][i] = in ? m->ss[j][c] * strength[c] : 0.0f;
+        }
+    }
+    const __m256 zero = _mm256_setzero_ps(), fmin = _mm256_set1_ps(FLT_MIN), half = _mm256_set1_ps(0.5f);
+    const __m256 v0 = _mm256_set1_ps(vis0), vr = _mm256_set1_ps(vis_rate);
+    elit[0] = 0;
+    for (int c = 0; c < 3; c++)
+        elf[c][0] = ef[c][0] = 0;
+    /* The ends first: a chunk's starts read the previous piece's end, which may be in the chunk. */
+    for (uint32_t i0 = 0; i0 < nr; i0 += 8) {
+        const __m256 pb = _mm256_mul_ps(
+            _mm256_mul_ps(hg8(_mm256_loadu_ps(lb->cos_s + i0 + 1), _mm256_loadu_ps(g + i0)),
+                          _mm256_fmadd_ps(vr, _mm256_loadu_ps(s1 + i0), v0)),
+            _mm256_loadu_ps(lb->w + i0 + 1));
+        const __m256 b_lit = _mm256_cmp_ps(pb, fmin, _CMP_GT_OQ);
+        const __m256 lpb = _mm256_and_ps(fast_log8(_mm256_blendv_ps(_mm256_set1_ps(1.0f), pb, b_lit)), b_lit);
+        _mm256_storeu_ps(elit + i0 + 1, b_lit);
+        for (int c = 0; c < 3; c++) {
+            const __m256 lfb = _mm256_sub_ps(_mm256_sub_ps(lpb, _mm256_loadu_ps(lb->tau[c] + i0 + 1)),
+                                             _mm256_loadu_ps(te[c] + i0));
+            _mm256_storeu_ps(elf[c] + i0 + 1, lfb);
+            _mm256_storeu_ps(ef[c] + i0 + 1, _mm256_and_ps(fast_exp8(lfb), b_lit));
+        }
+    }
+    __m256 acc[3] = {zero, zero, zero};
+    for (uint32_t i0 = 0; i0 < nr; i0 += 8) {
+        const __m256 ch = _mm256_loadu_ps(change + i0);
+        const __m256 pa = _mm256_mul_ps(
+            _mm256_mul_ps(hg8(_mm256_loadu_ps(lb->cos_s + i0), _mm256_loadu_ps(g + i0)),
+                          _mm256_fmadd_ps(vr, _mm256_loadu_ps(s0 + i0), v0)),
+            _mm256_loadu_ps(lb->w + i0));
+        const __m256 new_lit = _mm256_cmp_ps(pa, fmin, _CMP_GT_OQ);
+        const __m256 lpa = fast_log8(_mm256_blendv_ps(_mm256_set1_ps(1.0f), pa, new_lit));
+        const __m256 a_lit = _mm256_blendv_ps(_mm256_loadu_ps(elit + i0), new_lit, ch);
+        const __m256 b_lit = _mm256_loadu_ps(elit + i0 + 1);
+        const __m256 both = _mm256_and_ps(a_lit, b_lit);
+        const __m256 l = _mm256_loadu_ps(len + i0);
+        const __m256 in = _mm256_cmp_ps(_mm256_add_ps(_mm256_set1_ps((float)i0), _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7)),
+                                        _mm256_set1_ps((float)np), _CMP_LT_OQ);
+        for (int c = 0; c < 3; c++) {
+            const __m256 lfa_new = _mm256_sub_ps(_mm256_sub_ps(lpa, _mm256_loadu_ps(lb->tau[c] + i0)),
+                                                 _mm256_loadu_ps(ts[c] + i0));
+            const __m256 lfa = _mm256_blendv_ps(_mm256_loadu_ps(elf[c] + i0), lfa_new, ch);
+            const __m256 ea = _mm256_and_ps(_mm256_blendv_ps(_mm256_loadu_ps(ef[c] + i0), fast_exp8(lfa_new), ch), a_lit);
+            const __m256 lfb = _mm256_loadu_ps(elf[c] + i0 + 1), fb = _mm256_loadu_ps(ef[c] + i0 + 1);
+            const __m256 k = _mm256_loadu_ps(kc[c] + i0);
+            const __m256 q = _mm256_sub_ps(lfa, lfb);
+            const __m256 aq = _mm256_andnot_ps(_mm256_set1_ps(-0.0f), q);
+            const __m256 exact = _mm256_div_ps(_mm256_mul_ps(l, _mm256_sub_ps(ea, fb)), q);
+            const __m256 trap = _mm256_mul_ps(_mm256_mul_ps(l, half), _mm256_add_ps(ea, fb));
+            const __m256 v = _mm256_and_ps(both, _mm256_cmp_ps(aq, _mm256_set1_ps(1e-4f), _CMP_GT_OQ));
+            acc[c] = _mm256_add_ps(acc[c], _mm256_and_ps(_mm256_mul_ps(k, _mm256_blendv_ps(trap, exact, v)), in));
+        }
+    }
+    for (int c = 0; c < 3; c++) {
+        float lanes[8];
+        _mm256_storeu_ps(lanes, acc[c]);
+        sum[c] = 0;
+        for (int q = 0; q < 8; q++)
+            sum[c] += lanes[q];
+    }
+}
+#endif
+
+
 /* A point of the view ray with its layer, and the layer bottoms there once read: the boundary
  * search reuses them for its secant. */
 typedef struct probe {
@@ -626,32 +791,33 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
         }
         return count;
     }
-    probe plo, ps, pa, pb, pm;
-    probe_at(r, 0.0f, &plo);
+    /* Probes by pointer: the bisection keeps its brackets without copying the bottoms. */
+    probe slot[2], mid[NC_MARCH_BISECT], after;
+    probe *plo = &slot[0], *ps = &slot[1];
+    probe_at(r, 0.0f, plo);
     float lo = 0;
-    uint32_t jl = plo.layer;
+    uint32_t jl = plo->layer;
     for (uint32_t i = 1; i <= n && tau_min < tau_stop; i++) {
         const float s = i == n ? r->len : (float)i * step;
-        probe_at(r, s, &ps);
-        const uint32_t j = ps.layer;
+        probe_at(r, s, ps);
+        const uint32_t j = ps->layer;
         while (j != jl && count < NC_MARCH_MAX_PIECES - 2) {
             /* First change of layer after lo: layer_at(a) == jl, layer_at(b) != jl. */
-            pa = plo;
-            pb = ps;
+            probe *pa = plo, *pb = ps;
             for (int it = 0; it < NC_MARCH_BISECT; it++) {
-                probe_at(r, 0.5f * (pa.s + pb.s), &pm);
-                if (pm.layer == jl)
-                    pa = pm;
+                probe_at(r, 0.5f * (pa->s + pb->s), &mid[it]);
+                if (mid[it].layer == jl)
+                    pa = &mid[it];
                 else
-                    pb = pm;
+                    pb = &mid[it];
             }
             /* The bracket's last step is a secant on depth - bottom: exact where the boundary
              * is flat, so a handful of halvings suffice. */
-            const float a = pa.s, b = pb.s;
-            const uint32_t jb = pb.layer;
+            const float a = pa->s, b = pb->s;
+            const uint32_t jb = pb->layer;
             const uint32_t edge = jb > jl ? jl : jl - 1; /* the bottom crossed */
-            const float fa = a * r->dz - probe_bottom(r, &pa, edge);
-            const float fb = b * r->dz - probe_bottom(r, &pb, edge);
+            const float fa = a * r->dz - probe_bottom(r, pa, edge);
+            const float fb = b * r->dz - probe_bottom(r, pb, edge);
             float cut = fa != fb ? a + (b - a) * fa / (fa - fb) : b;
             cut = cut >= a && cut <= b ? cut : b;
             out[count++] = (piece){lo, cut, (uint8_t)jl};
@@ -659,15 +825,19 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
             lo = cut;
             /* The layer just past the cut: a bracket that held two boundaries goes on with the
              * layer between them, not the one at its end. */
-            probe_at(r, cut + 1e-3f * (b - cut), &pm);
-            jl = pm.layer != jl ? pm.layer : jb;
-            plo = (probe){.s = cut, .layer = jl, .has_bot = false};
+            probe_at(r, cut + 1e-3f * (b - cut), &after);
+            jl = after.layer != jl ? after.layer : jb;
+            plo->s = cut;
+            plo->layer = jl;
+            plo->has_bot = false;
         }
         out[count++] = (piece){lo, s, (uint8_t)jl};
         tau_min += minf(m->st[jl][0], minf(m->st[jl][1], m->st[jl][2])) * (s - lo);
         lo = s;
         jl = j;
+        probe *t = plo; /* the end probe starts the next step */
         plo = ps;
+        ps = t;
         if (count >= NC_MARCH_MAX_PIECES - 2)
             break;
     }
@@ -715,20 +885,6 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
             continue;
         const float co = l->type == NACRE_LIGHT_SPOT ? cosf(l->outer_angle * NC_DEG2RAD) : 0.0f;
         const float ci = l->type == NACRE_LIGHT_SPOT ? cosf(l->inner_angle * NC_DEG2RAD) : 0.0f;
-        /* Visibility at P and at the entry point of M_max's light. */
-        float vis0 = 1, vis1 = 1;
-        if (lights[li].shadow) {
-            nc_vec3 n = nc_v3a(pt->n);
-            vis0 = nc_shadow_lookup(lights[li].shadow, nc_v3a(pt->p), n, prm->pcf_radius, prm->shadow_bias);
-            light_at far;
-            eval_light(&r, l, co, ci, r.len, &far);
-            vis1 = far.lit
-                       ? nc_shadow_lookup(lights[li].shadow, nc_v3a(far.k), nc_v3a(pt->ns), prm->pcf_radius,
-                                          prm->shadow_bias)
-                       : vis0;
-            if (vis0 <= 0 && vis1 <= 0)
-                continue;
-        }
         /* ANALYTIC evaluates the light at the pieces' ends in batches (eval_batch through
          * FETCH): point 0 is the first piece's start, point q the end of piece q - 1. */
         const uint32_t npts = np + 1;
@@ -746,6 +902,38 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
             eval_batch(&r, l, co, ci, spts, filled, &lb);                                                              \
         }                                                                                                              \
     } while (0)
+        /* Visibility at P and at the entry point of M_max's light. When all the pieces' ends fit
+         * in one batch, M_max is its last point (or one more lane): its entry point comes with
+         * the batch instead of a scalar evaluation of its own. */
+        float vis0 = 1, vis1 = 1;
+        if (lights[li].shadow) {
+            nc_vec3 n = nc_v3a(pt->n);
+            vis0 = nc_shadow_lookup(lights[li].shadow, nc_v3a(pt->p), n, prm->pcf_radius, prm->shadow_bias);
+            bool far_lit;
+            float far_k[3];
+            if (prm->analytic && npts < NC_MARCH_BATCH) {
+                for (uint32_t e = 0; e < npts; e++)
+                    spts[e] = POINT(e);
+                uint32_t fi = npts - 1;
+                if (spts[fi] != r.len)
+                    spts[++fi] = r.len;
+                eval_batch(&r, l, co, ci, spts, fi + 1, &lb);
+                filled = npts;
+                far_lit = lb.w[fi] > 0;
+                for (int c = 0; c < 3; c++)
+                    far_k[c] = lb.k[c][fi];
+            } else {
+                light_at far;
+                eval_light(&r, l, co, ci, r.len, &far);
+                far_lit = far.lit;
+                memcpy(far_k, far.k, sizeof(far_k));
+            }
+            vis1 = far_lit ? nc_shadow_lookup(lights[li].shadow, nc_v3a(far_k), nc_v3a(pt->ns), prm->pcf_radius,
+                                              prm->shadow_bias)
+                           : vis0;
+            if (vis0 <= 0 && vis1 <= 0)
+                continue;
+        }
         /* Per channel, ln of the integrand without sigma_s * strength (kc): the pieces' ends
          * share it when the layer does not change, and its difference gives the exponential's
          * rate without a logarithm per channel. */
@@ -783,6 +971,15 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
                 rgb[c] += sum[c] * t_out;
             continue;
         }
+#ifdef __AVX2__
+        if (npts <= NC_MARCH_BATCH) {
+            FETCH(0);
+            closed_forms8(m, l->strength, pieces, np, &lb, vis0, vis_rate, sum);
+            for (int c = 0; c < 3; c++)
+                rgb[c] += sum[c] * t_out;
+            continue;
+        }
+#endif
         for (uint32_t i = 0; i < np; i++) {
             const piece *pc = &pieces[i];
             const uint32_t j = pc->layer;

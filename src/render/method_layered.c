@@ -265,8 +265,8 @@ static bool interpolate_pixel(const layered_state *st, const nc_gbuffer *gb, siz
         for (int c = 0; c < 3; c++) {
             const float v = st->radiance[3 * q + c];
             mean[c] += v / (float)count;
-            lo[c] = fminf(lo[c], v);
-            hi[c] = fmaxf(hi[c], v);
+            lo[c] = v < lo[c] ? v : lo[c]; /* not fminf / fmaxf: library calls here */
+            hi[c] = v > hi[c] ? v : hi[c];
         }
     }
     for (int c = 0; c < 3; c++)
