@@ -258,6 +258,15 @@ static void check_variant(nacre_context *ctx, nacre_scene *scene, const char *st
         g.skipped++;
         return;
     }
+    /* At 11^3 a voxel of a layered material is the mean of 8 sub-samples, each in the layer its
+     * depth falls in: one sub-sample on the other side of a layer bottom by a rounding (FMA or
+     * not) moves a whole coarse cell's coefficients, and the portable build's images differ from
+     * the x86-64-v3 ones by 1.4% (rmse/mean). Layered scenes are compared at 32^3 only. */
+    if (v->method == NACRE_METHOD_DIFFUSION && layered && v->voxel_resolution < 32) {
+        printf("%-30s skipped: layered material at %u^3 (build-sensitive; compared at 32^3)\n", label, v->voxel_resolution);
+        g.skipped++;
+        return;
+    }
     if (!nacre_method_available(v->method)) {
         printf("%-30s skipped: this build has no %s method\n", label, nacre_method_name(v->method));
         g.skipped++;
