@@ -5,6 +5,8 @@ For a scene with a layered material whose "multiple_scattering" is "diffusion", 
   reference  --method pathtrace, every scattering order (the layers exactly)
   single     --method layered with "multiple_scattering": "none" (seed 001 alone)
   diffusion  --method diffusion on the object with its core material (layers removed)
+  diffusion_layers  --method diffusion on the layered material (each voxel the mean of its
+             layers' and core's coefficients, every scattering order)
   hybrid     --method layered as the scene says
 and print `nacre compare --json` of each against the reference.
 
@@ -60,6 +62,7 @@ runs = {
                    "--time-limit", str(a.pt_seconds)]),
     "single": (variant("single", none), ["--method", "layered"]),
     "diffusion": (variant("diffusion", core), ["--method", "diffusion"]),
+    "diffusion_layers": (variant("reference", lambda m: None), ["--method", "diffusion"]),
     "hybrid": (variant("hybrid", lambda m: None), ["--method", "layered"]),
 }
 images = {}
@@ -68,10 +71,10 @@ for name, (path, args) in runs.items():
     if name == "reference" and a.reuse_reference and os.path.exists(images[name]):
         continue
     subprocess.run([a.nacre, "render", path, "-o", images[name], "--exr-float"] + args, check=True)
-print("%-10s %12s %10s %10s %10s" % ("image", "mean_rel_err", "rmse", "lit_ratio_g", "dark_ratio_g"))
-for name in ("single", "diffusion", "hybrid"):
+print("%-16s %12s %10s %10s %10s %10s" % ("image", "mean_rel_err", "rmse", "rel_mse", "lit_ratio_g", "dark_ratio_g"))
+for name in ("single", "diffusion", "diffusion_layers", "hybrid"):
     r = subprocess.run([a.nacre, "compare", images[name], images["reference"], "--json"],
                        capture_output=True, text=True)
     c = json.loads(r.stdout)
-    print("%-10s %12.4f %10.5f %10.3f %10.3f" % (name, c["mean_rel_err"], c["rmse"], c["lit_ratio"][1],
-                                                c["dark_ratio"][1]))
+    print("%-16s %12.4f %10.5f %10.5f %10.3f %10.3f" % (name, c["mean_rel_err"], c["rmse"], c["rel_mse"],
+                                                      c["lit_ratio"][1], c["dark_ratio"][1]))
