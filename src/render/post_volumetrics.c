@@ -697,15 +697,8 @@ static inline nc_v8f v8_exp_fast(nc_v8f x)
     nc_v8f n = nc_v8_floor(x * 1.44269504f + 0.5f);
     n = nc_v8_sel(n > -127.0f, n, nc_v8_splat(-127.0f));
     n = nc_v8_sel(n < 127.0f, n, nc_v8_splat(127.0f));
-    nc_v8f r = x - n * 0.693359375f;
-    r = r - n * -2.12194440e-4f;
-    nc_v8f p = nc_v8_splat(1.9875691500e-4f);
-    p = p * r + 1.3981999507e-3f;
-    p = p * r + 8.3334519073e-3f;
-    p = p * r + 4.1665795894e-2f;
-    p = p * r + 1.6666665459e-1f;
-    p = p * r + 5.0000001201e-1f;
-    nc_v8f y = p * r * r + r + 1.0f;
+    nc_v8f r = NC_VOL_EXP_REDUCE(x, n);
+    nc_v8f y = NC_VOL_EXP_POLY(r) * r * r + r + 1.0f;
     nc_v8i bits = (__builtin_convertvector(n, nc_v8i) + 127) << 23;
     return nc_v8_sel(x > -87.0f, y * (nc_v8f)bits, (nc_v8f){0});
 }

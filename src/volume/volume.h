@@ -104,6 +104,14 @@ static inline float nc_vol_transmittance(float sigma_t, float d) { return expf(-
  * underflow of partial products before a step of zero density). */
 double nc_vol_transmittance_steps(size_t n, const float *sigma_t, const float *length);
 
+/* nc_vol_exp_fast's reduction and polynomial (below), for any type with float arithmetic (float
+ * there, the froxel pass's 8-lane vectors): r = x - n ln 2 in two parts, and
+ * e^r = NC_VOL_EXP_POLY(r) r^2 + r + 1. */
+#define NC_VOL_EXP_REDUCE(x, n) ((x) - (n) * 0.693359375f - (n) * -2.12194440e-4f)
+#define NC_VOL_EXP_POLY(r)                                                                                 \
+    (((((1.9875691500e-4f * (r) + 1.3981999507e-3f) * (r) + 8.3334519073e-3f) * (r) + 4.1665795894e-2f) * (r) + \
+      1.6666665459e-1f) * (r) + 5.0000001201e-1f)
+
 /* e^x in float for x <= 88 (x at or below -87, or -inf, gives 0): x = n ln 2 + r with |r| <=
  * ln 2 / 2 (ln 2 in two parts), e^r by Cephes' degree-5 polynomial, 2^n built in the exponent
  * bits; relative error under 1e-7, as expf (test_volumetrics checks it). Written so that loops
@@ -114,15 +122,8 @@ static inline float nc_vol_exp_fast(float x)
     float n = floorf(x * 1.44269504f + 0.5f);
     n = n > -127.0f ? n : -127.0f;
     n = n < 127.0f ? n : 127.0f;
-    float r = x - n * 0.693359375f;
-    r = r - n * -2.12194440e-4f;
-    float p = 1.9875691500e-4f;
-    p = p * r + 1.3981999507e-3f;
-    p = p * r + 8.3334519073e-3f;
-    p = p * r + 4.1665795894e-2f;
-    p = p * r + 1.6666665459e-1f;
-    p = p * r + 5.0000001201e-1f;
-    float y = p * r * r + r + 1.0f;
+    float r = NC_VOL_EXP_REDUCE(x, n);
+    float y = NC_VOL_EXP_POLY(r) * r * r + r + 1.0f;
     int32_t bits = ((int32_t)n + 127) << 23;
     float scale;
     memcpy(&scale, &bits, sizeof(scale));
