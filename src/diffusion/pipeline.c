@@ -237,17 +237,8 @@ static void boundary_depths(nc_diff_object *o, const nacre_mesh_data *dm)
                 continue;
             /* unit normal: the distance to the plane bounds the distance to the triangle from
              * below, which skips most tests once a cell has a near triangle (0: degenerate) */
-            float e1[3], e2[3], n[3];
-            for (int a = 0; a < 3; a++) {
-                e1[a] = v[1][a] - v[0][a];
-                e2[a] = v[2][a] - v[0][a];
-            }
-            n[0] = e1[1] * e2[2] - e1[2] * e2[1];
-            n[1] = e1[2] * e2[0] - e1[0] * e2[2];
-            n[2] = e1[0] * e2[1] - e1[1] * e2[0];
-            const float nl = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), inv_nl = nl > 0.0f ? 1.0f / nl : 0.0f;
-            for (int a = 0; a < 3; a++)
-                n[a] *= inv_nl;
+            float n[3];
+            nc_v3store(nc_normalize(nc_cross(nc_sub(nc_v3a(v[1]), nc_v3a(v[0])), nc_sub(nc_v3a(v[2]), nc_v3a(v[0])))), n);
             lo[2] = lo[2] > z0 ? lo[2] : z0;
             hi[2] = hi[2] < z1 ? hi[2] : z1;
             for (int z = lo[2]; z <= hi[2]; z++)
