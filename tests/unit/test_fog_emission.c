@@ -17,7 +17,7 @@
  *     and non-numeric values, and a global fog that emits without extinction, give one-line
  *     errors naming the field; the API rejects NaN.
  */
-#include "test_util.h"
+#include "media_util.h"
 
 #include <nacre/nacre.h>
 
@@ -27,79 +27,6 @@
 #include <string.h>
 
 static nacre_context *ctx;
-
-static nacre_scene *load(const char *json, nacre_render_settings *rs)
-{
-    nacre_scene *s = NULL;
-    nacre_scene_file_settings fs;
-    nacre_result r = nacre_scene_load_json(ctx, json, strlen(json), "emission.json", ".", &s, &fs);
-    CHECK(r == NACRE_OK);
-    if (r != NACRE_OK) {
-        printf("  %s\n", nacre_context_last_error(ctx));
-        return NULL;
-    }
-    if (rs)
-        *rs = fs.render;
-    CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
-    return s;
-}
-
-static bool render(const char *json, const nacre_render_settings *want, nacre_image *img, nacre_image *var)
-{
-    nacre_render_settings rs;
-    nacre_scene *s = load(json, &rs);
-    if (!s)
-        return false;
-    rs.method = want->method;
-    rs.width = want->width;
-    rs.height = want->height;
-    rs.volumetrics = want->volumetrics;
-    rs.pathtrace = want->pathtrace;
-    nacre_renderer *r = NULL;
-    CHECK(nacre_renderer_create(ctx, &r) == NACRE_OK);
-    nacre_result res = nacre_renderer_render(r, s, &rs, img, NULL);
-    CHECK(res == NACRE_OK);
-    if (res != NACRE_OK)
-        printf("  %s\n", nacre_context_last_error(ctx));
-    if (res == NACRE_OK && var)
-        CHECK(nacre_renderer_variance(r, var) == NACRE_OK);
-    nacre_renderer_destroy(r);
-    nacre_scene_destroy(s);
-    return res == NACRE_OK;
-}
-
-static float px(const nacre_image *img, int x, int y, int c)
-{
-    return img->pixels[(size_t)y * img->stride + 3 * (size_t)x + (size_t)c];
-}
-
-/* Mean of a block of pixels and, with the variance image of the mean, its standard error. */
-static void region(const nacre_image *img, const nacre_image *var, int x0, int x1, int y0, int y1, double m[3],
-                   double se[3])
-{
-    double s[3] = {0, 0, 0}, v[3] = {0, 0, 0};
-    int n = 0;
-    for (int y = y0; y < y1; y++)
-        for (int x = x0; x < x1; x++, n++)
-            for (int c = 0; c < 3; c++) {
-                s[c] += px(img, x, y, c);
-                v[c] += var ? px(var, x, y, c) : 0.0;
-            }
-    for (int c = 0; c < 3; c++) {
-        m[c] = s[c] / n;
-        se[c] = sqrt(v[c]) / n;
-    }
-}
-
-static nacre_render_settings settings(nacre_method method, nacre_volumetrics_mode mode, int w, int h)
-{
-    nacre_render_settings rs = nacre_render_settings_defaults();
-    rs.method = method;
-    rs.width = w;
-    rs.height = h;
-    rs.volumetrics.mode = mode;
-    return rs;
-}
 
 /* ---- an emitting box seen head-on ------------------------------------------------------------ */
 
@@ -139,7 +66,7 @@ static double worst_box_error(const nacre_image *img, bool inner)
             if (inner && (fabs(xx) > 0.9 || fabs(yy) > 0.9))
                 continue;
             for (int c = 0; c < 3; c++) {
-                double e = box_exact(x, y, c), err = fabs(px(img, x, y, c) - e) / e;
+                double e = box_exact(x, y, c), err = fabs(media_px(img, x, y, c) - e) / e;
                 worst = err > worst ? err : worst;
             }
         }
@@ -152,7 +79,7 @@ static double max_rel_diff(const nacre_image *a, const nacre_image *b)
     for (int y = 0; y < a->height; y++)
         for (int x = 0; x < a->width; x++)
             for (int c = 0; c < 3; c++) {
-                double u = px(a, x, y, c), v = px(b, x, y, c), d = fabs(u - v) / fmax(fabs(v), 1e-6);
+                double u = media_px(a, x, y, c), v = media_px(b, x, y, c), d = fabs(u - v) / fmax(fabs(v), 1e-6);
                 worst = d > worst ? d : worst;
             }
     return worst;
@@ -162,20 +89,20 @@ static void emitting_box(void)
 {
     const int W = 32, H = 32;
     nacre_image fog = {0}, fx = {0}, fx8 = {0}, rm = {0}, rm8 = {0};
-    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_OFF, W, H);
-    bool ok = render(EMIT_BOX, &rs, &fog, NULL);
+    nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_OFF, W, H);
+    bool ok = media_render(ctx, EMIT_BOX, &rs, &fog, NULL);
     rs.volumetrics.mode = NACRE_VOLUMETRICS_FROXEL;
     rs.volumetrics.froxel_width = W;
     rs.volumetrics.froxel_height = H;
     rs.volumetrics.froxel_slices = 64;
-    ok = ok && render(EMIT_BOX, &rs, &fx, NULL);
+    ok = ok && media_render(ctx, EMIT_BOX, &rs, &fx, NULL);
     rs.volumetrics.froxel_slices = 8;
-    ok = ok && render(EMIT_BOX, &rs, &fx8, NULL);
+    ok = ok && media_render(ctx, EMIT_BOX, &rs, &fx8, NULL);
     rs.volumetrics.mode = NACRE_VOLUMETRICS_RAYMARCH;
     rs.volumetrics.raymarch_steps = 64;
-    ok = ok && render(EMIT_BOX, &rs, &rm, NULL);
+    ok = ok && media_render(ctx, EMIT_BOX, &rs, &rm, NULL);
     rs.volumetrics.raymarch_steps = 8;
-    ok = ok && render(EMIT_BOX, &rs, &rm8, NULL);
+    ok = ok && media_render(ctx, EMIT_BOX, &rs, &rm8, NULL);
     if (ok) {
         double e_fog = worst_box_error(&fog, false), e_fx = worst_box_error(&fx, true),
                e_rm = worst_box_error(&rm, true);
@@ -189,9 +116,9 @@ static void emitting_box(void)
         CHECK(s_fx < 1e-4);
         CHECK(s_rm < 1e-4);
         /* The sigma_t = 0 channel is eps d + background, exactly. */
-        CHECK_NEAR(px(&fog, 16, 16, 2), BOX_EM[2] * 2 + 0.5, 1e-5);
-        CHECK_NEAR(px(&rm, 16, 16, 2), BOX_EM[2] * 2 + 0.5, 1e-4);
-        CHECK_NEAR(px(&fx, 16, 16, 2), BOX_EM[2] * 2 + 0.5, 2e-3);
+        CHECK_NEAR(media_px(&fog, 16, 16, 2), BOX_EM[2] * 2 + 0.5, 1e-5);
+        CHECK_NEAR(media_px(&rm, 16, 16, 2), BOX_EM[2] * 2 + 0.5, 1e-4);
+        CHECK_NEAR(media_px(&fx, 16, 16, 2), BOX_EM[2] * 2 + 0.5, 2e-3);
     }
     nacre_image_free(ctx, &fog);
     nacre_image_free(ctx, &fx);
@@ -200,15 +127,15 @@ static void emitting_box(void)
     nacre_image_free(ctx, &rm8);
 
     /* The path tracer, per band of 4 rows over the inner 14 columns. */
-    nacre_render_settings pr = settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
+    nacre_render_settings pr = media_settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
     pr.pathtrace.spp = 128;
     pr.pathtrace.seed = 5;
     nacre_image ref = {0}, var = {0};
-    if (render(EMIT_BOX, &pr, &ref, &var)) {
+    if (media_render(ctx, EMIT_BOX, &pr, &ref, &var)) {
         double worst_sigma = 0;
         for (int y0 = 9; y0 + 4 <= 23; y0 += 4) {
             double m[3], se[3], e[3];
-            region(&ref, &var, 9, 23, y0, y0 + 4, m, se);
+            media_region(&ref, &var, 9, 23, y0, y0 + 4, m, se);
             for (int c = 0; c < 3; c++) {
                 e[c] = box_exact(16, y0, c);
                 CHECK_NEAR(m[c], e[c], 4 * se[c]);
@@ -220,7 +147,7 @@ static void emitting_box(void)
         }
         printf("  path tracer: largest deviation %.2f standard errors (tolerance 4)\n", worst_sigma);
         /* Outside the box only the environment. */
-        CHECK_NEAR(px(&ref, 2, 2, 0), 0.5, 1e-6);
+        CHECK_NEAR(media_px(&ref, 2, 2, 0), 0.5, 1e-6);
     }
     nacre_image_free(ctx, &ref);
     nacre_image_free(ctx, &var);
@@ -240,14 +167,14 @@ static void global_fog_pass(void)
         "\"fog\": [{\"shape\": \"global\", \"sigma_a\": [0.2, 0.1, 0.05], \"sigma_s\": 0,"
         "\"emission\": [0.1, 0.2, 0.3]}]}";
     const double sa[3] = {0.2, 0.1, 0.05}, em[3] = {0.1, 0.2, 0.3};
-    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_OFF, 32, 32);
+    nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_OFF, 32, 32);
     nacre_image img = {0};
-    if (render(json, &rs, &img, NULL)) {
+    if (media_render(ctx, json, &rs, &img, NULL)) {
         double worst_bg = 0, worst_face = 0;
         for (int c = 0; c < 3; c++) {
             double bg = em[c] / sa[c], face = em[c] / sa[c] * (1 - exp(-3 * sa[c]));
-            worst_bg = fmax(worst_bg, fabs(px(&img, 1, 1, c) - bg) / bg);
-            worst_face = fmax(worst_face, fabs(px(&img, 16, 16, c) - face) / face);
+            worst_bg = fmax(worst_bg, fabs(media_px(&img, 1, 1, c) - bg) / bg);
+            worst_face = fmax(worst_face, fabs(media_px(&img, 16, 16, c) - face) / face);
         }
         printf("  global emitting fog, fog pass: relative error background %.2e, cube face %.2e\n", worst_bg,
                worst_face);
@@ -266,27 +193,27 @@ static void global_fog_pass(void)
 static void noise_box(void)
 {
     const int W = 32, H = 32;
-    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_RAYMARCH, W, H);
+    nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_RAYMARCH, W, H);
     rs.volumetrics.raymarch_steps = 512;
     nacre_image rm = {0}, pt = {0}, var = {0}, fx = {0};
-    bool ok = render(NOISE_BOX, &rs, &rm, NULL);
+    bool ok = media_render(ctx, NOISE_BOX, &rs, &rm, NULL);
     rs.volumetrics.mode = NACRE_VOLUMETRICS_FROXEL;
     rs.volumetrics.froxel_width = W;
     rs.volumetrics.froxel_height = H;
     rs.volumetrics.froxel_slices = 128;
-    ok = ok && render(NOISE_BOX, &rs, &fx, NULL);
-    nacre_render_settings pr = settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
+    ok = ok && media_render(ctx, NOISE_BOX, &rs, &fx, NULL);
+    nacre_render_settings pr = media_settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
     pr.pathtrace.spp = 512;
     pr.pathtrace.seed = 9;
-    ok = ok && render(NOISE_BOX, &pr, &pt, &var);
+    ok = ok && media_render(ctx, NOISE_BOX, &pr, &pt, &var);
     if (ok) {
         double worst = 0, worst_fx = 0, lo = INFINITY, hi = 0, se_max = 0;
         for (int y0 = 9; y0 + 2 <= 23; y0 += 2)
             for (int x0 = 9; x0 + 7 <= 23; x0 += 7) {
                 double m[3], se[3], r[3], f[3], dummy[3];
-                region(&pt, &var, x0, x0 + 7, y0, y0 + 2, m, se);
-                region(&rm, NULL, x0, x0 + 7, y0, y0 + 2, r, dummy);
-                region(&fx, NULL, x0, x0 + 7, y0, y0 + 2, f, dummy);
+                media_region(&pt, &var, x0, x0 + 7, y0, y0 + 2, m, se);
+                media_region(&rm, NULL, x0, x0 + 7, y0, y0 + 2, r, dummy);
+                media_region(&fx, NULL, x0, x0 + 7, y0, y0 + 2, f, dummy);
                 lo = fmin(lo, r[0]);
                 hi = fmax(hi, r[0]);
                 se_max = fmax(se_max, se[0]);
@@ -328,7 +255,7 @@ static void expect_error(const char *fog, const char *needle)
 
 static void files_and_api(void)
 {
-    nacre_scene *s = load(NOISE_BOX, NULL);
+    nacre_scene *s = media_load(ctx, NOISE_BOX, NULL);
     if (s) {
         char *json = NULL;
         CHECK(nacre_scene_save_json(s, NULL, NACRE_TEST_TMP, &json, NULL) == NACRE_OK);
@@ -359,7 +286,7 @@ static void files_and_api(void)
         nacre_scene_destroy(s);
     }
     /* Without emission nothing is written (files stay as they were). */
-    nacre_scene *plain = load(BOX_SCENE("{\"shape\": \"box\", \"size\": 2, \"sigma_a\": 1, \"sigma_s\": 0}"), NULL);
+    nacre_scene *plain = media_load(ctx, BOX_SCENE("{\"shape\": \"box\", \"size\": 2, \"sigma_a\": 1, \"sigma_s\": 0}"), NULL);
     if (plain) {
         char *json = NULL;
         CHECK(nacre_scene_save_json(plain, NULL, NACRE_TEST_TMP, &json, NULL) == NACRE_OK);

@@ -14,7 +14,7 @@
  *     inside the fog;
  *   - scene-file parsing and clean errors.
  */
-#include "test_util.h"
+#include "media_util.h"
 
 #include <nacre/nacre.h>
 
@@ -72,29 +72,6 @@ static bool render(const char *json, int32_t w, int32_t h, uint32_t spp, uint32_
     return res == NACRE_OK;
 }
 
-static float px(const nacre_image *img, int x, int y, int c)
-{
-    return img->pixels[(size_t)y * img->stride + 3 * (size_t)x + (size_t)c];
-}
-
-/* Mean and standard error over the pixels of rows [y0, y1) and columns [x0, x1). */
-static void region(const nacre_image *img, const nacre_image *var, int x0, int x1, int y0, int y1, double m[3],
-                   double se[3])
-{
-    double s[3] = {0, 0, 0}, v[3] = {0, 0, 0};
-    int n = 0;
-    for (int y = y0; y < y1; y++)
-        for (int x = x0; x < x1; x++, n++)
-            for (int c = 0; c < 3; c++) {
-                s[c] += px(img, x, y, c);
-                v[c] += var ? px(var, x, y, c) : 0.0;
-            }
-    for (int c = 0; c < 3; c++) {
-        m[c] = s[c] / n;
-        se[c] = sqrt(v[c]) / n;
-    }
-}
-
 /* Orthographic camera at z = 5 looking down -z over [-2, 2]^2, rays starting at the eye. */
 #define ORTHO_Z "\"camera\": {\"type\": \"orthographic\", \"position\": [0, 0, 5], \"target\": [0, 0, 0], " \
                 "\"height\": 4, \"near\": 0.001, \"far\": 100}"
@@ -108,13 +85,13 @@ static void absorbing_boxes(void)
     if (!render(json, 32, 32, 64, 0, &img, &var))
         return;
     double m[3], se[3];
-    region(&img, &var, 10, 22, 10, 22, m, se);
+    media_region(&img, &var, 10, 22, 10, 22, m, se);
     const double sa[3] = {0.2, 0.5, 1.0};
     for (int c = 0; c < 3; c++) {
         printf("  box absorber c%d: %.4f +- %.4f, exact %.4f\n", c, m[c], se[c], exp(-2 * sa[c]));
         CHECK_NEAR(m[c], exp(-2 * sa[c]), 4 * se[c] + 1e-3);
     }
-    region(&img, NULL, 0, 32, 0, 3, m, se); /* outside the box: nothing in the way */
+    media_region(&img, NULL, 0, 32, 0, 3, m, se); /* outside the box: nothing in the way */
     CHECK_NEAR(m[0], 1.0, 1e-6);
     nacre_image_free(ctx, &img);
     nacre_image_free(ctx, &var);
@@ -130,7 +107,7 @@ static void absorbing_boxes(void)
         double x = -0.125 + (k + 0.5) / 64 * 0.25;
         expect += exp(-0.5 * (2 * sqrt(2.0) - 2 * fabs(x))) / 64;
     }
-    region(&img, &var, 15, 17, 10, 22, m, se);
+    media_region(&img, &var, 15, 17, 10, 22, m, se);
     printf("  rotated box absorber: %.4f +- %.4f, exact %.4f\n", m[1], se[1], expect);
     CHECK_NEAR(m[1], expect, 4 * se[1] + 1e-3);
     nacre_image_free(ctx, &img);
@@ -161,7 +138,7 @@ static void absorbing_sphere(void)
     for (size_t r = 0; r < sizeof(regions) / sizeof(regions[0]); r++) {
         int x0 = regions[r][0], y0 = regions[r][1];
         double m[3], se[3], exact[3] = {0, 0, 0};
-        region(&img, &var, x0, x0 + 4, y0, y0 + 4, m, se);
+        media_region(&img, &var, x0, x0 + 4, y0, y0 + 4, m, se);
         for (int py = y0; py < y0 + 4; py++)
             for (int pxl = x0; pxl < x0 + 4; pxl++)
                 for (int j = 0; j < 8; j++)
@@ -203,7 +180,7 @@ static void absorbing_sphere(void)
             for (int x = 0; x < 32; x++) {
                 double L = ellipsoid_length(-2.0 + (x + 0.5) * 4.0 / 32, 2.0 - (y + 0.5) * 4.0 / 32);
                 for (int c = 0; c < 3; c++)
-                    worst = fmax(worst, fabs(px(&fp, x, y, c) - exp(-sa[c] * L)));
+                    worst = fmax(worst, fabs(media_px(&fp, x, y, c) - exp(-sa[c] * L)));
             }
         printf("  ellipsoid absorber, fog pass: largest difference to the closed form %.2g\n", worst);
         CHECK(worst < 1e-5);
@@ -230,7 +207,7 @@ static void height_fog(void)
             expect += exp(-0.8 * exp(-1.5 * (y - 0.2)) * 2) / 64;
         }
         double m[3], se[3];
-        region(&img, &var, 0, 16, row, row + 1, m, se);
+        media_region(&img, &var, 0, 16, row, row + 1, m, se);
         printf("  height fog row %2d: %.4f +- %.4f, exact %.4f\n", row, m[0], se[0], expect);
         CHECK_NEAR(m[0], expect, 4 * se[0] + 2e-3);
         checked++;
@@ -246,7 +223,7 @@ static void height_fog(void)
     if (!render(json, 8, 8, 256, 0, &img, &var))
         return;
     double m[3], se[3];
-    region(&img, &var, 0, 8, 0, 8, m, se);
+    media_region(&img, &var, 0, 8, 0, 8, m, se);
     double expect = exp(-0.6 * exp(-2 * (1 - 0.5)) / 2);
     printf("  height fog, looking up: %.4f +- %.4f, exact %.4f\n", m[0], se[0], expect);
     CHECK_NEAR(m[0], expect, 4 * se[0] + 1e-3);
@@ -259,7 +236,7 @@ static void height_fog(void)
            "\"fog\": [{\"shape\": \"global\", \"sigma_a\": 0.6, \"sigma_s\": 0, \"height_falloff\": 2}]}";
     if (!render(json, 8, 8, 16, 0, &img, NULL))
         return;
-    region(&img, NULL, 0, 8, 0, 8, m, se);
+    media_region(&img, NULL, 0, 8, 0, 8, m, se);
     CHECK(m[0] == 0.0);
     nacre_image_free(ctx, &img);
 }
@@ -280,7 +257,7 @@ static void single_scattering(float g)
     const double ss[3] = {0.9, 0.6, 0.3};
     for (int row = 10; row < 22; row += 5) {
         double m[3], se[3];
-        region(&img, &var, 10, 22, row, row + 1, m, se);
+        media_region(&img, &var, 10, 22, row, row + 1, m, se);
         for (int c = 0; c < 3; c++) {
             double st = 0.3 + ss[c], expect = 0;
             for (int k = 0; k < 64; k++) {
@@ -309,7 +286,7 @@ static void furnace(const char *name, const char *fog, const char *extra)
     if (!render(json, 16, 16, 64, 0, &img, &var))
         return;
     double m[3], se[3];
-    region(&img, &var, 3, 13, 3, 13, m, se);
+    media_region(&img, &var, 3, 13, 3, 13, m, se);
     printf("  furnace %-34s: %.4f %.4f %.4f (stderr %.4f) expect 0.7\n", name, m[0], m[1], m[2], se[0]);
     for (int c = 0; c < 3; c++)
         CHECK_NEAR(m[c], 0.7, 4 * se[c] + 0.005);
@@ -449,7 +426,7 @@ static void point_light_in_fog(float g)
         return;
     /* Central 4 x 4 pixels (x, y in [-0.5, 0.5]); the exact value averaged over each pixel. */
     double m[3], se[3], exact = 0;
-    region(&img, &var, 6, 10, 6, 10, m, se);
+    media_region(&img, &var, 6, 10, 6, 10, m, se);
     for (int py = 6; py < 10; py++)
         for (int px_ = 6; px_ < 10; px_++)
             for (int k = 0; k < 16; k++) {

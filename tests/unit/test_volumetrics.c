@@ -26,7 +26,7 @@
  *     aligned slices (exact without history) the reprojected frames stay within 3% (ghosting);
  *   - settings: bad values give errors naming the field; scene-file keys load and save.
  */
-#include "test_util.h"
+#include "media_util.h"
 
 #include "volume/fog_field.h"
 
@@ -38,81 +38,6 @@
 
 static nacre_context *ctx;
 static const double PI = 3.14159265358979323846;
-
-static nacre_scene *load(nacre_context *c, const char *json, nacre_render_settings *rs)
-{
-    nacre_scene *s = NULL;
-    nacre_scene_file_settings fs;
-    nacre_result r = nacre_scene_load_json(c, json, strlen(json), "vol.json", ".", &s, &fs);
-    CHECK(r == NACRE_OK);
-    if (r != NACRE_OK) {
-        printf("  %s\n", nacre_context_last_error(c));
-        return NULL;
-    }
-    if (rs)
-        *rs = fs.render;
-    CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
-    return s;
-}
-
-/* Render json with the given settings (method, size, volumetrics already set in rs, other fields
- * from the file's defaults). */
-static bool render(nacre_context *c, const char *json, const nacre_render_settings *want, nacre_image *img,
-                   nacre_image *var)
-{
-    nacre_render_settings rs;
-    nacre_scene *s = load(c, json, &rs);
-    if (!s)
-        return false;
-    rs.method = want->method;
-    rs.width = want->width;
-    rs.height = want->height;
-    rs.volumetrics = want->volumetrics;
-    rs.pathtrace = want->pathtrace;
-    nacre_renderer *r = NULL;
-    CHECK(nacre_renderer_create(c, &r) == NACRE_OK);
-    nacre_result res = nacre_renderer_render(r, s, &rs, img, NULL);
-    CHECK(res == NACRE_OK);
-    if (res != NACRE_OK)
-        printf("  %s\n", nacre_context_last_error(c));
-    if (res == NACRE_OK && var)
-        CHECK(nacre_renderer_variance(r, var) == NACRE_OK);
-    nacre_renderer_destroy(r);
-    nacre_scene_destroy(s);
-    return res == NACRE_OK;
-}
-
-static float px(const nacre_image *img, int x, int y, int c)
-{
-    return img->pixels[(size_t)y * img->stride + 3 * (size_t)x + (size_t)c];
-}
-
-static void region(const nacre_image *img, const nacre_image *var, int x0, int x1, int y0, int y1, double m[3],
-                   double se[3])
-{
-    double s[3] = {0, 0, 0}, v[3] = {0, 0, 0};
-    int n = 0;
-    for (int y = y0; y < y1; y++)
-        for (int x = x0; x < x1; x++, n++)
-            for (int c = 0; c < 3; c++) {
-                s[c] += px(img, x, y, c);
-                v[c] += var ? px(var, x, y, c) : 0.0;
-            }
-    for (int c = 0; c < 3; c++) {
-        m[c] = s[c] / n;
-        se[c] = sqrt(v[c]) / n;
-    }
-}
-
-static nacre_render_settings settings(nacre_method method, nacre_volumetrics_mode mode, int w, int h)
-{
-    nacre_render_settings rs = nacre_render_settings_defaults();
-    rs.method = method;
-    rs.width = w;
-    rs.height = h;
-    rs.volumetrics.mode = mode;
-    return rs;
-}
 
 /* ---- a box of fog under a sun, no occluders ------------------------------------------------ */
 
@@ -144,10 +69,10 @@ static void sun_closed_form(void)
     nacre_image img[2] = {{0}, {0}};
     for (int k = 0; k < 2; k++) {
         nacre_render_settings rs =
-            settings(NACRE_METHOD_PHONG, k ? NACRE_VOLUMETRICS_RAYMARCH : NACRE_VOLUMETRICS_FROXEL, W, H);
+            media_settings(NACRE_METHOD_PHONG, k ? NACRE_VOLUMETRICS_RAYMARCH : NACRE_VOLUMETRICS_FROXEL, W, H);
         rs.volumetrics.froxel_width = 16; /* half the image: pixels between column centres */
         rs.volumetrics.froxel_height = 16;
-        if (!render(ctx, SUN_SCENE, &rs, &img[k], NULL))
+        if (!media_render(ctx, SUN_SCENE, &rs, &img[k], NULL))
             return;
     }
     double worst[2] = {0, 0};
@@ -161,7 +86,7 @@ static void sun_closed_form(void)
                     continue;
                 double e = sun_exact(yy, c);
                 for (int k = 0; k < 2; k++) {
-                    double err = fabs(px(&img[k], x, y, c) - e) / e;
+                    double err = fabs(media_px(&img[k], x, y, c) - e) / e;
                     worst[k] = err > worst[k] ? err : worst[k];
                 }
             }
@@ -170,17 +95,17 @@ static void sun_closed_form(void)
     CHECK(worst[1] < 0.02);
 
     /* The path tracer (single scattering) on the same scene, per band of 4 rows. */
-    nacre_render_settings rs = settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
+    nacre_render_settings rs = media_settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
     rs.pathtrace.spp = 256;
     rs.pathtrace.seed = 3;
     rs.pathtrace.max_scatter = 1;
     nacre_image ref = {0}, var = {0};
-    if (render(ctx, SUN_SCENE, &rs, &ref, &var)) {
+    if (media_render(ctx, SUN_SCENE, &rs, &ref, &var)) {
         for (int y0 = 2; y0 < 30; y0 += 4) {
             double m[3], se[3], f[3], r[3], dummy[3];
-            region(&ref, &var, 4, 28, y0, y0 + 4, m, se);
-            region(&img[0], NULL, 4, 28, y0, y0 + 4, f, dummy);
-            region(&img[1], NULL, 4, 28, y0, y0 + 4, r, dummy);
+            media_region(&ref, &var, 4, 28, y0, y0 + 4, m, se);
+            media_region(&img[0], NULL, 4, 28, y0, y0 + 4, f, dummy);
+            media_region(&img[1], NULL, 4, 28, y0, y0 + 4, r, dummy);
             printf("  rows %2d-%2d: path tracer %.5f +- %.5f, froxel %.5f, raymarch %.5f\n", y0, y0 + 3, m[0], se[0],
                    f[0], r[0]);
             for (int c = 0; c < 3; c++) {
@@ -210,7 +135,7 @@ static void sun_errors(const nacre_image *img, double cx, double cy, double *rms
             if (fabs(yy) > 0.85 || fabs(xx) > 0.85)
                 continue;
             for (int c = 0; c < 3; c++) {
-                double e = sun_exact(yy, c), err = (px(img, x, y, c) - e) / e;
+                double e = sun_exact(yy, c), err = (media_px(img, x, y, c) - e) / e;
                 s += err * err;
                 n++;
                 *worst = fmax(*worst, fabs(err));
@@ -225,7 +150,7 @@ static bool temporal_run(float temporal, uint32_t slices, int frames, double mov
                          double *worst_last, double *rms_max, int from)
 {
     nacre_render_settings rs;
-    nacre_scene *s = load(ctx, SUN_SCENE, &rs);
+    nacre_scene *s = media_load(ctx, SUN_SCENE, &rs);
     if (!s)
         return false;
     rs.method = NACRE_METHOD_PHONG;
@@ -314,7 +239,7 @@ static double max_rel_diff(const nacre_image *a, const nacre_image *b)
     for (int y = 0; y < a->height; y++)
         for (int x = 0; x < a->width; x++)
             for (int c = 0; c < 3; c++) {
-                double u = px(a, x, y, c), v = px(b, x, y, c), d = fabs(u - v) / fmax(fabs(v), 1e-6);
+                double u = media_px(a, x, y, c), v = media_px(b, x, y, c), d = fabs(u - v) / fmax(fabs(v), 1e-6);
                 worst = d > worst ? d : worst;
             }
     return worst;
@@ -324,16 +249,16 @@ static void constant_source(void)
 {
     const int W = 48, H = 36;
     nacre_image off = {0}, fx = {0}, rm = {0}, rm4 = {0}, fx8 = {0};
-    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_OFF, W, H);
-    bool ok = render(ctx, AMBIENT_SCENE, &rs, &off, NULL);
+    nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_OFF, W, H);
+    bool ok = media_render(ctx, AMBIENT_SCENE, &rs, &off, NULL);
     rs.volumetrics.mode = NACRE_VOLUMETRICS_FROXEL;
-    ok = ok && render(ctx, AMBIENT_SCENE, &rs, &fx, NULL);
+    ok = ok && media_render(ctx, AMBIENT_SCENE, &rs, &fx, NULL);
     rs.volumetrics.froxel_slices = 8;
-    ok = ok && render(ctx, AMBIENT_SCENE, &rs, &fx8, NULL);
+    ok = ok && media_render(ctx, AMBIENT_SCENE, &rs, &fx8, NULL);
     rs.volumetrics.mode = NACRE_VOLUMETRICS_RAYMARCH;
-    ok = ok && render(ctx, AMBIENT_SCENE, &rs, &rm, NULL);
+    ok = ok && media_render(ctx, AMBIENT_SCENE, &rs, &rm, NULL);
     rs.volumetrics.raymarch_steps = 4;
-    ok = ok && render(ctx, AMBIENT_SCENE, &rs, &rm4, NULL);
+    ok = ok && media_render(ctx, AMBIENT_SCENE, &rs, &rm4, NULL);
     if (ok) {
         double d_fx = max_rel_diff(&fx, &off), d_rm = max_rel_diff(&rm, &off), d_rm4 = max_rel_diff(&rm4, &rm);
         printf("  ambient in global fog vs the analytic pass: froxel %.2e, raymarch %.2e; 4 vs 64 steps %.2e\n",
@@ -345,7 +270,7 @@ static void constant_source(void)
         double bg = 0;
         for (int x = 0; x < W; x++)
             for (int c = 0; c < 3; c++)
-                bg = fmax(bg, fabs(px(&fx8, x, 0, c) - px(&fx, x, 0, c)) / px(&fx, x, 0, c));
+                bg = fmax(bg, fabs(media_px(&fx8, x, 0, c) - media_px(&fx, x, 0, c)) / media_px(&fx, x, 0, c));
         printf("  background with 8 vs 64 slices: %.2e\n", bg);
         CHECK(bg < 1e-4);
     }
@@ -378,12 +303,12 @@ static void thread_count(void)
             CHECK(nacre_context_create(&cd, &c) == NACRE_OK);
             if (!c)
                 return;
-            nacre_render_settings rs = settings(NACRE_METHOD_PHONG, (nacre_volumetrics_mode)mode, 40, 30);
+            nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, (nacre_volumetrics_mode)mode, 40, 30);
             rs.volumetrics.froxel_width = 20;
             rs.volumetrics.froxel_height = 15;
             rs.volumetrics.raymarch_steps = 16;
             nacre_image tmp = {0};
-            if (render(c, json, &rs, &tmp, NULL)) {
+            if (media_render(c, json, &rs, &tmp, NULL)) {
                 CHECK(nacre_image_alloc(ctx, 40, 30, 3, &img[k]) == NACRE_OK);
                 memcpy(img[k].pixels, tmp.pixels, 40 * 30 * 3 * sizeof(float));
                 nacre_image_free(c, &tmp);
@@ -410,7 +335,7 @@ static void field_transmittance(void)
                        "\"fog\": [{\"shape\": \"box\", \"size\": [4, 2, 4], \"sigma_a\": 0.1, \"sigma_s\": [0.5, 1, 2],"
                        "\"height_falloff\": 0.7, \"height_base\": -1},"
                        "{\"shape\": \"global\", \"sigma_s\": 0.01, \"height_falloff\": 2}]}";
-    nacre_scene *s = load(ctx, json, NULL);
+    nacre_scene *s = media_load(ctx, json, NULL);
     if (!s)
         return;
     nc_fog_field f;
@@ -506,21 +431,21 @@ static void height_fog_lights(void)
     nacre_image img[2] = {{0}, {0}};
     for (int k = 0; k < 2; k++) {
         nacre_render_settings rs =
-            settings(NACRE_METHOD_PHONG, k ? NACRE_VOLUMETRICS_RAYMARCH : NACRE_VOLUMETRICS_FROXEL, W, H);
+            media_settings(NACRE_METHOD_PHONG, k ? NACRE_VOLUMETRICS_RAYMARCH : NACRE_VOLUMETRICS_FROXEL, W, H);
         rs.volumetrics.froxel_width = W; /* a column per pixel, through its centre */
         rs.volumetrics.froxel_height = H;
-        if (!render(ctx, HEIGHT_FOG_LIGHTS("0.3"), &rs, &img[k], NULL))
+        if (!media_render(ctx, HEIGHT_FOG_LIGHTS("0.3"), &rs, &img[k], NULL))
             goto out;
     }
     double worst = 0, top = 0;
     for (int y = 0; y < H; y++)
         for (int x = 0; x < W; x++)
             for (int c = 0; c < 3; c++)
-                top = fmax(top, px(&img[1], x, y, c));
+                top = fmax(top, media_px(&img[1], x, y, c));
     for (int y = 0; y < H; y++)
         for (int x = 0; x < W; x++)
             for (int c = 0; c < 3; c++) {
-                double r = px(&img[1], x, y, c), err = fabs(px(&img[0], x, y, c) - r) / fmax(r, 1e-3 * top);
+                double r = media_px(&img[1], x, y, c), err = fabs(media_px(&img[0], x, y, c) - r) / fmax(r, 1e-3 * top);
                 worst = fmax(worst, err);
             }
     printf("  height fog, sun + 2 points + spot: froxel vs march largest relative difference %.2e\n", worst);
@@ -529,28 +454,28 @@ static void height_fog_lights(void)
      * more than that. */
     nacre_image_free(ctx, &img[1]);
     memset(&img[1], 0, sizeof(img[1]));
-    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_FROXEL, W, H);
+    nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_FROXEL, W, H);
     rs.volumetrics.froxel_width = W;
     rs.volumetrics.froxel_height = H;
-    if (!render(ctx, HEIGHT_FOG_LIGHTS("30"), &rs, &img[1], NULL))
+    if (!media_render(ctx, HEIGHT_FOG_LIGHTS("30"), &rs, &img[1], NULL))
         goto out;
     double shaft = 0;
     for (int y = 0; y < H; y++)
         for (int x = 0; x < W; x++)
-            shaft = fmax(shaft, 1 - px(&img[0], x, y, 1) / px(&img[1], x, y, 1));
+            shaft = fmax(shaft, 1 - media_px(&img[0], x, y, 1) / media_px(&img[1], x, y, 1));
     printf("  the slab's shaft: darker by up to %.3f\n", shaft);
     CHECK(shaft > 0.01);
     nacre_image_free(ctx, &img[0]);
     nacre_image_free(ctx, &img[1]);
     memset(img, 0, sizeof(img));
 
-    if (!render(ctx, HEIGHT_FOG_SUN, &rs, &img[0], NULL))
+    if (!media_render(ctx, HEIGHT_FOG_SUN, &rs, &img[0], NULL))
         goto out;
     worst = 0;
     for (int y = 0; y < H; y++)
         for (int c = 0; c < 3; c++) {
             double e = height_sun_exact(2 - (y + 0.5) / 4, c);
-            worst = fmax(worst, fabs(px(&img[0], W / 2, y, c) - e) / e);
+            worst = fmax(worst, fabs(media_px(&img[0], W / 2, y, c) - e) / e);
         }
     printf("  height fog under a sun: largest relative error froxel %.4f\n", worst);
     CHECK(worst < 0.02);
@@ -578,8 +503,8 @@ out:
 static void shaft_regions(const nacre_image *img, const nacre_image *var, double *shaft, double *lit, double *se)
 {
     double m[3], s[3], m2[3], s2[3];
-    region(img, var, 35, 42, 24, 36, m, s);
-    region(img, var, 22, 29, 24, 36, m2, s2);
+    media_region(img, var, 35, 42, 24, 36, m, s);
+    media_region(img, var, 22, 29, 24, 36, m2, s2);
     *shaft = m[1];
     *lit = m2[1];
     *se = var ? sqrt(s[1] * s[1] + s2[1] * s2[1]) : 0;
@@ -589,15 +514,15 @@ static void volumetric_shadow(void)
 {
     const int W = 64, H = 48;
     nacre_image fx = {0}, rm = {0}, ref = {0}, var = {0};
-    nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_FROXEL, W, H);
-    bool ok = render(ctx, SHAFT_SCENE, &rs, &fx, NULL);
+    nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_FROXEL, W, H);
+    bool ok = media_render(ctx, SHAFT_SCENE, &rs, &fx, NULL);
     rs.volumetrics.mode = NACRE_VOLUMETRICS_RAYMARCH;
-    ok = ok && render(ctx, SHAFT_SCENE, &rs, &rm, NULL);
-    rs = settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
+    ok = ok && media_render(ctx, SHAFT_SCENE, &rs, &rm, NULL);
+    rs = media_settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
     rs.pathtrace.spp = 512;
     rs.pathtrace.seed = 5;
     rs.pathtrace.max_scatter = 1;
-    ok = ok && render(ctx, SHAFT_SCENE, &rs, &ref, &var);
+    ok = ok && media_render(ctx, SHAFT_SCENE, &rs, &ref, &var);
     if (ok) {
         double s_pt, l_pt, se, s_fx, l_fx, s_rm, l_rm, dummy;
         shaft_regions(&ref, &var, &s_pt, &l_pt, &se);
@@ -624,7 +549,7 @@ static void volumetric_shadow(void)
 
 static void bad_settings(void)
 {
-    nacre_scene *s = load(ctx, AMBIENT_SCENE, NULL);
+    nacre_scene *s = media_load(ctx, AMBIENT_SCENE, NULL);
     if (!s)
         return;
     nacre_renderer *r = NULL;
@@ -632,7 +557,7 @@ static void bad_settings(void)
     const char *fields[] = {"froxel_slices", "froxel_slices", "froxel_width", "raymarch_steps", "shadow_steps",
                             "froxel_temporal", "froxel_temporal", "volumetrics"};
     for (int k = 0; k < 8; k++) {
-        nacre_render_settings rs = settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_FROXEL, 16, 16);
+        nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_FROXEL, 16, 16);
         switch (k) {
         case 0: rs.volumetrics.froxel_slices = 0; break;
         case 1: rs.volumetrics.froxel_slices = 100000; break;
