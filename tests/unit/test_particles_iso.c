@@ -176,6 +176,24 @@ static bool same_image(const nacre_image *a, const nacre_image *b)
     return same;
 }
 
+
+/* The GGX highlight of a light of unit irradiance from l on the sphere's point of normal nrm seen
+ * from v (cs = nrm . v), Fresnel weighted, times cos_l: written from the formulas, apart from the
+ * pass's code. */
+static double ggx(const double nrm[3], const double v[3], const double l[3], double cs, double alpha, double eta)
+{
+    double hv[3] = {l[0] + v[0], l[1] + v[1], l[2] + v[2]};
+    double hl = sqrt(hv[0] * hv[0] + hv[1] * hv[1] + hv[2] * hv[2]);
+    double nh = (nrm[0] * hv[0] + nrm[1] * hv[1] + nrm[2] * hv[2]) / hl;
+    double lh = (l[0] * hv[0] + l[1] * hv[1] + l[2] * hv[2]) / hl;
+    double nl = nrm[0] * l[0] + nrm[1] * l[1] + nrm[2] * l[2];
+    if (!(nl > 0.0))
+        return 0.0;
+    double a2 = alpha * alpha, q = nh * nh * (a2 - 1.0) + 1.0, D = a2 / (PI_D * q * q);
+    double g1l = 2.0 * nl / (nl + sqrt(a2 + (1.0 - a2) * nl * nl));
+    double g1v = 2.0 * cs / (cs + sqrt(a2 + (1.0 - a2) * cs * cs));
+    return D * g1l * g1v * nc_fresnel_dielectric(lh, eta) / (4.0 * cs);
+}
 static void test_shading(void)
 {
     nacre_context *ctx = make_ctx(2);
@@ -236,17 +254,7 @@ static void test_shading(void)
             if (cs < 0.3)
                 continue;
             double F = nc_fresnel_dielectric(cs, eta);
-            double hv[3] = {l[0] + v[0], l[1] + v[1], l[2] + v[2]};
-            double hl = sqrt(hv[0] * hv[0] + hv[1] * hv[1] + hv[2] * hv[2]);
-            double nh = (nrm[0] * hv[0] + nrm[1] * hv[1] + nrm[2] * hv[2]) / hl;
-            double lh = (l[0] * hv[0] + l[1] * hv[1] + l[2] * hv[2]) / hl;
-            double nl = nrm[0] * l[0] + nrm[1] * l[1] + nrm[2] * l[2], spec = 0.0;
-            if (nl > 0.0) {
-                double a2 = alpha * alpha, q = nh * nh * (a2 - 1.0) + 1.0, D = a2 / (PI_D * q * q);
-                double g1l = 2.0 * nl / (nl + sqrt(a2 + (1.0 - a2) * nl * nl));
-                double g1v = 2.0 * cs / (cs + sqrt(a2 + (1.0 - a2) * cs * cs));
-                spec = D * g1l * g1v * nc_fresnel_dielectric(lh, eta) / (4.0 * cs);
-            }
+            double spec = ggx(nrm, v, l, cs, alpha, eta);
             for (int c = 0; c < 3; c++) {
                 double want = F * env[c] + spec * E[c] + (1.0 - F) * b[c];
                 double err = fabs(a[c] - want) / want;
@@ -349,17 +357,7 @@ static void test_absorbing(void)
             if (cs < 0.3)
                 continue;
             double F = nc_fresnel_dielectric(cs, eta);
-            double hv[3] = {l[0] + v[0], l[1] + v[1], l[2] + v[2]};
-            double hl = sqrt(hv[0] * hv[0] + hv[1] * hv[1] + hv[2] * hv[2]);
-            double nh = (nrm[0] * hv[0] + nrm[1] * hv[1] + nrm[2] * hv[2]) / hl;
-            double lh = (l[0] * hv[0] + l[1] * hv[1] + l[2] * hv[2]) / hl;
-            double nl = nrm[0] * l[0] + nrm[1] * l[1] + nrm[2] * l[2], spec = 0.0;
-            if (nl > 0.0) {
-                double a2 = alpha * alpha, q = nh * nh * (a2 - 1.0) + 1.0, D = a2 / (PI_D * q * q);
-                double g1l = 2.0 * nl / (nl + sqrt(a2 + (1.0 - a2) * nl * nl));
-                double g1v = 2.0 * cs / (cs + sqrt(a2 + (1.0 - a2) * cs * cs));
-                spec = D * g1l * g1v * nc_fresnel_dielectric(lh, eta) / (4.0 * cs);
-            }
+            double spec = ggx(nrm, v, l, cs, alpha, eta);
             float nf[3] = {(float)nrm[0], (float)nrm[1], (float)nrm[2]}, rf[3];
             CHECK(nc_refract(d, nf, eta, rf));
             double rd[3] = {rf[0], rf[1], rf[2]};
