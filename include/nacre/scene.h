@@ -345,6 +345,10 @@ typedef struct nacre_fog_desc {
                                      >= 0, default 0; scaled at p by height(p) and by the pattern
                                      as sigma is, medium 2 not emitting: x (1 - w) for RANDOM_MIX,
                                      CHECKER, NOISE, x d for VOLUME */
+    nacre_medium_pattern emission_pattern; /* default NONE: emission follows `pattern`; else it
+                                     follows this pattern instead (same rules: x d for VOLUME,
+                                     x (1 - w) for the others), e.g. a .vdb file's "flame" or
+                                     "heat" grid beside its "density"; height(p) still applies */
 } nacre_fog_desc;
 
 #define NACRE_MAX_FOGS 32

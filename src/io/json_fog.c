@@ -1,7 +1,7 @@
 /*
  * json_fog.c: the "fog" section of a JSON scene (docs/scene-format.md, "fog"): participating
  * media in open space, global, in a box or in a sphere (ellipsoid), optionally heterogeneous through a "pattern" (read by
- * json_materials.c). Coefficients are per scene unit, positions in scene units.
+ * json_materials.c), emitting as that pattern or as its own "emission_pattern". Coefficients are per scene unit, positions in scene units.
  */
 #include "io/scene_json_internal.h"
 
@@ -10,7 +10,8 @@ void nc_json_parse_fog(loader *ld, const cJSON *obj)
 {
     static const char *const shapes[] = {"global", "box", "sphere"};
     static const char *const keys[] = {"shape", "center", "size", "rotate", "sigma_a", "sigma_s", "g",
-                                       "height_falloff", "height_base", "pattern", "emission"};
+                                       "height_falloff", "height_base", "pattern", "emission",
+                                       "emission_pattern"};
     if (!nc_json_expect_object(ld, obj) || !nc_json_require(ld, obj, "shape"))
         return;
     int shape = nc_json_get_choice(ld, obj, "shape", "fog shape", shapes, COUNT_OF(shapes));
@@ -34,7 +35,10 @@ void nc_json_parse_fog(loader *ld, const cJSON *obj)
     nc_json_get_number(ld, obj, "height_base", R_FINITE, &d.height_base);
     const cJSON *pattern = nc_json_member(obj, "pattern");
     if (pattern && !ld->err)
-        nc_json_parse_pattern(ld, pattern, &d.pattern);
+        nc_json_parse_pattern(ld, pattern, "pattern", &d.pattern);
+    const cJSON *em_pattern = nc_json_member(obj, "emission_pattern");
+    if (em_pattern && !ld->err)
+        nc_json_parse_pattern(ld, em_pattern, "emission_pattern", &d.emission_pattern);
     if (ld->err)
         return;
     nacre_fog handle;

@@ -533,13 +533,13 @@ static cJSON *camera_section(writer *w)
     return o;
 }
 
-static void add_pattern(writer *w, cJSON *parent, const nacre_medium_pattern *p)
+static void add_pattern(writer *w, cJSON *parent, const char *key, const nacre_medium_pattern *p)
 {
     static const char *const types[] = {"none", "random_mix", "checker", "noise", "volume"};
     if (p->type == NACRE_PATTERN_NONE || w->err != NACRE_OK)
         return;
     cJSON *o = cJSON_CreateObject();
-    add(w, parent, "pattern", o);
+    add(w, parent, key, o);
     if (w->err != NACRE_OK)
         return;
     add_string(w, o, "type", types[p->type]);
@@ -613,7 +613,7 @@ static cJSON *material_object(writer *w, uint32_t i, const nacre_material_desc *
     add_floats(w, o, "sigma_s", d->sigma_s, 3);
     add_float(w, o, "g", d->g);
     add_float(w, o, "eta", d->eta);
-    add_pattern(w, o, &d->pattern);
+    add_pattern(w, o, "pattern", &d->pattern);
     add_layering(w, o, &d->layering);
     return o;
 }
@@ -776,7 +776,8 @@ static cJSON *fog_object(writer *w, const nacre_fog_desc *d)
     add_float(w, o, "height_base", d->height_base);
     if (d->emission[0] != 0.0f || d->emission[1] != 0.0f || d->emission[2] != 0.0f)
         add_floats(w, o, "emission", d->emission, 3);
-    add_pattern(w, o, &d->pattern);
+    add_pattern(w, o, "pattern", &d->pattern);
+    add_pattern(w, o, "emission_pattern", &d->emission_pattern);
     return o;
 }
 

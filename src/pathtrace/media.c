@@ -396,7 +396,7 @@ static void fog_emission_at(const fog_iter *it, float t, nc_vec3 p, float em[3])
         if (!f->emissive || !(it->a[i] <= t && t < it->b[i]))
             continue;
         float e[3], unused[3];
-        if (f->patterned) {
+        if (f->emission_patterned) {
             nc_vec3 q = nc_mat4_point(&f->rec->world_to_local, p);
             float qv[3] = {q.x, q.y, q.z};
             it->ps->eval(it->ps->scene, &f->rec->emission, qv, 1, e, unused);

@@ -95,7 +95,7 @@ typedef struct pt_light {
 /* A fog of the scene (see "fog" in media.c). */
 typedef struct pt_fog {
     const nc_fog_rec *rec;
-    bool box, ellipsoid, patterned, height, emissive;
+    bool box, ellipsoid, patterned, height, emissive, emission_patterned;
     float half[3];        /* box: half edge lengths (ellipsoid: semi-axes) */
     float maj;            /* scalar bound of sigma_t where height() = 1 */
     float falloff, base, g;

@@ -551,6 +551,7 @@ static void setup_fogs(nc_pathtracer *pt, const nacre_scene *s, nc_pt_medium_max
         f->height = rec->desc.height_falloff > 0;
         f->hexp = nc_vol_height_exp_cap(f->height, f->maj);
         f->emissive = rec->emissive;
+        f->emission_patterned = rec->emission_patterned;
         /* Emission is gathered at tentative collisions (media.c): a bounded fog that emits gets
          * a majorant of at least 2 / (smallest half edge), 4 collisions across that edge on
          * average, even where it barely absorbs (or not at all: its light is then e d). Set

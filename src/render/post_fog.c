@@ -175,16 +175,15 @@ static nacre_result fog_setup(fog_state *st, nacre_context *ctx, const nacre_sce
             const nc_fog_rec *rec = &s->fogs[i];
             if (nc_medium_heterogeneous(&rec->medium)) {
                 pattern_mean(st, s, rec, &rec->medium, st->mean_sa[i], st->mean_ss[i]);
-                float unused[3];
-                if (rec->emissive)
-                    pattern_mean(st, s, rec, &rec->emission, st->mean_em[i], unused);
-                else
-                    memset(st->mean_em[i], 0, sizeof(st->mean_em[i]));
             } else {
                 memcpy(st->mean_sa[i], rec->desc.sigma_a, sizeof(st->mean_sa[i]));
                 memcpy(st->mean_ss[i], rec->desc.sigma_s, sizeof(st->mean_ss[i]));
-                memcpy(st->mean_em[i], rec->desc.emission, sizeof(st->mean_em[i]));
             }
+            float unused[3];
+            if (rec->emissive && rec->emission_patterned)
+                pattern_mean(st, s, rec, &rec->emission, st->mean_em[i], unused);
+            else
+                memcpy(st->mean_em[i], rec->desc.emission, sizeof(st->mean_em[i]));
         }
         st->mean_valid = true;
         st->mean_uid = s->uid;

@@ -946,7 +946,8 @@ static nacre_result check_fog(const nacre_scene *s, const nacre_fog_desc *d)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: height_falloff: must be finite and >= 0");
     if (!isfinite(d->height_base))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: height_base: must be finite");
-    return check_pattern(s, &d->pattern, "fog", true);
+    nacre_result r = check_pattern(s, &d->pattern, "fog", true);
+    return r != NACRE_OK ? r : check_pattern(s, &d->emission_pattern, "fog: emission_pattern", true);
 }
 
 void nc_scene_store_fog(nc_fog_rec *rec, const nacre_fog_desc *d)
@@ -963,10 +964,13 @@ void nc_scene_store_fog(nc_fog_rec *rec, const nacre_fog_desc *d)
      * scales it by the pattern exactly as it scales sigma (x (1 - w), x density). */
     m.sigma_s[0] = m.sigma_s[1] = m.sigma_s[2] = 0.0f;
     memcpy(m.sigma_a, d->emission, sizeof(m.sigma_a));
+    if (d->emission_pattern.type != NACRE_PATTERN_NONE)
+        m.pattern = d->emission_pattern;
     memset(m.pattern.sigma_a2, 0, sizeof(m.pattern.sigma_a2));
     memset(m.pattern.sigma_s2, 0, sizeof(m.pattern.sigma_s2));
     rec->emission = m;
     rec->emissive = d->emission[0] > 0.0f || d->emission[1] > 0.0f || d->emission[2] > 0.0f;
+    rec->emission_patterned = rec->emission.pattern.type != NACRE_PATTERN_NONE;
     nacre_transform t;
     memset(&t, 0, sizeof(t));
     memcpy(t.translate, d->center, sizeof(t.translate));

@@ -62,6 +62,7 @@ typedef struct nc_fog_rec {
     nacre_material_desc emission; /* sigma_a: the emission, pattern as `medium` with a clear
                                      medium 2, so that nc_medium_eval gives emission at points */
     bool emissive;              /* some channel of desc.emission > 0 */
+    bool emission_patterned;    /* `emission` varies in space (its pattern, or the emission_pattern) */
     nc_mat4 world_to_local;     /* p -> R^-1 (p - center) */
 } nc_fog_rec;
 

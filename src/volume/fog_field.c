@@ -41,6 +41,7 @@ void nc_fog_field_init(nc_fog_field *f, const nacre_scene *s, uint32_t count, ui
         o->g = rec->desc.g;
         o->medium = &rec->medium;
         o->emissive = rec->emissive;
+        o->emission_patterned = rec->emission_patterned;
         memcpy(o->emission, rec->desc.emission, sizeof(o->emission));
         o->emission_medium = &rec->emission;
         f->emissive |= o->emissive;
@@ -160,7 +161,7 @@ void nc_fog_field_emission(const nc_fog_field *f, uint32_t n, const float *p, fl
             continue;
         for (uint32_t k = 0; k < n; k++)
             to_local(o, p + 3 * (size_t)k, local + 3 * (size_t)k);
-        if (o->patterned) {
+        if (o->emission_patterned) {
             nc_medium_eval(f->scene, o->emission_medium, local, n, em, unused);
         } else {
             for (uint32_t k = 0; k < n; k++)
@@ -183,7 +184,7 @@ void nc_fog_one_emission(const nc_fog_field *f, const nc_fog_one *o, const float
         return;
     float q[3];
     to_local(o, p, q);
-    if (o->patterned) {
+    if (o->emission_patterned) {
         float unused[3];
         nc_medium_eval(f->scene, o->emission_medium, q, 1, emission, unused);
     } else {

@@ -33,7 +33,7 @@ typedef struct nc_fog_one {
     float sigma_a[3], sigma_s[3];        /* where the height factor is 1 (pattern: medium 1) */
     float g;
     const nacre_material_desc *medium;   /* pattern source (the scene's, borrowed) */
-    bool emissive;
+    bool emissive, emission_patterned;
     float emission[3];                   /* where the height factor is 1 (pattern: medium 1) */
     const nacre_material_desc *emission_medium; /* emission as sigma_a (nc_fog_rec.emission) */
 } nc_fog_one;
