@@ -53,9 +53,6 @@ void upload(const uint8_t *rgba, int w, int h)
     if (!g_texture) {
         glGenTextures(1, &g_texture);
         glBindTexture(GL_TEXTURE_2D, g_texture);
-        /* One texel per pixel when the window has the frame's size; linear when resized. */
-        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
-        glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
     }
     glBindTexture(GL_TEXTURE_2D, g_texture);
     glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
@@ -67,6 +64,39 @@ void upload(const uint8_t *rgba, int w, int h)
     } else {
         glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, w, h, GL_RGBA, GL_UNSIGNED_BYTE, rgba);
     }
+}
+
+/* The frame over the whole window, opaque, before the panel. Drawn here rather than as an ImGui
+ * image because ImGui blends everything it draws, and with Mesa's software rasterizer a blended,
+ * filtered full-window quad after a clear cost several ms a frame; one texel per pixel (nearest)
+ * while the window has the frame's size. */
+void draw_frame(bool one_to_one)
+{
+    GLint filter = one_to_one ? GL_NEAREST : GL_LINEAR;
+    glBindTexture(GL_TEXTURE_2D, g_texture);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, filter);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, filter);
+    glDisable(GL_BLEND);
+    glDisable(GL_SCISSOR_TEST);
+    glDisable(GL_DEPTH_TEST);
+    glDisable(GL_LIGHTING);
+    glEnable(GL_TEXTURE_2D);
+    glTexEnvi(GL_TEXTURE_ENV, GL_TEXTURE_ENV_MODE, GL_REPLACE);
+    glMatrixMode(GL_PROJECTION);
+    glLoadIdentity();
+    glMatrixMode(GL_MODELVIEW);
+    glLoadIdentity();
+    glBegin(GL_QUADS); /* texture row 0 is the frame's top row */
+    glTexCoord2f(0, 1);
+    glVertex2f(-1, -1);
+    glTexCoord2f(1, 1);
+    glVertex2f(1, -1);
+    glTexCoord2f(1, 0);
+    glVertex2f(1, 1);
+    glTexCoord2f(0, 0);
+    glVertex2f(-1, 1);
+    glEnd();
+    glDisable(GL_TEXTURE_2D);
 }
 
 /* The current method's stages as horizontal bars (ms), like the seed's tables 5.1-5.3: a bar
@@ -403,8 +433,6 @@ extern "C" void nc_panel_draw(nc_view *v, const uint8_t *rgba, int width, int he
     ImGui_ImplOpenGL2_NewFrame();
     ImGui_ImplSDL2_NewFrame();
     ImGui::NewFrame();
-    ImGuiIO &io = ImGui::GetIO();
-    ImGui::GetBackgroundDrawList()->AddImage((ImTextureID)(intptr_t)g_texture, ImVec2(0, 0), io.DisplaySize);
     light_handles(v, width, height);
     if (show_panel) {
         ImGui::SetNextWindowPos(ImVec2(8, 8), ImGuiCond_FirstUseEver);
@@ -430,8 +458,7 @@ extern "C" void nc_panel_draw(nc_view *v, const uint8_t *rgba, int width, int he
     int dw = 0, dh = 0;
     SDL_GL_GetDrawableSize(g_window, &dw, &dh);
     glViewport(0, 0, dw, dh);
-    glClearColor(0, 0, 0, 1);
-    glClear(GL_COLOR_BUFFER_BIT);
+    draw_frame(dw == width && dh == height);
     ImGui_ImplOpenGL2_RenderDrawData(ImGui::GetDrawData());
     if (g_capture) {
         capture(v, dw, dh);
