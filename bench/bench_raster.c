@@ -116,8 +116,7 @@ int nc_bench_raster(int argc, char **argv)
     view.height = HEIGHT;
     nc_raster_mesh rm = {mesh.positions, mesh.indices, mesh.vertex_count, mesh.triangle_count, 0,
                          false};
-    nc_gbuffer_source src = {mesh.positions, mesh.normals, mesh.tangents,
-                             mesh.uvs,       mesh.indices, 0};
+    nc_gbuffer_source src = {mesh.positions, mesh.normals, mesh.uvs, mesh.indices, 0};
 
     nc_raster_counts counts = {0, 0};
     for (long run = -1; run < runs; run++) {

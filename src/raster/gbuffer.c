@@ -5,14 +5,15 @@
  * visible triangle, in double. The resulting barycentrics are exact for the world-space triangle,
  * so they are perspective-correct and independent of how the rasterizer clipped or snapped it.
  * They are clamped to the triangle (a pixel centre on a silhouette edge may miss it by the
- * snapping error) and interpolate position, shading normal, UV and tangent. Rows run in
+ * snapping error) and interpolate position, shading normal and UV. Rows run in
  * parallel; per-triangle terms are set up once per run of pixels on the same triangle, and with
  * AVX2 four pixels are evaluated at once. Empty pixels are written with streaming stores.
  *
  * Conventions: rays come from the inverse of proj * view (NDC z in [0, 1], y up; pixel centres at
  * +0.5, row 0 at the top). The geometric normal follows the winding (counter-clockwise = front);
- * seen from the back, both normals are flipped towards the camera and the tangent's handedness
- * is negated so that the bitangent w * (n x t) keeps pointing along +v. view_depth is -z_view.
+ * seen from the back, both normals are flipped towards the camera. view_depth is -z_view.
+ * Tangent frames are not stored: the layered method, their one user, builds them per pixel from
+ * the triangle's UV gradients (render/method_layered.c).
  */
 #include "raster/raster.h"
 
@@ -77,13 +78,12 @@ nacre_result nc_gbuffer_resize(nacre_context *ctx, nc_gbuffer *gb, int32_t width
     gb->normal = nc_alloc(ctx, n * 3 * sizeof(float));
     gb->geo_normal = nc_alloc(ctx, n * 3 * sizeof(float));
     gb->uv = nc_alloc(ctx, n * 2 * sizeof(float));
-    gb->tangent = nc_alloc(ctx, n * 4 * sizeof(float));
     gb->view_depth = nc_alloc(ctx, n * sizeof(float));
     gb->object = nc_alloc(ctx, n * sizeof(uint32_t));
     gb->material = nc_alloc(ctx, n * sizeof(uint32_t));
     gb->triangle = nc_alloc(ctx, n * sizeof(uint32_t));
     gb->row_span = nc_alloc(ctx, 2 * (size_t)height * sizeof(int32_t));
-    if (!gb->position || !gb->normal || !gb->geo_normal || !gb->uv || !gb->tangent ||
+    if (!gb->position || !gb->normal || !gb->geo_normal || !gb->uv ||
         !gb->view_depth || !gb->object || !gb->material || !gb->triangle || !gb->row_span) {
         nc_gbuffer_free(ctx, gb);
         return NACRE_ERROR_OUT_OF_MEMORY;
@@ -105,7 +105,6 @@ void nc_gbuffer_free(nacre_context *ctx, nc_gbuffer *gb)
     nc_free(ctx, gb->normal);
     nc_free(ctx, gb->geo_normal);
     nc_free(ctx, gb->uv);
-    nc_free(ctx, gb->tangent);
     nc_free(ctx, gb->view_depth);
     nc_free(ctx, gb->object);
     nc_free(ctx, gb->material);
@@ -193,11 +192,9 @@ typedef struct tri_setup {
     dv3 ng;            /* unit geometric normal (winding side) */
     uint32_t material;
     bool degenerate;
-    bool has_normals, has_uvs, has_tangents;
+    bool has_normals, has_uvs;
     dv3 n[3]; /* vertex normals */
     double uv[3][2];
-    dv3 t[3];    /* vertex tangents, or the face tangent in t[0] */
-    double w[3]; /* tangent handedness per vertex (or the face's in w[0]) */
 } tri_setup;
 
 static void setup_triangle(tri_setup *ts, const ray_setup *rs, const nc_gbuffer_source *src,
@@ -227,17 +224,12 @@ static void setup_triangle(tri_setup *ts, const ray_setup *rs, const nc_gbuffer_
     ts->a2 = ts->degenerate ? 0.0 : ddot(rel, ts->m2);
     ts->has_normals = src->normals != NULL;
     ts->has_uvs = src->uvs != NULL;
-    ts->has_tangents = src->tangents != NULL;
     for (int k = 0; k < 3; k++) {
         if (ts->has_normals)
             ts->n[k] = dload(src->normals + 3 * v[k]);
         if (ts->has_uvs) {
             ts->uv[k][0] = src->uvs[2 * v[k]];
             ts->uv[k][1] = src->uvs[2 * v[k] + 1];
-        }
-        if (ts->has_tangents) {
-            ts->t[k] = dload(src->tangents + 4 * v[k]);
-            ts->w[k] = src->tangents[4 * v[k] + 3];
         }
     }
     if (ts->degenerate)
@@ -246,33 +238,6 @@ static void setup_triangle(tri_setup *ts, const ray_setup *rs, const nc_gbuffer_
         ts->n[0] = ts->n[1] = ts->n[2] = ts->ng;
     if (!ts->has_uvs)
         memset(ts->uv, 0, sizeof(ts->uv));
-    if (!ts->has_tangents) {
-        ts->t[0] = dv(0, 0, 0);
-        ts->w[0] = 1.0;
-        if (ts->has_uvs) {
-            /* dp/du of the triangle: solves e1 = dp/du du1 + dp/dv dv1 (and e2 likewise). */
-            double du1 = ts->uv[1][0] - ts->uv[0][0], dv1 = ts->uv[1][1] - ts->uv[0][1];
-            double du2 = ts->uv[2][0] - ts->uv[0][0], dv2 = ts->uv[2][1] - ts->uv[0][1];
-            double den = du1 * dv2 - du2 * dv1;
-            if (den != 0.0 && !ts->degenerate) {
-                double inv = 1.0 / den;
-                ts->t[0] = dscale(dsub(dscale(ts->e1, dv2), dscale(ts->e2, dv1)), inv);
-                dv3 bt = dscale(dsub(dscale(ts->e2, du1), dscale(ts->e1, du2)), inv);
-                /* Handedness: whether dp/dv agrees with ng x t. */
-                ts->w[0] = ddot(dcross(ts->ng, ts->t[0]), bt) < 0.0 ? -1.0 : 1.0;
-            }
-        }
-        if (ddot(ts->t[0], ts->t[0]) == 0.0) {
-            /* No UVs (or degenerate ones): any tangent perpendicular to the face. */
-            nc_vec3 tt, bb;
-            nc_basis(nc_v3((float)ts->ng.x, (float)ts->ng.y, (float)ts->ng.z), &tt, &bb);
-            ts->t[0] = dv(tt.x, tt.y, tt.z);
-            ts->w[0] = 1.0;
-        }
-        /* The same per vertex, so the batched path interpolates without a special case. */
-        ts->t[1] = ts->t[2] = ts->t[0];
-        ts->w[1] = ts->w[2] = ts->w[0];
-    }
 }
 
 /* One covered pixel of triangle ts. */
@@ -331,33 +296,11 @@ static void resolve_pixel(const ray_setup *rs, const tri_setup *ts, int x, int y
         u = b0 * ts->uv[0][0] + b1 * ts->uv[1][0] + b2 * ts->uv[2][0];
         v = b0 * ts->uv[0][1] + b1 * ts->uv[1][1] + b2 * ts->uv[2][1];
     }
-    dv3 t = ts->t[0];
-    double hand = ts->w[0];
-    if (ts->has_tangents) {
-        const dv3 *vt = ts->t;
-        t = dv(b0 * vt[0].x + b1 * vt[1].x + b2 * vt[2].x,
-               b0 * vt[0].y + b1 * vt[1].y + b2 * vt[2].y,
-               b0 * vt[0].z + b1 * vt[1].z + b2 * vt[2].z);
-        hand = b0 * ts->w[0] + b1 * ts->w[1] + b2 * ts->w[2] < 0.0 ? -1.0 : 1.0;
-    }
-    /* Gram-Schmidt against the shading normal. */
-    t = dsub(t, dscale(n, ddot(t, n)));
-    double lt2 = ddot(t, t);
-    if (lt2 > 1e-24 && isfinite(lt2)) {
-        t = dscale(t, 1.0 / sqrt(lt2));
-    } else {
-        nc_vec3 tt, bb;
-        nc_basis(nc_v3((float)n.x, (float)n.y, (float)n.z), &tt, &bb);
-        t = dv(tt.x, tt.y, tt.z);
-        hand = 1.0;
-    }
     if (back) {
         n = dscale(n, -1.0);
         ng = dscale(ng, -1.0);
-        hand = -hand;
     }
     float *po = out->position + 3 * p, *no = out->normal + 3 * p, *go = out->geo_normal + 3 * p;
-    float *to = out->tangent + 4 * p;
     po[0] = (float)pos.x;
     po[1] = (float)pos.y;
     po[2] = (float)pos.z;
@@ -367,10 +310,6 @@ static void resolve_pixel(const ray_setup *rs, const tri_setup *ts, int x, int y
     go[0] = (float)ng.x;
     go[1] = (float)ng.y;
     go[2] = (float)ng.z;
-    to[0] = (float)t.x;
-    to[1] = (float)t.y;
-    to[2] = (float)t.z;
-    to[3] = (float)hand;
     out->uv[2 * p] = (float)u;
     out->uv[2 * p + 1] = (float)v;
     out->view_depth[p] =
@@ -384,7 +323,7 @@ static void resolve_pixel(const ray_setup *rs, const tri_setup *ts, int x, int y
 /* Four pixels of one row at once (lanes may belong to different triangles): the scalar path is
  * a long chain of dependent divisions and square roots per pixel, which this overlaps. Same
  * formulas as resolve_pixel; lanes it cannot handle (degenerate triangle, ray parallel to the
- * plane, no usable tangent) are redone by resolve_pixel. */
+ * plane) are redone by resolve_pixel. */
 #define LANE(field)                                                                                \
     (uniform ? _mm256_set1_pd(L[0]->field)                                                         \
              : _mm256_setr_pd(L[0]->field, L[1]->field, L[2]->field, L[3]->field))
@@ -467,7 +406,7 @@ static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int
 #define INTERP(f0, f1, f2)                                                                         \
     _mm256_add_pd(_mm256_add_pd(_mm256_mul_pd(b0, LANE(f0)), _mm256_mul_pd(b1, LANE(f1))),         \
                   _mm256_mul_pd(b2, LANE(f2)))
-    __m256d pos[3], n[3], ng[3], t[3], uv[2];
+    __m256d pos[3], n[3], ng[3], uv[2];
     pos[0] = _mm256_add_pd(
         LANE(p0.x), _mm256_add_pd(_mm256_mul_pd(b1, LANE(e1.x)), _mm256_mul_pd(b2, LANE(e2.x))));
     pos[1] = _mm256_add_pd(
@@ -488,36 +427,20 @@ static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int
         n[c] = _mm256_blendv_pd(ng[c], _mm256_mul_pd(n[c], il), nok);
     uv[0] = INTERP(uv[0][0], uv[1][0], uv[2][0]);
     uv[1] = INTERP(uv[0][1], uv[1][1], uv[2][1]);
-    t[0] = INTERP(t[0].x, t[1].x, t[2].x);
-    t[1] = INTERP(t[0].y, t[1].y, t[2].y);
-    t[2] = INTERP(t[0].z, t[1].z, t[2].z);
-    __m256d hand = _mm256_blendv_pd(one, _mm256_set1_pd(-1.0),
-                                    _mm256_cmp_pd(INTERP(w[0], w[1], w[2]), zero, _CMP_LT_OQ));
 #undef INTERP
-    __m256d tn = dot4(t[0], t[1], t[2], n[0], n[1], n[2]);
-    for (int c = 0; c < 3; c++)
-        t[c] = _mm256_sub_pd(t[c], _mm256_mul_pd(n[c], tn));
-    __m256d lt2 = dot4(t[0], t[1], t[2], t[0], t[1], t[2]);
-    ok = _mm256_and_pd(ok, _mm256_and_pd(_mm256_cmp_pd(lt2, _mm256_set1_pd(1e-24), _CMP_GT_OQ),
-                                         _mm256_cmp_pd(lt2, _mm256_set1_pd(INFINITY), _CMP_LT_OQ)));
-    __m256d it = _mm256_div_pd(one, _mm256_sqrt_pd(lt2));
-    for (int c = 0; c < 3; c++)
-        t[c] = _mm256_mul_pd(t[c], it);
     __m256d flip = _mm256_and_pd(_mm256_cmp_pd(den, zero, _CMP_GT_OQ), sign);
     for (int c = 0; c < 3; c++) {
         n[c] = _mm256_xor_pd(n[c], flip);
         ng[c] = _mm256_xor_pd(ng[c], flip);
     }
-    hand = _mm256_xor_pd(hand, flip);
     __m256d vd =
         _mm256_xor_pd(_mm256_add_pd(dot4(_mm256_set1_pd(rs->zrow[0]), _mm256_set1_pd(rs->zrow[1]),
                                          _mm256_set1_pd(rs->zrow[2]), pos[0], pos[1], pos[2]),
                                     _mm256_set1_pd(rs->zrow[3])),
                       sign);
-    float fo[16][4];
-    __m256d all[16] = {pos[0], pos[1], pos[2], n[0], n[1], n[2],  ng[0], ng[1],
-                       ng[2],  t[0],   t[1],   t[2], hand, uv[0], uv[1], vd};
-    for (int i = 0; i < 16; i++)
+    float fo[12][4];
+    __m256d all[12] = {pos[0], pos[1], pos[2], n[0], n[1], n[2], ng[0], ng[1], ng[2], uv[0], uv[1], vd};
+    for (int i = 0; i < 12; i++)
         _mm_storeu_ps(fo[i], _mm256_cvtpd_ps(all[i]));
     int okm = _mm256_movemask_pd(ok);
     for (int k = 0; k < count; k++) {
@@ -528,7 +451,6 @@ static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int
             continue;
         }
         float *po = out->position + 3 * p, *no = out->normal + 3 * p, *go = out->geo_normal + 3 * p;
-        float *to = out->tangent + 4 * p;
         po[0] = fo[0][k];
         po[1] = fo[1][k];
         po[2] = fo[2][k];
@@ -538,13 +460,9 @@ static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int
         go[0] = fo[6][k];
         go[1] = fo[7][k];
         go[2] = fo[8][k];
-        to[0] = fo[9][k];
-        to[1] = fo[10][k];
-        to[2] = fo[11][k];
-        to[3] = fo[12][k];
-        out->uv[2 * p] = fo[13][k];
-        out->uv[2 * p + 1] = fo[14][k];
-        out->view_depth[p] = fo[15][k];
+        out->uv[2 * p] = fo[9][k];
+        out->uv[2 * p + 1] = fo[10][k];
+        out->view_depth[p] = fo[11][k];
         out->object[p] = ts->obj;
         out->material[p] = ts->material;
         out->triangle[p] = ts->tri;
@@ -554,7 +472,7 @@ static void resolve4(const ray_setup *rs, const tri_setup *const L[4], const int
 #endif
 
 /* Fill n 32-bit words with `value`. Empty pixels are most of a frame and the G-buffer is
- * large (76 bytes per pixel), so long runs use streaming stores: they skip reading the old
+ * large (60 bytes per pixel), so long runs use streaming stores: they skip reading the old
  * contents into the cache first, which halves the memory traffic. The caller fences. */
 static void fill32(void *dst, size_t n, uint32_t value)
 {
@@ -593,7 +511,6 @@ static void clear_run(nc_gbuffer *out, size_t p, size_t q)
     fill32(out->normal + 3 * p, 3 * n, 0);
     fill32(out->geo_normal + 3 * p, 3 * n, 0);
     fill32(out->uv + 2 * p, 2 * n, 0);
-    fill32(out->tangent + 4 * p, 4 * n, 0);
     fill32(out->material + p, n, 0);
     fill32(out->triangle + p, n, 0);
     fill32(out->view_depth + p, n, float_bits(INFINITY));
@@ -627,8 +544,6 @@ static inline void prefetch_vertices(const nc_gbuffer_source *sources, uint32_t 
             __builtin_prefetch(s->normals + 3 * v);
         if (s->uvs)
             __builtin_prefetch(s->uvs + 2 * v);
-        if (s->tangents)
-            __builtin_prefetch(s->tangents + 4 * v);
     }
 }
 

@@ -6,7 +6,7 @@
  * pixel centre on an edge shared by two triangles is drawn exactly once. Near-plane clipping.
  * Stage 2 (nc_gbuffer_resolve): per pixel, the camera ray is intersected with the visible
  * triangle's plane, which gives perspective-correct barycentrics independent of clipping; they
- * interpolate position, normal, UV and tangent.
+ * interpolate position, normal and UV.
  * Depth-only rendering (nc_raster_depth) serves shadow maps (src/raster/shadow.c).
  *
  * Conventions: pixel (x, y) has its centre at (x + 0.5, y + 0.5); row 0 is the top of the image.
@@ -79,8 +79,6 @@ nacre_result nc_raster_depth(nc_rasterizer *r, const nc_raster_view *view,
 typedef struct nc_gbuffer_source {
     const float *positions; /* world, 3 per vertex */
     const float *normals;   /* world, 3 per vertex (NULL: the geometric normal) */
-    const float *tangents;  /* world, 4 per vertex, or NULL: dp/du of the triangle from the UVs,
-                               or an arbitrary perpendicular without UVs */
     const float *uvs;       /* 2 per vertex, or NULL */
     const uint32_t *indices;
     uint32_t material_index;
@@ -95,7 +93,6 @@ typedef struct nc_gbuffer {
     float *normal;     /* 3: unit world shading normal (interpolated) */
     float *geo_normal; /* 3: unit world geometric (face) normal, same side as `normal` */
     float *uv;         /* 2 */
-    float *tangent;    /* 4: world tangent xyz + handedness */
     float *view_depth; /* 1: distance along the view axis (scene units) */
     uint32_t *object;  /* object index or NC_NO_OBJECT */
     uint32_t *material;/* material index */

@@ -115,7 +115,7 @@ static nacre_result setup_lists(nc_raster_frame *r, const nacre_scene *s, nacre_
                                        .vertex_count = m->vertex_count, .triangle_count = m->triangle_count,
                                        .object_index = i, .double_sided = o->desc.double_sided};
         r->sources[i] = (nc_gbuffer_source){.positions = o->world_positions, .normals = o->world_normals,
-                                            .tangents = o->world_tangents, .uvs = m->uvs, .indices = m->indices,
+                                            .uvs = m->uvs, .indices = m->indices,
                                             .material_index = o->desc.material.id - 1};
         st->triangles += m->triangle_count;
     }

@@ -427,7 +427,6 @@ void nacre_scene_destroy(nacre_scene *s)
         nc_free(ctx, o->name);
         nc_free(ctx, o->world_positions);
         nc_free(ctx, o->world_normals);
-        nc_free(ctx, o->world_tangents);
     }
     nc_free(ctx, s->meshes);
     nc_free(ctx, s->materials);
@@ -1119,12 +1118,10 @@ static nacre_result commit_object(nacre_scene *s, nc_object_rec *o, double time)
     if (o->world_capacity < nv) {
         nc_free(ctx, o->world_positions);
         nc_free(ctx, o->world_normals);
-        nc_free(ctx, o->world_tangents);
         o->world_positions = nc_calloc(ctx, (size_t)nv * 3, sizeof(float));
         o->world_normals = nc_calloc(ctx, (size_t)nv * 3, sizeof(float));
-        o->world_tangents = nc_calloc(ctx, (size_t)nv * 4, sizeof(float));
         o->world_capacity = nv;
-        if (!o->world_positions || !o->world_normals || !o->world_tangents) {
+        if (!o->world_positions || !o->world_normals) {
             o->world_capacity = 0;
             return NACRE_ERROR_OUT_OF_MEMORY;
         }
@@ -1135,7 +1132,6 @@ static nacre_result commit_object(nacre_scene *s, nc_object_rec *o, double time)
                      nc_v3(M.m[0][2], M.m[1][2], M.m[2][2])};
     nc_vec3 mcof[3];
     cofactor_columns(mc[0], mc[1], mc[2], mcof);
-    float det_m = nc_dot(mc[0], nc_cross(mc[1], mc[2]));
 
     /* Finite-difference step: small against the mesh but far above float resolution. */
     float extent = 0;
@@ -1145,7 +1141,7 @@ static nacre_result commit_object(nacre_scene *s, nc_object_rec *o, double time)
 
     const nacre_deformer *defs = o->desc.deformers;
     uint32_t ndef = o->desc.deformer_count;
-    float *wp = o->world_positions, *wn = o->world_normals, *wt = o->world_tangents;
+    float *wp = o->world_positions, *wn = o->world_normals;
     float bmin[3] = {INFINITY, INFINITY, INFINITY}, bmax[3] = {-INFINITY, -INFINITY, -INFINITY};
 
 #pragma omp parallel num_threads(ctx->threads)
@@ -1155,8 +1151,6 @@ static nacre_result commit_object(nacre_scene *s, nc_object_rec *o, double time)
         for (uint32_t v = 0; v < nv; v++) {
             nc_vec3 p = nc_v3a(m->positions + 3 * (size_t)v);
             nc_vec3 n = nc_v3a(m->normals + 3 * (size_t)v);
-            nc_vec3 t = m->tangents ? nc_v3a(m->tangents + 4 * (size_t)v) : nc_v3(1, 0, 0);
-            float tw = m->tangents ? m->tangents[4 * (size_t)v + 3] : 1.0f;
             nc_vec3 q = p;
             if (ndef) {
                 q = nc_deform_point(defs, ndef, time, p);
@@ -1169,21 +1163,12 @@ static nacre_result commit_object(nacre_scene *s, nc_object_rec *o, double time)
                 }
                 nc_vec3 cof[3];
                 cofactor_columns(J[0], J[1], J[2], cof);
-                float det_j = nc_dot(J[0], nc_cross(J[1], J[2]));
                 n = apply_columns(cof, n);
-                t = apply_columns(J, t);
-                if (det_j < 0)
-                    tw = -tw;
             }
             nc_vec3 w = nc_mat4_point(&M, q);
             n = nc_normalize(apply_columns(mcof, n));
-            t = nc_normalize(apply_columns(mc, t));
-            /* Keep the tangent frame orthonormal after a non-conformal map. */
-            t = nc_normalize(nc_sub(t, nc_scale(n, nc_dot(n, t))));
             nc_v3store(w, wp + 3 * (size_t)v);
             nc_v3store(n, wn + 3 * (size_t)v);
-            nc_v3store(t, wt + 4 * (size_t)v);
-            wt[4 * (size_t)v + 3] = det_m < 0 ? -tw : tw;
             lmin[0] = fminf(lmin[0], w.x); lmin[1] = fminf(lmin[1], w.y); lmin[2] = fminf(lmin[2], w.z);
             lmax[0] = fmaxf(lmax[0], w.x); lmax[1] = fmaxf(lmax[1], w.y); lmax[2] = fmaxf(lmax[2], w.z);
         }

@@ -28,7 +28,6 @@ typedef struct nc_object_rec {
     /* Committed world-space geometry (owned; vertex_count of the mesh each). UVs are the mesh's. */
     float *world_positions; /* 3 per vertex */
     float *world_normals;   /* 3 per vertex, unit */
-    float *world_tangents;  /* 4 per vertex */
     uint32_t world_capacity; /* vertices allocated */
     float bounds_min[3], bounds_max[3];
     nc_mat4 object_to_world;

@@ -486,16 +486,11 @@ static void test_perspective_resolve(void)
     nc_gbuffer gb;
     memset(&gb, 0, sizeof(gb));
     CHECK(nc_gbuffer_resize(g.ctx, &gb, W, H) == NACRE_OK);
-    nc_gbuffer_source src = {pos, nrm, NULL, uvs, idx, 5};
+    nc_gbuffer_source src = {pos, nrm, uvs, idx, 5};
     CHECK(nc_gbuffer_resolve(g.ctx, &c.view, &g.vb, &src, 1, &gb) == NACRE_OK);
     if (N[0] * (eye[0] - O[0]) + N[1] * (eye[1] - O[1]) + N[2] * (eye[2] - O[2]) < 0)
         for (int a = 0; a < 3; a++)
             N[a] = -N[a]; /* (the quad is wound to face the camera; keep N on its side) */
-    double T[3];
-    double eun = dot3(Eu, N);
-    for (int a = 0; a < 3; a++)
-        T[a] = Eu[a] - eun * N[a];
-    norm3(T);
     int covered = 0, pos_bad = 0, uv_bad = 0, attr_bad = 0, cov_bad = 0, empty_bad = 0;
     double max_rel = 0.0;
     for (int j = 0; j < H; j++)
@@ -539,9 +534,7 @@ static void test_perspective_resolve(void)
             for (int a = 0; a < 3; a++) {
                 attr_bad += fabs(gb.normal[3 * p + a] - N[a]) > 1e-5;
                 attr_bad += fabs(gb.geo_normal[3 * p + a] - N[a]) > 1e-5;
-                attr_bad += fabs(gb.tangent[4 * p + a] - T[a]) > 1e-4;
             }
-            attr_bad += gb.tangent[4 * p + 3] != 1.0f;
             attr_bad +=
                 gb.material[p] != 5 || gb.object[p] != 0 || gb.triangle[p] != g.vb.triangle[p];
         }
@@ -570,7 +563,7 @@ static void test_perspective_resolve(void)
             for (int a = 0; a < 3; a++)
                 stale += gb.position[3 * p + a] != 0.0f || gb.normal[3 * p + a] != 0.0f ||
                          gb.geo_normal[3 * p + a] != 0.0f;
-            stale += gb.uv[2 * p] != 0.0f || gb.tangent[4 * p + 3] != 0.0f;
+            stale += gb.uv[2 * p] != 0.0f || gb.uv[2 * p + 1] != 0.0f;
         }
         CHECK(stale == 0);
         CHECK(frame == 0 ? drawn > 500 : drawn == 0);
@@ -721,7 +714,7 @@ static void test_back_faces(void)
     nc_gbuffer gb;
     memset(&gb, 0, sizeof(gb));
     CHECK(nc_gbuffer_resize(g.ctx, &gb, W, H) == NACRE_OK);
-    nc_gbuffer_source src = {pos, nrm, NULL, uvs, idx, 0};
+    nc_gbuffer_source src = {pos, nrm, uvs, idx, 0};
     CHECK(nc_gbuffer_resolve(g.ctx, &c.view, &g.vb, &src, 1, &gb) == NACRE_OK);
     int bad = 0;
     for (size_t p = 0; p < (size_t)W * H; p++) {
@@ -729,18 +722,15 @@ static void test_back_faces(void)
             continue;
         bad += fabs(gb.normal[3 * p + 2] - 1.0f) > 1e-6 ||
                fabs(gb.geo_normal[3 * p + 2] - 1.0f) > 1e-6;
-        /* Seen from the back, the handedness follows the flipped normal so that the bitangent
-         * w (n x t) still points along +v (here +y); in the triangle's own frame it was -1. */
-        bad += fabs(gb.tangent[4 * p] - 1.0f) > 1e-5 || gb.tangent[4 * p + 3] != 1.0f;
     }
     CHECK(bad == 0);
-    /* The same triangle wound to face the camera keeps its normals and handedness. */
+    /* The same triangle wound to face the camera keeps its normals. */
     uint32_t idx2[3] = {0, 2, 1};
     float nrm2[9] = {0, 0, 1, 0, 0, 1, 0, 0, 1};
     nc_raster_mesh m2 = {pos, idx2, 3, 1, 0, false};
     CHECK(nc_raster_visibility(g.r, &c.view, &m2, 1, &g.vb, NULL) == NACRE_OK);
     CHECK(count_covered(&g.vb) == n);
-    nc_gbuffer_source src2 = {pos, nrm2, NULL, uvs, idx2, 0};
+    nc_gbuffer_source src2 = {pos, nrm2, uvs, idx2, 0};
     CHECK(nc_gbuffer_resolve(g.ctx, &c.view, &g.vb, &src2, 1, &gb) == NACRE_OK);
     bad = 0;
     for (size_t p = 0; p < (size_t)W * H; p++) {
@@ -748,7 +738,6 @@ static void test_back_faces(void)
             continue;
         bad += fabs(gb.normal[3 * p + 2] - 1.0f) > 1e-6 ||
                fabs(gb.geo_normal[3 * p + 2] - 1.0f) > 1e-6;
-        bad += fabs(gb.tangent[4 * p] - 1.0f) > 1e-5 || gb.tangent[4 * p + 3] != 1.0f;
     }
     CHECK(bad == 0);
     nc_gbuffer_free(g.ctx, &gb);
@@ -825,15 +814,16 @@ static void test_determinism(void)
     float *nrm = calloc((size_t)9 * NT, sizeof(float));
     for (int v = 0; v < 3 * NT; v++)
         nrm[3 * v + 1] = 1.0f;
-    nc_gbuffer_source srcs[2] = {{pos, nrm, NULL, NULL, idx, 0},
-                                 {pos + 9 * (NT / 2), nrm, NULL, NULL, idx, 1}};
+    nc_gbuffer_source srcs[2] = {{pos, nrm, NULL, idx, 0},
+                                 {pos + 9 * (NT / 2), nrm, NULL, idx, 1}};
     CHECK(nc_gbuffer_resize(g1.ctx, &a, W, H) == NACRE_OK);
     CHECK(nc_gbuffer_resize(g2.ctx, &b, W, H) == NACRE_OK);
     CHECK(nc_raster_visibility(g2.r, &c.view, ms, 2, &g2.vb, NULL) == NACRE_OK);
     CHECK(nc_gbuffer_resolve(g1.ctx, &c.view, &g1.vb, srcs, 2, &a) == NACRE_OK);
     CHECK(nc_gbuffer_resolve(g2.ctx, &c.view, &g2.vb, srcs, 2, &b) == NACRE_OK);
     CHECK(memcmp(a.position, b.position, n * 3 * sizeof(float)) == 0);
-    CHECK(memcmp(a.tangent, b.tangent, n * 4 * sizeof(float)) == 0);
+    CHECK(memcmp(a.normal, b.normal, n * 3 * sizeof(float)) == 0);
+    CHECK(memcmp(a.uv, b.uv, n * 2 * sizeof(float)) == 0);
     CHECK(memcmp(a.material, b.material, n * sizeof(uint32_t)) == 0);
     /* A source list too short for the visibility buffer is an error, not a crash. */
     CHECK(nc_gbuffer_resolve(g1.ctx, &c.view, &g1.vb, srcs, 1, &a) == NACRE_ERROR_INVALID_ARGUMENT);
@@ -889,7 +879,7 @@ static void test_orthographic(void)
     nc_gbuffer gb;
     memset(&gb, 0, sizeof(gb));
     CHECK(nc_gbuffer_resize(g.ctx, &gb, W, H) == NACRE_OK);
-    nc_gbuffer_source src = {pos, nrm, NULL, NULL, idx, 0};
+    nc_gbuffer_source src = {pos, nrm, NULL, idx, 0};
     CHECK(nc_gbuffer_resolve(g.ctx, &v, &g.vb, &src, 1, &gb) == NACRE_OK);
     int pbad = 0;
     for (int j = 0; j < H; j++)
