@@ -199,22 +199,33 @@ static void global_fog_pass(void)
                             "\"emission\": [1, 0.8, 0.5], \"pattern\": {\"type\": \"noise\", \"cell_size\": 1, " \
                             "\"octaves\": 2, \"sigma_a2\": 0, \"sigma_s2\": 0}}")
 
-static void noise_box(void)
+/* json by the techniques that take part (a NULL image skips one) on a 32 x 32 image: the fog
+ * pass, froxels of `slices` slices, the march of `steps` steps, the path tracer at `spp` with
+ * its variance. */
+static bool render_techniques(const char *json, int slices, int steps, int spp, uint32_t seed, nacre_image *fp,
+                              nacre_image *fx, nacre_image *rm, nacre_image *pt, nacre_image *var)
 {
     const int W = 32, H = 32;
-    nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_RAYMARCH, W, H);
-    rs.volumetrics.raymarch_steps = 512;
-    nacre_image rm = {0}, pt = {0}, var = {0}, fx = {0};
-    bool ok = media_render(ctx, NOISE_BOX, &rs, &rm, NULL);
+    nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_OFF, W, H);
+    bool ok = !fp || media_render(ctx, json, &rs, fp, NULL);
     rs.volumetrics.mode = NACRE_VOLUMETRICS_FROXEL;
     rs.volumetrics.froxel_width = W;
     rs.volumetrics.froxel_height = H;
-    rs.volumetrics.froxel_slices = 128;
-    ok = ok && media_render(ctx, NOISE_BOX, &rs, &fx, NULL);
+    rs.volumetrics.froxel_slices = slices;
+    ok = ok && (!fx || media_render(ctx, json, &rs, fx, NULL));
+    rs.volumetrics.mode = NACRE_VOLUMETRICS_RAYMARCH;
+    rs.volumetrics.raymarch_steps = steps;
+    ok = ok && (!rm || media_render(ctx, json, &rs, rm, NULL));
     nacre_render_settings pr = media_settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
-    pr.pathtrace.spp = 512;
-    pr.pathtrace.seed = 9;
-    ok = ok && media_render(ctx, NOISE_BOX, &pr, &pt, &var);
+    pr.pathtrace.spp = spp;
+    pr.pathtrace.seed = seed;
+    return ok && (!pt || media_render(ctx, json, &pr, pt, var));
+}
+
+static void noise_box(void)
+{
+    nacre_image rm = {0}, pt = {0}, var = {0}, fx = {0};
+    bool ok = render_techniques(NOISE_BOX, 128, 512, 512, 9, NULL, &fx, &rm, &pt, &var);
     if (ok) {
         double worst = 0, worst_fx = 0, lo = INFINITY, hi = 0, se_max = 0;
         for (int y0 = 9; y0 + 2 <= 23; y0 += 2)
@@ -346,23 +357,8 @@ static void emission_pattern_case(const char *dens_path, double dens, const char
         sa[c] = d * BOX_SA[c];
         em[c] = e * BOX_EM[c];
     }
-    const int W = 32, H = 32;
     nacre_image fp = {0}, fx = {0}, rm = {0}, pt = {0}, var = {0};
-    nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_OFF, W, H);
-    bool ok = media_render(ctx, json, &rs, &fp, NULL);
-    rs.volumetrics.mode = NACRE_VOLUMETRICS_FROXEL;
-    rs.volumetrics.froxel_width = W;
-    rs.volumetrics.froxel_height = H;
-    rs.volumetrics.froxel_slices = 64;
-    ok = ok && media_render(ctx, json, &rs, &fx, NULL);
-    rs.volumetrics.mode = NACRE_VOLUMETRICS_RAYMARCH;
-    rs.volumetrics.raymarch_steps = 64;
-    ok = ok && media_render(ctx, json, &rs, &rm, NULL);
-    nacre_render_settings pr = media_settings(NACRE_METHOD_PATHTRACE, NACRE_VOLUMETRICS_OFF, W, H);
-    pr.pathtrace.spp = 64;
-    pr.pathtrace.seed = 3;
-    ok = ok && media_render(ctx, json, &pr, &pt, &var);
-    if (ok) {
+    if (render_techniques(json, 64, 64, 64, 3, &fp, &fx, &rm, &pt, &var)) {
         double e_fp = worst_box_error_of(&fp, false, sa, em), e_fx = worst_box_error_of(&fx, true, sa, em),
                e_rm = worst_box_error_of(&rm, true, sa, em), worst_sigma = 0;
         for (int y0 = 9; y0 + 4 <= 23; y0 += 4) {
