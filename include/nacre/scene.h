@@ -62,6 +62,10 @@ typedef struct nacre_medium_pattern {
     uint32_t seed;                  /* RANDOM_MIX, NOISE */
     uint32_t octaves;               /* NOISE: 1..12 */
     nacre_volume volume;            /* VOLUME */
+    /* VOLUME as a fog's emission_pattern only: the volume holds temperatures, T = kelvin_scale d
+     * kelvin, and the emission is emission x nacre_blackbody_rgb(T) per channel. */
+    bool blackbody;
+    float kelvin_scale;             /* > 0 when blackbody (1 for a grid in kelvin) */
 } nacre_medium_pattern;
 
 /* Layered materials (Francois, Pattanaik, Bouatouh, Breton 2006, "Subsurface texture mapping"):
@@ -352,6 +356,15 @@ typedef struct nacre_fog_desc {
 } nacre_fog_desc;
 
 #define NACRE_MAX_FOGS 32
+
+/* The radiance of a black body at `kelvin` in linear Rec.709 RGB, W / (m^2 sr) per channel:
+ * Planck's law integrated from 360 to 830 nm against the CIE 1931 2-degree colour matching
+ * functions (the analytic fit of Wyman, Sloan and Shirley 2013), Y = luminance / 683 lm/W;
+ * channels outside the Rec.709 gamut (the deep reds of bodies below about 1900 K lack blue)
+ * clipped to 0. 0 below 400 K and for NaN. For a fog whose emission_pattern is a temperature
+ * grid, emission x this is the emission per unit length: emission = sigma_a is Kirchhoff's law
+ * (a fog in thermal equilibrium), in a scene whose light strengths are in W/m^2. */
+NACRE_API void nacre_blackbody_rgb(double kelvin, float rgb[3]);
 
 /* Defaults: GLOBAL, sigma_a 0, sigma_s 0.001 per unit, g 0, no height falloff, size 1, no
  * emission. */

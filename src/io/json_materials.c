@@ -107,7 +107,8 @@ void nc_json_parse_pattern(loader *ld, const cJSON *obj, const char *key, nacre_
     static const char *const checker_keys[] = {"type", "preset2", "sigma_a2", "sigma_s2", "cell_size"};
     static const char *const noise_keys[] = {"type", "preset2", "sigma_a2", "sigma_s2", "cell_size",
                                              "seed", "octaves"};
-    static const char *const volume_keys[] = {"type", "volume", "channel", "grid", "density_scale"};
+    static const char *const volume_keys[] = {"type", "volume", "channel", "grid", "density_scale", "blackbody",
+                                              "kelvin_scale"};
     size_t mark = nc_json_push_key(ld, key);
     if (!nc_json_expect_object(ld, obj) || !nc_json_require(ld, obj, "type")) {
         nc_json_pop(ld, mark);
@@ -131,6 +132,10 @@ void nc_json_parse_pattern(loader *ld, const cJSON *obj, const char *key, nacre_
     if (p->type == NACRE_PATTERN_VOLUME) {
         if (nc_json_require(ld, obj, "volume"))
             load_volume(ld, obj, p);
+        /* A temperature grid (a fog's emission_pattern; the scene checks where it stands). */
+        nc_json_get_bool(ld, obj, "blackbody", &p->blackbody);
+        p->kelvin_scale = 1.0f;
+        nc_json_get_number(ld, obj, "kelvin_scale", R_POSITIVE, &p->kelvin_scale);
         nc_json_pop(ld, mark);
         return;
     }

@@ -545,6 +545,10 @@ static void add_pattern(writer *w, cJSON *parent, const char *key, const nacre_m
     add_string(w, o, "type", types[p->type]);
     if (p->type == NACRE_PATTERN_VOLUME) {
         add_volume_reference(w, o, p->volume);
+        if (p->blackbody) {
+            add_bool(w, o, "blackbody", true);
+            add_float(w, o, "kelvin_scale", p->kelvin_scale);
+        }
         return;
     }
     add_floats(w, o, "sigma_a2", p->sigma_a2, 3);

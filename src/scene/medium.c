@@ -356,6 +356,15 @@ static void eval_volume(const nacre_material_desc *m, const nc_volume_rec *v, co
         float d = 1.0f;
         if (isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2]))
             d = nc_volume_density(v, p);
+        if (m->pattern.blackbody) { /* a temperature grid: the emission medium of a fog */
+            float b[3];
+            nacre_blackbody_rgb((double)m->pattern.kelvin_scale * d, b);
+            for (int c = 0; c < 3; c++) {
+                sa[3 * i + c] = b[c] * m->sigma_a[c];
+                ss[3 * i + c] = b[c] * m->sigma_s[c];
+            }
+            continue;
+        }
         for (int c = 0; c < 3; c++) {
             sa[3 * i + c] = d * m->sigma_a[c];
             ss[3 * i + c] = d * m->sigma_s[c];

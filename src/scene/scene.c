@@ -188,9 +188,14 @@ static bool nonzero3(const float *v) { return finite3(v) && (v[0] != 0 || v[1] !
  * the owner in messages. A fog's medium 2 may be empty (clear air, `clear_ok`); a material's must
  * extinguish in every channel (the diffusion solver divides by sigma_t). */
 static nacre_result check_pattern(const nacre_scene *s, const nacre_medium_pattern *p, const char *what,
-                                  bool clear_ok)
+                                  bool clear_ok, bool temperature_ok)
 {
     nacre_context *ctx = s->ctx;
+    if (p->blackbody && !(temperature_ok && p->type == NACRE_PATTERN_VOLUME))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT,
+                       "%s: pattern.blackbody: only for a volume as a fog's emission_pattern", what);
+    if (p->blackbody && !(isfinite(p->kelvin_scale) && p->kelvin_scale > 0))
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: pattern.kelvin_scale: must be finite and > 0", what);
     if (p->type < NACRE_PATTERN_NONE || p->type > NACRE_PATTERN_VOLUME)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "%s: pattern.type: unknown (%d)", what, (int)p->type);
     if (p->type == NACRE_PATTERN_NONE)
@@ -290,7 +295,7 @@ static nacre_result check_material(const nacre_scene *s, const nacre_material_de
         if (!(d->eta >= NACRE_ETA_MIN && d->eta <= NACRE_ETA_MAX))
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "material: eta: must be in [%g, %g] (got %g)",
                            NACRE_ETA_MIN, NACRE_ETA_MAX, d->eta);
-        nacre_result r = check_pattern(s, &d->pattern, "material", false);
+        nacre_result r = check_pattern(s, &d->pattern, "material", false, false);
         if (r == NACRE_OK)
             r = check_layering(s, &d->layering);
         if (r != NACRE_OK)
@@ -945,8 +950,8 @@ static nacre_result check_fog(const nacre_scene *s, const nacre_fog_desc *d)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: height_falloff: must be finite and >= 0");
     if (!isfinite(d->height_base))
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "fog: height_base: must be finite");
-    nacre_result r = check_pattern(s, &d->pattern, "fog", true);
-    return r != NACRE_OK ? r : check_pattern(s, &d->emission_pattern, "fog: emission_pattern", true);
+    nacre_result r = check_pattern(s, &d->pattern, "fog", true, false);
+    return r != NACRE_OK ? r : check_pattern(s, &d->emission_pattern, "fog: emission_pattern", true, true);
 }
 
 void nc_scene_store_fog(nc_fog_rec *rec, const nacre_fog_desc *d)

@@ -17,6 +17,9 @@
  *     as density and emission grids against the same closed forms (fog pass 1e-5, froxels and
  *     march 2%, path tracer 4 standard errors); saved and reloaded; a .vdb grid renders as the
  *     same samples from NRRD; bad patterns name the field;
+ *   - the black body (nacre_blackbody_rgb) against published numbers: 6.0e5 cd/m^2 at 2042 K (the
+ *     1948 candela) within 2%, illuminant A's chromaticity at 2856 K within 0.003; a box whose
+ *     emission grid holds temperatures ("blackbody") against the closed form as above;
  *   - scene files: "emission" loads, saves and reloads to the same bits; negative, wrong-sized
  *     and non-numeric values, and a global fog that emits without extinction, give one-line
  *     errors naming the field; the API rejects NaN.
@@ -457,6 +460,119 @@ static void emission_pattern(void)
     expect_error("{\"shape\": \"box\", \"size\": 1, \"emission\": 1, \"emission_pattern\": 3}", "emission_pattern");
 }
 
+/* ---- emission from a temperature grid: the black body ---------------------------------------- */
+
+static void blackbody(void)
+{
+    /* Published reference numbers: the candela of 1948 was 1/60 of the luminance of a square
+     * centimetre of a black body at the freezing point of platinum (2042 K), so 683 lm/W times
+     * Y is 6.0e5 cd/m^2 there; CIE illuminant A (2856 K) has chromaticity (0.44757, 0.40745). */
+    float c[3];
+    nacre_blackbody_rgb(2042.0, c);
+    double Y = 0.2126729 * c[0] + 0.7151522 * c[1] + 0.0721750 * c[2];
+    printf("  black body at 2042 K: %.4g cd/m^2 (6.0e5 by the 1948 candela)\n", 683.0 * Y);
+    CHECK(fabs(683.0 * Y / 6.0e5 - 1.0) < 0.02);
+    nacre_blackbody_rgb(2856.0, c);
+    double X = 0.4124564 * c[0] + 0.3575761 * c[1] + 0.1804375 * c[2];
+    Y = 0.2126729 * c[0] + 0.7151522 * c[1] + 0.0721750 * c[2];
+    double Z = 0.0193339 * c[0] + 0.1191920 * c[1] + 0.9503041 * c[2], sum = X + Y + Z;
+    printf("  black body at 2856 K: chromaticity (%.5f, %.5f), illuminant A (0.44757, 0.40745)\n", X / sum, Y / sum);
+    CHECK(fabs(X / sum - 0.44757) < 0.003 && fabs(Y / sum - 0.40745) < 0.003);
+    /* Hotter is brighter in every channel and bluer; out of range and NaN give 0. */
+    float prev[3] = {0, 0, 0};
+    int bad = 0;
+    for (double t = 1000.0; t < 60000.0; t *= 1.013) {
+        nacre_blackbody_rgb(t, c);
+        for (int k = 0; k < 3; k++)
+            bad += !(c[k] >= prev[k]) || !isfinite(c[k]);
+        bad += t > 2500.0 && !(c[2] / c[0] > prev[2] / prev[0]);
+        memcpy(prev, c, sizeof(prev));
+    }
+    CHECK(bad == 0);
+    nacre_blackbody_rgb(300.0, c);
+    CHECK(c[0] == 0.0f && c[1] == 0.0f && c[2] == 0.0f);
+    nacre_blackbody_rgb(NAN, c);
+    CHECK(c[0] == 0.0f && c[1] == 0.0f && c[2] == 0.0f);
+
+    /* A box whose emission grid holds 2000 (K): emission x the black body's radiance. */
+    const char *grid = NACRE_TEST_TMP "/temperature_2000.nrrd";
+    CHECK(write_constant_nrrd(grid, 2000.0f));
+    char fog[1024], json[4096];
+    snprintf(fog, sizeof(fog),
+             "{\"shape\": \"box\", \"size\": 2, \"sigma_a\": [0.5, 1.5, 0], \"sigma_s\": 0, \"emission\": [1e-3, 2e-3, "
+             "0.1], \"emission_pattern\": {\"type\": \"volume\", \"volume\": \"%s\", \"blackbody\": true, "
+             "\"kelvin_scale\": 2}}",
+             grid);
+    snprintf(json, sizeof(json), BOX_SCENE("%s"), fog);
+    const double emission[3] = {1e-3, 2e-3, 0.1};
+    double em[3];
+    nacre_blackbody_rgb(4000.0, c); /* 2000 x kelvin_scale 2 */
+    for (int k = 0; k < 3; k++)
+        em[k] = emission[k] * c[k];
+    nacre_image fp = {0}, fx = {0}, rm = {0}, pt = {0}, var = {0};
+    if (render_techniques(json, 64, 64, 64, 4, &fp, &fx, &rm, &pt, &var)) {
+        double e_fp = worst_box_error_of(&fp, false, BOX_SA, em), e_fx = worst_box_error_of(&fx, true, BOX_SA, em),
+               e_rm = worst_box_error_of(&rm, true, BOX_SA, em), worst_sigma = 0;
+        for (int y0 = 9; y0 + 4 <= 23; y0 += 4) {
+            double m[3], se[3];
+            media_region(&pt, &var, 9, 23, y0, y0 + 4, m, se);
+            for (int k = 0; k < 3; k++) {
+                double x = box_exact_of(16, y0, k, BOX_SA, em);
+                CHECK_NEAR(m[k], x, 4 * se[k]);
+                worst_sigma = fmax(worst_sigma, fabs(m[k] - x) / se[k]);
+            }
+        }
+        printf("  black-body box (4000 K): largest relative error fog pass %.2e, froxel %.2e, raymarch %.2e; "
+               "path tracer within %.2f standard errors\n",
+               e_fp, e_fx, e_rm, worst_sigma);
+        CHECK(e_fp < 1e-5);
+        CHECK(e_fx < 0.02);
+        CHECK(e_rm < 0.02);
+    }
+    nacre_image_free(ctx, &fp);
+    nacre_image_free(ctx, &fx);
+    nacre_image_free(ctx, &rm);
+    nacre_image_free(ctx, &pt);
+    nacre_image_free(ctx, &var);
+    /* Saved and reloaded with its scale; refused elsewhere. */
+    nacre_scene *sc = media_load(ctx, json, NULL);
+    if (sc) {
+        char *saved = NULL;
+        CHECK(nacre_scene_save_json(sc, NULL, NACRE_TEST_TMP, &saved, NULL) == NACRE_OK);
+        nacre_scene *t = NULL;
+        nacre_scene_file_settings fs;
+        if (saved)
+            CHECK(nacre_scene_load_json(ctx, saved, strlen(saved), "saved.json", NACRE_TEST_TMP, &t, &fs) == NACRE_OK);
+        if (t) {
+            nacre_fog_desc a;
+            CHECK(nacre_scene_get_fog(t, (nacre_fog){1}, &a) == NACRE_OK);
+            CHECK(a.emission_pattern.blackbody && a.emission_pattern.kelvin_scale == 2.0f);
+            nacre_scene_destroy(t);
+        }
+        nacre_free(ctx, saved);
+        nacre_fog_desc d = nacre_fog_desc_defaults(NACRE_FOG_BOX);
+        nacre_fog h;
+        d.emission_pattern.type = NACRE_PATTERN_CHECKER;
+        d.emission_pattern.cell_size = 1.0f;
+        d.emission_pattern.blackbody = true;
+        d.emission_pattern.kelvin_scale = 1.0f;
+        CHECK(nacre_scene_add_fog(sc, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT);
+        CHECK(strstr(nacre_context_last_error(ctx), "blackbody") != NULL);
+        nacre_scene_destroy(sc);
+    }
+    char bad_fog[1024];
+    snprintf(bad_fog, sizeof(bad_fog),
+             "{\"shape\": \"box\", \"size\": 1, \"pattern\": {\"type\": \"volume\", \"volume\": \"%s\", \"blackbody\": "
+             "true}}",
+             grid);
+    expect_error(bad_fog, "blackbody");
+    snprintf(bad_fog, sizeof(bad_fog),
+             "{\"shape\": \"box\", \"size\": 1, \"emission\": 1, \"emission_pattern\": {\"type\": \"volume\", "
+             "\"volume\": \"%s\", \"blackbody\": true, \"kelvin_scale\": 0}}",
+             grid);
+    expect_error(bad_fog, "kelvin_scale");
+}
+
 int main(void)
 {
     CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
@@ -465,6 +581,7 @@ int main(void)
     emitting_box();
     noise_box();
     emission_pattern();
+    blackbody();
     nacre_context_destroy(ctx);
     return TEST_MAIN_END();
 }
