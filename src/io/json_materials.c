@@ -134,8 +134,14 @@ void nc_json_parse_pattern(loader *ld, const cJSON *obj, const char *key, nacre_
             load_volume(ld, obj, p);
         /* A temperature grid (a fog's emission_pattern; the scene checks where it stands). */
         nc_json_get_bool(ld, obj, "blackbody", &p->blackbody);
-        p->kelvin_scale = 1.0f;
-        nc_json_get_number(ld, obj, "kelvin_scale", R_POSITIVE, &p->kelvin_scale);
+        if (p->blackbody) {
+            p->kelvin_scale = 1.0f;
+            nc_json_get_number(ld, obj, "kelvin_scale", R_POSITIVE, &p->kelvin_scale);
+        } else if (!ld->err && nc_json_member(obj, "kelvin_scale")) {
+            size_t m = nc_json_push_key(ld, "kelvin_scale");
+            nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT, "needs \"blackbody\": true");
+            nc_json_pop(ld, m);
+        }
         nc_json_pop(ld, mark);
         return;
     }

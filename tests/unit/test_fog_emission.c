@@ -571,6 +571,11 @@ static void blackbody(void)
              "\"volume\": \"%s\", \"blackbody\": true, \"kelvin_scale\": 0}}",
              grid);
     expect_error(bad_fog, "kelvin_scale");
+    snprintf(bad_fog, sizeof(bad_fog),
+             "{\"shape\": \"box\", \"size\": 1, \"emission\": 1, \"emission_pattern\": {\"type\": \"volume\", "
+             "\"volume\": \"%s\", \"kelvin_scale\": 2}}",
+             grid);
+    expect_error(bad_fog, "kelvin_scale");
 }
 
 int main(void)

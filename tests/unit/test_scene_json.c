@@ -497,7 +497,7 @@ static const bad_case bad_cases[] = {
     {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"volume\"}}"), INVALID,
      "materials.m.pattern: missing required key \"volume\"", NULL},
     {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"volume\", \"volume\": \"x.nrrd\", \"cell_size\": 1}}"),
-     INVALID, "materials.m.pattern: unknown key \"cell_size\" (valid keys: type, volume, channel, grid, density_scale)", NULL},
+     INVALID, "materials.m.pattern: unknown key \"cell_size\" (valid keys: type, volume, channel, grid, density_scale, blackbody, kelvin_scale)", NULL},
     {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"volume\", \"volume\": \"missing.nrrd\"}}"),
      NACRE_ERROR_IO, "t.json: materials.m.pattern.volume: ", "examples/missing.nrrd: cannot open"},
     {MAT("{\"preset\": \"marble\", \"pattern\": {\"type\": \"volume\", \"volume\": \"hetero_density.nrrd\", \"channel\": 1}}"),
