@@ -403,28 +403,34 @@ static nacre_result fog_apply(void *state, const nc_post_input *in, nacre_image 
             return NACRE_ERROR_OUT_OF_MEMORY;
         camera_rays cr;
         camera_setup(in->view, &cr);
-        /* Rows in parallel; pixels are independent, so the image does not depend on the threads. */
+        /* Rows in parallel; pixels are independent, so the image does not depend on the threads.
+         * Applied as they are made (one pass over the image). */
 #pragma omp parallel for schedule(static) num_threads(in->ctx->threads)
         for (int32_t y = 0; y < h; y++) {
+            float *row = image->pixels + (size_t)y * image->stride;
             for (int32_t x = 0; x < w; x++) {
                 size_t i = (size_t)y * (size_t)w + (size_t)x;
                 double o[3], d[3];
                 double tmax = camera_ray(&cr, x, y, depth[i], o, d);
-                fog_pixel(st, o, d, tmax, st->tl + 6 * i);
+                float *t = st->tl + 6 * i;
+                fog_pixel(st, o, d, tmax, t);
+                for (int c = 0; c < 3; c++)
+                    row[3 * x + c] = row[3 * x + c] * t[c] + t[3 + c];
             }
         }
         memcpy(st->depth, depth, n * sizeof(float));
         st->key = key;
         st->valid = true;
-    }
-    const float *tl = st->tl;
+    } else {
+        const float *tl = st->tl;
 #pragma omp parallel for schedule(static) num_threads(in->ctx->threads)
-    for (int32_t y = 0; y < h; y++) {
-        float *row = image->pixels + (size_t)y * image->stride;
-        const float *t = tl + 6 * (size_t)y * (size_t)w;
-        for (int32_t x = 0; x < w; x++)
-            for (int c = 0; c < 3; c++)
-                row[3 * x + c] = row[3 * x + c] * t[6 * x + c] + t[6 * x + 3 + c];
+        for (int32_t y = 0; y < h; y++) {
+            float *row = image->pixels + (size_t)y * image->stride;
+            const float *t = tl + 6 * (size_t)y * (size_t)w;
+            for (int32_t x = 0; x < w; x++)
+                for (int c = 0; c < 3; c++)
+                    row[3 * x + c] = row[3 * x + c] * t[6 * x + c] + t[6 * x + 3 + c];
+        }
     }
     stats->fog_lights_ignored = in->scene->light_count - st->sun_count;
     stats->fog_patterns_averaged = 0;

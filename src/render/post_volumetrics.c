@@ -36,6 +36,12 @@
  * towards them at that start and by the environment, plus its emission (the pattern at that
  * start); point and spot lights add nothing there.
  *
+ * Frames keep what did not change (froxel_apply; a viewer's frames): the filled grid while the
+ * fogs, camera and grid settings are the same, the lit and integrated grid while the lights,
+ * shadow settings and the depths that pixels read are too, each light's coarse optical depths
+ * while that light did not move, and a still frame's per-pixel L and T. A kept frame equals a
+ * new one bit for bit (test_volumetrics); froxel_temporal keeps nothing (its grid moves).
+ *
  * Results do not depend on the thread count: every column and pixel is computed alone.
  * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
  */
