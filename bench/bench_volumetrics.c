@@ -2,10 +2,11 @@
  * bench_volumetrics.c: `nacre bench volumetrics`: the volumetric fog passes at 1280x720 over the
  * built-in demo scene (phong) with one shadowed directional light, four point lights, a global
  * height fog and a box fog whose density is a 128^3 volume (a procedural cloud; the issue's
- * OpenVDB cloud is not read by nacre). One renderer across frames, as a viewer: the froxel
- * stages (fill, light, integrate, apply on 160x90x64) and the analytic fog pass run every frame,
- * the raster stages are cached. Medians of N runs per stage, in ms, with the analytic pass
- * beside them and, with --raymarch, one frame of the per-pixel march (64 steps).
+ * OpenVDB cloud is not read by nacre). One renderer across frames, as a viewer, in three
+ * sequences: the camera turns a little every frame (every froxel stage and the analytic pass
+ * run: the froxel_* and fog_pass keys), the sun turns (the fill is kept, the lighting and the
+ * integration rerun), and nothing moves (the lit grid is kept; only apply runs). Medians of N
+ * frames per stage, in ms, and with --raymarch one frame of the per-pixel march (64 steps).
  */
 #include "bench.h"
 
@@ -18,15 +19,19 @@
 
 enum { CLOUD = 128 };
 
-/* The scene's extra lights and fogs; the cloud's density (a soft ball with ripples) in `data`. */
-static nacre_result add_volumetric_set_up(nacre_scene *scene, float *data)
+/* What changes between the frames of a sequence. */
+typedef enum motion { STILL, SUN_TURNS, CAMERA_TURNS } motion;
+
+/* The scene's extra lights and fogs; the cloud's density (a soft ball with ripples) in `data`;
+ * the sun's handle in *sun_out. */
+static nacre_result add_volumetric_set_up(nacre_scene *scene, float *data, nacre_light *sun_out)
 {
     nacre_light_desc sun = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
     float dir[3] = {-0.4f, -1.0f, -0.3f}, sun_e[3] = {2.0f, 1.9f, 1.7f};
     memcpy(sun.direction, dir, sizeof(dir));
     memcpy(sun.strength, sun_e, sizeof(sun_e));
     nacre_light l;
-    nacre_result r = nacre_scene_add_light(scene, &sun, &l);
+    nacre_result r = nacre_scene_add_light(scene, &sun, sun_out);
     for (int i = 0; r == NACRE_OK && i < 4; i++) {
         nacre_light_desc pt = nacre_light_desc_defaults(NACRE_LIGHT_POINT);
         float a = (float)i * 1.5707963f;
@@ -67,9 +72,38 @@ static nacre_result add_volumetric_set_up(nacre_scene *scene, float *data)
     return r;
 }
 
-/* Medians of the stages of `runs` frames of one renderer (after one warm-up frame). */
-static int time_frames(nacre_context *ctx, nacre_scene *scene, const nacre_render_settings *rs, int runs,
-                       double *median_ms)
+/* Turn the sun (a degree about the vertical) or the camera (a tenth of a degree about the
+ * vertical through its target) for frame `run`, and commit. */
+static nacre_result move(nacre_scene *scene, motion m, nacre_light sun, int run)
+{
+    if (m == STILL)
+        return NACRE_OK;
+    nacre_result r;
+    if (m == SUN_TURNS) {
+        float a = 0.017453293f * (float)run, dir[3] = {-0.4f, -1.0f, -0.3f};
+        nacre_light_desc d = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
+        float sun_e[3] = {2.0f, 1.9f, 1.7f};
+        d.direction[0] = dir[0] * cosf(a) - dir[2] * sinf(a);
+        d.direction[1] = dir[1];
+        d.direction[2] = dir[0] * sinf(a) + dir[2] * cosf(a);
+        memcpy(d.strength, sun_e, sizeof(sun_e));
+        r = nacre_scene_set_light(scene, sun, &d);
+    } else {
+        nacre_camera_desc c;
+        if ((r = nacre_scene_get_camera(scene, &c)) != NACRE_OK)
+            return r;
+        float a = 0.0017453293f, x = c.position[0] - c.target[0], z = c.position[2] - c.target[2];
+        c.position[0] = c.target[0] + x * cosf(a) - z * sinf(a);
+        c.position[2] = c.target[2] + x * sinf(a) + z * cosf(a);
+        r = nacre_scene_set_camera(scene, &c);
+    }
+    return r == NACRE_OK ? nacre_scene_commit(scene, 0.0) : r;
+}
+
+/* Medians of the stages of `runs` frames of one renderer (after one warm-up frame), the scene
+ * moved before each frame as `m` says. */
+static int time_frames(nacre_context *ctx, nacre_scene *scene, const nacre_render_settings *rs, int runs, motion m,
+                       nacre_light sun, double *median_ms)
 {
     nacre_renderer *r = NULL;
     nacre_image img = {0};
@@ -79,7 +113,7 @@ static int time_frames(nacre_context *ctx, nacre_scene *scene, const nacre_rende
         goto out;
     for (int run = -1; run < runs; run++) {
         nacre_render_stats st;
-        if (nacre_renderer_render(r, scene, rs, &img, &st) != NACRE_OK) {
+        if (move(scene, m, sun, run + 1) != NACRE_OK || nacre_renderer_render(r, scene, rs, &img, &st) != NACRE_OK) {
             rc = nc_tool_fail(ctx);
             goto out;
         }
@@ -106,13 +140,14 @@ int nc_bench_volumetrics(bool json, int runs, bool raymarch)
         return 2;
     nacre_scene *scene = NULL;
     nacre_scene_file_settings fs;
+    nacre_light sun = {0};
     int rc = 2;
     float *cloud = malloc((size_t)CLOUD * CLOUD * CLOUD * sizeof(float));
     if (!cloud)
         goto out;
     if (nacre_scene_load_json(ctx, (const char *)nacre_demo_scene_json, strlen((const char *)nacre_demo_scene_json),
                               "<built-in demo>", ".", &scene, &fs) != NACRE_OK ||
-        add_volumetric_set_up(scene, cloud) != NACRE_OK || nacre_scene_commit(scene, 0.0) != NACRE_OK) {
+        add_volumetric_set_up(scene, cloud, &sun) != NACRE_OK || nacre_scene_commit(scene, 0.0) != NACRE_OK) {
         rc = nc_tool_fail(ctx);
         goto out;
     }
@@ -120,21 +155,32 @@ int nc_bench_volumetrics(bool json, int runs, bool raymarch)
     rs.width = 1280;
     rs.height = 720;
     rs.method = NACRE_METHOD_PHONG;
-    double froxel[NACRE_STAGE_COUNT + 1], march[NACRE_STAGE_COUNT + 1] = {0}, off[NACRE_STAGE_COUNT + 1];
+    double froxel[NACRE_STAGE_COUNT + 1], sun_turns[NACRE_STAGE_COUNT + 1], still[NACRE_STAGE_COUNT + 1];
+    double march[NACRE_STAGE_COUNT + 1] = {0}, off[NACRE_STAGE_COUNT + 1], off_still[NACRE_STAGE_COUNT + 1];
     rs.volumetrics.mode = NACRE_VOLUMETRICS_FROXEL;
-    if ((rc = time_frames(ctx, scene, &rs, runs, froxel)) != 0)
+    if ((rc = time_frames(ctx, scene, &rs, runs, CAMERA_TURNS, sun, froxel)) != 0 ||
+        (rc = time_frames(ctx, scene, &rs, runs, SUN_TURNS, sun, sun_turns)) != 0 ||
+        (rc = time_frames(ctx, scene, &rs, runs, STILL, sun, still)) != 0)
         goto out;
     rs.volumetrics.mode = NACRE_VOLUMETRICS_OFF;
-    if ((rc = time_frames(ctx, scene, &rs, runs, off)) != 0)
+    if ((rc = time_frames(ctx, scene, &rs, runs, CAMERA_TURNS, sun, off)) != 0 ||
+        (rc = time_frames(ctx, scene, &rs, runs, STILL, sun, off_still)) != 0)
         goto out;
     /* The march is the slow check (about a minute a frame here): one run, on request. */
     int march_runs = raymarch ? 1 : 0;
     rs.volumetrics.mode = NACRE_VOLUMETRICS_RAYMARCH;
-    if (raymarch && (rc = time_frames(ctx, scene, &rs, march_runs, march)) != 0)
+    if (raymarch && (rc = time_frames(ctx, scene, &rs, march_runs, STILL, sun, march)) != 0)
         goto out;
     double fill = froxel[NACRE_STAGE_FROXEL_FILL], light = froxel[NACRE_STAGE_FROXEL_LIGHT],
            integ = froxel[NACRE_STAGE_FROXEL_INTEGRATE], apply = froxel[NACRE_STAGE_FROXEL_APPLY];
     double total = fill + light + integ + apply;
+    const int stages[4] = {NACRE_STAGE_FROXEL_FILL, NACRE_STAGE_FROXEL_LIGHT, NACRE_STAGE_FROXEL_INTEGRATE,
+                           NACRE_STAGE_FROXEL_APPLY};
+    double sun_total = 0.0, still_total = 0.0;
+    for (int k = 0; k < 4; k++) {
+        sun_total += sun_turns[stages[k]];
+        still_total += still[stages[k]];
+    }
     int threads = nacre_context_threads(ctx);
     char march_ms[32] = "null";
     if (raymarch)
@@ -144,9 +190,13 @@ int nc_bench_volumetrics(bool json, int runs, bool raymarch)
                "\"froxels\":[160,90,64],\"lights\":%u,\"fogs\":%u,\"threads\":%d,\"runs\":%d,"
                "\"froxel_fill_ms\":%.3f,\"froxel_light_ms\":%.3f,\"froxel_integrate_ms\":%.3f,"
                "\"froxel_apply_ms\":%.3f,\"froxel_total_ms\":%.3f,\"raymarch_ms\":%s,\"raymarch_runs\":%d,"
-               "\"fog_pass_ms\":%.3f}\n",
+               "\"fog_pass_ms\":%.3f,\"sun_turns\":{\"froxel_light_ms\":%.3f,\"froxel_integrate_ms\":%.3f,"
+               "\"froxel_apply_ms\":%.3f,\"froxel_total_ms\":%.3f},\"still\":{\"froxel_apply_ms\":%.3f,"
+               "\"froxel_total_ms\":%.3f,\"fog_pass_ms\":%.3f}}\n",
                nacre_scene_light_count(scene), nacre_scene_fog_count(scene), threads, runs, fill, light, integ, apply,
-               total, march_ms, march_runs, off[NACRE_STAGE_FOG]);
+               total, march_ms, march_runs, off[NACRE_STAGE_FOG], sun_turns[NACRE_STAGE_FROXEL_LIGHT],
+               sun_turns[NACRE_STAGE_FROXEL_INTEGRATE], sun_turns[NACRE_STAGE_FROXEL_APPLY], sun_total,
+               still[NACRE_STAGE_FROXEL_APPLY], still_total, off_still[NACRE_STAGE_FOG]);
     } else {
         printf("volumetrics: demo scene + %u lights, %u fogs (height fog, 128^3 cloud), phong, 1280x720,\n"
                "%d threads, median of %d runs (ms):\n",
@@ -159,6 +209,10 @@ int nc_bench_volumetrics(bool json, int runs, bool raymarch)
         if (raymarch)
             printf("  raymarch 64 steps       %8.3f (median of %d)\n", march[NACRE_STAGE_RAYMARCH], march_runs);
         printf("  analytic fog pass       %8.3f\n", off[NACRE_STAGE_FOG]);
+        printf("  the camera turns each frame above; the sun turns: froxel light %.3f, integrate %.3f,\n"
+               "  apply %.3f, total %.3f; nothing moves: froxel total %.3f, analytic fog pass %.3f\n",
+               sun_turns[NACRE_STAGE_FROXEL_LIGHT], sun_turns[NACRE_STAGE_FROXEL_INTEGRATE],
+               sun_turns[NACRE_STAGE_FROXEL_APPLY], sun_total, still_total, off_still[NACRE_STAGE_FOG]);
     }
     rc = 0;
 out:

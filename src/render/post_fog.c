@@ -34,6 +34,9 @@
  * mean emission over 16^3 points of the box (global fogs: of the scene's bounds), computed when
  * the fogs or the geometry change.
  *
+ * Each pixel's T and L are kept between frames: a frame with the same committed scene, camera
+ * and depth buffer (a viewer's still frames) only applies them.
+ *
  * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
  */
 #include "core/core.h"
@@ -71,6 +74,17 @@ typedef struct camera_rays {
     bool ortho;
 } camera_rays;
 
+/* What the pixels' transmittance and radiance depend on besides the depth buffer, compared whole
+ * between frames (zeroed before being set, so padding compares). */
+typedef struct fog_key {
+    uint64_t uid, particles_built;
+    nc_versions versions;
+    uint32_t fog_count;
+    nc_mat4 view, proj;
+    int32_t width, height;
+    bool ortho;
+} fog_key;
+
 typedef struct fog_state {
     fog_const fogs[NACRE_MAX_FOGS];
     uint32_t fog_count;
@@ -82,6 +96,12 @@ typedef struct fog_state {
     uint64_t mean_uid, mean_env, mean_geo;
     float mean_sa[NACRE_MAX_FOGS][3], mean_ss[NACRE_MAX_FOGS][3], mean_em[NACRE_MAX_FOGS][3];
     float *points, *eval_sa, *eval_ss; /* MEAN_POINTS x 3 each */
+    /* Per pixel T and L (rgb each, 6 floats) of the frame of `key` and `depth`, kept while
+     * `valid`: a frame with the same scene, camera and depths only applies them. */
+    float *tl, *depth;
+    size_t tl_capacity, depth_capacity;
+    fog_key key;
+    bool valid;
 } fog_state;
 
 /* The fogs this pass draws: the fogs of particle systems only when particles are drawn as
@@ -103,6 +123,8 @@ static void fog_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->points);
     nc_free(ctx, st->eval_sa);
     nc_free(ctx, st->eval_ss);
+    nc_free(ctx, st->tl);
+    nc_free(ctx, st->depth);
     nc_free(ctx, st);
 }
 
@@ -300,8 +322,8 @@ static bool box_segment(const fog_const *f, const double o[3], const double d[3]
     return nc_vol_shape_segment(f->ellipsoid, f->half, ol, dl, t0, t1);
 }
 
-/* c T + L along one ray (see the top of the file), into rgb. */
-static void fog_pixel(const fog_state *st, const double o[3], const double d[3], double tmax, float *rgb)
+/* T and L along one ray (see the top of the file), into tl (T rgb, L rgb). */
+static void fog_pixel(const fog_state *st, const double o[3], const double d[3], double tmax, float *tl)
 {
     double tau[3] = {0, 0, 0}, acc[3] = {0, 0, 0}, tau_inf[3] = {0, 0, 0}, acc_inf[3] = {0, 0, 0};
     for (uint32_t i = 0; i < st->fog_count; i++) {
@@ -339,12 +361,14 @@ static void fog_pixel(const fog_state *st, const double o[3], const double d[3],
     }
     for (int c = 0; c < 3; c++) {
         if (tau_inf[c] > 0.0) {
-            rgb[c] = (float)(acc_inf[c] / tau_inf[c]);
+            tl[c] = 0.0f;
+            tl[3 + c] = (float)(acc_inf[c] / tau_inf[c]);
             continue;
         }
         /* (1 - T) / tau without cancellation in thin fog (nc_vol_exp_ratio_t). */
         double T = exp(-tau[c]);
-        rgb[c] = (float)(rgb[c] * T + acc[c] * nc_vol_exp_ratio_t(tau[c], T));
+        tl[c] = (float)T;
+        tl[3 + c] = (float)(acc[c] * nc_vol_exp_ratio_t(tau[c], T));
     }
 }
 
@@ -356,18 +380,55 @@ static nacre_result fog_apply(void *state, const nc_post_input *in, nacre_image 
     if (res != NACRE_OK)
         return res;
     st->fog_count = nc_post_fogs_drawn(in->scene, in->settings);
-    camera_rays cr;
-    camera_setup(in->view, &cr);
     int32_t w = image->width, h = image->height;
     const float *depth = in->depth;
-    /* Rows in parallel; pixels are independent, so the image does not depend on the threads. */
+    size_t n = (size_t)w * (size_t)h;
+    fog_key key;
+    memset(&key, 0, sizeof(key));
+    key.uid = in->scene->uid;
+    key.particles_built = in->scene->particles_built;
+    key.versions = in->scene->committed;
+    key.fog_count = st->fog_count;
+    key.view = in->view->view;
+    key.proj = in->view->proj;
+    key.width = w;
+    key.height = h;
+    key.ortho = in->view->orthographic;
+    bool same = st->valid && memcmp(&key, &st->key, sizeof(key)) == 0 && memcmp(depth, st->depth, n * sizeof(float)) == 0;
+    if (!same) {
+        st->valid = false;
+        if (!nc_reserve(in->ctx, &st->tl, &st->tl_capacity, 6 * n, sizeof(float)) ||
+            !nc_reserve(in->ctx, &st->depth, &st->depth_capacity, n, sizeof(float)))
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        camera_rays cr;
+        camera_setup(in->view, &cr);
+        /* Rows in parallel; pixels are independent, so the image does not depend on the threads.
+         * Applied as they are made (one pass over the image). */
 #pragma omp parallel for schedule(static) num_threads(in->ctx->threads)
-    for (int32_t y = 0; y < h; y++) {
-        float *row = image->pixels + (size_t)y * image->stride;
-        for (int32_t x = 0; x < w; x++) {
-            double o[3], d[3];
-            double tmax = camera_ray(&cr, x, y, depth[(size_t)y * (size_t)w + (size_t)x], o, d);
-            fog_pixel(st, o, d, tmax, row + 3 * (size_t)x);
+        for (int32_t y = 0; y < h; y++) {
+            float *row = image->pixels + (size_t)y * image->stride;
+            for (int32_t x = 0; x < w; x++) {
+                size_t i = (size_t)y * (size_t)w + (size_t)x;
+                double o[3], d[3];
+                double tmax = camera_ray(&cr, x, y, depth[i], o, d);
+                float *t = st->tl + 6 * i;
+                fog_pixel(st, o, d, tmax, t);
+                for (int c = 0; c < 3; c++)
+                    row[3 * x + c] = row[3 * x + c] * t[c] + t[3 + c];
+            }
+        }
+        memcpy(st->depth, depth, n * sizeof(float));
+        st->key = key;
+        st->valid = true;
+    } else {
+        const float *tl = st->tl;
+#pragma omp parallel for schedule(static) num_threads(in->ctx->threads)
+        for (int32_t y = 0; y < h; y++) {
+            float *row = image->pixels + (size_t)y * image->stride;
+            const float *t = tl + 6 * (size_t)y * (size_t)w;
+            for (int32_t x = 0; x < w; x++)
+                for (int c = 0; c < 3; c++)
+                    row[3 * x + c] = row[3 * x + c] * t[6 * x + c] + t[6 * x + 3 + c];
         }
     }
     stats->fog_lights_ignored = in->scene->light_count - st->sun_count;

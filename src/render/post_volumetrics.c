@@ -36,6 +36,12 @@
  * towards them at that start and by the environment, plus its emission (the pattern at that
  * start); point and spot lights add nothing there.
  *
+ * Frames keep what did not change (froxel_apply; a viewer's frames): the filled grid while the
+ * fogs, camera and grid settings are the same, the lit and integrated grid while the lights,
+ * shadow settings and the depths that pixels read are too, each light's coarse optical depths
+ * while that light did not move, and a still frame's per-pixel L and T. A kept frame equals a
+ * new one bit for bit (test_volumetrics); froxel_temporal keeps nothing (its grid moves).
+ *
  * Results do not depend on the thread count: every column and pixel is computed alone.
  * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
  */
@@ -80,6 +86,40 @@ typedef struct vfog {
     float yc, fcap; /* with falloff: the height below which the factor is the constant fcap = e^cap */
 } vfog;
 
+/* What the froxel fill reads (fogs, camera, grid), then what the lighting reads besides (lights,
+ * shadow maps), compared whole between frames: zeroed before being set, so padding compares. */
+typedef struct fill_key {
+    uint64_t uid, geometry, materials, environment, particles_built;
+    nacre_volumetrics_settings vs;
+    nacre_particles_draw particles;
+    nc_mat4 view, proj;
+    int32_t width, height;
+    bool ortho;
+} fill_key;
+
+typedef struct light_key {
+    uint64_t lights;
+    nacre_shadow_settings shadow;
+    nacre_method method;
+    bool shadow_maps;
+} light_key;
+
+/* What one light's part of the coarse optical-depth grid depends on besides the fill and the
+ * depths: where the light is (zeroed before being set). */
+typedef struct tau_key {
+    nacre_light_type type;
+    float pos[3], dir[3];
+} tau_key;
+
+enum { SLICE_SHIFT = 18, SLICE_TABLE = 512 };
+
+static inline uint32_t float_bits(float x)
+{
+    uint32_t u;
+    memcpy(&u, &x, sizeof(u));
+    return u;
+}
+
 typedef struct vol_state {
     nc_fog_field field;
     vfog gfog[NACRE_MAX_FOGS];
@@ -92,17 +132,40 @@ typedef struct vol_state {
     camera_rays cam;
     /* froxel grid: W x H columns of D froxels, column-major in depth (index col * D + k) */
     uint32_t W, H, D;
-    float *st, *src, *g; /* 3N, 3N (sigma_s after fill, the source after light), N */
+    float *st, *ss, *src, *g; /* 3N each (sigma_t, sigma_s, the source after light), N */
     float *em;           /* 3N: emission (fill), added to the source by light; only if some fog emits */
     size_t em_capacity;
-    /* Radiance and transmittance from the eye to boundaries 1 .. D and infinity of every column,
-     * slice-major ([(b - 1) cols + col] x 3): neighbouring pixels at similar depths read
-     * neighbouring words. */
-    float *acc_l, *acc_t;
+    /* Radiance and transmittance from the eye to boundaries 0 (the eye) .. D and infinity of
+     * every column, slice-major, 8 floats each (L rgb, T rgb, 0, 0 at [b cols + col] x 8): a
+     * pixel's lookup reads one vector per column and boundary, and neighbouring pixels at similar
+     * depths read neighbouring ones. */
+    float *acc;
+    /* froxel_apply_pixels' bilinear weights: per image column and per row (pixel_columns) */
+    int32_t *px_i;
+    float *px_w;
+    size_t px_capacity, px_wcapacity;
     float *col_depth;     /* per column: the farthest depth of the pixels that read it */
-    size_t col_capacity;
+    float *prev_col_depth; /* col_depth of the frame the lit grid was made for */
+    float *row_depth;      /* column_depths' scratch: per image row and column */
+    float *prev_depth;     /* the depth buffer of that frame */
+    size_t col_capacity, prev_col_capacity, row_capacity, prev_depth_capacity;
+    /* Frame-to-frame reuse (froxel_apply): the grid's fill, and its lighting and integration,
+     * hold for these keys while the flags are set. */
+    fill_key fkey;
+    light_key lkey;
+    bool fill_valid, light_valid;
+    /* Per pixel L and T (rgb each) of the kept grid over prev_depth, made by the second frame
+     * that keeps both (a still camera and scene): later ones only apply them. */
+    float *px_tl;
+    size_t px_tl_capacity;
+    bool px_tl_valid;
     double *bound;        /* D + 1 view-axis depths of the slice boundaries */
     float slice_inv_b1, slice_scale; /* perspective: slice 1 + log(z / bound[1]) x slice_scale */
+    /* Perspective: the slice at the start of each range of 2^SLICE_SHIFT float bit patterns from
+     * boundf[1] (32 ranges an octave: the slices' own spacing is ~6 in the default grid), so
+     * that depth_slot finds a pixel's slice without a logarithm; slice_table_n 0: not made. */
+    uint16_t slice_table[SLICE_TABLE];
+    uint32_t slice_table_n;
     float *boundf;                   /* bound in float (D + 1), then 1 / each slice's depth (D) */
     size_t boundf_capacity;
     size_t grid_capacity;
@@ -111,6 +174,12 @@ typedef struct vol_state {
     uint32_t Wc, Hc, Dc;
     float *tau_grid;
     size_t tau_capacity;
+    /* The lights each part of tau_grid was made for (tau_count of them), kept while the fill and
+     * the depths are; redo: per light, whether this frame remakes it */
+    tau_key *tau_keys;
+    bool *tau_redo;
+    size_t tau_key_capacity, tau_redo_capacity;
+    uint32_t tau_count;
     /* per-thread scratch */
     float *scratch;
     size_t scratch_per_thread, scratch_capacity;
@@ -141,14 +210,22 @@ static void vol_destroy(nacre_context *ctx, void *state)
         return;
     nc_free(ctx, st->lights);
     nc_free(ctx, st->st);
+    nc_free(ctx, st->ss);
     nc_free(ctx, st->src);
     nc_free(ctx, st->em);
+    nc_free(ctx, st->prev_col_depth);
+    nc_free(ctx, st->row_depth);
+    nc_free(ctx, st->prev_depth);
+    nc_free(ctx, st->px_tl);
     nc_free(ctx, st->g);
-    nc_free(ctx, st->acc_l);
-    nc_free(ctx, st->acc_t);
+    nc_free(ctx, st->acc);
+    nc_free(ctx, st->px_i);
+    nc_free(ctx, st->px_w);
     nc_free(ctx, st->bound);
     nc_free(ctx, st->boundf);
     nc_free(ctx, st->tau_grid);
+    nc_free(ctx, st->tau_keys);
+    nc_free(ctx, st->tau_redo);
     nc_free(ctx, st->col_depth);
     nc_free(ctx, st->scratch);
     nc_free(ctx, st->hist_st);
@@ -488,22 +565,23 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
     st->H = vs->froxel_height;
     st->D = vs->froxel_slices;
     size_t cols = (size_t)st->W * st->H, n = cols * st->D;
-    /* Columns never outnumber froxels: the accumulated boundaries (n + cols) fit in 2n. */
+    /* Columns never outnumber froxels: the accumulated boundaries (n + 2 cols) fit in 3n. */
     if (n > st->grid_capacity) {
         nc_free(ctx, st->st);
+        nc_free(ctx, st->ss);
         nc_free(ctx, st->src);
         nc_free(ctx, st->g);
-        nc_free(ctx, st->acc_l);
-        nc_free(ctx, st->acc_t);
+        nc_free(ctx, st->acc);
         nc_free(ctx, st->bound);
         st->st = nc_alloc(ctx, 3 * n * sizeof(float));
+        st->ss = nc_alloc(ctx, 3 * n * sizeof(float));
         st->src = nc_alloc(ctx, 3 * n * sizeof(float));
         st->g = nc_alloc(ctx, n * sizeof(float));
-        st->acc_l = nc_alloc(ctx, 6 * n * sizeof(float));
-        st->acc_t = nc_alloc(ctx, 6 * n * sizeof(float));
+        st->acc = nc_alloc(ctx, 24 * n * sizeof(float));
         st->bound = nc_alloc(ctx, (n + 1) * sizeof(double));
         st->grid_capacity = 0;
-        if (!st->st || !st->src || !st->g || !st->acc_l || !st->acc_t || !st->bound)
+        st->fill_valid = st->light_valid = false;
+        if (!st->st || !st->ss || !st->src || !st->g || !st->acc || !st->bound)
             return NACRE_ERROR_OUT_OF_MEMORY;
         st->grid_capacity = n;
     }
@@ -532,6 +610,22 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
         st->boundf[k] = (float)st->bound[k];
     for (uint32_t k = 0; k < D; k++)
         st->boundf[D + 1 + k] = (float)(1.0 / (st->bound[k + 1] - st->bound[k]));
+    st->slice_table_n = 0;
+    if (!cr->ortho && D > 1 && st->boundf[1] > 0.0f && st->boundf[D] > st->boundf[1]) {
+        uint32_t b1 = float_bits(st->boundf[1]), n = ((float_bits(st->boundf[D]) - b1) >> SLICE_SHIFT) + 1;
+        if (n <= SLICE_TABLE) {
+            uint32_t k = 1;
+            for (uint32_t i = 0; i < n; i++) {
+                uint32_t at = b1 + (i << SLICE_SHIFT);
+                float z;
+                memcpy(&z, &at, sizeof(z));
+                while (k + 1 < D && z >= st->boundf[k + 1])
+                    k++;
+                st->slice_table[i] = (uint16_t)k;
+            }
+            st->slice_table_n = n;
+        }
+    }
     return NACRE_OK;
 }
 
@@ -566,7 +660,7 @@ static void froxel_fill(vol_state *st, int threads)
         column_ray(st, (uint32_t)(col % st->W), (uint32_t)(col / st->W), o, d, &scale, &offset);
         column_points(st, o, d, scale, offset, p);
         size_t base = (size_t)col * st->D;
-        nc_fog_field_eval(&st->field, st->D, p, st->st + 3 * base, st->src + 3 * base, st->g + base, ev);
+        nc_fog_field_eval(&st->field, st->D, p, st->st + 3 * base, st->ss + 3 * base, st->g + base, ev);
         if (st->field.emissive)
             nc_fog_field_emission(&st->field, st->D, p, st->em + 3 * base, ev);
     }
@@ -586,15 +680,39 @@ static uint32_t lit_slices(const vol_state *st, float z)
  * froxels of even indices): their march towards every light is most of the lighting's cost, and
  * their shadow on themselves varies slowly next to the opaque shadows, so it is integrated at
  * 1/8 of the froxels and interpolated in optical depth. Fogs without pattern stay exact per
- * froxel (closed form, and a box's walls are sharp). */
-static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads, uint32_t batch)
+ * froxel (closed form, and a box's walls are sharp). With `keep` (the fill and the depths are the
+ * previous frame's), the part of each light that did not move is kept. */
+static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads, uint32_t batch, bool keep)
 {
     st->Wc = (st->W + 1) / 2;
     st->Hc = (st->H + 1) / 2;
     st->Dc = (st->D + 1) / 2;
     size_t nodes = (size_t)st->Wc * st->Hc * st->Dc, need = nodes * 3 * st->light_count;
-    if (!nc_reserve(ctx, &st->tau_grid, &st->tau_capacity, need, sizeof(float)))
+    if (!nc_reserve(ctx, &st->tau_grid, &st->tau_capacity, need, sizeof(float)) ||
+        !nc_reserve(ctx, &st->tau_keys, &st->tau_key_capacity, st->light_count, sizeof(tau_key)) ||
+        !nc_reserve(ctx, &st->tau_redo, &st->tau_redo_capacity, st->light_count, sizeof(bool))) {
+        st->tau_count = 0;
         return NACRE_ERROR_OUT_OF_MEMORY;
+    }
+    if (!keep)
+        st->tau_count = 0;
+    bool any = false;
+    for (uint32_t l = 0; l < st->light_count; l++) {
+        tau_key k;
+        memset(&k, 0, sizeof(k));
+        k.type = st->lights[l].type;
+        if (k.type == NACRE_LIGHT_DIRECTIONAL)
+            memcpy(k.dir, st->lights[l].dir, sizeof(k.dir));
+        else
+            memcpy(k.pos, st->lights[l].pos, sizeof(k.pos));
+        st->tau_redo[l] = !(l < st->tau_count && memcmp(&k, &st->tau_keys[l], sizeof(k)) == 0);
+        st->tau_keys[l] = k;
+        any = any || st->tau_redo[l];
+    }
+    /* Valid once the loop below has run (it cannot fail). */
+    st->tau_count = st->light_count;
+    if (!any)
+        return NACRE_OK;
     int64_t cols = (int64_t)st->Wc * st->Hc;
 #pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
     for (int64_t cc = 0; cc < cols; cc++) {
@@ -612,6 +730,8 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
         column_ray(st, 2 * gi, 2 * gj, o, d, &scale, &offset);
         column_points(st, o, d, scale, offset, p);
         for (uint32_t l = 0; l < st->light_count; l++) {
+            if (!st->tau_redo[l])
+                continue;
             float *out = st->tau_grid + 3 * ((size_t)l * nodes + (size_t)cc * st->Dc);
             memset(out + 3 * (size_t)used, 0, 3 * (size_t)(st->Dc - used) * sizeof(float));
             for (uint32_t c = 0; c < used; c++) {
@@ -652,38 +772,61 @@ static inline void pixel_columns(int32_t x, int32_t n, uint32_t m, int32_t *i0, 
         *w = 0.0f;
 }
 
+/* The columns and rows that each image column and row reads (pixel_columns), for column_depths
+ * and froxel_apply_pixels. */
+static nacre_result pixel_tables(vol_state *st, nacre_context *ctx, int32_t w, int32_t h)
+{
+    if (!nc_reserve(ctx, &st->px_i, &st->px_capacity, 2 * ((size_t)w + (size_t)h), sizeof(int32_t)) ||
+        !nc_reserve(ctx, &st->px_w, &st->px_wcapacity, (size_t)w + (size_t)h, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    int32_t *xi = st->px_i, *yi = st->px_i + 2 * (size_t)w;
+    float *xw = st->px_w, *yw = st->px_w + w;
+    for (int32_t x = 0; x < w; x++)
+        pixel_columns(x, w, st->W, &xi[2 * x], &xi[2 * x + 1], &xw[x]);
+    for (int32_t y = 0; y < h; y++)
+        pixel_columns(y, h, st->H, &yi[2 * y], &yi[2 * y + 1], &yw[y]);
+    return NACRE_OK;
+}
+
 /* The farthest depth that any pixel reads from each column: froxels behind it are never seen
- * (a column behind a wall is integrated, but no pixel looks past the wall), so they are not lit. */
+ * (a column behind a wall is integrated, but no pixel looks past the wall), so they are not lit.
+ * First per image row and column of froxels, then per row of froxels over the image rows that
+ * read it (a maximum does not depend on the order). */
 static nacre_result column_depths(vol_state *st, nacre_context *ctx, const float *depth, int32_t w, int32_t h,
                                   int threads)
 {
-    size_t cols = (size_t)st->W * st->H;
-    if (!nc_reserve(ctx, &st->col_depth, &st->col_capacity, cols, sizeof(float)))
+    size_t cols = (size_t)st->W * st->H, rows = (size_t)h * st->W;
+    if (!nc_reserve(ctx, &st->col_depth, &st->col_capacity, cols, sizeof(float)) ||
+        !nc_reserve(ctx, &st->row_depth, &st->row_capacity, rows, sizeof(float)))
         return NACRE_ERROR_OUT_OF_MEMORY;
-    /* One row of columns per iteration: only it writes there, and a maximum does not depend on
-     * the order. */
-#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+    const int32_t *xi = st->px_i, *yi = st->px_i + 2 * (size_t)w;
+#pragma omp parallel for schedule(static) num_threads(threads)
+    for (int32_t y = 0; y < h; y++) {
+        float *row = st->row_depth + (size_t)y * st->W;
+        for (uint32_t i = 0; i < st->W; i++)
+            row[i] = 0.0f;
+        const float *dr = depth + (size_t)y * (size_t)w;
+        for (int32_t x = 0; x < w; x++) {
+            float z = dr[x];
+            int32_t i0 = xi[2 * x], i1 = xi[2 * x + 1];
+            if (!(z <= row[i0]))
+                row[i0] = z;
+            if (!(z <= row[i1]))
+                row[i1] = z;
+        }
+    }
+#pragma omp parallel for schedule(static) num_threads(threads)
     for (int32_t j = 0; j < (int32_t)st->H; j++) {
         float *row = st->col_depth + (size_t)j * st->W;
         for (uint32_t i = 0; i < st->W; i++)
             row[i] = 0.0f;
         for (int32_t y = 0; y < h; y++) {
-            int32_t j0, j1;
-            float wy;
-            pixel_columns(y, h, st->H, &j0, &j1, &wy);
-            if (j0 != j && j1 != j)
+            if (yi[2 * y] != j && yi[2 * y + 1] != j)
                 continue;
-            const float *dr = depth + (size_t)y * (size_t)w;
-            for (int32_t x = 0; x < w; x++) {
-                int32_t i0, i1;
-                float wx;
-                pixel_columns(x, w, st->W, &i0, &i1, &wx);
-                float z = dr[x];
-                if (!(z <= row[i0]))
-                    row[i0] = z;
-                if (!(z <= row[i1]))
-                    row[i1] = z;
-            }
+            const float *r = st->row_depth + (size_t)y * st->W;
+            for (uint32_t i = 0; i < st->W; i++)
+                if (!(r[i] <= row[i]))
+                    row[i] = r[i];
         }
     }
     return NACRE_OK;
@@ -899,10 +1042,10 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
             src[3 * k + c] = ss[3 * k + c] * A[c][k];
 }
 
-static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads, uint32_t batch)
+static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads, uint32_t batch, bool keep)
 {
     bool patterned = nc_fog_field_patterned(&st->field);
-    nacre_result res = patterned ? tau_grid_fill(st, ctx, threads, batch) : NACRE_OK;
+    nacre_result res = patterned ? tau_grid_fill(st, ctx, threads, batch, keep) : NACRE_OK;
     if (res != NACRE_OK)
         return res;
     int64_t cols = (int64_t)st->W * st->H;
@@ -926,7 +1069,7 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
         column_ray(st, i, j, o, d, &scale, &offset);
         column_points(st, o, d, scale, offset, p);
         size_t base = (size_t)col * st->D;
-        froxel_light_column(st, n, p, d, st->src + 3 * base, st->g + base, st->src + 3 * base, patterned ? cn : NULL,
+        froxel_light_column(st, n, p, d, st->ss + 3 * base, st->g + base, st->src + 3 * base, patterned ? cn : NULL,
                             cw, ls, tau);
         if (st->field.emissive) /* emission: a source term beside sigma_s L (§1.2.11) */
             for (size_t k = 3 * base; k < 3 * (base + n); k++)
@@ -1123,37 +1266,22 @@ static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
             S3[i] = src[i] * (x < 1e-3f ? len3[i] * (1.0f - 0.5f * x) : (1.0f - T) / sig[i]);
         }
         float ml[3] = {0, 0, 0}, mt[3] = {1, 1, 1};
+        float *pa = st->acc + 8 * (size_t)col;
+        nc_v8_store(pa, (nc_v8f){0, 0, 0, 1, 1, 1, 0, 0});
         for (uint32_t k = 0; k < D; k++) {
-            float *pl = st->acc_l + 3 * ((size_t)k * (size_t)cols + (size_t)col), *pt = st->acc_t + (pl - st->acc_l);
+            pa = st->acc + 8 * ((size_t)(k + 1) * (size_t)cols + (size_t)col);
             for (int c = 0; c < 3; c++) {
                 ml[c] += mt[c] * S3[3 * k + c];
                 mt[c] *= T3[3 * k + c];
-                pl[c] = ml[c];
-                pt[c] = mt[c];
             }
+            nc_v8_store(pa, (nc_v8f){ml[0], ml[1], ml[2], mt[0], mt[1], mt[2], 0, 0});
         }
         double L[3], T[3];
         tail(st, o, d, ray_t(st->bound[D], scale, offset), L, T, tau);
-        float *pl = st->acc_l + 3 * ((size_t)D * (size_t)cols + (size_t)col), *pt = st->acc_t + (pl - st->acc_l);
-        for (int c = 0; c < 3; c++) {
-            pl[c] = (float)(ml[c] + mt[c] * L[c]);
-            pt[c] = (float)(mt[c] * T[c]);
-        }
-    }
-}
-
-/* Boundary b (0: the eye, 1 .. D, D + 1: infinity) of a column into l, t (accumulated by w). */
-static inline void boundary_add(const vol_state *st, size_t col, uint32_t b, float w, float l[3], float t[3])
-{
-    if (b == 0) {
-        t[0] += w, t[1] += w, t[2] += w;
-        return;
-    }
-    size_t at = 3 * ((size_t)(b - 1) * st->W * st->H + col);
-    const float *pl = st->acc_l + at, *pt = st->acc_t + at;
-    for (int c = 0; c < 3; c++) {
-        l[c] += w * pl[c];
-        t[c] += w * pt[c];
+        pa = st->acc + 8 * ((size_t)(D + 1) * (size_t)cols + (size_t)col);
+        nc_v8_store(pa, (nc_v8f){(float)(ml[0] + mt[0] * L[0]), (float)(ml[1] + mt[1] * L[1]),
+                                 (float)(ml[2] + mt[2] * L[2]), (float)(mt[0] * T[0]), (float)(mt[1] * T[1]),
+                                 (float)(mt[2] * T[2]), 0, 0});
     }
 }
 
@@ -1178,6 +1306,11 @@ static inline void depth_slot(const vol_state *st, float z, uint32_t *b0, float 
         k = u > 0.0f ? (uint32_t)u : 0;
     } else if (D == 1 || z < bf[1]) {
         k = 0;
+    } else if (st->slice_table_n) {
+        /* z >= bf[1] > 0 here: its bits grow with it, and the table's slice begins at or before
+         * the start of z's range (the steps below move up from there). */
+        uint32_t i = (float_bits(z) - float_bits(bf[1])) >> SLICE_SHIFT;
+        k = st->slice_table[i < st->slice_table_n ? i : st->slice_table_n - 1];
     } else {
         /* The steps below correct the rounding. */
         float u = 1.0f + logf(z * st->slice_inv_b1) * st->slice_scale;
@@ -1194,37 +1327,59 @@ static inline void depth_slot(const vol_state *st, float z, uint32_t *b0, float 
     *frac = f < 0.0f ? 0.0f : f > 1.0f ? 1.0f : f;
 }
 
-static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_image *image, int threads)
+/* Each pixel reads boundaries b0 and b0 + 1 (depth_slot) of the 4 columns around it, one vector
+ * of L and T each (see acc); tl (if not NULL) keeps them (6 floats a pixel). */
+static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_image *image, float *tl, int threads)
+{
+    int32_t w = image->width, h = image->height;
+    size_t cols = (size_t)st->W * st->H;
+    const int32_t *xi = st->px_i, *yi = st->px_i + 2 * (size_t)w;
+    const float *xw = st->px_w, *yw = st->px_w + w;
+    const float *acc = st->acc;
+#pragma omp parallel for schedule(static) num_threads(threads)
+    for (int32_t y = 0; y < h; y++) {
+        int32_t j0 = yi[2 * y], j1 = yi[2 * y + 1];
+        float wy = yw[y];
+        float *row = image->pixels + (size_t)y * image->stride;
+        const float *dr = depth + (size_t)y * (size_t)w;
+        for (int32_t x = 0; x < w; x++) {
+            int32_t i0 = xi[2 * x], i1 = xi[2 * x + 1];
+            float wx = xw[x];
+            uint32_t b;
+            float fz;
+            depth_slot(st, dr[x], &b, &fz);
+            size_t c4[4] = {(size_t)j0 * st->W + (size_t)i0, (size_t)j0 * st->W + (size_t)i1,
+                            (size_t)j1 * st->W + (size_t)i0, (size_t)j1 * st->W + (size_t)i1};
+            float wc[4] = {(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy};
+            const float *a0 = acc + 8 * (size_t)b * cols, *a1 = fz > 0.0f ? a0 + 8 * cols : a0;
+            nc_v8f v = {0};
+            for (int q = 0; q < 4; q++) {
+                if (wc[q] == 0.0f)
+                    continue;
+                v += wc[q] * (1.0f - fz) * nc_v8_load(a0 + 8 * c4[q]);
+                if (fz > 0.0f)
+                    v += wc[q] * fz * nc_v8_load(a1 + 8 * c4[q]);
+            }
+            float *px = row + 3 * (size_t)x;
+            for (int c = 0; c < 3; c++)
+                px[c] = px[c] * v[3 + c] + v[c];
+            if (tl)
+                memcpy(tl + 6 * ((size_t)y * (size_t)w + (size_t)x), &v, 6 * sizeof(float));
+        }
+    }
+}
+
+/* froxel_apply_pixels from the kept L and T. */
+static void froxel_apply_kept(const vol_state *st, nacre_image *image, int threads)
 {
     int32_t w = image->width, h = image->height;
 #pragma omp parallel for schedule(static) num_threads(threads)
     for (int32_t y = 0; y < h; y++) {
-        int32_t j0, j1;
-        float wy;
-        pixel_columns(y, h, st->H, &j0, &j1, &wy);
         float *row = image->pixels + (size_t)y * image->stride;
-        for (int32_t x = 0; x < w; x++) {
-            int32_t i0, i1;
-            float wx;
-            pixel_columns(x, w, st->W, &i0, &i1, &wx);
-            uint32_t b;
-            float fz;
-            depth_slot(st, depth[(size_t)y * (size_t)w + (size_t)x], &b, &fz);
-            float l[3] = {0, 0, 0}, t[3] = {0, 0, 0};
-            size_t cols[4] = {(size_t)j0 * st->W + (size_t)i0, (size_t)j0 * st->W + (size_t)i1,
-                              (size_t)j1 * st->W + (size_t)i0, (size_t)j1 * st->W + (size_t)i1};
-            float wc[4] = {(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy};
-            for (int q = 0; q < 4; q++) {
-                if (wc[q] == 0.0f)
-                    continue;
-                boundary_add(st, cols[q], b, wc[q] * (1.0f - fz), l, t);
-                if (fz > 0.0f)
-                    boundary_add(st, cols[q], b + 1, wc[q] * fz, l, t);
-            }
-            float *px = row + 3 * (size_t)x;
+        const float *t = st->px_tl + 6 * (size_t)y * (size_t)w;
+        for (int32_t x = 0; x < w; x++)
             for (int c = 0; c < 3; c++)
-                px[c] = px[c] * t[c] + l[c];
-        }
+                row[3 * x + c] = row[3 * x + c] * t[6 * x + 3 + c] + t[6 * x + c];
     }
 }
 
@@ -1242,6 +1397,30 @@ static void stage_done(nacre_render_stats *stats, nacre_stage stage, uint64_t t0
     stats->stage_runs[stage] = 1;
 }
 
+/* The keys of this frame's grid (see fill_key). */
+static void frame_keys(const nc_post_input *in, fill_key *fk, light_key *lk)
+{
+    const nacre_scene *s = in->scene;
+    memset(fk, 0, sizeof(*fk));
+    memset(lk, 0, sizeof(*lk));
+    fk->uid = s->uid;
+    fk->geometry = s->committed.geometry;
+    fk->materials = s->committed.materials;
+    fk->environment = s->committed.environment;
+    fk->particles_built = s->particles_built;
+    fk->vs = in->settings->volumetrics;
+    fk->particles = in->settings->particles;
+    fk->view = in->view->view;
+    fk->proj = in->view->proj;
+    fk->width = in->view->width;
+    fk->height = in->view->height;
+    fk->ortho = in->view->orthographic;
+    lk->lights = s->committed.lights;
+    lk->shadow = in->settings->shadow;
+    lk->method = in->settings->method;
+    lk->shadow_maps = in->lights != NULL;
+}
+
 static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_image *image, nacre_render_stats *stats)
 {
     vol_state *st = state;
@@ -1254,20 +1433,65 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
     if (res != NACRE_OK)
         return res;
     int threads = in->ctx->threads;
+    /* A frame whose fogs, camera and grid did not change keeps the filled grid; if its lights,
+     * shadow maps and visible depths did not change either, the lit and integrated grid. The
+     * temporal blend changes the grid every frame: nothing is kept. */
+    fill_key fk;
+    light_key lk;
+    frame_keys(in, &fk, &lk);
+    bool temporal = vs->temporal > 0.0f;
+    bool same_fill = !temporal && st->fill_valid && memcmp(&fk, &st->fkey, sizeof(fk)) == 0;
+    bool same_light = same_fill && st->light_valid && memcmp(&lk, &st->lkey, sizeof(lk)) == 0;
+    st->fill_valid = st->light_valid = false;
+    bool kept_tl = st->px_tl_valid;
+    st->px_tl_valid = false;
     temporal_begin(st, in);
-    froxel_fill(st, threads);
-    stage_done(stats, NACRE_STAGE_FROXEL_FILL, t0);
+    if (!same_fill) {
+        froxel_fill(st, threads);
+        stage_done(stats, NACRE_STAGE_FROXEL_FILL, t0);
+    }
     t0 = nc_now_us();
-    if ((res = column_depths(st, in->ctx, in->depth, image->width, image->height, threads)) != NACRE_OK ||
-        (res = froxel_light(st, in->ctx, threads, batch)) != NACRE_OK ||
-        (res = temporal_end(st, in, threads)) != NACRE_OK)
+    size_t cols = (size_t)st->W * st->H, pixels = (size_t)image->width * (size_t)image->height;
+    /* The same depth buffer (and grid: same_fill) gives the same column depths. */
+    bool same_buffer = same_fill && memcmp(in->depth, st->prev_depth, pixels * sizeof(float)) == 0;
+    if ((res = pixel_tables(st, in->ctx, image->width, image->height)) != NACRE_OK ||
+        (!same_buffer && (res = column_depths(st, in->ctx, in->depth, image->width, image->height, threads)) != NACRE_OK))
         return res;
-    stage_done(stats, NACRE_STAGE_FROXEL_LIGHT, t0);
-    t0 = nc_now_us();
-    froxel_integrate(st, threads, batch);
-    stage_done(stats, NACRE_STAGE_FROXEL_INTEGRATE, t0);
-    t0 = nc_now_us();
-    froxel_apply_pixels(st, in->depth, image, threads);
+    bool same_depths = same_buffer || (same_fill && memcmp(st->col_depth, st->prev_col_depth, cols * sizeof(float)) == 0);
+    same_light = same_light && same_depths;
+    if (!same_light) {
+        if ((res = froxel_light(st, in->ctx, threads, batch, same_depths)) != NACRE_OK ||
+            (res = temporal_end(st, in, threads)) != NACRE_OK)
+            return res;
+        stage_done(stats, NACRE_STAGE_FROXEL_LIGHT, t0);
+        t0 = nc_now_us();
+        froxel_integrate(st, threads, batch);
+        stage_done(stats, NACRE_STAGE_FROXEL_INTEGRATE, t0);
+        t0 = nc_now_us();
+    }
+    /* Kept for the next frame only once the grid is complete (an error above leaves it stale). */
+    if (!temporal) {
+        if (!nc_reserve(in->ctx, &st->prev_col_depth, &st->prev_col_capacity, cols, sizeof(float)) ||
+            !nc_reserve(in->ctx, &st->prev_depth, &st->prev_depth_capacity, pixels, sizeof(float)))
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        memcpy(st->prev_col_depth, st->col_depth, cols * sizeof(float));
+        if (!same_buffer)
+            memcpy(st->prev_depth, in->depth, pixels * sizeof(float));
+        st->fkey = fk;
+        st->lkey = lk;
+        st->fill_valid = st->light_valid = true;
+    }
+    /* The depths' check counts as apply's when the lit grid is kept. */
+    bool still = same_light && same_buffer;
+    if (still && kept_tl) {
+        froxel_apply_kept(st, image, threads);
+    } else {
+        float *tl = NULL;
+        if (still && !temporal && nc_reserve(in->ctx, &st->px_tl, &st->px_tl_capacity, 6 * pixels, sizeof(float)))
+            tl = st->px_tl;
+        froxel_apply_pixels(st, in->depth, image, tl, threads);
+        st->px_tl_valid = tl != NULL;
+    }
     stage_done(stats, NACRE_STAGE_FROXEL_APPLY, t0);
     volumetric_stats(in->scene, stats);
     return NACRE_OK;

@@ -24,6 +24,10 @@
  *     box's faces the jittered, blended frames converge (RMS error under half of the single
  *     frame's); a first frame equals a frame with the setting off; with a moving camera and
  *     aligned slices (exact without history) the reprojected frames stay within 3% (ghosting);
+ *   - frames kept between renders (froxel grid, its fill and each light's coarse optical depths;
+ *     the analytic pass's per-pixel T and L): a renderer's second, unchanged frame and its frames
+ *     after moving a sun, a spot, the camera or editing the fog equal a new renderer's frame of
+ *     the same scene bit for bit;
  *   - settings: bad values give errors naming the field; scene-file keys load and save.
  */
 #include "media_util.h"
@@ -326,6 +330,82 @@ static void thread_count(void)
     }
 }
 
+/* ---- frames kept between renders ------------------------------------------------------------ */
+
+/* A frame of s by renderer r, then by a new renderer: equal bit for bit. */
+static void reuse_check(nacre_renderer *r, nacre_scene *s, const nacre_render_settings *rs, const char *what)
+{
+    nacre_image kept = {0}, fresh = {0};
+    nacre_renderer *n = NULL;
+    CHECK(nacre_renderer_create(ctx, &n) == NACRE_OK);
+    bool ok = n && nacre_renderer_render(r, s, rs, &kept, NULL) == NACRE_OK &&
+              nacre_renderer_render(n, s, rs, &fresh, NULL) == NACRE_OK;
+    CHECK(ok);
+    bool same = ok && memcmp(kept.pixels, fresh.pixels, (size_t)rs->width * rs->height * 3 * sizeof(float)) == 0;
+    if (!same)
+        printf("  frame reuse: %s (%s) differs from a new renderer's frame\n", what,
+               rs->volumetrics.mode == NACRE_VOLUMETRICS_FROXEL ? "froxel" : "analytic");
+    CHECK(same);
+    nacre_image_free(ctx, &kept);
+    nacre_image_free(ctx, &fresh);
+    nacre_renderer_destroy(n);
+}
+
+static void frame_reuse(void)
+{
+    const char *json = "{\"camera\": {\"position\": [0, 3, 6], \"target\": [0, 0, 0]}, \"environment\": 0.1,"
+                       "\"materials\": {\"m\": {\"type\": \"opaque\"}},"
+                       "\"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"},"
+                       "{\"shape\": {\"type\": \"plane\", \"size\": [8, 8]}, \"material\": \"m\","
+                       "\"transform\": {\"translate\": [0, -1, 0]}}],"
+                       "\"lights\": [{\"type\": \"spot\", \"position\": [0, 3, 0], \"direction\": [0, -1, 0],"
+                       "\"intensity\": 20, \"outer_angle\": 30, \"inner_angle\": 20},"
+                       "{\"type\": \"directional\", \"direction\": [1, -1, 0], \"irradiance\": 1}],"
+                       "\"fog\": [{\"shape\": \"box\", \"size\": [6, 4, 6], \"sigma_s\": 0.2, \"height_falloff\": 0.3,"
+                       "\"pattern\": {\"type\": \"noise\", \"cell_size\": 0.5, \"sigma_a2\": 0, \"sigma_s2\": 0}},"
+                       "{\"shape\": \"global\", \"sigma_s\": 0.02, \"height_falloff\": 0.5}]}";
+    for (int mode = NACRE_VOLUMETRICS_OFF; mode <= NACRE_VOLUMETRICS_FROXEL; mode++) {
+        nacre_scene *s = media_load(ctx, json, NULL);
+        if (!s)
+            return;
+        nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, (nacre_volumetrics_mode)mode, 40, 30);
+        rs.volumetrics.froxel_width = 20;
+        rs.volumetrics.froxel_height = 15;
+        rs.volumetrics.froxel_slices = 24;
+        nacre_renderer *r = NULL;
+        CHECK(nacre_renderer_create(ctx, &r) == NACRE_OK);
+        nacre_image first = {0};
+        CHECK(nacre_renderer_render(r, s, &rs, &first, NULL) == NACRE_OK);
+        reuse_check(r, s, &rs, "an unchanged frame");
+        reuse_check(r, s, &rs, "a third unchanged frame");
+        nacre_light_desc ld;
+        CHECK(nacre_scene_get_light(s, (nacre_light){2}, &ld) == NACRE_OK);
+        ld.direction[2] = 0.3f;
+        CHECK(nacre_scene_set_light(s, (nacre_light){2}, &ld) == NACRE_OK && nacre_scene_commit(s, 0.0) == NACRE_OK);
+        reuse_check(r, s, &rs, "the sun turned");
+        reuse_check(r, s, &rs, "unchanged after the sun turned");
+        CHECK(nacre_scene_get_light(s, (nacre_light){1}, &ld) == NACRE_OK);
+        ld.position[0] = 0.5f;
+        CHECK(nacre_scene_set_light(s, (nacre_light){1}, &ld) == NACRE_OK && nacre_scene_commit(s, 0.0) == NACRE_OK);
+        reuse_check(r, s, &rs, "the spot moved");
+        nacre_fog_desc fd;
+        CHECK(nacre_scene_get_fog(s, (nacre_fog){1}, &fd) == NACRE_OK);
+        fd.sigma_s[1] = 0.4f;
+        CHECK(nacre_scene_set_fog(s, (nacre_fog){1}, &fd) == NACRE_OK && nacre_scene_commit(s, 0.0) == NACRE_OK);
+        reuse_check(r, s, &rs, "the fog changed");
+        nacre_camera_desc cam;
+        CHECK(nacre_scene_get_camera(s, &cam) == NACRE_OK);
+        cam.position[0] = 0.3f;
+        CHECK(nacre_scene_set_camera(s, &cam) == NACRE_OK && nacre_scene_commit(s, 0.0) == NACRE_OK);
+        reuse_check(r, s, &rs, "the camera moved");
+        rs.volumetrics.froxel_slices = 20;
+        reuse_check(r, s, &rs, "fewer slices");
+        nacre_image_free(ctx, &first);
+        nacre_renderer_destroy(r);
+        nacre_scene_destroy(s);
+    }
+}
+
 /* Transmittance towards lights from the fog field: in [0, 1], and the closed form for a
  * homogeneous box and for height fog (against the march through the same fog as a pattern). */
 static void field_transmittance(void)
@@ -619,6 +699,7 @@ int main(void)
     bad_settings();
     constant_source();
     thread_count();
+    frame_reuse();
     sun_closed_form();
     height_fog_lights();
     volumetric_shadow();

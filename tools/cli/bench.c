@@ -50,7 +50,8 @@ static const char bench_help[] =
     "usage: nacre bench volumetrics [--json] [--runs N] [--raymarch]\n"
     "  volumetrics  froxel stages (fill, light, integrate, apply at 160x90x64) and the analytic\n"
     "           fog pass over the demo at 1280x720 with a shadowed sun, four point lights, height\n"
-    "           fog and a 128^3 cloud (bench/bench_volumetrics.c)\n"
+    "           fog and a 128^3 cloud; frames where the camera turns, the sun turns, nothing moves\n"
+    "           (bench/bench_volumetrics.c)\n"
     "  --raymarch  also one frame of the per-pixel march (64 steps; tens of seconds)\n";
 
 
