@@ -46,6 +46,9 @@
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 
 #define BAND 8u
 #define VIEW_STEPS 16
@@ -67,10 +70,13 @@ typedef struct pp_state {
     int32_t *rect;    /* x0, x1, y0, y1 (inclusive), x0 > x1: not drawn */
     uint32_t *order, *sort_tmp; /* sprites: far to near, and the merge sort's scratch */
     float *lit;       /* sprites: 3 per particle */
-    float *rec;       /* billboards: REC per particle: centre, R^2, 4.5 / R^2, tau_t[3], tau_s[3] of its column */
+    float *rec;       /* billboards: REC per particle: centre, R^2, 4.5 / R^2, its column's tau_t[3],
+                       * tau_s[3], the column d0 K R */
     size_t rec_cap;
     float *look;      /* billboards: LOOK per rect pixel (pack_lookup) */
     size_t look_cap;
+    float *crow;      /* composite: per thread, 6 rows of rw + 2 */
+    size_t crow_cap;
     uint32_t *bin_start, *bins;
     size_t bin_start_cap, bin_cap;
     float *acc;       /* 8 planes over the rect: tau_t[3], tau_s[3], near, far */
@@ -118,7 +124,7 @@ static void pp_destroy(nacre_context *ctx, void *state)
         return;
     void *arrays[] = {st->cx, st->cy, st->cz, st->radius, st->column, st->dist, st->sys, st->rect, st->order, st->sort_tmp,
                       st->lit, st->bin_start, st->bins, st->acc, st->tl, st->ray, st->X, st->Y,
-                      st->rec, st->look};
+                      st->rec, st->look, st->crow};
     for (size_t i = 0; i < sizeof(arrays) / sizeof(arrays[0]); i++)
         nc_free(ctx, arrays[i]);
     nc_free(ctx, st);
@@ -212,7 +218,7 @@ static nacre_result gather(pp_state *st, const nc_post_input *in, pp_frame *fr)
                 q[5 + ch] = sy->sigma_t[ch] * st->column[j];
                 q[8 + ch] = sy->sigma_t[ch] * sy->albedo[ch] * st->column[j];
             }
-            q[11] = 0.0f;
+            q[11] = st->column[j];
             int32_t *rc = st->rect + 4 * (size_t)j;
             rc[0] = 1, rc[1] = 0, rc[2] = 1, rc[3] = 0;
             if (!(st->column[j] > 0.0f) || (!fr->ortho && -c.z - R < 1e-4f * R))
@@ -442,56 +448,91 @@ static void band_start(const pp_frame *fr, uint32_t b, float *planes, int count,
 static inline nc_v8f v8_min(nc_v8f a, nc_v8f b) { return nc_v8_sel(a < b, a, b); }
 static inline nc_v8f v8_max(nc_v8f a, nc_v8f b) { return nc_v8_sel(a > b, a, b); }
 
-/* Pass 1: per pixel of the rect, optical depths and the chord ends (planes of `acc`). A tile's
- * rows run as 8-lane vectors, the 8 sums held in registers over the tile's particles, which
- * each pixel adds in index order (so the sums do not depend on the threads). The particle's
- * rect masks the lanes as the scalar loop over it did. */
-static void accumulate(pp_state *st, const pp_frame *fr, uint32_t ntx, uint32_t nty, int threads)
+/* sqrt(x) for x >= 0 from the approximate reciprocal square root and one Newton step (relative
+ * error about 1e-6): a full-precision square root per lane cost as much as the exponential. */
+static inline nc_v8f v8_sqrt_fast(nc_v8f x)
+{
+#ifdef __AVX__
+    const nc_v8f y = (nc_v8f)_mm256_rsqrt_ps((__m256)x), xy = x * y;
+    return nc_v8_sel(x > 0.0f, xy * (1.5f - 0.5f * xy * y), nc_v8_splat(0.0f));
+#else
+    return nc_v8_sqrt(x);
+#endif
+}
+
+/* One row of 8 pixels of a tile against the tile's particles (index order). With one system
+ * (`one`), the sums of tau_t and tau_s are its coefficients times the sum of the columns, so a
+ * single sum is kept and scaled at the end. */
+static inline __attribute__((always_inline)) void accumulate_row(const pp_state *st, const pp_frame *fr, bool one,
+                                                                 uint32_t e0, uint32_t e1, int32_t ry, int32_t tx)
 {
     const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+    const size_t i = (size_t)ry * (size_t)fr->rw + (size_t)tx;
+    const int32_t y = ry + fr->ry0;
+    const nc_v8i lane = (nc_v8i){0, 1, 2, 3, 4, 5, 6, 7} + (tx + fr->rx0);
+    const nc_v8f ox = nc_v8_load(st->ray + i), oy = nc_v8_load(st->ray + plane + i);
+    const nc_v8f dx = nc_v8_load(st->ray + 2 * plane + i), dy = nc_v8_load(st->ray + 3 * plane + i);
+    const nc_v8f dz = nc_v8_load(st->ray + 4 * plane + i), ts = nc_v8_load(st->ray + 5 * plane + i);
+    const nc_v8f zero = nc_v8_splat(0.0f);
+    nc_v8f a0 = zero, a1 = zero, a2 = zero, s0 = zero, s1 = zero, s2 = zero;
+    nc_v8f nr = nc_v8_splat(INFINITY), fa = nc_v8_splat(-INFINITY);
+    for (uint32_t e = e0; e < e1; e++) {
+        const uint32_t j = st->bins[e];
+        const int32_t *rc = st->rect + 4 * (size_t)j;
+        if (y < rc[2] || y > rc[3])
+            continue;
+        const float *q = st->rec + REC * (size_t)j;
+        const nc_v8f vx = q[0] - ox, vy = q[1] - oy, vz = nc_v8_splat(q[2]);
+        const nc_v8f t = vx * dx + vy * dy + vz * dz;
+        nc_v8f rho2 = vx * vx + vy * vy + vz * vz - t * t;
+        nc_v8i m = (rho2 < q[3]) & (lane >= rc[0]) & (lane <= rc[1]);
+        if (!nc_v8_bits(m))
+            continue;
+        rho2 = v8_max(rho2, zero);
+        const nc_v8f h = v8_sqrt_fast(q[3] - rho2), lo = t - h;
+        m &= ~(lo > ts);
+        if (!nc_v8_bits(m))
+            continue;
+        const nc_v8f w = nc_v8_sel(m, nc_billboard_exp8(rho2 * -q[4]), zero);
+        if (one) {
+            a0 += q[11] * w;
+        } else {
+            a0 += q[5] * w, a1 += q[6] * w, a2 += q[7] * w;
+            s0 += q[8] * w, s1 += q[9] * w, s2 += q[10] * w;
+        }
+        nr = nc_v8_sel(m, v8_min(nr, lo), nr);
+        fa = nc_v8_sel(m, v8_max(fa, t + h), fa);
+    }
+    if (one) {
+        const pp_system *sy = &st->sys_table[0];
+        const nc_v8f col = a0;
+        a0 = sy->sigma_t[0] * col, a1 = sy->sigma_t[1] * col, a2 = sy->sigma_t[2] * col;
+        s0 = sy->sigma_t[0] * sy->albedo[0] * col, s1 = sy->sigma_t[1] * sy->albedo[1] * col;
+        s2 = sy->sigma_t[2] * sy->albedo[2] * col;
+    }
+    float *acc = st->acc + i;
+    nc_v8_store(acc, a0), nc_v8_store(acc + plane, a1), nc_v8_store(acc + 2 * plane, a2);
+    nc_v8_store(acc + 3 * plane, s0), nc_v8_store(acc + 4 * plane, s1), nc_v8_store(acc + 5 * plane, s2);
+    nc_v8_store(acc + 6 * plane, nr), nc_v8_store(acc + 7 * plane, fa);
+}
+
+/* Pass 1: per pixel of the rect, optical depths and the chord ends (planes of `acc`). A tile's
+ * rows run as 8-lane vectors, the sums held in registers over the tile's particles, which each
+ * pixel adds in index order (so the sums do not depend on the threads). The particle's rect
+ * masks the lanes as the scalar loop over it did. */
+static void accumulate(pp_state *st, const pp_frame *fr, uint32_t ntx, uint32_t nty, bool one, int threads)
+{
     const int32_t tiles = (int32_t)(ntx * nty);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
     for (int32_t tile = 0; tile < tiles; tile++) {
         const int32_t tx = (tile % (int32_t)ntx) * TILE, ty = (tile / (int32_t)ntx) * TILE;
         const int32_t ye = ty + TILE < fr->rh ? ty + TILE : fr->rh;
-        const nc_v8i lane = (nc_v8i){0, 1, 2, 3, 4, 5, 6, 7} + (tx + fr->rx0);
         const uint32_t e0 = st->bin_start[tile], e1 = st->bin_start[tile + 1];
         for (int32_t ry = ty; ry < ye; ry++) {
-            const size_t i = (size_t)ry * (size_t)fr->rw + (size_t)tx;
-            const int32_t y = ry + fr->ry0;
-            const nc_v8f ox = nc_v8_load(st->ray + i), oy = nc_v8_load(st->ray + plane + i);
-            const nc_v8f dx = nc_v8_load(st->ray + 2 * plane + i), dy = nc_v8_load(st->ray + 3 * plane + i);
-            const nc_v8f dz = nc_v8_load(st->ray + 4 * plane + i), ts = nc_v8_load(st->ray + 5 * plane + i);
-            const nc_v8f zero = nc_v8_splat(0.0f);
-            nc_v8f a0 = zero, a1 = zero, a2 = zero, s0 = zero, s1 = zero, s2 = zero;
-            nc_v8f nr = nc_v8_splat(INFINITY), fa = nc_v8_splat(-INFINITY);
-            for (uint32_t e = e0; e < e1; e++) {
-                const uint32_t j = st->bins[e];
-                const int32_t *rc = st->rect + 4 * (size_t)j;
-                if (y < rc[2] || y > rc[3])
-                    continue;
-                const float *q = st->rec + REC * (size_t)j;
-                const nc_v8f vx = q[0] - ox, vy = q[1] - oy, vz = nc_v8_splat(q[2]);
-                const nc_v8f t = vx * dx + vy * dy + vz * dz;
-                nc_v8f rho2 = vx * vx + vy * vy + vz * vz - t * t;
-                nc_v8i m = (rho2 < q[3]) & (lane >= rc[0]) & (lane <= rc[1]);
-                if (!nc_v8_bits(m))
-                    continue;
-                rho2 = v8_max(rho2, zero);
-                const nc_v8f h = nc_v8_sqrt(v8_max(q[3] - rho2, zero)), lo = t - h;
-                m &= ~(lo > ts);
-                if (!nc_v8_bits(m))
-                    continue;
-                const nc_v8f w = nc_v8_sel(m, nc_billboard_exp8(rho2 * -q[4]), zero);
-                a0 += q[5] * w, a1 += q[6] * w, a2 += q[7] * w;
-                s0 += q[8] * w, s1 += q[9] * w, s2 += q[10] * w;
-                nr = nc_v8_sel(m, v8_min(nr, lo), nr);
-                fa = nc_v8_sel(m, v8_max(fa, t + h), fa);
-            }
-            float *acc = st->acc + i;
-            nc_v8_store(acc, a0), nc_v8_store(acc + plane, a1), nc_v8_store(acc + 2 * plane, a2);
-            nc_v8_store(acc + 3 * plane, s0), nc_v8_store(acc + 4 * plane, s1), nc_v8_store(acc + 5 * plane, s2);
-            nc_v8_store(acc + 6 * plane, nr), nc_v8_store(acc + 7 * plane, fa);
+            if (one)
+                accumulate_row(st, fr, true, e0, e1, ry, tx);
+            else
+                accumulate_row(st, fr, false, e0, e1, ry, tx);
         }
     }
 }
@@ -727,41 +768,55 @@ static void sprites(pp_state *st, const pp_frame *fr, uint32_t bands, int thread
     }
 }
 
-/* Each image pixel over the rect: c T + L, bilinear from the buffers (outside: T 1, L 0). */
-static void composite(const pp_state *st, const pp_frame *fr, nacre_image *image, int threads)
+/* Each image pixel over the rect: c T + L, bilinear from the buffers (outside: T 1, L 0).
+ * Separable: per image row, the 6 planes interpolated between their two buffer rows into a row
+ * of scratch (with one cleared column each side), then each pixel between two of its columns. */
+static void composite(pp_state *st, const pp_frame *fr, nacre_image *image, int threads)
 {
-    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh, cw = (size_t)fr->rw + 2;
     const int32_t F = fr->F;
     int32_t y0 = fr->ry0 * F - F, y1 = (fr->ry0 + fr->rh) * F + F, x0 = fr->rx0 * F - F, x1 = (fr->rx0 + fr->rw) * F + F;
     y0 = y0 > 0 ? y0 : 0, x0 = x0 > 0 ? x0 : 0;
     y1 = y1 < fr->H ? y1 : fr->H, x1 = x1 < fr->W ? x1 : fr->W;
-#pragma omp parallel for schedule(static) num_threads(threads)
-    for (int32_t y = y0; y < y1; y++) {
-        float *row = image->pixels + (size_t)y * image->stride;
-        float v = (y + 0.5f) / (float)F - 0.5f - (float)fr->ry0;
-        int32_t j0 = (int32_t)floorf(v);
-        float fy = v - (float)j0;
-        for (int32_t x = x0; x < x1; x++) {
-            float u = (x + 0.5f) / (float)F - 0.5f - (float)fr->rx0;
-            int32_t i0 = (int32_t)floorf(u);
-            float fx = u - (float)i0, T[3] = {0, 0, 0}, L[3] = {0, 0, 0};
-            for (int k = 0; k < 4; k++) {
-                int32_t i = i0 + (k & 1), j = j0 + (k >> 1);
-                float wgt = ((k & 1) ? fx : 1.0f - fx) * ((k >> 1) ? fy : 1.0f - fy);
-                if (i < 0 || j < 0 || i >= fr->rw || j >= fr->rh) {
-                    for (int c = 0; c < 3; c++)
-                        T[c] += wgt;
-                    continue;
-                }
-                size_t n = (size_t)j * (size_t)fr->rw + (size_t)i;
+#pragma omp parallel num_threads(threads)
+    {
+        int tid = 0;
+#ifdef _OPENMP
+        tid = omp_get_thread_num();
+#endif
+        float *V = st->crow + (size_t)tid * 6 * cw;
+        for (int k = 0; k < 6; k++)
+            V[k * cw] = V[k * cw + cw - 1] = k < 3 ? 1.0f : 0.0f;
+#pragma omp for schedule(static)
+        for (int32_t y = y0; y < y1; y++) {
+            float *row = image->pixels + (size_t)y * image->stride;
+            float v = (y + 0.5f) / (float)F - 0.5f - (float)fr->ry0;
+            int32_t j0 = (int32_t)floorf(v);
+            float fy = v - (float)j0;
+            for (int k = 0; k < 6; k++) {
+                const float clear = k < 3 ? 1.0f : 0.0f;
+                const float *p0 = j0 >= 0 && j0 < fr->rh ? st->tl + k * plane + (size_t)j0 * (size_t)fr->rw : NULL;
+                const float *p1 = j0 + 1 >= 0 && j0 + 1 < fr->rh ? st->tl + k * plane + (size_t)(j0 + 1) * (size_t)fr->rw
+                                                                 : NULL;
+                float *out = V + k * cw + 1;
+                for (int32_t i = 0; i < fr->rw; i++)
+                    out[i] = (1.0f - fy) * (p0 ? p0[i] : clear) + fy * (p1 ? p1[i] : clear);
+            }
+            for (int32_t x = x0; x < x1; x++) {
+                float u = (x + 0.5f) / (float)F - 0.5f - (float)fr->rx0;
+                int32_t i0 = (int32_t)floorf(u);
+                float fx = u - (float)i0;
+                if (i0 < -1 || i0 >= fr->rw)
+                    continue; /* both taps outside: T 1, L 0 */
+                /* Scratch column i0 + 1 is buffer column i0. */
+                const float *c0 = V + (size_t)(i0 + 1);
+                float *px = row + 3 * (size_t)x;
                 for (int c = 0; c < 3; c++) {
-                    T[c] += wgt * st->tl[c * plane + n];
-                    L[c] += wgt * st->tl[(3 + c) * plane + n];
+                    float T = (1.0f - fx) * c0[c * cw] + fx * c0[c * cw + 1];
+                    float L = (1.0f - fx) * c0[(3 + c) * cw] + fx * c0[(3 + c) * cw + 1];
+                    px[c] = px[c] * T + L;
                 }
             }
-            float *px = row + 3 * (size_t)x;
-            for (int c = 0; c < 3; c++)
-                px[c] = px[c] * T[c] + L[c];
         }
     }
 }
@@ -817,7 +872,7 @@ static nacre_result pp_apply(void *state, const nc_post_input *in, nacre_image *
             uint32_t ntx, nty;
             if ((r = bin_tiles(in->ctx, st, &fr, &ntx, &nty)) != NACRE_OK)
                 return r;
-            accumulate(st, &fr, ntx, nty, threads);
+            accumulate(st, &fr, ntx, nty, in->scene->particles_count == 1, threads);
             pack_lookup(st, &fr, threads);
             /* One phase function: the scattering-weighted mean g of the systems. */
             double gs = 0.0, ws = 0.0;
@@ -830,6 +885,9 @@ static nacre_result pp_apply(void *state, const nc_post_input *in, nacre_image *
             }
             march(st, &fr, ws > 0 ? (float)(gs / ws) : 0.0f, threads);
         }
+        if (!nc_reserve(in->ctx, &st->crow, &st->crow_cap, (size_t)(threads > 0 ? threads : 1) * 6 * ((size_t)fr.rw + 2),
+                        sizeof(float)))
+            return NACRE_ERROR_OUT_OF_MEMORY;
         composite(st, &fr, image, threads);
     }
     stats->stage_us[NACRE_STAGE_PARTICLES] += nc_now_us() - t_start;
