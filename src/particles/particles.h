@@ -31,8 +31,9 @@ typedef struct nc_particle_grid {
     int32_t *range;              /* per particle: first and last sample per axis (6) */
     float *scale;                /* per particle: mass / (kernel sum on the grid * cell volume) */
     uint32_t *bin_start, *bins;  /* per z slab, the overlapping particles in index order */
-    float *weights;              /* per thread, 3 * res kernel weights */
-    size_t range_capacity, scale_capacity, bin_start_capacity, bin_capacity, weight_capacity;
+    float *weights;              /* per particle from woff[i]: x (padded to 8), y, z kernel weights */
+    size_t *woff;                /* n + 1 offsets into weights */
+    size_t range_capacity, scale_capacity, bin_start_capacity, bin_capacity, weight_capacity, woff_capacity;
 } nc_particle_grid;
 
 /* K of the mass formula m = d0 (K R)^3 (nacre/particles.h). */

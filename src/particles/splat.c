@@ -18,18 +18,13 @@
 
 #include <math.h>
 #include <string.h>
-#ifdef _OPENMP
-#include <omp.h>
-#endif
 
-/* z layers per slab: about four slabs per thread (at least 4 layers), enough to balance the
- * threads while a particle's weights are computed once per slab it overlaps. The grid does not
- * depend on the slab size: every cell sums its particles in index order whatever the slabs. */
-static uint32_t slab_layers(uint32_t res, int threads)
-{
-    uint32_t n = (res + 4u * (uint32_t)threads - 1) / (4u * (uint32_t)threads);
-    return n < 4u ? 4u : n;
-}
+/* z layers per slab: few, so that the cells a slab's particles write stay in the core's cache
+ * (a slab of 16 layers of 128^2 is 1 MB and the splat waited on memory); a particle's weights
+ * are computed once, not per slab. The grid does not depend on the slab size: every cell sums
+ * its particles in index order whatever the slabs. */
+#define SLAB_LAYERS 4u
+#define BRICK_ROWS 16u
 
 void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
 {
@@ -39,6 +34,7 @@ void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
     nc_free(ctx, g->bin_start);
     nc_free(ctx, g->bins);
     nc_free(ctx, g->weights);
+    nc_free(ctx, g->woff);
     memset(g, 0, sizeof(*g));
 }
 
@@ -53,37 +49,52 @@ static bool ensure(nacre_context *ctx, void **p, size_t *cap, size_t n, size_t e
     return *p != NULL;
 }
 
-/* Kernel weights along one axis: samples lo..hi (returned) around centre c. */
-static float axis_weights(double c, double R, double origin, double h, int32_t n, int32_t *lo, int32_t *hi,
-                          float *w)
+/* Zeros in front of sample x0's weights so that the vectors of a row start at 32-byte
+ * boundaries of the grid (of every row when res is a multiple of 8). */
+static inline int32_t lead(const float *data, int32_t x0)
+{
+    return (int32_t)(((uintptr_t)(data + x0) & 31u) / sizeof(float));
+}
+
+/* Kernel samples along one axis around centre c: lo..hi. A particle whose kernel misses every
+ * sample centre (R under half a cell) takes the two samples around its centre instead. */
+static void axis_range(double c, double R, double origin, double h, int32_t n, int32_t *lo, int32_t *hi)
 {
     double f = (c - origin) / h;
     int32_t a = (int32_t)ceil(f - R / h), b = (int32_t)floor(f + R / h);
-    if (a < 0)
-        a = 0;
-    if (b > n - 1)
-        b = n - 1;
-    float sum = 0.0f;
-    for (int32_t i = a; i <= b; i++) {
-        float t = (float)((origin + i * h - c) / R);
-        w[i - a] = nc_fast_exp(-NC_PARTICLE_KERNEL_A * t * t);
-        sum += w[i - a];
-    }
-    if (!(sum > 0.0f)) {
+    a = a < 0 ? 0 : a;
+    b = b > n - 1 ? n - 1 : b;
+    if (a > b) {
         a = (int32_t)floor(f);
-        if (a < 0)
-            a = 0;
-        if (a > n - 2)
-            a = n - 2;
-        float fr = (float)(f - a);
-        fr = fr < 0.0f ? 0.0f : (fr > 1.0f ? 1.0f : fr);
-        w[0] = 1.0f - fr;
-        w[1] = fr;
+        a = a < 0 ? 0 : (a > n - 2 ? n - 2 : a);
         b = a + 1;
-        sum = 1.0f;
     }
     *lo = a;
     *hi = b;
+}
+
+/* The weights of samples lo..hi (axis_range of the same arguments) into w; returns their sum.
+ * Linear weights for the fallback's two samples. */
+static float axis_weights(double c, double R, double origin, double h, int32_t n, int32_t lo, int32_t hi, float *w)
+{
+    double f = (c - origin) / h;
+    int32_t a = (int32_t)ceil(f - R / h), b = (int32_t)floor(f + R / h);
+    a = a < 0 ? 0 : a;
+    b = b > n - 1 ? n - 1 : b;
+    if (a > b) {
+        float fr = (float)(f - lo);
+        fr = fr < 0.0f ? 0.0f : (fr > 1.0f ? 1.0f : fr);
+        w[0] = 1.0f - fr;
+        w[1] = fr;
+        return 1.0f;
+    }
+    const double inv = 1.0 / R;
+    float sum = 0.0f;
+    for (int32_t i = lo; i <= hi; i++) {
+        float t = (float)((origin + i * h - c) * inv);
+        w[i - lo] = nc_fast_exp(-NC_PARTICLE_KERNEL_A * t * t);
+        sum += w[i - lo];
+    }
     return sum;
 }
 
@@ -124,108 +135,143 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     }
     const size_t cells = (size_t)res * res * res;
     const int threads = nc_threads(ctx) > 0 ? nc_threads(ctx) : 1;
-    const uint32_t SLAB = slab_layers(res, threads), slabs = (res + SLAB - 1) / SLAB;
+    const uint32_t SLAB = SLAB_LAYERS, nby = (res + BRICK_ROWS - 1) / BRICK_ROWS;
+    const uint32_t bricks = (res + SLAB - 1) / SLAB * nby;
     nacre_result r = nc_memory_check(ctx, (uint64_t)cells * sizeof(float), "particle density grid (grid_resolution)");
     if (r != NACRE_OK)
         return r;
     bool ok = ensure(ctx, (void **)&g->data, &g->capacity, cells, sizeof(float));
     ok = ok && ensure(ctx, (void **)&g->range, &g->range_capacity, 6 * (size_t)n, sizeof(int32_t));
     ok = ok && ensure(ctx, (void **)&g->scale, &g->scale_capacity, n, sizeof(float));
-    ok = ok && ensure(ctx, (void **)&g->bin_start, &g->bin_start_capacity, slabs + 1, sizeof(uint32_t));
-    ok = ok && ensure(ctx, (void **)&g->weights, &g->weight_capacity, (size_t)threads * 3 * res, sizeof(float));
+    ok = ok && ensure(ctx, (void **)&g->woff, &g->woff_capacity, (size_t)n + 1, sizeof(size_t));
+    ok = ok && ensure(ctx, (void **)&g->bin_start, &g->bin_start_capacity, bricks + 1, sizeof(uint32_t));
     if (!ok)
         return NACRE_ERROR_OUT_OF_MEMORY;
 
-    /* Per particle: its sample range and the factor that makes its samples sum to its mass. */
+    /* Per particle: its sample range per axis, and where its weights go: x padded with zeros to
+     * whole 8-lane vectors that start on the grid's 32-byte boundaries (lead(x0) zeros first),
+     * then y, then z. */
+#ifdef _OPENMP
+#pragma omp parallel for schedule(static) num_threads(threads)
+#endif
+    for (uint32_t i = 0; i < n; i++) {
+        const double c[3] = {s->x[i], s->y[i], s->z[i]};
+        int32_t *rg = g->range + 6 * (size_t)i;
+        for (int a = 0; a < 3; a++)
+            axis_range(c[a], s->radius[i], g->origin[a], g->spacing[a], (int32_t)res, &rg[2 * a], &rg[2 * a + 1]);
+        g->woff[i + 1] = (size_t)((lead(g->data, rg[0]) + rg[1] - rg[0] + 8) / 8 * 8) + (size_t)(rg[3] - rg[2] + 1) +
+                         (size_t)(rg[5] - rg[4] + 1);
+    }
+    g->woff[0] = 0;
+    for (uint32_t i = 0; i < n; i++)
+        g->woff[i + 1] += g->woff[i];
+    if ((r = nc_memory_check(ctx, (uint64_t)g->woff[n] * sizeof(float), "particle splat weights")) != NACRE_OK)
+        return r;
+    if (!ensure(ctx, (void **)&g->weights, &g->weight_capacity, g->woff[n], sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+
+    /* The weights, and the factor that makes a particle's samples sum to its mass. */
     const double V = (double)g->spacing[0] * g->spacing[1] * g->spacing[2];
 #ifdef _OPENMP
 #pragma omp parallel for schedule(static) num_threads(threads)
 #endif
     for (uint32_t i = 0; i < n; i++) {
-        int tid = 0;
-#ifdef _OPENMP
-        tid = omp_get_thread_num();
-#endif
-        float *w = g->weights + (size_t)tid * 3 * res;
         const double c[3] = {s->x[i], s->y[i], s->z[i]};
-        int32_t *rg = g->range + 6 * (size_t)i;
-        double sum = 1.0;
-        for (int a = 0; a < 3; a++)
-            sum *= axis_weights(c[a], s->radius[i], g->origin[a], g->spacing[a], (int32_t)res, &rg[2 * a],
-                                &rg[2 * a + 1], w);
+        const int32_t *rg = g->range + 6 * (size_t)i;
+        float *w = g->weights + g->woff[i];
+        const int32_t nx = rg[1] - rg[0] + 1, ld = lead(g->data, rg[0]), px = (ld + nx + 7) / 8 * 8;
+        for (int32_t k = 0; k < ld; k++)
+            w[k] = 0.0f;
+        double sum = axis_weights(c[0], s->radius[i], g->origin[0], g->spacing[0], (int32_t)res, rg[0], rg[1], w + ld);
+        for (int32_t k = ld + nx; k < px; k++)
+            w[k] = 0.0f;
+        w += px;
+        sum *= axis_weights(c[1], s->radius[i], g->origin[1], g->spacing[1], (int32_t)res, rg[2], rg[3], w);
+        w += rg[3] - rg[2] + 1;
+        sum *= axis_weights(c[2], s->radius[i], g->origin[2], g->spacing[2], (int32_t)res, rg[4], rg[5], w);
         double kr = (double)NC_PARTICLE_KERNEL_K * s->radius[i];
         double mass = (double)s->density[i] * kr * kr * kr;
         g->scale[i] = (float)(mass / (sum * V));
     }
 
-    /* Bin particles by z slab, in index order (counting sort). */
-    memset(g->bin_start, 0, (slabs + 1) * sizeof(uint32_t));
-    for (uint32_t i = 0; i < n; i++) {
-        const int32_t *rg = g->range + 6 * (size_t)i;
-        for (uint32_t b = (uint32_t)rg[4] / SLAB; b <= (uint32_t)rg[5] / SLAB; b++)
-            g->bin_start[b + 1]++;
-    }
-    for (uint32_t b = 0; b < slabs; b++)
-        g->bin_start[b + 1] += g->bin_start[b];
-    if (!ensure(ctx, (void **)&g->bins, &g->bin_capacity, g->bin_start[slabs] + 1, sizeof(uint32_t)))
-        return NACRE_ERROR_OUT_OF_MEMORY;
-    {
-        /* Fill with a running cursor per slab, kept in the slab's end slot then restored. */
+    /* Bin particles by brick (SLAB z layers x BRICK_ROWS y rows), in index order (counting sort). */
+    memset(g->bin_start, 0, (bricks + 1) * sizeof(uint32_t));
+    for (int pass = 0; pass < 2; pass++) {
         for (uint32_t i = 0; i < n; i++) {
             const int32_t *rg = g->range + 6 * (size_t)i;
-            for (uint32_t b = (uint32_t)rg[4] / SLAB; b <= (uint32_t)rg[5] / SLAB; b++)
-                g->bins[g->bin_start[b]++] = i;
+            for (uint32_t bz = (uint32_t)rg[4] / SLAB; bz <= (uint32_t)rg[5] / SLAB; bz++)
+                for (uint32_t by = (uint32_t)rg[2] / BRICK_ROWS; by <= (uint32_t)rg[3] / BRICK_ROWS; by++) {
+                    if (pass == 0)
+                        g->bin_start[bz * nby + by + 1]++;
+                    else
+                        g->bins[g->bin_start[bz * nby + by]++] = i;
+                }
         }
-        for (uint32_t b = slabs; b > 0; b--)
-            g->bin_start[b] = g->bin_start[b - 1];
-        g->bin_start[0] = 0;
+        if (pass == 0) {
+            for (uint32_t b = 0; b < bricks; b++)
+                g->bin_start[b + 1] += g->bin_start[b];
+            if (!ensure(ctx, (void **)&g->bins, &g->bin_capacity, g->bin_start[bricks] + 1, sizeof(uint32_t)))
+                return NACRE_ERROR_OUT_OF_MEMORY;
+        }
     }
+    /* The second pass left each brick's start at the next brick's: shift back. */
+    for (uint32_t b = bricks; b > 0; b--)
+        g->bin_start[b] = g->bin_start[b - 1];
+    g->bin_start[0] = 0;
 
     const size_t nx = res, nxy = (size_t)res * res;
     float gmax = 0.0f;
 #ifdef _OPENMP
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads) reduction(max : gmax)
 #endif
-    for (uint32_t b = 0; b < slabs; b++) {
-        int tid = 0;
-#ifdef _OPENMP
-        tid = omp_get_thread_num();
-#endif
-        float *wx = g->weights + (size_t)tid * 3 * res, *wy = wx + res, *wz = wy + res;
-        const uint32_t z0 = b * SLAB, z1 = z0 + SLAB < res ? z0 + SLAB : res; /* [z0, z1) */
-        float *slab = g->data + z0 * nxy;
-        memset(slab, 0, (z1 - z0) * nxy * sizeof(float));
+    for (uint32_t b = 0; b < bricks; b++) {
+        const uint32_t z0 = b / nby * SLAB, z1 = z0 + SLAB < res ? z0 + SLAB : res; /* [z0, z1) */
+        const uint32_t y0 = b % nby * BRICK_ROWS, y1 = y0 + BRICK_ROWS < res ? y0 + BRICK_ROWS : res;
+        for (uint32_t z = z0; z < z1; z++)
+            memset(g->data + z * nxy + y0 * nx, 0, (y1 - y0) * nx * sizeof(float));
         for (uint32_t e = g->bin_start[b]; e < g->bin_start[b + 1]; e++) {
             const uint32_t i = g->bins[e];
             const int32_t *rg = g->range + 6 * (size_t)i;
-            int32_t a0, a1;
-            axis_weights(s->x[i], s->radius[i], g->origin[0], g->spacing[0], (int32_t)res, &a0, &a1, wx);
-            axis_weights(s->y[i], s->radius[i], g->origin[1], g->spacing[1], (int32_t)res, &a0, &a1, wy);
-            axis_weights(s->z[i], s->radius[i], g->origin[2], g->spacing[2], (int32_t)res, &a0, &a1, wz);
+            const int32_t ld = lead(g->data, rg[0]), x0 = rg[0] - ld, xn = rg[1] - rg[0] + 1 + ld;
+            const int32_t px = (xn + 7) / 8 * 8;
+            const float *wx = g->weights + g->woff[i], *wy = wx + px, *wz = wy + (rg[3] - rg[2] + 1);
             const float sc = g->scale[i];
             const int32_t za = rg[4] > (int32_t)z0 ? rg[4] : (int32_t)z0;
             const int32_t zb = rg[5] < (int32_t)z1 - 1 ? rg[5] : (int32_t)z1 - 1;
-            const int32_t x0 = rg[0], xn = rg[1] - rg[0] + 1;
+            const int32_t ya = rg[2] > (int32_t)y0 ? rg[2] : (int32_t)y0;
+            const int32_t yb = rg[3] < (int32_t)y1 - 1 ? rg[3] : (int32_t)y1 - 1;
+            /* Whole vectors (the padding adds 0 to the cells around the range, in the same row)
+             * unless they would leave the row; then the range alone. */
+            const bool vec = x0 >= 0 && x0 + px <= (int32_t)res;
             for (int32_t z = za; z <= zb; z++) {
                 const float fz = sc * wz[z - rg[4]];
-                for (int32_t y = rg[2]; y <= rg[3]; y++) {
+                for (int32_t y = ya; y <= yb; y++) {
                     const float fy = fz * wy[y - rg[2]];
-                    float *restrict row = g->data + (size_t)z * nxy + (size_t)y * nx + (size_t)x0;
-                    for (int32_t x = 0; x < xn; x++)
-                        row[x] += fy * wx[x];
+                    float *restrict row = g->data + (size_t)z * nxy + (size_t)y * nx + (size_t)rg[0];
+                    if (vec) {
+                        row -= ld;
+                        for (int32_t x = 0; x < px; x += 8)
+                            nc_v8_store(row + x, nc_v8_load(row + x) + fy * nc_v8_load(wx + x));
+                    } else {
+                        for (int32_t x = 0; x < xn - ld; x++)
+                            row[x] += fy * wx[ld + x];
+                    }
                 }
             }
         }
         /* Eight running maxima in registers: one accumulator in memory (the reduction
          * variable) kept this scan scalar, and it cost most of a sparse splat. */
         float m8[8] = {0};
-        const size_t count = (z1 - z0) * nxy;
-        size_t c = 0;
-        for (; c + 8 <= count; c += 8)
-            for (int k = 0; k < 8; k++)
-                m8[k] = slab[c + k] > m8[k] ? slab[c + k] : m8[k];
-        for (; c < count; c++)
-            m8[0] = slab[c] > m8[0] ? slab[c] : m8[0];
+        for (uint32_t z = z0; z < z1; z++) {
+            const float *p = g->data + z * nxy + y0 * nx;
+            const size_t count = (y1 - y0) * nx;
+            size_t c = 0;
+            for (; c + 8 <= count; c += 8)
+                for (int k = 0; k < 8; k++)
+                    m8[k] = p[c + k] > m8[k] ? p[c + k] : m8[k];
+            for (; c < count; c++)
+                m8[0] = p[c] > m8[0] ? p[c] : m8[0];
+        }
         for (int k = 0; k < 8; k++)
             gmax = m8[k] > gmax ? m8[k] : gmax;
     }
