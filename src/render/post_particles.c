@@ -56,7 +56,7 @@
 #define MAX_SUNS 8
 #define BUFFER_ROWS 180 /* rows of the particle buffers (see "Resolution") */
 #define TILE 8          /* billboards: tiles of TILE x TILE buffer pixels, one 8-lane vector wide */
-#define REC 12          /* floats per particle record of the billboard pass */
+#define REC 16          /* floats per particle record of the billboard pass (one cache line) */
 #define LOOK 8          /* floats per pixel of the light march's lookup */
 
 typedef struct pp_system {
@@ -71,7 +71,7 @@ typedef struct pp_state {
     uint32_t *order, *sort_tmp; /* sprites: far to near, and the merge sort's scratch */
     float *lit;       /* sprites: 3 per particle */
     float *rec;       /* billboards: REC per particle: centre, R^2, 4.5 / R^2, its column's tau_t[3],
-                       * tau_s[3], the column d0 K R */
+                       * tau_s[3], the column d0 K R, |centre|^2 */
     size_t rec_cap;
     float *look;      /* billboards: LOOK per rect pixel (pack_lookup) */
     size_t look_cap;
@@ -219,6 +219,8 @@ static nacre_result gather(pp_state *st, const nc_post_input *in, pp_frame *fr)
                 q[8 + ch] = sy->sigma_t[ch] * sy->albedo[ch] * st->column[j];
             }
             q[11] = st->column[j];
+            q[12] = c.x * c.x + c.y * c.y + c.z * c.z;
+            q[13] = q[14] = q[15] = 0.0f;
             int32_t *rc = st->rect + 4 * (size_t)j;
             rc[0] = 1, rc[1] = 0, rc[2] = 1, rc[3] = 0;
             if (!(st->column[j] > 0.0f) || (!fr->ortho && -c.z - R < 1e-4f * R))
@@ -326,6 +328,7 @@ static nacre_result make_rays(nacre_context *ctx, pp_state *st, const pp_frame *
     const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
     if (!nc_reserve(ctx, &st->ray, &st->ray_cap, 6 * plane, sizeof(float)))
         return NACRE_ERROR_OUT_OF_MEMORY;
+#pragma omp parallel for schedule(static) num_threads(ctx->threads)
     for (int32_t ry = 0; ry < fr->rh; ry++)
         for (int32_t rx = 0; rx < fr->rw; rx++) {
             int32_t x = rx + fr->rx0, y = ry + fr->ry0;
@@ -464,7 +467,8 @@ static inline nc_v8f v8_sqrt_fast(nc_v8f x)
  * (`one`), the sums of tau_t and tau_s are its coefficients times the sum of the columns, so a
  * single sum is kept and scaled at the end. */
 static inline __attribute__((always_inline)) void accumulate_row(const pp_state *st, const pp_frame *fr, bool one,
-                                                                 uint32_t e0, uint32_t e1, int32_t ry, int32_t tx)
+                                                                 bool persp, uint32_t e0, uint32_t e1, int32_t ry,
+                                                                 int32_t tx)
 {
     const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
     const size_t i = (size_t)ry * (size_t)fr->rw + (size_t)tx;
@@ -482,9 +486,15 @@ static inline __attribute__((always_inline)) void accumulate_row(const pp_state 
         if (y < rc[2] || y > rc[3])
             continue;
         const float *q = st->rec + REC * (size_t)j;
-        const nc_v8f vx = q[0] - ox, vy = q[1] - oy, vz = nc_v8_splat(q[2]);
-        const nc_v8f t = vx * dx + vy * dy + vz * dz;
-        nc_v8f rho2 = vx * vx + vy * vy + vz * vz - t * t;
+        nc_v8f t, rho2;
+        if (persp) { /* rays from the eye: v = c, |v|^2 per particle */
+            t = q[0] * dx + q[1] * dy + q[2] * dz;
+            rho2 = q[12] - t * t;
+        } else {
+            const nc_v8f vx = q[0] - ox, vy = q[1] - oy, vz = nc_v8_splat(q[2]);
+            t = vx * dx + vy * dy + vz * dz;
+            rho2 = vx * vx + vy * vy + vz * vz - t * t;
+        }
         nc_v8i m = (rho2 < q[3]) & (lane >= rc[0]) & (lane <= rc[1]);
         if (!nc_v8_bits(m))
             continue;
@@ -529,10 +539,12 @@ static void accumulate(pp_state *st, const pp_frame *fr, uint32_t ntx, uint32_t 
         const int32_t ye = ty + TILE < fr->rh ? ty + TILE : fr->rh;
         const uint32_t e0 = st->bin_start[tile], e1 = st->bin_start[tile + 1];
         for (int32_t ry = ty; ry < ye; ry++) {
-            if (one)
-                accumulate_row(st, fr, true, e0, e1, ry, tx);
+            if (one && !fr->ortho)
+                accumulate_row(st, fr, true, true, e0, e1, ry, tx);
+            else if (one)
+                accumulate_row(st, fr, true, false, e0, e1, ry, tx);
             else
-                accumulate_row(st, fr, false, e0, e1, ry, tx);
+                accumulate_row(st, fr, false, !fr->ortho, e0, e1, ry, tx);
         }
     }
 }
