@@ -163,23 +163,29 @@ static void splat_brick(const nc_particle_grid *g, float *data, uint32_t res, ui
 }
 
 /* Add to fine layers [z0, z1), rows [y0, y1) the trilinear interpolation of the coarse level
- * (sample I at fine sample 2I), whose samples outside c_lo .. c_hi are 0: an even fine index
- * takes its coarse sample, an odd one the mean of the two around it. */
-static void add_coarse(float *data, uint32_t res, const float *coarse, uint32_t rc, uint32_t c_lo, uint32_t c_hi,
+ * (sample I at fine sample 2I), whose samples outside the box cbox (first and last per axis,
+ * within c_lo .. c_hi) are 0: an even fine index takes its coarse sample, an odd one the mean
+ * of the two around it. */
+static void add_coarse(float *data, uint32_t res, const float *coarse, uint32_t rc, const int32_t cbox[6],
                        uint32_t z0, uint32_t z1, uint32_t y0, uint32_t y1)
 {
     const size_t nx = res, nxy = (size_t)res * res, cx = rc, cxy = (size_t)rc * rc;
-    const uint32_t f_lo = 2 * c_lo - 1, f_hi = 2 * c_hi + 1; /* fine samples the coarse ones reach */
+    /* Fine samples the coarse box reaches, per axis. */
+    const uint32_t fx0 = 2 * (uint32_t)cbox[0] - 1, fx1 = 2 * (uint32_t)cbox[1] + 1;
+    const uint32_t fy0 = 2 * (uint32_t)cbox[2] - 1, fy1 = 2 * (uint32_t)cbox[3] + 1;
+    const uint32_t fz0 = 2 * (uint32_t)cbox[4] - 1, fz1 = 2 * (uint32_t)cbox[5] + 1;
+    const uint32_t X0 = (uint32_t)cbox[0], X1 = (uint32_t)cbox[1];
     float row[NACRE_PARTICLES_GRID_MAX / 2 + 2];
-    for (uint32_t z = z0 > f_lo ? z0 : f_lo; z < z1 && z <= f_hi; z++) {
+    for (uint32_t z = z0 > fz0 ? z0 : fz0; z < z1 && z <= fz1; z++) {
+        /* Outside the box the coarse samples are 0: the layer or row there reads as 0. */
         const float *pz0 = coarse + (size_t)(z / 2) * cxy, *pz1 = (z & 1) ? pz0 + cxy : pz0;
-        for (uint32_t y = y0 > f_lo ? y0 : f_lo; y < y1 && y <= f_hi; y++) {
+        for (uint32_t y = y0 > fy0 ? y0 : fy0; y < y1 && y <= fy1; y++) {
             const size_t o0 = (size_t)(y / 2) * cx, o1 = (y & 1) ? o0 + cx : o0;
-            for (uint32_t X = c_lo; X <= c_hi; X++)
+            for (uint32_t X = X0; X <= X1; X++)
                 row[X] = 0.25f * ((pz0[o0 + X] + pz0[o1 + X]) + (pz1[o0 + X] + pz1[o1 + X]));
-            row[c_lo - 1] = row[c_hi + 1] = 0.0f;
+            row[X0 - 1] = row[X1 + 1] = 0.0f;
             float *out = data + (size_t)z * nxy + (size_t)y * nx;
-            for (uint32_t x = f_lo; x <= f_hi; x++)
+            for (uint32_t x = fx0; x <= fx1; x++)
                 out[x] += (x & 1) ? 0.5f * (row[x / 2] + row[x / 2 + 1]) : row[x / 2];
         }
     }
@@ -273,8 +279,20 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
                          (size_t)(rg[3] - rg[2] + 1) + (size_t)(rg[5] - rg[4] + 1);
     }
     g->woff[0] = 0;
-    for (uint32_t i = 0; i < n; i++)
+    /* The coarse samples in use (a box per axis), so that the coarse pass costs nothing when no
+     * particle is large and only its box otherwise. */
+    int32_t cbox[6] = {INT32_MAX, -1, INT32_MAX, -1, INT32_MAX, -1};
+    for (uint32_t i = 0; i < n; i++) {
         g->woff[i + 1] += g->woff[i];
+        if (g->level[i]) {
+            const int32_t *rg = g->range + 6 * (size_t)i;
+            for (int a = 0; a < 3; a++) {
+                cbox[2 * a] = rg[2 * a] < cbox[2 * a] ? rg[2 * a] : cbox[2 * a];
+                cbox[2 * a + 1] = rg[2 * a + 1] > cbox[2 * a + 1] ? rg[2 * a + 1] : cbox[2 * a + 1];
+            }
+        }
+    }
+    const bool coarse_used = cbox[1] >= 0;
     if ((r = nc_memory_check(ctx, (uint64_t)g->woff[n] * sizeof(float), "particle splat weights")) != NACRE_OK)
         return r;
     if (!ensure(ctx, (void **)&g->weights, &g->weight_capacity, g->woff[n], sizeof(float)))
@@ -341,7 +359,7 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
 
     /* The coarse level first (its bricks zeroed, then their particles), then each fine brick:
      * zeroed, its particles, the coarse level's trilinear values added, its maximum. */
-    if (coarse_ok) {
+    if (coarse_used) {
 #ifdef _OPENMP
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
 #endif
@@ -357,8 +375,8 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
         uint32_t z0, z1, y0, y1;
         splat_brick_box(res, nby[0], b, &z0, &z1, &y0, &y1);
         splat_brick(g, g->data, res, nby[0], b, start);
-        if (coarse_ok)
-            add_coarse(g->data, res, g->coarse, rc, c_lo, c_hi, z0, z1, y0, y1);
+        if (coarse_used)
+            add_coarse(g->data, res, g->coarse, rc, cbox, z0, z1, y0, y1);
         /* Eight running maxima in registers: one accumulator in memory (the reduction
          * variable) kept this scan scalar, and it cost most of a sparse splat. */
         float m8[8] = {0};
