@@ -23,6 +23,7 @@
 #define NACRE_PARTICLES_BILLBOARD_H
 
 #include "core/math.h"
+#include "core/simd.h"
 
 #include <math.h>
 #include <stdbool.h>
@@ -54,6 +55,23 @@ static inline bool nc_billboard_hit(const float v[3], const float d[3], float R,
     *tmid = t;
     *half = sqrtf(R2 - rho2);
     return true;
+}
+
+/* nc_fast_exp on 8 lanes: the same steps lane by lane (0 below 2^-126, capped at 2^126). */
+static inline nc_v8f nc_billboard_exp8(nc_v8f x)
+{
+    nc_v8f y = x * 1.44269504f;
+    const nc_v8i live = y > -126.0f;
+    y = nc_v8_sel(live, nc_v8_sel(y < 126.0f, y, nc_v8_splat(126.0f)), nc_v8_splat(0.0f));
+    const nc_v8f n = nc_v8_floor(y), f = y - n;
+    nc_v8f p = nc_v8_splat(1.8775767e-3f);
+    p = p * f + 8.9893397e-3f;
+    p = p * f + 5.5826318e-2f;
+    p = p * f + 2.4015361e-1f;
+    p = p * f + 6.9315308e-1f;
+    p = p * f + 9.9999994e-1f;
+    const nc_v8i bits = (__builtin_convertvector(n, nc_v8i) + 127) << 23;
+    return nc_v8_sel(live, p * (nc_v8f)bits, nc_v8_splat(0.0f));
 }
 
 #endif /* NACRE_PARTICLES_BILLBOARD_H */

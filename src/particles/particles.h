@@ -30,9 +30,14 @@ typedef struct nc_particle_grid {
     /* Scratch of the splat, kept so that a system splatted every frame reuses it. */
     int32_t *range;              /* per particle: first and last sample per axis (6) */
     float *scale;                /* per particle: mass / (kernel sum on the grid * cell volume) */
-    uint32_t *bin_start, *bins;  /* per z slab, the overlapping particles in index order */
-    float *weights;              /* per thread, 3 * res kernel weights */
-    size_t range_capacity, scale_capacity, bin_start_capacity, bin_capacity, weight_capacity;
+    uint32_t *bin_start, *bins;  /* per brick (fine, then coarse), its particles in index order */
+    float *weights;              /* per particle from woff[i]: x (padded to 8), y, z kernel weights */
+    size_t *woff;                /* n + 1 offsets into weights */
+    uint8_t *level;              /* per particle: 0 the grid, 1 the coarse level */
+    float *coarse;               /* the coarse level: (res - 1) / 2 + 1 samples per axis */
+    size_t range_capacity, scale_capacity, bin_start_capacity, bin_capacity, weight_capacity, woff_capacity;
+    size_t level_capacity, coarse_capacity;
+    bool fine_only;              /* set by the caller: every particle on the grid itself (tests) */
 } nc_particle_grid;
 
 /* K of the mass formula m = d0 (K R)^3 (nacre/particles.h). */
@@ -47,7 +52,7 @@ nacre_result nc_particles_simulate(nacre_context *ctx, const nacre_particles_des
                                    nc_particle_set *set);
 void nc_particle_set_free(nacre_context *ctx, nc_particle_set *set);
 /* Splat `set` into `grid` (res samples per axis over the particles' bounds plus two empty
- * layers): parallel over z slabs, each cell summing its particles in index order, so the grid is
+ * layers): parallel over bricks, each cell summing its particles in index order, so the grid is
  * bit for bit the same for any thread count. An empty set gives dims 0. */
 nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *set, uint32_t res,
                                 nc_particle_grid *grid);

@@ -198,6 +198,9 @@ nacre_result nc_scene_commit_particles(nacre_scene *s, double time)
         nc_particles_rec *p = &s->particles[i];
         p->volume.data = NULL;
         nacre_result r = nc_particles_simulate(s->ctx, &p->desc, time, &p->set);
+        /* The isosurface's depth and normals follow the field's shape closely (0.05 voxel): the
+         * coarse level's interpolation would move them by 0.2, so such systems splat finely. */
+        p->grid.fine_only = p->desc.isosurface.density > 0.0f;
         if (r == NACRE_OK)
             r = nc_particles_splat(s->ctx, &p->set, p->desc.grid_resolution, &p->grid);
         if (r != NACRE_OK) {

@@ -1,9 +1,9 @@
 /*
  * splat.c: voxelized particles (seed 003 §3.2.1). The seed rasterizes each particle into a 3D
- * texture with atomic integer adds; on the CPU the grid is cut into slabs of z layers,
- * each slab owned by one thread, and every slab adds its particles in index order. No two
- * threads write one cell and the order of the additions into a cell is fixed, so the grid is the
- * same bit for bit whatever the thread count, without atomics.
+ * texture with atomic integer adds; on the CPU the grid is cut into bricks (a few z layers by a
+ * few rows), each brick written by one thread, and every brick adds its particles in index
+ * order. No two threads write one cell and the order of the additions into a cell is fixed, so
+ * the grid is the same bit for bit whatever the thread count, without atomics.
  *
  * Mass: a particle's kernel (nacre/particles.h) is sampled at the cell centres it covers and the
  * samples are scaled so that they sum to its mass m = d0 (K R)^3 divided by the cell volume.
@@ -12,24 +12,31 @@
  * particles' mass, and with the two empty outer layers the trilinear field the renderers
  * sample integrates to the same number. A particle whose kernel misses every sample centre along
  * an axis (R under half a cell) deposits there by linear weights on the two nearest samples.
+ *
+ * Large particles: the cost is the cells written (a smoke particle of R = 10 cells writes 10^4).
+ * A particle of R >= COARSE_RADIUS cells is splatted instead on a coarse level of twice the
+ * spacing (8 times fewer cells), normalised the same way, and the coarse level is added to the
+ * grid by trilinear interpolation, which keeps the mass (each coarse sample's tent sums to 8 fine
+ * samples) and the empty outer layers. The field then differs from the all-fine splat by the
+ * interpolation of the coarse samples (docs/accuracy.md); a system with an isosurface is splatted
+ * all fine (nc_particle_grid.fine_only).
  */
 #include "particles/billboard.h"
 #include "particles/particles.h"
 
 #include <math.h>
 #include <string.h>
-#ifdef _OPENMP
-#include <omp.h>
-#endif
 
-/* z layers per slab: about four slabs per thread (at least 4 layers), enough to balance the
- * threads while a particle's weights are computed once per slab it overlaps. The grid does not
- * depend on the slab size: every cell sums its particles in index order whatever the slabs. */
-static uint32_t slab_layers(uint32_t res, int threads)
-{
-    uint32_t n = (res + 4u * (uint32_t)threads - 1) / (4u * (uint32_t)threads);
-    return n < 4u ? 4u : n;
-}
+/* Bricks of SLAB_LAYERS z layers x BRICK_ROWS rows: small, so that the cells a brick's
+ * particles write stay in the core's cache (a slab of 16 whole layers of 128^2 is 1 MB); a
+ * particle's weights are computed once, not per brick. The grid does not depend on the brick
+ * size: every cell sums its particles in index order whatever the bricks. */
+#define SLAB_LAYERS 4u
+#define BRICK_ROWS 16u
+/* Particles of radius at least COARSE_RADIUS cells (the largest spacing) go to the coarse level:
+ * the kernel's standard deviation R / 3 is then at least one coarse cell (error against the
+ * all-fine splat: docs/accuracy.md). */
+#define COARSE_RADIUS 6.0
 
 void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
 {
@@ -39,6 +46,9 @@ void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
     nc_free(ctx, g->bin_start);
     nc_free(ctx, g->bins);
     nc_free(ctx, g->weights);
+    nc_free(ctx, g->woff);
+    nc_free(ctx, g->level);
+    nc_free(ctx, g->coarse);
     memset(g, 0, sizeof(*g));
 }
 
@@ -53,38 +63,132 @@ static bool ensure(nacre_context *ctx, void **p, size_t *cap, size_t n, size_t e
     return *p != NULL;
 }
 
-/* Kernel weights along one axis: samples lo..hi (returned) around centre c. */
-static float axis_weights(double c, double R, double origin, double h, int32_t n, int32_t *lo, int32_t *hi,
-                          float *w)
+/* Zeros in front of sample x0's weights so that the vectors of a row start at 32-byte
+ * boundaries of the grid (of every row when res is a multiple of 8). */
+static inline int32_t lead(const float *data, int32_t x0)
+{
+    return (int32_t)(((uintptr_t)(data + x0) & 31u) / sizeof(float));
+}
+
+/* Kernel samples along one axis around centre c: lo..hi. A particle whose kernel misses every
+ * sample centre (R under half a cell) takes the two samples around its centre instead. */
+static void axis_range(double c, double R, double origin, double h, int32_t n, int32_t *lo, int32_t *hi)
 {
     double f = (c - origin) / h;
     int32_t a = (int32_t)ceil(f - R / h), b = (int32_t)floor(f + R / h);
-    if (a < 0)
-        a = 0;
-    if (b > n - 1)
-        b = n - 1;
-    float sum = 0.0f;
-    for (int32_t i = a; i <= b; i++) {
-        float t = (float)((origin + i * h - c) / R);
-        w[i - a] = nc_fast_exp(-NC_PARTICLE_KERNEL_A * t * t);
-        sum += w[i - a];
-    }
-    if (!(sum > 0.0f)) {
+    a = a < 0 ? 0 : a;
+    b = b > n - 1 ? n - 1 : b;
+    if (a > b) {
         a = (int32_t)floor(f);
-        if (a < 0)
-            a = 0;
-        if (a > n - 2)
-            a = n - 2;
-        float fr = (float)(f - a);
-        fr = fr < 0.0f ? 0.0f : (fr > 1.0f ? 1.0f : fr);
-        w[0] = 1.0f - fr;
-        w[1] = fr;
+        a = a < 0 ? 0 : (a > n - 2 ? n - 2 : a);
         b = a + 1;
-        sum = 1.0f;
     }
     *lo = a;
     *hi = b;
+}
+
+/* The weights of samples lo..hi (axis_range of the same arguments) into w; returns their sum.
+ * Linear weights for the fallback's two samples. */
+static float axis_weights(double c, double R, double origin, double h, int32_t n, int32_t lo, int32_t hi, float *w)
+{
+    double f = (c - origin) / h;
+    int32_t a = (int32_t)ceil(f - R / h), b = (int32_t)floor(f + R / h);
+    a = a < 0 ? 0 : a;
+    b = b > n - 1 ? n - 1 : b;
+    if (a > b) {
+        float fr = (float)(f - lo);
+        fr = fr < 0.0f ? 0.0f : (fr > 1.0f ? 1.0f : fr);
+        w[0] = 1.0f - fr;
+        w[1] = fr;
+        return 1.0f;
+    }
+    const double inv = 1.0 / R;
+    float sum = 0.0f;
+    for (int32_t i = lo; i <= hi; i++) {
+        float t = (float)((origin + i * h - c) * inv);
+        w[i - lo] = nc_fast_exp(-NC_PARTICLE_KERNEL_A * t * t);
+        sum += w[i - lo];
+    }
     return sum;
+}
+
+/* Layers [z0, z1) and rows [y0, y1) of brick b of a grid of res samples per axis. */
+static void splat_brick_box(uint32_t res, uint32_t nby, uint32_t b, uint32_t *z0, uint32_t *z1, uint32_t *y0,
+                            uint32_t *y1)
+{
+    *z0 = b / nby * SLAB_LAYERS, *z1 = *z0 + SLAB_LAYERS < res ? *z0 + SLAB_LAYERS : res;
+    *y0 = b % nby * BRICK_ROWS, *y1 = *y0 + BRICK_ROWS < res ? *y0 + BRICK_ROWS : res;
+}
+
+/* Brick b of `data` (res samples per axis) zeroed, then its particles (start, g->bins) added in
+ * index order. */
+static void splat_brick(const nc_particle_grid *g, float *data, uint32_t res, uint32_t nby, uint32_t b,
+                        const uint32_t *start)
+{
+    const size_t nx = res, nxy = (size_t)res * res;
+    uint32_t z0, z1, y0, y1;
+    splat_brick_box(res, nby, b, &z0, &z1, &y0, &y1);
+    for (uint32_t z = z0; z < z1; z++)
+        memset(data + z * nxy + y0 * nx, 0, (y1 - y0) * nx * sizeof(float));
+    for (uint32_t e = start[b]; e < start[b + 1]; e++) {
+        const uint32_t i = g->bins[e];
+        const int32_t *rg = g->range + 6 * (size_t)i;
+        const int32_t ld = lead(data, rg[0]), x0 = rg[0] - ld, xn = rg[1] - rg[0] + 1 + ld;
+        const int32_t px = (xn + 7) / 8 * 8;
+        const float *wx = g->weights + g->woff[i], *wy = wx + px, *wz = wy + (rg[3] - rg[2] + 1);
+        const float sc = g->scale[i];
+        const int32_t za = rg[4] > (int32_t)z0 ? rg[4] : (int32_t)z0;
+        const int32_t zb = rg[5] < (int32_t)z1 - 1 ? rg[5] : (int32_t)z1 - 1;
+        const int32_t ya = rg[2] > (int32_t)y0 ? rg[2] : (int32_t)y0;
+        const int32_t yb = rg[3] < (int32_t)y1 - 1 ? rg[3] : (int32_t)y1 - 1;
+        /* Whole vectors (the padding adds 0 to the cells around the range, in the same row)
+         * unless they would leave the row; then the range alone. */
+        const bool vec = x0 >= 0 && x0 + px <= (int32_t)res;
+        for (int32_t z = za; z <= zb; z++) {
+            const float fz = sc * wz[z - rg[4]];
+            for (int32_t y = ya; y <= yb; y++) {
+                const float fy = fz * wy[y - rg[2]];
+                float *restrict row = data + (size_t)z * nxy + (size_t)y * nx + (size_t)rg[0];
+                if (vec) {
+                    row -= ld;
+                    for (int32_t x = 0; x < px; x += 8)
+                        nc_v8_store(row + x, nc_v8_load(row + x) + fy * nc_v8_load(wx + x));
+                } else {
+                    for (int32_t x = 0; x < xn - ld; x++)
+                        row[x] += fy * wx[ld + x];
+                }
+            }
+        }
+    }
+}
+
+/* Add to fine layers [z0, z1), rows [y0, y1) the trilinear interpolation of the coarse level
+ * (sample I at fine sample 2I), whose samples outside the box cbox (first and last per axis,
+ * within c_lo .. c_hi) are 0: an even fine index takes its coarse sample, an odd one the mean
+ * of the two around it. */
+static void add_coarse(float *data, uint32_t res, const float *coarse, uint32_t rc, const int32_t cbox[6],
+                       uint32_t z0, uint32_t z1, uint32_t y0, uint32_t y1)
+{
+    const size_t nx = res, nxy = (size_t)res * res, cx = rc, cxy = (size_t)rc * rc;
+    /* Fine samples the coarse box reaches, per axis. */
+    const uint32_t fx0 = 2 * (uint32_t)cbox[0] - 1, fx1 = 2 * (uint32_t)cbox[1] + 1;
+    const uint32_t fy0 = 2 * (uint32_t)cbox[2] - 1, fy1 = 2 * (uint32_t)cbox[3] + 1;
+    const uint32_t fz0 = 2 * (uint32_t)cbox[4] - 1, fz1 = 2 * (uint32_t)cbox[5] + 1;
+    const uint32_t X0 = (uint32_t)cbox[0], X1 = (uint32_t)cbox[1];
+    float row[NACRE_PARTICLES_GRID_MAX / 2 + 2];
+    for (uint32_t z = z0 > fz0 ? z0 : fz0; z < z1 && z <= fz1; z++) {
+        /* Outside the box the coarse samples are 0: the layer or row there reads as 0. */
+        const float *pz0 = coarse + (size_t)(z / 2) * cxy, *pz1 = (z & 1) ? pz0 + cxy : pz0;
+        for (uint32_t y = y0 > fy0 ? y0 : fy0; y < y1 && y <= fy1; y++) {
+            const size_t o0 = (size_t)(y / 2) * cx, o1 = (y & 1) ? o0 + cx : o0;
+            for (uint32_t X = X0; X <= X1; X++)
+                row[X] = 0.25f * ((pz0[o0 + X] + pz0[o1 + X]) + (pz1[o0 + X] + pz1[o1 + X]));
+            row[X0 - 1] = row[X1 + 1] = 0.0f;
+            float *out = data + (size_t)z * nxy + (size_t)y * nx;
+            for (uint32_t x = fx0; x <= fx1; x++)
+                out[x] += (x & 1) ? 0.5f * (row[x / 2] + row[x / 2 + 1]) : row[x / 2];
+        }
+    }
 }
 
 nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, uint32_t res, nc_particle_grid *g)
@@ -124,108 +228,168 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     }
     const size_t cells = (size_t)res * res * res;
     const int threads = nc_threads(ctx) > 0 ? nc_threads(ctx) : 1;
-    const uint32_t SLAB = slab_layers(res, threads), slabs = (res + SLAB - 1) / SLAB;
-    nacre_result r = nc_memory_check(ctx, (uint64_t)cells * sizeof(float), "particle density grid (grid_resolution)");
+    /* The coarse level: sample I at fine sample 2I; its samples 2 .. (res - 4) / 2 spread (by
+     * their tents) over fine samples 3 .. res - 3 only, so the two outer layers stay empty. */
+    const uint32_t rc = (res - 1) / 2 + 1, c_lo = 2, c_hi = (res - 4) / 2;
+    const bool coarse_ok = !g->fine_only && c_hi >= c_lo + 4;
+    const uint32_t res_l[2] = {res, rc};
+    uint32_t nby[2], bricks[2];
+    for (int l = 0; l < 2; l++) {
+        nby[l] = (res_l[l] + BRICK_ROWS - 1) / BRICK_ROWS;
+        bricks[l] = (res_l[l] + SLAB_LAYERS - 1) / SLAB_LAYERS * nby[l];
+    }
+    const size_t ccells = (size_t)rc * rc * rc;
+    nacre_result r = nc_memory_check(ctx, (uint64_t)(cells + (coarse_ok ? ccells : 0)) * sizeof(float),
+                                     "particle density grid (grid_resolution)");
     if (r != NACRE_OK)
         return r;
     bool ok = ensure(ctx, (void **)&g->data, &g->capacity, cells, sizeof(float));
+    ok = ok && (!coarse_ok || ensure(ctx, (void **)&g->coarse, &g->coarse_capacity, ccells, sizeof(float)));
     ok = ok && ensure(ctx, (void **)&g->range, &g->range_capacity, 6 * (size_t)n, sizeof(int32_t));
     ok = ok && ensure(ctx, (void **)&g->scale, &g->scale_capacity, n, sizeof(float));
-    ok = ok && ensure(ctx, (void **)&g->bin_start, &g->bin_start_capacity, slabs + 1, sizeof(uint32_t));
-    ok = ok && ensure(ctx, (void **)&g->weights, &g->weight_capacity, (size_t)threads * 3 * res, sizeof(float));
+    ok = ok && ensure(ctx, (void **)&g->level, &g->level_capacity, n, sizeof(uint8_t));
+    ok = ok && ensure(ctx, (void **)&g->woff, &g->woff_capacity, (size_t)n + 1, sizeof(size_t));
+    ok = ok && ensure(ctx, (void **)&g->bin_start, &g->bin_start_capacity, (size_t)bricks[0] + bricks[1] + 2,
+                      sizeof(uint32_t));
     if (!ok)
         return NACRE_ERROR_OUT_OF_MEMORY;
+    float *const data_l[2] = {g->data, coarse_ok ? g->coarse : NULL};
+    const double hmax = fmax(fmax(g->spacing[0], g->spacing[1]), g->spacing[2]);
 
-    /* Per particle: its sample range and the factor that makes its samples sum to its mass. */
+    /* Per particle: its level, its sample range per axis there, and where its weights go: x
+     * padded with zeros to whole 8-lane vectors that start on the level's 32-byte boundaries
+     * (lead(x0) zeros first), then y, then z. */
+#ifdef _OPENMP
+#pragma omp parallel for schedule(static) num_threads(threads)
+#endif
+    for (uint32_t i = 0; i < n; i++) {
+        const double c[3] = {s->x[i], s->y[i], s->z[i]};
+        int32_t *rg = g->range + 6 * (size_t)i;
+        const int l = coarse_ok && s->radius[i] >= COARSE_RADIUS * hmax;
+        g->level[i] = (uint8_t)l;
+        for (int a = 0; a < 3; a++) {
+            axis_range(c[a], s->radius[i], g->origin[a], g->spacing[a] * (l ? 2.0 : 1.0), (int32_t)res_l[l],
+                       &rg[2 * a], &rg[2 * a + 1]);
+            if (l) {
+                rg[2 * a] = rg[2 * a] > (int32_t)c_lo ? rg[2 * a] : (int32_t)c_lo;
+                rg[2 * a + 1] = rg[2 * a + 1] < (int32_t)c_hi ? rg[2 * a + 1] : (int32_t)c_hi;
+            }
+        }
+        g->woff[i + 1] = (size_t)((lead(data_l[l], rg[0]) + rg[1] - rg[0] + 8) / 8 * 8) +
+                         (size_t)(rg[3] - rg[2] + 1) + (size_t)(rg[5] - rg[4] + 1);
+    }
+    g->woff[0] = 0;
+    /* The coarse samples in use (a box per axis), so that the coarse pass costs nothing when no
+     * particle is large and only its box otherwise. */
+    int32_t cbox[6] = {INT32_MAX, -1, INT32_MAX, -1, INT32_MAX, -1};
+    for (uint32_t i = 0; i < n; i++) {
+        g->woff[i + 1] += g->woff[i];
+        if (g->level[i]) {
+            const int32_t *rg = g->range + 6 * (size_t)i;
+            for (int a = 0; a < 3; a++) {
+                cbox[2 * a] = rg[2 * a] < cbox[2 * a] ? rg[2 * a] : cbox[2 * a];
+                cbox[2 * a + 1] = rg[2 * a + 1] > cbox[2 * a + 1] ? rg[2 * a + 1] : cbox[2 * a + 1];
+            }
+        }
+    }
+    const bool coarse_used = cbox[1] >= 0;
+    if ((r = nc_memory_check(ctx, (uint64_t)g->woff[n] * sizeof(float), "particle splat weights")) != NACRE_OK)
+        return r;
+    if (!ensure(ctx, (void **)&g->weights, &g->weight_capacity, g->woff[n], sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+
+    /* The weights, and the factor that makes a particle's samples sum to its mass: on the coarse
+     * level each sample spreads over the fine samples with weights summing to 2 per axis. */
     const double V = (double)g->spacing[0] * g->spacing[1] * g->spacing[2];
 #ifdef _OPENMP
 #pragma omp parallel for schedule(static) num_threads(threads)
 #endif
     for (uint32_t i = 0; i < n; i++) {
-        int tid = 0;
-#ifdef _OPENMP
-        tid = omp_get_thread_num();
-#endif
-        float *w = g->weights + (size_t)tid * 3 * res;
         const double c[3] = {s->x[i], s->y[i], s->z[i]};
-        int32_t *rg = g->range + 6 * (size_t)i;
-        double sum = 1.0;
-        for (int a = 0; a < 3; a++)
-            sum *= axis_weights(c[a], s->radius[i], g->origin[a], g->spacing[a], (int32_t)res, &rg[2 * a],
-                                &rg[2 * a + 1], w);
+        const int32_t *rg = g->range + 6 * (size_t)i;
+        const int l = g->level[i];
+        const double k = l ? 2.0 : 1.0;
+        float *w = g->weights + g->woff[i];
+        const int32_t nx = rg[1] - rg[0] + 1, ld = lead(data_l[l], rg[0]), px = (ld + nx + 7) / 8 * 8;
+        for (int32_t q = 0; q < ld; q++)
+            w[q] = 0.0f;
+        double sum = axis_weights(c[0], s->radius[i], g->origin[0], g->spacing[0] * k, (int32_t)res_l[l], rg[0], rg[1],
+                                  w + ld);
+        for (int32_t q = ld + nx; q < px; q++)
+            w[q] = 0.0f;
+        w += px;
+        sum *= axis_weights(c[1], s->radius[i], g->origin[1], g->spacing[1] * k, (int32_t)res_l[l], rg[2], rg[3], w);
+        w += rg[3] - rg[2] + 1;
+        sum *= axis_weights(c[2], s->radius[i], g->origin[2], g->spacing[2] * k, (int32_t)res_l[l], rg[4], rg[5], w);
         double kr = (double)NC_PARTICLE_KERNEL_K * s->radius[i];
         double mass = (double)s->density[i] * kr * kr * kr;
-        g->scale[i] = (float)(mass / (sum * V));
+        g->scale[i] = (float)(mass / (sum * V * k * k * k));
     }
 
-    /* Bin particles by z slab, in index order (counting sort). */
-    memset(g->bin_start, 0, (slabs + 1) * sizeof(uint32_t));
-    for (uint32_t i = 0; i < n; i++) {
-        const int32_t *rg = g->range + 6 * (size_t)i;
-        for (uint32_t b = (uint32_t)rg[4] / SLAB; b <= (uint32_t)rg[5] / SLAB; b++)
-            g->bin_start[b + 1]++;
-    }
-    for (uint32_t b = 0; b < slabs; b++)
-        g->bin_start[b + 1] += g->bin_start[b];
-    if (!ensure(ctx, (void **)&g->bins, &g->bin_capacity, g->bin_start[slabs] + 1, sizeof(uint32_t)))
-        return NACRE_ERROR_OUT_OF_MEMORY;
-    {
-        /* Fill with a running cursor per slab, kept in the slab's end slot then restored. */
+    /* Bin particles by brick of their level (SLAB_LAYERS z layers x BRICK_ROWS rows), in index
+     * order (counting sort): the fine bricks' lists first, then the coarse ones'. */
+    const uint32_t nb = bricks[0] + bricks[1];
+    uint32_t *start = g->bin_start;
+    memset(start, 0, ((size_t)nb + 1) * sizeof(uint32_t));
+    for (int pass = 0; pass < 2; pass++) {
         for (uint32_t i = 0; i < n; i++) {
             const int32_t *rg = g->range + 6 * (size_t)i;
-            for (uint32_t b = (uint32_t)rg[4] / SLAB; b <= (uint32_t)rg[5] / SLAB; b++)
-                g->bins[g->bin_start[b]++] = i;
+            const int l = g->level[i];
+            const uint32_t base = l ? bricks[0] : 0;
+            for (uint32_t bz = (uint32_t)rg[4] / SLAB_LAYERS; bz <= (uint32_t)rg[5] / SLAB_LAYERS; bz++)
+                for (uint32_t by = (uint32_t)rg[2] / BRICK_ROWS; by <= (uint32_t)rg[3] / BRICK_ROWS; by++) {
+                    const uint32_t b = base + bz * nby[l] + by;
+                    if (pass == 0)
+                        start[b + 1]++;
+                    else
+                        g->bins[start[b]++] = i;
+                }
         }
-        for (uint32_t b = slabs; b > 0; b--)
-            g->bin_start[b] = g->bin_start[b - 1];
-        g->bin_start[0] = 0;
+        if (pass == 0) {
+            for (uint32_t b = 0; b < nb; b++)
+                start[b + 1] += start[b];
+            if (!ensure(ctx, (void **)&g->bins, &g->bin_capacity, start[nb] + 1, sizeof(uint32_t)))
+                return NACRE_ERROR_OUT_OF_MEMORY;
+        }
     }
+    /* The second pass left each brick's start at the next brick's: shift back. */
+    for (uint32_t b = nb; b > 0; b--)
+        start[b] = start[b - 1];
+    start[0] = 0;
 
+    /* The coarse level first (its bricks zeroed, then their particles), then each fine brick:
+     * zeroed, its particles, the coarse level's trilinear values added, its maximum. */
+    if (coarse_used) {
+#ifdef _OPENMP
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
+#endif
+        for (uint32_t b = 0; b < bricks[1]; b++)
+            splat_brick(g, g->coarse, rc, nby[1], b, start + bricks[0]);
+    }
     const size_t nx = res, nxy = (size_t)res * res;
     float gmax = 0.0f;
 #ifdef _OPENMP
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads) reduction(max : gmax)
 #endif
-    for (uint32_t b = 0; b < slabs; b++) {
-        int tid = 0;
-#ifdef _OPENMP
-        tid = omp_get_thread_num();
-#endif
-        float *wx = g->weights + (size_t)tid * 3 * res, *wy = wx + res, *wz = wy + res;
-        const uint32_t z0 = b * SLAB, z1 = z0 + SLAB < res ? z0 + SLAB : res; /* [z0, z1) */
-        float *slab = g->data + z0 * nxy;
-        memset(slab, 0, (z1 - z0) * nxy * sizeof(float));
-        for (uint32_t e = g->bin_start[b]; e < g->bin_start[b + 1]; e++) {
-            const uint32_t i = g->bins[e];
-            const int32_t *rg = g->range + 6 * (size_t)i;
-            int32_t a0, a1;
-            axis_weights(s->x[i], s->radius[i], g->origin[0], g->spacing[0], (int32_t)res, &a0, &a1, wx);
-            axis_weights(s->y[i], s->radius[i], g->origin[1], g->spacing[1], (int32_t)res, &a0, &a1, wy);
-            axis_weights(s->z[i], s->radius[i], g->origin[2], g->spacing[2], (int32_t)res, &a0, &a1, wz);
-            const float sc = g->scale[i];
-            const int32_t za = rg[4] > (int32_t)z0 ? rg[4] : (int32_t)z0;
-            const int32_t zb = rg[5] < (int32_t)z1 - 1 ? rg[5] : (int32_t)z1 - 1;
-            const int32_t x0 = rg[0], xn = rg[1] - rg[0] + 1;
-            for (int32_t z = za; z <= zb; z++) {
-                const float fz = sc * wz[z - rg[4]];
-                for (int32_t y = rg[2]; y <= rg[3]; y++) {
-                    const float fy = fz * wy[y - rg[2]];
-                    float *restrict row = g->data + (size_t)z * nxy + (size_t)y * nx + (size_t)x0;
-                    for (int32_t x = 0; x < xn; x++)
-                        row[x] += fy * wx[x];
-                }
-            }
-        }
+    for (uint32_t b = 0; b < bricks[0]; b++) {
+        uint32_t z0, z1, y0, y1;
+        splat_brick_box(res, nby[0], b, &z0, &z1, &y0, &y1);
+        splat_brick(g, g->data, res, nby[0], b, start);
+        if (coarse_used)
+            add_coarse(g->data, res, g->coarse, rc, cbox, z0, z1, y0, y1);
         /* Eight running maxima in registers: one accumulator in memory (the reduction
          * variable) kept this scan scalar, and it cost most of a sparse splat. */
         float m8[8] = {0};
-        const size_t count = (z1 - z0) * nxy;
-        size_t c = 0;
-        for (; c + 8 <= count; c += 8)
-            for (int k = 0; k < 8; k++)
-                m8[k] = slab[c + k] > m8[k] ? slab[c + k] : m8[k];
-        for (; c < count; c++)
-            m8[0] = slab[c] > m8[0] ? slab[c] : m8[0];
+        for (uint32_t z = z0; z < z1; z++) {
+            const float *p = g->data + z * nxy + y0 * nx;
+            const size_t count = (y1 - y0) * nx;
+            size_t c = 0;
+            for (; c + 8 <= count; c += 8)
+                for (int k = 0; k < 8; k++)
+                    m8[k] = p[c + k] > m8[k] ? p[c + k] : m8[k];
+            for (; c < count; c++)
+                m8[0] = p[c] > m8[0] ? p[c] : m8[0];
+        }
         for (int k = 0; k < 8; k++)
             gmax = m8[k] > gmax ? m8[k] : gmax;
     }

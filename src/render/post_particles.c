@@ -41,16 +41,23 @@
 #include "particles/billboard.h"
 #include "particles/particles.h"
 #include "render/method.h"
+#include "core/simd.h"
 
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 
 #define BAND 8u
 #define VIEW_STEPS 16
 #define LIGHT_STEPS 8
 #define MAX_SUNS 8
 #define BUFFER_ROWS 180 /* rows of the particle buffers (see "Resolution") */
+#define TILE 8          /* billboards: tiles of TILE x TILE buffer pixels, one 8-lane vector wide */
+#define REC 16          /* floats per particle record of the billboard pass (one cache line) */
+#define LOOK 8          /* floats per pixel of the light march's lookup */
 
 typedef struct pp_system {
     float sigma_t[3], albedo[3], g;
@@ -63,6 +70,13 @@ typedef struct pp_state {
     int32_t *rect;    /* x0, x1, y0, y1 (inclusive), x0 > x1: not drawn */
     uint32_t *order, *sort_tmp; /* sprites: far to near, and the merge sort's scratch */
     float *lit;       /* sprites: 3 per particle */
+    float *rec;       /* billboards: REC per particle: centre, R^2, 4.5 / R^2, its column's tau_t[3],
+                       * tau_s[3], the column d0 K R, |centre|^2 */
+    size_t rec_cap;
+    float *look;      /* billboards: LOOK per rect pixel (pack_lookup) */
+    size_t look_cap;
+    float *crow;      /* composite: per thread, 6 rows of rw + 2 */
+    size_t crow_cap;
     uint32_t *bin_start, *bins;
     size_t bin_start_cap, bin_cap;
     float *acc;       /* 8 planes over the rect: tau_t[3], tau_s[3], near, far */
@@ -109,7 +123,8 @@ static void pp_destroy(nacre_context *ctx, void *state)
     if (!st)
         return;
     void *arrays[] = {st->cx, st->cy, st->cz, st->radius, st->column, st->dist, st->sys, st->rect, st->order, st->sort_tmp,
-                      st->lit, st->bin_start, st->bins, st->acc, st->tl, st->ray, st->X, st->Y};
+                      st->lit, st->bin_start, st->bins, st->acc, st->tl, st->ray, st->X, st->Y,
+                      st->rec, st->look, st->crow};
     for (size_t i = 0; i < sizeof(arrays) / sizeof(arrays[0]); i++)
         nc_free(ctx, arrays[i]);
     nc_free(ctx, st);
@@ -142,6 +157,7 @@ static nacre_result reserve_particles(nacre_context *ctx, pp_state *st, uint32_t
     ok = ok && nc_reserve(ctx, &st->sort_tmp, &c, n, sizeof(uint32_t));
     c = 0;
     ok = ok && nc_reserve(ctx, &st->lit, &c, 3 * (size_t)n, sizeof(float));
+    ok = ok && nc_reserve(ctx, &st->rec, &st->rec_cap, REC * (size_t)n, sizeof(float));
     st->cap = ok ? n : 0;
     return ok ? NACRE_OK : NACRE_ERROR_OUT_OF_MEMORY;
 }
@@ -196,6 +212,15 @@ static nacre_result gather(pp_state *st, const nc_post_input *in, pp_frame *fr)
             st->column[j] = set->density[k] * NC_PARTICLE_KERNEL_K * R;
             st->dist[j] = fr->ortho ? -c.z : sqrtf(c.x * c.x + c.y * c.y + c.z * c.z);
             st->sys[j] = (uint16_t)i;
+            float *q = st->rec + REC * (size_t)j;
+            q[0] = c.x, q[1] = c.y, q[2] = c.z, q[3] = R * R, q[4] = NC_PARTICLE_KERNEL_A / (R * R);
+            for (int ch = 0; ch < 3; ch++) {
+                q[5 + ch] = sy->sigma_t[ch] * st->column[j];
+                q[8 + ch] = sy->sigma_t[ch] * sy->albedo[ch] * st->column[j];
+            }
+            q[11] = st->column[j];
+            q[12] = c.x * c.x + c.y * c.y + c.z * c.z;
+            q[13] = q[14] = q[15] = 0.0f;
             int32_t *rc = st->rect + 4 * (size_t)j;
             rc[0] = 1, rc[1] = 0, rc[2] = 1, rc[3] = 0;
             if (!(st->column[j] > 0.0f) || (!fr->ortho && -c.z - R < 1e-4f * R))
@@ -231,7 +256,9 @@ static nacre_result gather(pp_state *st, const nc_post_input *in, pp_frame *fr)
         b0 = fminf(b0, st->cx[j] - R), b1 = fminf(b1, st->cy[j] - R), b2 = fminf(b2, st->cz[j] - R);
         e0 = fmaxf(e0, st->cx[j] + R), e1 = fmaxf(e1, st->cy[j] + R), e2 = fmaxf(e2, st->cz[j] + R);
     }
-    fr->rx0 = x0, fr->ry0 = y0, fr->rw = x1 - x0 + 1, fr->rh = y1 - y0 + 1;
+    /* The rect's width is a whole number of 8-pixel vectors; the columns past the buffer's
+     * edge hold no particle (their rects are clipped) and composite never reads them. */
+    fr->rx0 = x0, fr->ry0 = y0, fr->rw = (x1 - x0 + 1 + 7) / 8 * 8, fr->rh = y1 - y0 + 1;
     fr->bmin[0] = b0, fr->bmin[1] = b1, fr->bmin[2] = b2;
     fr->bmax[0] = e0, fr->bmax[1] = e1, fr->bmax[2] = e2;
     return NACRE_OK;
@@ -267,12 +294,12 @@ static nacre_result frame_setup(pp_state *st, const nc_post_input *in, pp_frame 
     fr->ax = Xv[1] - Xv[0], fr->bx = Xv[0];
     fr->ay = Yv[1] - Yv[0], fr->by = Yv[0];
     size_t cap = (size_t)(st->xy_cap > 0 ? st->xy_cap : 0), cap2 = cap;
-    int32_t m = fr->w > fr->h ? fr->w : fr->h;
+    int32_t m = (fr->w > fr->h ? fr->w : fr->h) + 8; /* + 8: the rect's padding */
     if (!nc_reserve(in->ctx, &st->X, &cap, (size_t)m, sizeof(float)) ||
         !nc_reserve(in->ctx, &st->Y, &cap2, (size_t)m, sizeof(float)))
         return NACRE_ERROR_OUT_OF_MEMORY;
     st->xy_cap = m;
-    for (int32_t x = 0; x < fr->w; x++)
+    for (int32_t x = 0; x < fr->w + 8; x++)
         st->X[x] = fr->ax * ((x + 0.5f) * (float)fr->F - 0.5f) + fr->bx;
     for (int32_t y = 0; y < fr->h; y++)
         st->Y[y] = fr->ay * ((y + 0.5f) * (float)fr->F - 0.5f) + fr->by;
@@ -293,27 +320,31 @@ static nacre_result frame_setup(pp_state *st, const nc_post_input *in, pp_frame 
     return NACRE_OK;
 }
 
-/* Rays of the rect's buffer pixels: origin, unit direction and the surface's distance (the
- * depth buffer read at the image pixel nearest the buffer pixel's centre). */
+/* Rays of the rect's buffer pixels, as 6 planes (so that 8 neighbours load as one vector):
+ * origin x, y (z is 0), unit direction and the surface's distance (the depth buffer read at the
+ * image pixel nearest the buffer pixel's centre). */
 static nacre_result make_rays(nacre_context *ctx, pp_state *st, const pp_frame *fr)
 {
-    if (!nc_reserve(ctx, &st->ray, &st->ray_cap, 6 * (size_t)fr->rw * (size_t)fr->rh, sizeof(float)))
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+    if (!nc_reserve(ctx, &st->ray, &st->ray_cap, 6 * plane, sizeof(float)))
         return NACRE_ERROR_OUT_OF_MEMORY;
+#pragma omp parallel for schedule(static) num_threads(ctx->threads)
     for (int32_t ry = 0; ry < fr->rh; ry++)
         for (int32_t rx = 0; rx < fr->rw; rx++) {
             int32_t x = rx + fr->rx0, y = ry + fr->ry0;
             int32_t xf = x * fr->F + fr->F / 2, yf = y * fr->F + fr->F / 2;
             xf = xf < fr->W ? xf : fr->W - 1, yf = yf < fr->H ? yf : fr->H - 1;
             float dep = fr->depth[(size_t)yf * (size_t)fr->W + (size_t)xf];
-            float *r = st->ray + 6 * ((size_t)ry * (size_t)fr->rw + (size_t)rx);
+            float *r = st->ray + (size_t)ry * (size_t)fr->rw + (size_t)rx;
             if (fr->ortho) {
-                r[0] = st->X[x], r[1] = st->Y[y], r[2] = 0.0f, r[3] = 0.0f, r[4] = -1.0f, r[5] = dep;
+                r[0] = st->X[x], r[plane] = st->Y[y], r[2 * plane] = 0.0f, r[3 * plane] = 0.0f;
+                r[4 * plane] = -1.0f, r[5 * plane] = dep;
                 continue;
             }
             float X = st->X[x], Y = st->Y[y], len = sqrtf(X * X + Y * Y + 1.0f), inv = 1.0f / len;
-            r[0] = r[1] = 0.0f;
-            r[2] = X * inv, r[3] = Y * inv, r[4] = -inv;
-            r[5] = dep * len; /* INFINITY stays */
+            r[0] = r[plane] = 0.0f;
+            r[2 * plane] = X * inv, r[3 * plane] = Y * inv, r[4 * plane] = -inv;
+            r[5 * plane] = dep * len; /* INFINITY stays */
         }
     return NACRE_OK;
 }
@@ -321,10 +352,11 @@ static nacre_result make_rays(nacre_context *ctx, pp_state *st, const pp_frame *
 /* Ray of rect pixel (rx, ry): origin o, unit direction d; returns the surface's distance. */
 static inline float pixel_ray(const pp_state *st, const pp_frame *fr, int32_t rx, int32_t ry, float o[3], float d[3])
 {
-    const float *r = st->ray + 6 * ((size_t)ry * (size_t)fr->rw + (size_t)rx);
-    o[0] = r[0], o[1] = r[1], o[2] = 0.0f;
-    d[0] = r[2], d[1] = r[3], d[2] = r[4];
-    return r[5];
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+    const float *r = st->ray + (size_t)ry * (size_t)fr->rw + (size_t)rx;
+    o[0] = r[0], o[1] = r[plane], o[2] = 0.0f;
+    d[0] = r[2 * plane], d[1] = r[3 * plane], d[2] = r[4 * plane];
+    return r[5 * plane];
 }
 
 /* Bin the particles (in the order of `order`, or index order) into bands of BAND rows. */
@@ -360,6 +392,44 @@ static nacre_result bin(nacre_context *ctx, pp_state *st, const pp_frame *fr, co
     return NACRE_OK;
 }
 
+/* Bin the particles, in index order, into tiles of TILE x TILE buffer pixels (rect coordinates,
+ * tile t = ty * ntx + tx), so that each pixel visits only the particles whose rect overlaps its
+ * tile. */
+static nacre_result bin_tiles(nacre_context *ctx, pp_state *st, const pp_frame *fr, uint32_t *ntx, uint32_t *nty)
+{
+    const uint32_t nx = (uint32_t)fr->rw / TILE, ny = ((uint32_t)fr->rh + TILE - 1) / TILE, nt = nx * ny;
+    *ntx = nx, *nty = ny;
+    if (!nc_reserve(ctx, &st->bin_start, &st->bin_start_cap, nt + 1, sizeof(uint32_t)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    memset(st->bin_start, 0, (nt + 1) * sizeof(uint32_t));
+    for (int pass = 0; pass < 2; pass++) {
+        for (uint32_t j = 0; j < st->count; j++) {
+            const int32_t *rc = st->rect + 4 * (size_t)j;
+            if (rc[0] > rc[1] || rc[2] > rc[3])
+                continue;
+            const uint32_t x0 = (uint32_t)(rc[0] - fr->rx0) / TILE, x1 = (uint32_t)(rc[1] - fr->rx0) / TILE;
+            const uint32_t y0 = (uint32_t)(rc[2] - fr->ry0) / TILE, y1 = (uint32_t)(rc[3] - fr->ry0) / TILE;
+            for (uint32_t ty = y0; ty <= y1; ty++)
+                for (uint32_t tx = x0; tx <= x1; tx++) {
+                    if (pass == 0)
+                        st->bin_start[ty * nx + tx + 1]++;
+                    else
+                        st->bins[st->bin_start[ty * nx + tx]++] = j;
+                }
+        }
+        if (pass == 0) {
+            for (uint32_t t = 0; t < nt; t++)
+                st->bin_start[t + 1] += st->bin_start[t];
+            if (!nc_reserve(ctx, &st->bins, &st->bin_cap, st->bin_start[nt] + 1, sizeof(uint32_t)))
+                return NACRE_ERROR_OUT_OF_MEMORY;
+        }
+    }
+    for (uint32_t t = nt; t > 0; t--)
+        st->bin_start[t] = st->bin_start[t - 1];
+    st->bin_start[0] = 0;
+    return NACRE_OK;
+}
+
 /* Rows y0..y1 (image rows) of band b, and those rows of `count` planes set to value[k]: both
  * passes start a band by clearing their own planes there. */
 static void band_start(const pp_frame *fr, uint32_t b, float *planes, int count, const float *value, int32_t *y0,
@@ -378,150 +448,271 @@ static void band_start(const pp_frame *fr, uint32_t b, float *planes, int count,
         }
 }
 
-/* Pass 1: per pixel of the rect, optical depths and the chord ends (planes of `acc`). */
-static void accumulate(pp_state *st, const pp_frame *fr, uint32_t bands, int threads)
+static inline nc_v8f v8_min(nc_v8f a, nc_v8f b) { return nc_v8_sel(a < b, a, b); }
+static inline nc_v8f v8_max(nc_v8f a, nc_v8f b) { return nc_v8_sel(a > b, a, b); }
+
+/* sqrt(x) for x >= 0 from the approximate reciprocal square root and one Newton step (relative
+ * error about 1e-6): a full-precision square root per lane cost as much as the exponential. */
+static inline nc_v8f v8_sqrt_fast(nc_v8f x)
+{
+#ifdef __AVX__
+    const nc_v8f y = (nc_v8f)_mm256_rsqrt_ps((__m256)x), xy = x * y;
+    return nc_v8_sel(x > 0.0f, xy * (1.5f - 0.5f * xy * y), nc_v8_splat(0.0f));
+#else
+    return nc_v8_sqrt(x);
+#endif
+}
+
+/* One row of 8 pixels of a tile against the tile's particles (index order). With one system
+ * (`one`), the sums of tau_t and tau_s are its coefficients times the sum of the columns, so a
+ * single sum is kept and scaled at the end. */
+static inline __attribute__((always_inline)) void accumulate_row(const pp_state *st, const pp_frame *fr, bool one,
+                                                                 bool persp, uint32_t e0, uint32_t e1, int32_t ry,
+                                                                 int32_t tx)
 {
     const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+    const size_t i = (size_t)ry * (size_t)fr->rw + (size_t)tx;
+    const int32_t y = ry + fr->ry0;
+    const nc_v8i lane = (nc_v8i){0, 1, 2, 3, 4, 5, 6, 7} + (tx + fr->rx0);
+    const nc_v8f ox = nc_v8_load(st->ray + i), oy = nc_v8_load(st->ray + plane + i);
+    const nc_v8f dx = nc_v8_load(st->ray + 2 * plane + i), dy = nc_v8_load(st->ray + 3 * plane + i);
+    const nc_v8f dz = nc_v8_load(st->ray + 4 * plane + i), ts = nc_v8_load(st->ray + 5 * plane + i);
+    const nc_v8f zero = nc_v8_splat(0.0f);
+    nc_v8f a0 = zero, a1 = zero, a2 = zero, s0 = zero, s1 = zero, s2 = zero;
+    nc_v8f nr = nc_v8_splat(INFINITY), fa = nc_v8_splat(-INFINITY);
+    for (uint32_t e = e0; e < e1; e++) {
+        const uint32_t j = st->bins[e];
+        const int32_t *rc = st->rect + 4 * (size_t)j;
+        if (y < rc[2] || y > rc[3])
+            continue;
+        const float *q = st->rec + REC * (size_t)j;
+        nc_v8f t, rho2;
+        if (persp) { /* rays from the eye: v = c, |v|^2 per particle */
+            t = q[0] * dx + q[1] * dy + q[2] * dz;
+            rho2 = q[12] - t * t;
+        } else {
+            const nc_v8f vx = q[0] - ox, vy = q[1] - oy, vz = nc_v8_splat(q[2]);
+            t = vx * dx + vy * dy + vz * dz;
+            rho2 = vx * vx + vy * vy + vz * vz - t * t;
+        }
+        nc_v8i m = (rho2 < q[3]) & (lane >= rc[0]) & (lane <= rc[1]);
+        if (!nc_v8_bits(m))
+            continue;
+        rho2 = v8_max(rho2, zero);
+        const nc_v8f h = v8_sqrt_fast(q[3] - rho2), lo = t - h;
+        m &= ~(lo > ts);
+        if (!nc_v8_bits(m))
+            continue;
+        const nc_v8f w = nc_v8_sel(m, nc_billboard_exp8(rho2 * -q[4]), zero);
+        if (one) {
+            a0 += q[11] * w;
+        } else {
+            a0 += q[5] * w, a1 += q[6] * w, a2 += q[7] * w;
+            s0 += q[8] * w, s1 += q[9] * w, s2 += q[10] * w;
+        }
+        nr = nc_v8_sel(m, v8_min(nr, lo), nr);
+        fa = nc_v8_sel(m, v8_max(fa, t + h), fa);
+    }
+    if (one) {
+        const pp_system *sy = &st->sys_table[0];
+        const nc_v8f col = a0;
+        a0 = sy->sigma_t[0] * col, a1 = sy->sigma_t[1] * col, a2 = sy->sigma_t[2] * col;
+        s0 = sy->sigma_t[0] * sy->albedo[0] * col, s1 = sy->sigma_t[1] * sy->albedo[1] * col;
+        s2 = sy->sigma_t[2] * sy->albedo[2] * col;
+    }
+    float *acc = st->acc + i;
+    nc_v8_store(acc, a0), nc_v8_store(acc + plane, a1), nc_v8_store(acc + 2 * plane, a2);
+    nc_v8_store(acc + 3 * plane, s0), nc_v8_store(acc + 4 * plane, s1), nc_v8_store(acc + 5 * plane, s2);
+    nc_v8_store(acc + 6 * plane, nr), nc_v8_store(acc + 7 * plane, fa);
+}
+
+/* Pass 1: per pixel of the rect, optical depths and the chord ends (planes of `acc`). A tile's
+ * rows run as 8-lane vectors, the sums held in registers over the tile's particles, which each
+ * pixel adds in index order (so the sums do not depend on the threads). The particle's rect
+ * masks the lanes as the scalar loop over it did. */
+static void accumulate(pp_state *st, const pp_frame *fr, uint32_t ntx, uint32_t nty, bool one, int threads)
+{
+    const int32_t tiles = (int32_t)(ntx * nty);
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
-    for (uint32_t b = 0; b < bands; b++) {
-        static const float cleared[8] = {0, 0, 0, 0, 0, 0, INFINITY, -INFINITY};
-        int32_t y0, y1;
-        band_start(fr, b, st->acc, 8, cleared, &y0, &y1);
-        for (uint32_t e = st->bin_start[b]; e < st->bin_start[b + 1]; e++) {
-            const uint32_t j = st->bins[e];
-            const int32_t *rc = st->rect + 4 * (size_t)j;
-            const pp_system *sy = &st->sys_table[st->sys[j]];
-            const int32_t ya = rc[2] > y0 ? rc[2] : y0, yb = rc[3] < y1 ? rc[3] : y1;
-            for (int32_t y = ya; y <= yb; y++) {
-                size_t ri = (size_t)(y - fr->ry0) * (size_t)fr->rw - (size_t)fr->rx0;
-                for (int32_t x = rc[0]; x <= rc[1]; x++) {
-                    float o[3], d[3], wgt, tm, hc;
-                    float ts = pixel_ray(st, fr, x - fr->rx0, y - fr->ry0, o, d);
-                    float v[3] = {st->cx[j] - o[0], st->cy[j] - o[1], st->cz[j] - o[2]};
-                    if (!nc_billboard_hit(v, d, st->radius[j], &wgt, &tm, &hc) || tm - hc > ts)
-                        continue;
-                    size_t i = ri + (size_t)x;
-                    float col = st->column[j] * wgt;
-                    for (int c = 0; c < 3; c++) {
-                        st->acc[c * plane + i] += sy->sigma_t[c] * col;
-                        st->acc[(3 + c) * plane + i] += sy->sigma_t[c] * sy->albedo[c] * col;
-                    }
-                    st->acc[6 * plane + i] = fminf(st->acc[6 * plane + i], tm - hc);
-                    st->acc[7 * plane + i] = fmaxf(st->acc[7 * plane + i], tm + hc);
-                }
-            }
+    for (int32_t tile = 0; tile < tiles; tile++) {
+        const int32_t tx = (tile % (int32_t)ntx) * TILE, ty = (tile / (int32_t)ntx) * TILE;
+        const int32_t ye = ty + TILE < fr->rh ? ty + TILE : fr->rh;
+        const uint32_t e0 = st->bin_start[tile], e1 = st->bin_start[tile + 1];
+        for (int32_t ry = ty; ry < ye; ry++) {
+            if (one && !fr->ortho)
+                accumulate_row(st, fr, true, true, e0, e1, ry, tx);
+            else if (one)
+                accumulate_row(st, fr, true, false, e0, e1, ry, tx);
+            else
+                accumulate_row(st, fr, false, !fr->ortho, e0, e1, ry, tx);
         }
     }
 }
 
-/* Reconstructed sigma_t (3) at view-space point p, read at the pixel p projects to. */
-static inline bool sigma_at(const pp_state *st, const pp_frame *fr, const float p[3], float sig[3])
+static inline nc_v8f v8_gather(const float *base, nc_v8i idx)
 {
-    float X, Y, t;
+#ifdef __AVX2__
+    return (nc_v8f)_mm256_i32gather_ps(base, (__m256i)idx, 4);
+#else
+    nc_v8f r;
+    for (int l = 0; l < 8; l++)
+        r[l] = base[idx[l]];
+    return r;
+#endif
+}
+
+/* Round to the nearest integer (ties to even, as lrintf). */
+static inline nc_v8i v8_rint(nc_v8f x)
+{
+#ifdef __AVX__
+    return (nc_v8i)_mm256_cvtps_epi32((__m256)x);
+#else
+    nc_v8i r;
+    for (int l = 0; l < 8; l++)
+        r[l] = (int32_t)lrintf(x[l]);
+    return r;
+#endif
+}
+
+/* Per rect pixel, what the light march reads, packed as one 32-byte record: near, 1 / (far -
+ * near) (0 where nothing was drawn) and tau_t[3]. */
+static void pack_lookup(pp_state *st, const pp_frame *fr, int threads)
+{
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+#pragma omp parallel for schedule(static) num_threads(threads)
+    for (int32_t ry = 0; ry < fr->rh; ry++)
+        for (int32_t rx = 0; rx < fr->rw; rx++) {
+            const size_t i = (size_t)ry * (size_t)fr->rw + (size_t)rx;
+            const float nr = st->acc[6 * plane + i], fa = st->acc[7 * plane + i];
+            float *p = st->look + LOOK * i;
+            p[0] = fa > nr ? nr : 0.0f;
+            p[1] = fa > nr ? 1.0f / (fa - nr) : 0.0f;
+            for (int c = 0; c < 3; c++)
+                p[2 + c] = st->acc[c * plane + i];
+            p[5] = p[6] = p[7] = 0.0f;
+        }
+}
+
+/* Reconstructed sigma_t (3) at 8 view-space points q, read at the pixel each projects to; 0
+ * outside the rect and the chords. */
+static inline void sigma_at8(const pp_state *st, const pp_frame *fr, const nc_v8f q[3], nc_v8f sig[3])
+{
+    const nc_v8f zero = nc_v8_splat(0.0f);
+    nc_v8f X, Y, t;
+    nc_v8i ok;
     if (fr->ortho) {
-        X = p[0], Y = p[1], t = -p[2];
+        X = q[0], Y = q[1], t = -q[2];
+        ok = q[2] == q[2];
     } else {
-        if (!(p[2] < 0.0f))
-            return false;
-        X = p[0] / -p[2], Y = p[1] / -p[2];
-        t = sqrtf(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]);
+        ok = q[2] < 0.0f;
+        const nc_v8f iz = -1.0f / nc_v8_sel(ok, q[2], nc_v8_splat(-1.0f));
+        X = q[0] * iz, Y = q[1] * iz;
+        t = nc_v8_sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
     }
-    const float F = (float)fr->F;
-    int32_t x = (int32_t)lrintf(((X - fr->bx) / fr->ax + 0.5f) / F - 0.5f) - fr->rx0;
-    int32_t y = (int32_t)lrintf(((Y - fr->by) / fr->ay + 0.5f) / F - 0.5f) - fr->ry0;
-    if (x < 0 || y < 0 || x >= fr->rw || y >= fr->rh)
-        return false;
-    const size_t plane = (size_t)fr->rw * (size_t)fr->rh, i = (size_t)y * (size_t)fr->rw + (size_t)x;
-    float nr = st->acc[6 * plane + i], fa = st->acc[7 * plane + i];
-    if (!(fa > nr))
-        return false;
-    float L = fa - nr, r = nc_billboard_remap((t - nr) / L, NC_BILLBOARD_REMAP_T) / L;
-    if (!(r > 0.0f))
-        return false;
+    const float F = (float)fr->F, kx = 1.0f / (fr->ax * F), ky = 1.0f / (fr->ay * F);
+    const float cx = (0.5f - fr->bx / fr->ax) / F - 0.5f, cy = (0.5f - fr->by / fr->ay) / F - 0.5f;
+    /* Clamped before rounding so that far points cannot overflow the conversion. */
+    const nc_v8f fx = v8_min(v8_max(X * kx + cx, nc_v8_splat(-1e6f)), nc_v8_splat(1e6f));
+    const nc_v8f fy = v8_min(v8_max(Y * ky + cy, nc_v8_splat(-1e6f)), nc_v8_splat(1e6f));
+    const nc_v8i x = v8_rint(fx) - fr->rx0, y = v8_rint(fy) - fr->ry0;
+    ok &= (x >= 0) & (y >= 0) & (x < fr->rw) & (y < fr->rh);
+    const nc_v8i idx = nc_v8i_sel(ok, (y * fr->rw + x) * LOOK, (nc_v8i){0});
+    const nc_v8f nr = v8_gather(st->look, idx), il = v8_gather(st->look + 1, idx);
+    const nc_v8f u = (t - nr) * il;
+    /* r(x) of particles/billboard.h, lane by lane. */
+    const nc_v8f yv = 1.0f - 2.0f * v8_max(u - 0.5f, 0.5f - u);
+    const nc_v8f r = v8_min(yv * (1.0f / NC_BILLBOARD_REMAP_T), nc_v8_splat(1.0f)) *
+                     (1.0f / (1.0f - 0.5f * NC_BILLBOARD_REMAP_T)) * il;
+    ok &= (u > 0.0f) & (u < 1.0f) & (il > 0.0f);
     for (int c = 0; c < 3; c++)
-        sig[c] = st->acc[c * plane + i] * r;
-    return true;
+        sig[c] = nc_v8_sel(ok, v8_gather(st->look + 2 + c, idx) * r, zero);
 }
 
-/* Length of the ray p + s dir (s >= 0) inside the particles' bounds. */
-static float bounds_exit(const pp_frame *fr, const float p[3], const float dir[3])
-{
-    float t1 = INFINITY;
-    for (int k = 0; k < 3; k++) {
-        if (dir[k] == 0.0f)
-            continue;
-        float ta = (fr->bmin[k] - p[k]) / dir[k], tb = (fr->bmax[k] - p[k]) / dir[k];
-        t1 = fminf(t1, fmaxf(ta, tb));
-    }
-    return isfinite(t1) && t1 > 0.0f ? t1 : 0.0f;
-}
-
-/* Pass 2: ray march each pixel of the rect through its reconstruction. */
+/* Pass 2: ray march each pixel of the rect through its reconstruction, 8 pixels of a row at a
+ * time (every lane takes the same steps; finished or empty lanes add nothing). */
 static void march(pp_state *st, const pp_frame *fr, const float g, int threads)
 {
     const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
 #pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
     for (int32_t ry = 0; ry < fr->rh; ry++) {
-        for (int32_t rx = 0; rx < fr->rw; rx++) {
+        for (int32_t rx = 0; rx < fr->rw; rx += 8) {
             const size_t i = (size_t)ry * (size_t)fr->rw + (size_t)rx;
-            for (int c = 0; c < 3; c++) {
-                st->tl[c * plane + i] = 1.0f;
-                st->tl[(3 + c) * plane + i] = 0.0f;
-            }
-            const float nr = st->acc[6 * plane + i], fa = st->acc[7 * plane + i];
-            if (!(fa > nr))
-                continue;
-            float o[3], d[3];
-            const float ts = pixel_ray(st, fr, rx, ry, o, d);
-            const float L = fa - nr, t1 = fminf(fa, ts);
-            if (!(t1 > nr))
-                continue;
-            float tau[3], alb[3], phase[MAX_SUNS];
-            for (int c = 0; c < 3; c++) {
-                tau[c] = st->acc[c * plane + i];
-                alb[c] = tau[c] > 0.0f ? st->acc[(3 + c) * plane + i] / tau[c] : 0.0f;
-            }
-            for (uint32_t l = 0; l < fr->suns; l++)
-                phase[l] = (float)nc_hg_phase(-(d[0] * fr->sun_dir[l][0] + d[1] * fr->sun_dir[l][1] +
-                                                d[2] * fr->sun_dir[l][2]), g);
-            const float dt = (t1 - nr) / VIEW_STEPS;
-            float T[3] = {1, 1, 1}, Ls[3] = {0, 0, 0}, front[3] = {0, 0, 0};
-            for (int k = 0; k < VIEW_STEPS; k++) {
-                const float t = nr + (k + 0.5f) * dt, rr = nc_billboard_remap((t - nr) / L, NC_BILLBOARD_REMAP_T) / L;
-                if (!(rr > 0.0f))
-                    continue;
-                const float p[3] = {o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]};
-                float S[3];
+            const nc_v8f zero = nc_v8_splat(0.0f), one = nc_v8_splat(1.0f);
+            const nc_v8f nr0 = nc_v8_load(st->acc + 6 * plane + i), fa = nc_v8_load(st->acc + 7 * plane + i);
+            const nc_v8f ts = nc_v8_load(st->ray + 5 * plane + i);
+            const nc_v8f t1_ = v8_min(fa, ts);
+            const nc_v8i act = (fa > nr0) & (t1_ > nr0);
+            nc_v8f T[3] = {one, one, one}, Ls[3] = {zero, zero, zero};
+            if (nc_v8_bits(act)) {
+                const nc_v8f nr = nc_v8_sel(act, nr0, zero), t1 = nc_v8_sel(act, t1_, zero);
+                const nc_v8f L = nc_v8_sel(act, fa - nr0, one);
+                const nc_v8f o[3] = {nc_v8_load(st->ray + i), nc_v8_load(st->ray + plane + i), zero};
+                const nc_v8f d[3] = {nc_v8_load(st->ray + 2 * plane + i), nc_v8_load(st->ray + 3 * plane + i),
+                                     nc_v8_load(st->ray + 4 * plane + i)};
+                nc_v8f tau[3], alb[3], phase[MAX_SUNS];
                 for (int c = 0; c < 3; c++) {
-                    /* Environment: the mean transmittance to the chord's two ends. */
-                    float tf = front[c] + 0.5f * tau[c] * rr * dt;
-                    S[c] = fr->env[c] * 0.5f * (nc_fast_exp(-tf) + nc_fast_exp(-fmaxf(tau[c] - tf, 0.0f)));
+                    tau[c] = nc_v8_sel(act, nc_v8_load(st->acc + c * plane + i), zero);
+                    const nc_v8f ts_c = nc_v8_load(st->acc + (3 + c) * plane + i);
+                    alb[c] = nc_v8_sel(tau[c] > 0.0f, ts_c / nc_v8_sel(tau[c] > 0.0f, tau[c], one), zero);
                 }
-                for (uint32_t l = 0; l < fr->suns; l++) {
-                    const float to[3] = {-fr->sun_dir[l][0], -fr->sun_dir[l][1], -fr->sun_dir[l][2]};
-                    const float len = bounds_exit(fr, p, to), ds = len / LIGHT_STEPS;
-                    float tl[3] = {0, 0, 0};
-                    for (int m = 0; m < LIGHT_STEPS && ds > 0.0f; m++) {
-                        const float q[3] = {p[0] + (m + 0.5f) * ds * to[0], p[1] + (m + 0.5f) * ds * to[1],
-                                            p[2] + (m + 0.5f) * ds * to[2]};
-                        float sig[3];
-                        if (sigma_at(st, fr, q, sig))
+                for (uint32_t l = 0; l < fr->suns; l++)
+                    for (int k = 0; k < 8; k++)
+                        phase[l][k] = (float)nc_hg_phase(-(d[0][k] * fr->sun_dir[l][0] + d[1][k] * fr->sun_dir[l][1] +
+                                                           d[2][k] * fr->sun_dir[l][2]), g);
+                const nc_v8f dt = (t1 - nr) * (1.0f / VIEW_STEPS), iL = 1.0f / L;
+                nc_v8f front[3] = {zero, zero, zero};
+                for (int k = 0; k < VIEW_STEPS; k++) {
+                    const nc_v8f t = nr + (k + 0.5f) * dt, u = (t - nr) * iL;
+                    const nc_v8f yv = 1.0f - 2.0f * v8_max(u - 0.5f, 0.5f - u);
+                    const nc_v8i live = act & (u > 0.0f) & (u < 1.0f);
+                    const nc_v8f rr = nc_v8_sel(live, v8_min(yv * (1.0f / NC_BILLBOARD_REMAP_T), one) *
+                                                          (1.0f / (1.0f - 0.5f * NC_BILLBOARD_REMAP_T)) * iL,
+                                                zero);
+                    if (!nc_v8_bits(rr > 0.0f))
+                        continue;
+                    const nc_v8f p[3] = {o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]};
+                    nc_v8f S[3];
+                    for (int c = 0; c < 3; c++) {
+                        /* Environment: the mean transmittance to the chord's two ends. */
+                        const nc_v8f tf = front[c] + 0.5f * tau[c] * rr * dt;
+                        S[c] = fr->env[c] * 0.5f * (nc_billboard_exp8(-tf) + nc_billboard_exp8(-v8_max(tau[c] - tf, zero)));
+                    }
+                    for (uint32_t l = 0; l < fr->suns; l++) {
+                        /* Length of p + s to (s >= 0) inside the particles' bounds. */
+                        const float to[3] = {-fr->sun_dir[l][0], -fr->sun_dir[l][1], -fr->sun_dir[l][2]};
+                        nc_v8f len = nc_v8_splat(INFINITY);
+                        for (int a = 0; a < 3; a++) {
+                            if (to[a] == 0.0f)
+                                continue;
+                            const float inv = 1.0f / to[a];
+                            const nc_v8f ta = (fr->bmin[a] - p[a]) * inv, tb = (fr->bmax[a] - p[a]) * inv;
+                            len = v8_min(len, v8_max(ta, tb));
+                        }
+                        len = nc_v8_sel((len > 0.0f) & (len < INFINITY), len, zero);
+                        const nc_v8f ds = len * (1.0f / LIGHT_STEPS);
+                        nc_v8f tl[3] = {zero, zero, zero};
+                        for (int m = 0; m < LIGHT_STEPS; m++) {
+                            const nc_v8f s = (m + 0.5f) * ds;
+                            const nc_v8f qp[3] = {p[0] + s * to[0], p[1] + s * to[1], p[2] + s * to[2]};
+                            nc_v8f sig[3];
+                            sigma_at8(st, fr, qp, sig);
                             for (int c = 0; c < 3; c++)
                                 tl[c] += sig[c] * ds;
+                        }
+                        for (int c = 0; c < 3; c++)
+                            S[c] += fr->sun_e[l][c] * phase[l] * nc_billboard_exp8(-tl[c]);
                     }
-                    for (int c = 0; c < 3; c++)
-                        S[c] += fr->sun_e[l][c] * phase[l] * nc_fast_exp(-tl[c]);
-                }
-                for (int c = 0; c < 3; c++) {
-                    const float st_c = tau[c] * rr, a = nc_fast_exp(-st_c * dt);
-                    Ls[c] += T[c] * (1.0f - a) * alb[c] * S[c];
-                    T[c] *= a;
-                    front[c] += st_c * dt;
+                    for (int c = 0; c < 3; c++) {
+                        const nc_v8f st_c = tau[c] * rr, a = nc_billboard_exp8(-st_c * dt);
+                        Ls[c] += T[c] * (1.0f - a) * alb[c] * S[c];
+                        T[c] *= a;
+                        front[c] += st_c * dt;
+                    }
                 }
             }
             for (int c = 0; c < 3; c++) {
-                st->tl[c * plane + i] = T[c];
-                st->tl[(3 + c) * plane + i] = Ls[c];
+                nc_v8_store(st->tl + c * plane + i, T[c]);
+                nc_v8_store(st->tl + (3 + c) * plane + i, Ls[c]);
             }
         }
     }
@@ -589,41 +780,55 @@ static void sprites(pp_state *st, const pp_frame *fr, uint32_t bands, int thread
     }
 }
 
-/* Each image pixel over the rect: c T + L, bilinear from the buffers (outside: T 1, L 0). */
-static void composite(const pp_state *st, const pp_frame *fr, nacre_image *image, int threads)
+/* Each image pixel over the rect: c T + L, bilinear from the buffers (outside: T 1, L 0).
+ * Separable: per image row, the 6 planes interpolated between their two buffer rows into a row
+ * of scratch (with one cleared column each side), then each pixel between two of its columns. */
+static void composite(pp_state *st, const pp_frame *fr, nacre_image *image, int threads)
 {
-    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh, cw = (size_t)fr->rw + 2;
     const int32_t F = fr->F;
     int32_t y0 = fr->ry0 * F - F, y1 = (fr->ry0 + fr->rh) * F + F, x0 = fr->rx0 * F - F, x1 = (fr->rx0 + fr->rw) * F + F;
     y0 = y0 > 0 ? y0 : 0, x0 = x0 > 0 ? x0 : 0;
     y1 = y1 < fr->H ? y1 : fr->H, x1 = x1 < fr->W ? x1 : fr->W;
-#pragma omp parallel for schedule(static) num_threads(threads)
-    for (int32_t y = y0; y < y1; y++) {
-        float *row = image->pixels + (size_t)y * image->stride;
-        float v = (y + 0.5f) / (float)F - 0.5f - (float)fr->ry0;
-        int32_t j0 = (int32_t)floorf(v);
-        float fy = v - (float)j0;
-        for (int32_t x = x0; x < x1; x++) {
-            float u = (x + 0.5f) / (float)F - 0.5f - (float)fr->rx0;
-            int32_t i0 = (int32_t)floorf(u);
-            float fx = u - (float)i0, T[3] = {0, 0, 0}, L[3] = {0, 0, 0};
-            for (int k = 0; k < 4; k++) {
-                int32_t i = i0 + (k & 1), j = j0 + (k >> 1);
-                float wgt = ((k & 1) ? fx : 1.0f - fx) * ((k >> 1) ? fy : 1.0f - fy);
-                if (i < 0 || j < 0 || i >= fr->rw || j >= fr->rh) {
-                    for (int c = 0; c < 3; c++)
-                        T[c] += wgt;
-                    continue;
-                }
-                size_t n = (size_t)j * (size_t)fr->rw + (size_t)i;
+#pragma omp parallel num_threads(threads)
+    {
+        int tid = 0;
+#ifdef _OPENMP
+        tid = omp_get_thread_num();
+#endif
+        float *V = st->crow + (size_t)tid * 6 * cw;
+        for (int k = 0; k < 6; k++)
+            V[k * cw] = V[k * cw + cw - 1] = k < 3 ? 1.0f : 0.0f;
+#pragma omp for schedule(static)
+        for (int32_t y = y0; y < y1; y++) {
+            float *row = image->pixels + (size_t)y * image->stride;
+            float v = (y + 0.5f) / (float)F - 0.5f - (float)fr->ry0;
+            int32_t j0 = (int32_t)floorf(v);
+            float fy = v - (float)j0;
+            for (int k = 0; k < 6; k++) {
+                const float clear = k < 3 ? 1.0f : 0.0f;
+                const float *p0 = j0 >= 0 && j0 < fr->rh ? st->tl + k * plane + (size_t)j0 * (size_t)fr->rw : NULL;
+                const float *p1 = j0 + 1 >= 0 && j0 + 1 < fr->rh ? st->tl + k * plane + (size_t)(j0 + 1) * (size_t)fr->rw
+                                                                 : NULL;
+                float *out = V + k * cw + 1;
+                for (int32_t i = 0; i < fr->rw; i++)
+                    out[i] = (1.0f - fy) * (p0 ? p0[i] : clear) + fy * (p1 ? p1[i] : clear);
+            }
+            for (int32_t x = x0; x < x1; x++) {
+                float u = (x + 0.5f) / (float)F - 0.5f - (float)fr->rx0;
+                int32_t i0 = (int32_t)floorf(u);
+                float fx = u - (float)i0;
+                if (i0 < -1 || i0 >= fr->rw)
+                    continue; /* both taps outside: T 1, L 0 */
+                /* Scratch column i0 + 1 is buffer column i0. */
+                const float *c0 = V + (size_t)(i0 + 1);
+                float *px = row + 3 * (size_t)x;
                 for (int c = 0; c < 3; c++) {
-                    T[c] += wgt * st->tl[c * plane + n];
-                    L[c] += wgt * st->tl[(3 + c) * plane + n];
+                    float T = (1.0f - fx) * c0[c * cw] + fx * c0[c * cw + 1];
+                    float L = (1.0f - fx) * c0[(3 + c) * cw] + fx * c0[(3 + c) * cw + 1];
+                    px[c] = px[c] * T + L;
                 }
             }
-            float *px = row + 3 * (size_t)x;
-            for (int c = 0; c < 3; c++)
-                px[c] = px[c] * T[c] + L[c];
         }
     }
 }
@@ -643,7 +848,7 @@ static nacre_result pp_apply(void *state, const nc_post_input *in, nacre_image *
     uint32_t bands = 0;
     if (fr.rw > 0 && fr.rh > 0) {
         size_t plane = (size_t)fr.rw * (size_t)fr.rh;
-        if ((r = nc_memory_check(in->ctx, 20 * plane * sizeof(float), "particle billboard buffers")) != NACRE_OK)
+        if ((r = nc_memory_check(in->ctx, 28 * plane * sizeof(float), "particle billboard buffers")) != NACRE_OK)
             return r;
         if (!nc_reserve(in->ctx, &st->tl, &st->tl_cap, 6 * plane, sizeof(float)))
             return NACRE_ERROR_OUT_OF_MEMORY;
@@ -673,11 +878,14 @@ static nacre_result pp_apply(void *state, const nc_post_input *in, nacre_image *
                 return r;
             sprites(st, &fr, bands, threads);
         } else {
-            if (!nc_reserve(in->ctx, &st->acc, &st->acc_cap, 8 * plane, sizeof(float)))
+            if (!nc_reserve(in->ctx, &st->acc, &st->acc_cap, 8 * plane, sizeof(float)) ||
+                !nc_reserve(in->ctx, &st->look, &st->look_cap, LOOK * plane, sizeof(float)))
                 return NACRE_ERROR_OUT_OF_MEMORY;
-            if ((r = bin(in->ctx, st, &fr, NULL, &bands)) != NACRE_OK)
+            uint32_t ntx, nty;
+            if ((r = bin_tiles(in->ctx, st, &fr, &ntx, &nty)) != NACRE_OK)
                 return r;
-            accumulate(st, &fr, bands, threads);
+            accumulate(st, &fr, ntx, nty, in->scene->particles_count == 1, threads);
+            pack_lookup(st, &fr, threads);
             /* One phase function: the scattering-weighted mean g of the systems. */
             double gs = 0.0, ws = 0.0;
             for (uint32_t i = 0; i < in->scene->particles_count; i++) {
@@ -689,6 +897,9 @@ static nacre_result pp_apply(void *state, const nc_post_input *in, nacre_image *
             }
             march(st, &fr, ws > 0 ? (float)(gs / ws) : 0.0f, threads);
         }
+        if (!nc_reserve(in->ctx, &st->crow, &st->crow_cap, (size_t)(threads > 0 ? threads : 1) * 6 * ((size_t)fr.rw + 2),
+                        sizeof(float)))
+            return NACRE_ERROR_OUT_OF_MEMORY;
         composite(st, &fr, image, threads);
     }
     stats->stage_us[NACRE_STAGE_PARTICLES] += nc_now_us() - t_start;
