@@ -583,12 +583,6 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
         for (int c = 0; c < 3; c++)
             nc_v8_store(out[c] + g, nc_v8_sel(valid, E[c] * k, zero));
     }
-    if (o->single) {
-        if (getenv("NACRE_SS_ONLY"))
-            for (int c = 0; c < 3; c++)
-                for (uint32_t i = 0; i < NC_SHADE_BATCH; i++)
-                    out[c][i] = getenv("NACRE_SS_ONLY")[0] == '1' ? 0.0f : out[c][i];
-        if (!getenv("NACRE_SS_ONLY") || getenv("NACRE_SS_ONLY")[0] == '1')
+    if (o->single)
         nc_diff_single_radiance(st, object, b, out);
-    }
 }

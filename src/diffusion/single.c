@@ -24,8 +24,8 @@
  * The view ray goes NC_SS_STEPS steps to an optical depth of NC_SS_TAU at the object's smallest
  * sigma_t; each step has the medium of its midpoint and is integrated in closed form as the
  * exponential through its two end values, len (f_a - f_b) / ln(f_a / f_b), as the layered
- * method's analytic march does (layered/march.c). A step whose midpoint is outside the solid
- * voxels more than a cell below the surface is empty (the ray has left the object).
+ * method's analytic march does (layered/march.c). A step whose midpoint is more than half a
+ * cell below the surface and outside the object (inside_at) is empty: the ray has left it.
  *
  * Units: world space, scene units; sigma per scene unit; the result is radiance.
  */
@@ -70,6 +70,30 @@ static inline size_t solid_cell(const nc_diff_object *o, const float g[3])
         return SIZE_MAX;
     const size_t i = x + (size_t)o->dims[0] * (y + (size_t)o->dims[1] * z);
     return o->solid[i] ? i : SIZE_MAX;
+}
+
+/* Whether grid point g is inside the object: the solid flags of the 8 cell centres around it,
+ * interpolated trilinearly, at least 1/2 (the level set between solid centres, which lie inside
+ * the mesh, and empty ones, outside: within a fraction of a cell of a smooth surface, where the
+ * cells' own staircase is up to a cell off). */
+static inline bool inside_at(const nc_diff_object *o, const float g[3])
+{
+    const float x = g[0] - 0.5f, y = g[1] - 0.5f, z = g[2] - 0.5f;
+    if (!(x > -1.0f && y > -1.0f && z > -1.0f && x < (float)o->dims[0] && y < (float)o->dims[1] &&
+          z < (float)o->dims[2]))
+        return false;
+    const int x0 = (int)floorf(x), y0 = (int)floorf(y), z0 = (int)floorf(z);
+    const float fx = x - (float)x0, fy = y - (float)y0, fz = z - (float)z0;
+    float sum = 0.0f;
+    for (int k = 0; k < 8; k++) {
+        const int cx = x0 + (k & 1), cy = y0 + ((k >> 1) & 1), cz = z0 + (k >> 2);
+        if (cx < 0 || cy < 0 || cz < 0 || cx >= (int)o->dims[0] || cy >= (int)o->dims[1] || cz >= (int)o->dims[2])
+            continue;
+        if (!o->solid[(size_t)cx + (size_t)o->dims[0] * ((size_t)cy + (size_t)o->dims[1] * (size_t)cz)])
+            continue;
+        sum += ((k & 1) ? fx : 1.0f - fx) * (((k >> 1) & 1) ? fy : 1.0f - fy) * ((k >> 2) ? fz : 1.0f - fz);
+    }
+    return sum >= 0.5f;
 }
 
 /* sigma_t of voxel i, channel c (sigma_sp is reduced: sigma_s = sigma_sp / (1 - g)). */
@@ -177,7 +201,7 @@ void nc_diff_single_radiance(const nc_diff_state *st, uint32_t object, const nc_
             const float g[3] = {(x[0] - o->origin[0]) * inv_h, (x[1] - o->origin[1]) * inv_h,
                                 (x[2] - o->origin[2]) * inv_h};
             const size_t cell = solid_cell(o, g);
-            inside[k] = cell != SIZE_MAX || t * cos_t < o->h;
+            inside[k] = t * cos_t < 0.5f * o->h || inside_at(o, g);
             if (exact) {
                 nc_v3store(nc_mat4_point(&to_rest, nc_v3a(x)), rest[k]);
             } else if (pattern) {
