@@ -22,7 +22,9 @@
  * and core's coefficients over its cell (layered_medium). For the layered method's multiple
  * scattering (nc_diff_state.multiple_only, issue 23 item 5) it also gives the part of the first
  * scattering's source that scatters again, by which the sources are scaled after injection, so
- * that the solution is the light of scattering orders 2 and up (the march gives order 1).
+ * that the solution is the light of scattering orders 2 and up (the march gives order 1). The
+ * diffusion method's single-scattering option (settings.diffusion.single_scattering, single.c)
+ * does the same for any translucent material, its first order marched per pixel.
  *
  * Units: world space, scene units (pipeline.h). Timings go to the VOXELIZE, MEDIUM (coefficients
  * per voxel), TSM, INJECT and PROPAGATE (solver setup and solves, exitance) stages; each counts
@@ -444,7 +446,9 @@ static float second_order(float tau, float k, const float fin[SECOND_MU])
  * the multiply scattered light is S alpha' (1 - escape(tau)) (the second event placed at the
  * first), and ms_keep holds that factor per cell and channel, tau the optical depth of the
  * straight path to the surface through the layers at the point's uv (mean over the subsamples
- * near the surface, the centre deeper down). `to_rest`: the linear map of world offsets into
+ * near the surface, the centre deeper down). For the diffusion method's own single scattering
+ * (o->single, single.c) the factor is alpha' M(tau) / M_inf instead (second_order): the second
+ * event's depth weighted by the diffusion's response there. `to_rest`: the linear map of world offsets into
  * rest space (NULL for deformed objects: the centre only, the rest map being known there). */
 static nacre_result layered_medium(nc_diff_object *o, const nacre_scene *s, const nc_object_rec *obj,
                                     const nacre_material_desc *m, size_t n, const nc_mat4 *to_rest, float *keep)

@@ -37,8 +37,10 @@
 #include <math.h>
 #include <string.h>
 
-/* Steps along the view ray, and its length in optical depths of the smallest sigma_t. */
-#define NC_SS_STEPS 16
+/* Steps along the view ray, and its length in optical depths of the smallest sigma_t: on issue
+ * 28's checker cube and sphere, 8 steps give the images of 16 within 0.25% in total and 2% at
+ * the 90th percentile of the per-pixel difference, at half the cost. */
+#define NC_SS_STEPS 8
 #define NC_SS_TAU 6.0f
 /* Steps of the light's path through a heterogeneous medium. */
 #define NC_SS_LIGHT_STEPS 4
