@@ -191,8 +191,8 @@ static void check_metrics(nacre_context *ctx)
  * being the covariance of two path-traced references of independent seeds (their noise is
  * independent): contrast sqrt(var(d) / cov(p1, p2)), correlation cov(d, p1) / sqrt(var(d)
  * cov(p1, p2)). Over the whole object at this size (edges included, 2x2 blocks) the measure reads
- * higher than docs/accuracy.md's per-face one (0.52-0.57 without the term, 0.94-1.07 with it, at
- * 128^2): 0.60 without the term and 1.17 with it here (the estimate of cov(p1, p2) at 48 spp is
+ * higher than docs/accuracy.md's per-face one (0.52-0.57 without the term, 0.92-1.03 with it, at
+ * 128^2): 0.60 without the term and 1.16 with it here (the estimate of cov(p1, p2) at 48 spp is
  * noisy, and scales both alike). CONTRAST_MIN lies between: the check fails without the term.
  * The means and the darkest quarter are held to the default's bounds. */
 #define CONTRAST_MIN 0.85
