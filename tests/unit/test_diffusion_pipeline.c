@@ -1036,7 +1036,7 @@ static void test_single_scattering(void)
             const double want = k_out * t_in * E[c] * md.sigma_s[c] * p / (st_c * (1.0 + mu_t));
             printf("single scattering at %.0f deg, channel %d: %.6f, closed form %.6f\n", (double)angles[i], c,
                    (double)out[c][i], want);
-            CHECK(fabs(out[c][i] / want - 1.0) < 0.01);
+            CHECK(fabs(out[c][i] / want - 1.0) < 2e-3);
         }
     }
     nc_diff_object_free(&o);
