@@ -858,6 +858,17 @@ static void test_bad_settings(void)
             CHECK(res == NACRE_ERROR_UNSUPPORTED);
         }
     }
+    /* Single scattering needs the volume sources (the factor of orders >= 2 is theirs). */
+    {
+        nacre_render_settings rs = diffusion_settings(16, 16);
+        rs.diffusion.single_scattering = true;
+        rs.diffusion.source = NACRE_SOURCE_FACE;
+        nacre_image img = {0};
+        nacre_result res = nacre_render(f.scene, &rs, &img, NULL);
+        CHECK(img.pixels == NULL && res == NACRE_ERROR_UNSUPPORTED);
+        if (avail)
+            CHECK(strstr(nacre_context_last_error(f.ctx), "single_scattering") != NULL);
+    }
     /* The phong method ignores the diffusion settings. */
     nacre_render_settings rs = diffusion_settings(0, 16);
     rs.method = NACRE_METHOD_PHONG;
