@@ -22,6 +22,9 @@
  *     point, so it cannot shadow itself there (its own occlusion is the traversal's depth test);
  *     another object intersecting the box does not shadow the part inside the box.
  * The map is produced and consumed in bands of rows, so memory stays bounded at 8192^2 texels.
+ * For the single-scattering option (o->single) each view also keeps, whole, what single.c needs
+ * of its texels (nc_diff_lmap: the entry's distance along the texel's ray, the transmitted part
+ * per unit strength, the entry normal), 20 bytes a texel (a 32^3 grid: maps of ~200^2 texels).
  *
  * Injection (seed 4.4): each hit texel adds its flux to the per-cell source (W per cell) in one
  * of two ways (settings->diffusion.source):
@@ -1009,8 +1012,7 @@ static void inject_volume(const nc_diff_object *o, int64_t *acc, bool atomic, do
 /* Upper bound of the power one view can deliver: strength x (map area or tangent-plane area,
  * which bounds the solid angle). */
 /* The maps kept for single scattering (nc_diff_lmap): one per view, its texels allocated. */
-static nacre_result lmaps_reserve(nc_diff_object *o, const nc_shade_light *lights, uint32_t nl,
-                                  tsm_view views[][6], const int *nviews)
+static nacre_result lmaps_reserve(nc_diff_object *o, uint32_t nl, tsm_view views[][6], const int *nviews)
 {
     uint32_t count = 0;
     for (uint32_t li = 0; li < nl; li++)
@@ -1023,7 +1025,6 @@ static nacre_result lmaps_reserve(nc_diff_object *o, const nc_shade_light *light
         o->lmap = m;
         o->lmap_capacity = count;
     }
-    (void)lights;
     uint32_t k = 0;
     for (uint32_t li = 0; li < nl; li++)
         for (int vi = 0; vi < nviews[li]; vi++, k++) {
@@ -1053,14 +1054,13 @@ static nacre_result lmaps_reserve(nc_diff_object *o, const nc_shade_light *light
 /* Rows [j0, j1) of map m from the band's texels (render_band or raster_band): the entry's
  * distance along the texel's ray, the weight per unit of the texel's area or solid angle, the
  * normal (the mesh's, or the staircase face's). */
-static void lmap_band(const nc_diff_object *o, const tsm_view *w, nc_diff_lmap *m, int32_t j0, int32_t j1,
-                      const nc_tsm_band *b, bool use_mesh, int threads)
+static void lmap_band(const tsm_view *w, nc_diff_lmap *m, int32_t j0, int32_t j1, const nc_tsm_band *b,
+                      bool use_mesh, int threads)
 {
     const int32_t size = w->size;
     const float da = (w->a1 - w->a0) / (float)size, db = (w->b1 - w->b0) / (float)size;
     const int64_t count = (int64_t)(j1 - j0) * size;
     float *out = m->texel + (size_t)j0 * (size_t)size * NC_DIFF_LMAP_FLOATS;
-    (void)o;
 #pragma omp parallel for schedule(static) num_threads(threads) if (count > 16384)
     for (int64_t t = 0; t < count; t++) {
         float *e = out + (size_t)t * NC_DIFF_LMAP_FLOATS;
@@ -1240,7 +1240,7 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
         if (!band->vproj)
             return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
     }
-    if (o->single && (res = lmaps_reserve(o, lights, nl, views, nviews)) != NACRE_OK)
+    if (o->single && (res = lmaps_reserve(o, nl, views, nviews)) != NACRE_OK)
         return res;
     const double scale = ldexp(1.0, 61) / bound, inv_scale = 1.0 / scale;
     /* Deposits only go to solid cells, so the accumulators are used, cleared and read only in
@@ -1313,7 +1313,7 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
                 else
                     render_band(o, w, &tl, shadowed, j0, j1, band, use_mesh, threads);
                 if (lm)
-                    lmap_band(o, w, lm, j0, j1, band, use_mesh, threads);
+                    lmap_band(w, lm, j0, j1, band, use_mesh, threads);
                 uint64_t t1 = nc_now_us();
                 *tsm_us += t1 - t0;
                 const int64_t count = (int64_t)(j1 - j0) * size;
