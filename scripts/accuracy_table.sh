@@ -6,8 +6,10 @@
 # ground, so that the lit pixels are the translucent objects alone.
 #
 #   scripts/accuracy_table.sh [--nacre PATH] [--size WxH] [--ref-seconds S] [--res "16 32 64 128"]
-#                             [--out DIR] [--reuse-ref] [SCENE.json ...]
+#                             [--out DIR] [--reuse-ref] [--args "ARGS"] [SCENE.json ...]
 #
+# --args passes more options to the diffusion renders (e.g. "--single-scattering on"); their
+# images are then named diffusion<res><tag>.exr, tag the options without spaces and dashes.
 # --reuse-ref keeps a reference already in DIR (same scene and size: compare before/after a change
 # against one reference).
 #
@@ -21,6 +23,7 @@ ref_seconds=60
 res="16 32 64 128"
 out=${TMPDIR:-/tmp}/nacre-accuracy
 reuse=0
+extra=""
 scenes=()
 while [ $# -gt 0 ]; do
     case "$1" in
@@ -30,7 +33,8 @@ while [ $# -gt 0 ]; do
         --res) res=$2; shift 2 ;;
         --out) out=$2; shift 2 ;;
         --reuse-ref) reuse=1; shift ;;
-        -h|--help) sed -n 2,16p "$0"; exit 0 ;;
+        --args) extra=$2; shift 2 ;;
+        -h|--help) sed -n 2,19p "$0"; exit 0 ;;
         -*) echo "accuracy_table: unknown option $1" >&2; exit 2 ;;
         *) scenes+=("$1"); shift ;;
     esac
@@ -70,8 +74,10 @@ EOF
             --exr-float -o "$ref" >/dev/null
     fi
     for r in $res; do
-        img="$out/$name.diffusion$r.exr"
-        "$nacre" render "$variant" --method diffusion --size "$size" --voxel-res "$r" --exr-float -o "$img" >/dev/null
+        tag=$(echo "$extra" | tr -d ' -')
+        img="$out/$name.diffusion$r$tag.exr"
+        # shellcheck disable=SC2086
+        "$nacre" render "$variant" --method diffusion --size "$size" --voxel-res "$r" $extra --exr-float -o "$img" >/dev/null
         "$nacre" compare "$img" "$ref" --json | python3 -c '
 import json, sys
 m = json.load(sys.stdin)

@@ -89,6 +89,8 @@ typedef struct nacre_diffusion_settings {
     nacre_diffusion_source source;   /* default VOLUME */
     float tolerance;                 /* MULTIGRID: relative residual, default 1e-4 */
     uint32_t seed_iterations;        /* SEED: Jacobi sweeps per level, 0 = the seed's table 5.6 count */
+    bool single_scattering;          /* light scattered once marched per pixel, the solution from the
+                                        sources of orders >= 2 (volume sources only), default false */
 } nacre_diffusion_settings;
 
 /* How the layered method integrates single scattering along each refracted view ray. */

@@ -27,6 +27,22 @@
 
 enum { NC_FACE_ZN = 0, NC_FACE_ZP, NC_FACE_XN, NC_FACE_XP, NC_FACE_YN, NC_FACE_YP };
 
+/* The light's entry into an object as one view of its translucent shadow map saw it, kept for
+ * the single-scattering term (single.c): per texel NC_DIFF_LMAP_FLOATS floats, the distance along
+ * the texel's ray to where it enters the object (grid units; INFINITY: no light enters there), the
+ * part of the light's strength that enters per unit irradiance (Fresnel transmittance, spot
+ * profile and other objects' shadow) and the unit surface normal there (facing the light). */
+#define NC_DIFF_LMAP_FLOATS 5
+typedef struct nc_diff_lmap {
+    uint32_t light;                  /* index into the frame's lights */
+    bool ortho;
+    float origin[3], f[3], r[3], u[3]; /* tsm.c's view, grid units (ortho) or tangents (perspective) */
+    float a0, a1, b0, b1;
+    int32_t size;
+    float *texel;                    /* size^2 x NC_DIFF_LMAP_FLOATS */
+    size_t capacity;                 /* texels allocated */
+} nc_diff_lmap;
+
 /* The state of one translucent object, kept by the renderer across frames. Arrays hold
  * `cells` floats (or 3 * cells for xyz triples) and are reused while the grid does not grow. */
 typedef struct nc_diff_object {
@@ -96,6 +112,12 @@ typedef struct nc_diff_object {
     uint64_t key_uid, key_geometry, key_materials, key_lights;
     uint32_t key_res;
     nacre_render_settings key_settings;
+    /* Single scattering (single.c): when `single`, the maps of the last injection (lmap_count
+     * views of up to 64 lights x 6), the sources reduced to orders >= 2 (multiple_only) */
+    bool single;
+    nc_diff_lmap *lmap;
+    uint32_t lmap_count, lmap_capacity;
+    float sigma_t_min;               /* smallest sigma_a + sigma_s over the object's voxels */
     /* Report of the last frame */
     double tsm_flux[3];              /* W: sum over texels of the flux transmitted into the object */
     double injected[3];              /* W: sum of the sources */
@@ -140,6 +162,11 @@ typedef struct nc_diff_state {
      * from their layers and core, and the sources are those of light scattered twice or more
      * (pipeline.c, multiple_medium). Volume sources only. */
     bool multiple_only;
+    /* The frame the shading pass reads for the single-scattering term (single.c) */
+    const nacre_scene *scene;
+    const nc_shade_light *lights;
+    uint32_t light_count;
+    uint32_t ss_steps;               /* steps along each view ray */
 } nc_diff_state;
 
 nacre_result nc_diff_state_create(nacre_context *ctx, nc_diff_state **out);
@@ -191,6 +218,18 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
                                    bool others_cast, const nacre_render_settings *settings,
                                    uint64_t *tsm_us, uint64_t *inject_us);
 void nc_tsm_band_free(nacre_context *ctx, nc_tsm_band *band);
+/* The light of map m at grid point x: false if none enters towards x; else the distance from
+ * the entry point to x (grid units, >= 0), the map's transmitted part and the entry normal,
+ * interpolated bilinearly over the texels that have an entry, and the unit direction the
+ * light travels at x (dir). */
+bool nc_diff_lmap_lookup(const nc_diff_lmap *m, const float x[3], float *dist, float *trans, float n[3], float dir[3]);
+
+/* ---- Single scattering (single.c) ---- */
+
+/* Add to out[c][i] the radiance of light scattered once below each pixel of the batch
+ * (object `object` of the frame st->scene, with o->single). */
+void nc_diff_single_radiance(const nc_diff_state *st, uint32_t object, const nc_shade_batch *batch,
+                             float out[3][NC_SHADE_BATCH]);
 
 /* ---- Exitance and shading (shade_diffusion.c) ---- */
 

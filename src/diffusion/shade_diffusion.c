@@ -583,4 +583,6 @@ void nc_diff_subsurface_radiance(const void *user, uint32_t object, const nc_sha
         for (int c = 0; c < 3; c++)
             nc_v8_store(out[c] + g, nc_v8_sel(valid, E[c] * k, zero));
     }
+    if (o->single)
+        nc_diff_single_radiance(st, object, b, out);
 }

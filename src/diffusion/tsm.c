@@ -22,6 +22,9 @@
  *     point, so it cannot shadow itself there (its own occlusion is the traversal's depth test);
  *     another object intersecting the box does not shadow the part inside the box.
  * The map is produced and consumed in bands of rows, so memory stays bounded at 8192^2 texels.
+ * For the single-scattering option (o->single) each view also keeps, whole, what single.c needs
+ * of its texels (nc_diff_lmap: the entry's distance along the texel's ray, the transmitted part
+ * per unit strength, the entry normal), 20 bytes a texel (a 32^3 grid: maps of ~200^2 texels).
  *
  * Injection (seed 4.4): each hit texel adds its flux to the per-cell source (W per cell) in one
  * of two ways (settings->diffusion.source):
@@ -1008,6 +1011,133 @@ static void inject_volume(const nc_diff_object *o, int64_t *acc, bool atomic, do
 
 /* Upper bound of the power one view can deliver: strength x (map area or tangent-plane area,
  * which bounds the solid angle). */
+/* The maps kept for single scattering (nc_diff_lmap): one per view, its texels allocated. */
+static nacre_result lmaps_reserve(nc_diff_object *o, uint32_t nl, tsm_view views[][6], const int *nviews)
+{
+    uint32_t count = 0;
+    for (uint32_t li = 0; li < nl; li++)
+        count += (uint32_t)nviews[li];
+    if (count > o->lmap_capacity) {
+        nc_diff_lmap *m = nc_realloc(o->ctx, o->lmap, o->lmap_capacity * sizeof(*m), count * sizeof(*m));
+        if (!m)
+            return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the light maps");
+        memset(m + o->lmap_capacity, 0, (count - o->lmap_capacity) * sizeof(*m));
+        o->lmap = m;
+        o->lmap_capacity = count;
+    }
+    uint32_t k = 0;
+    for (uint32_t li = 0; li < nl; li++)
+        for (int vi = 0; vi < nviews[li]; vi++, k++) {
+            const tsm_view *w = &views[li][vi];
+            nc_diff_lmap *m = &o->lmap[k];
+            const size_t texels = (size_t)w->size * (size_t)w->size;
+            if (texels > m->capacity) {
+                nc_free(o->ctx, m->texel);
+                m->capacity = 0;
+                if (!(m->texel = nc_alloc(o->ctx, texels * NC_DIFF_LMAP_FLOATS * sizeof(float))))
+                    return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the light maps");
+                m->capacity = texels;
+            }
+            m->light = li;
+            m->ortho = w->ortho;
+            nc_v3store(w->origin, m->origin);
+            nc_v3store(w->f, m->f);
+            nc_v3store(w->r, m->r);
+            nc_v3store(w->u, m->u);
+            m->a0 = w->a0, m->a1 = w->a1, m->b0 = w->b0, m->b1 = w->b1;
+            m->size = w->size;
+        }
+    o->lmap_count = count;
+    return NACRE_OK;
+}
+
+/* Rows [j0, j1) of map m from the band's texels (render_band or raster_band): the entry's
+ * distance along the texel's ray, the weight per unit of the texel's area or solid angle, the
+ * normal (the mesh's, or the staircase face's). */
+static void lmap_band(const tsm_view *w, nc_diff_lmap *m, int32_t j0, int32_t j1, const nc_tsm_band *b,
+                      bool use_mesh, int threads)
+{
+    const int32_t size = w->size;
+    const float da = (w->a1 - w->a0) / (float)size, db = (w->b1 - w->b0) / (float)size;
+    const int64_t count = (int64_t)(j1 - j0) * size;
+    float *out = m->texel + (size_t)j0 * (size_t)size * NC_DIFF_LMAP_FLOATS;
+#pragma omp parallel for schedule(static) num_threads(threads) if (count > 16384)
+    for (int64_t t = 0; t < count; t++) {
+        float *e = out + (size_t)t * NC_DIFF_LMAP_FLOATS;
+        e[0] = INFINITY;
+        e[1] = e[2] = e[3] = e[4] = 0.0f;
+        if (b->cell[t] == UINT32_MAX || !(b->weight[t] > 0.0f))
+            continue;
+        int32_t j = j0 + (int32_t)(t / size), i = (int32_t)(t % size);
+        float a = w->a0 + ((float)i + 0.5f) * da, bb = w->b0 + ((float)j + 0.5f) * db;
+        nc_vec3 org, dir;
+        texel_ray(w, a, bb, &org, &dir);
+        nc_vec3 p = nc_v3a(b->pos + 3 * t);
+        float geom = w->ortho ? w->ortho_area : da * db / powf(1.0f + a * a + bb * bb, 1.5f);
+        e[0] = nc_dot(nc_sub(p, org), dir);
+        e[1] = b->weight[t] / geom;
+        if (use_mesh) {
+            e[2] = b->mesh_n[3 * t], e[3] = b->mesh_n[3 * t + 1], e[4] = b->mesh_n[3 * t + 2];
+        } else {
+            const uint8_t face = b->face[t];
+            const int axis = face / 2 == 0 ? 2 : (face / 2 == 1 ? 0 : 1);
+            e[2 + axis] = (face & 1) ? 1.0f : -1.0f;
+        }
+    }
+}
+
+bool nc_diff_lmap_lookup(const nc_diff_lmap *m, const float x[3], float *dist, float *trans, float n[3], float dir[3])
+{
+    float a, bb, along;
+    const float q[3] = {x[0] - m->origin[0], x[1] - m->origin[1], x[2] - m->origin[2]};
+    const float z = q[0] * m->f[0] + q[1] * m->f[1] + q[2] * m->f[2];
+    if (m->ortho) {
+        a = x[0] * m->r[0] + x[1] * m->r[1] + x[2] * m->r[2];
+        bb = x[0] * m->u[0] + x[1] * m->u[1] + x[2] * m->u[2];
+        along = z;
+        for (int k = 0; k < 3; k++)
+            dir[k] = m->f[k];
+    } else {
+        if (!(z > 0.0f))
+            return false;
+        a = (q[0] * m->r[0] + q[1] * m->r[1] + q[2] * m->r[2]) / z;
+        bb = (q[0] * m->u[0] + q[1] * m->u[1] + q[2] * m->u[2]) / z;
+        along = sqrtf(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+        for (int k = 0; k < 3; k++)
+            dir[k] = along > 0.0f ? q[k] / along : m->f[k];
+    }
+    if (!(a >= m->a0 && a <= m->a1 && bb >= m->b0 && bb <= m->b1))
+        return false;
+    /* Texel-centre coordinates; bilinear over the corners with an entry (weights renormalized) */
+    const float gx = (a - m->a0) / (m->a1 - m->a0) * (float)m->size - 0.5f;
+    const float gy = (bb - m->b0) / (m->b1 - m->b0) * (float)m->size - 0.5f;
+    const int32_t i0 = (int32_t)floorf(gx), j0 = (int32_t)floorf(gy);
+    const float fx = gx - (float)i0, fy = gy - (float)j0;
+    float sw = 0.0f, t = 0.0f, tr = 0.0f, nn[3] = {0.0f, 0.0f, 0.0f};
+    for (int k = 0; k < 4; k++) {
+        const int32_t i = i0 + (k & 1), j = j0 + (k >> 1);
+        if (i < 0 || j < 0 || i >= m->size || j >= m->size)
+            continue;
+        const float *e = m->texel + ((size_t)j * (size_t)m->size + (size_t)i) * NC_DIFF_LMAP_FLOATS;
+        if (!(e[0] < INFINITY))
+            continue;
+        const float wk = ((k & 1) ? fx : 1.0f - fx) * ((k >> 1) ? fy : 1.0f - fy) + 1e-6f;
+        sw += wk;
+        t += wk * e[0];
+        tr += wk * e[1];
+        for (int c = 0; c < 3; c++)
+            nn[c] += wk * e[2 + c];
+    }
+    if (!(sw > 0.0f))
+        return false;
+    *dist = fmaxf(along - t / sw, 0.0f);
+    *trans = tr / sw;
+    const float len = sqrtf(nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]);
+    for (int c = 0; c < 3; c++)
+        n[c] = len > 0.0f ? nn[c] / len : -dir[c];
+    return true;
+}
+
 static double view_power_bound(const nacre_light_desc *l, const tsm_view *w)
 {
     double smax = fmax(fmax(fabs(l->strength[0]), fabs(l->strength[1])), fabs(l->strength[2]));
@@ -1030,6 +1160,7 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
         o->tsm_flux[c] = 0.0;
         o->injected[c] = 0.0;
     }
+    o->lmap_count = 0;
     if (o->solid_count == 0 || light_count == 0) {
         *inject_us += nc_now_us() - t_clear;
         return NACRE_OK;
@@ -1109,6 +1240,8 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
         if (!band->vproj)
             return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
     }
+    if (o->single && (res = lmaps_reserve(o, nl, views, nviews)) != NACRE_OK)
+        return res;
     const double scale = ldexp(1.0, 61) / bound, inv_scale = 1.0 / scale;
     /* Deposits only go to solid cells, so the accumulators are used, cleared and read only in
      * the z-slabs [lo.z, hi.z) of the solid cells' box: cells [c_lo, c_hi). */
@@ -1138,6 +1271,7 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
     *inject_us += nc_now_us() - t_acc;
     const bool atomic = extra > 0 && !private_acc;
 
+    uint32_t map_index = 0;
     for (uint32_t li = 0; li < nl; li++) {
         const nacre_light_desc *ld = lights[li].desc;
         tsm_light tl = {.desc = ld, .shadow = lights[li].shadow, .pcf_radius = TSM_PCF_RADIUS,
@@ -1146,6 +1280,7 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
         const float strength[3] = {ld->strength[0], ld->strength[1], ld->strength[2]};
         for (int vi = 0; vi < nviews[li]; vi++) {
             const tsm_view *w = &views[li][vi];
+            nc_diff_lmap *lm = o->single ? &o->lmap[map_index++] : NULL;
             const int32_t size = w->size;
             const int32_t rows = (int32_t)(band_texels / (size_t)size);
             /* Orthographic maps are rasterized from the face list (see raster_band); the face
@@ -1177,6 +1312,8 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
                     raster_band(o, w, &tl, shadowed, j0, j1, band, nfaces, ft, use_mesh, threads);
                 else
                     render_band(o, w, &tl, shadowed, j0, j1, band, use_mesh, threads);
+                if (lm)
+                    lmap_band(w, lm, j0, j1, band, use_mesh, threads);
                 uint64_t t1 = nc_now_us();
                 *tsm_us += t1 - t0;
                 const int64_t count = (int64_t)(j1 - j0) * size;

@@ -47,7 +47,7 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
     static const char *const keys[] = {"method", "width", "height", "exposure", "shadow_map_size",
                                        "pcf_radius", "shadow_bias", "spp", "seed", "time",
                                        "voxel_resolution", "tsm_size", "solver", "source",
-                                       "tolerance", "seed_iterations", "time_limit", "max_scatter",
+                                       "tolerance", "seed_iterations", "single_scattering", "time_limit", "max_scatter",
                                        "layered_samples", "layered_epsilon", "layered_half_res", "layered_integration",
                                        "particles", "volumetrics", "froxel_width", "froxel_height",
                                        "froxel_slices", "raymarch_steps", "shadow_steps", "froxel_temporal"};
@@ -108,6 +108,7 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
     nc_json_get_number(ld, obj, "tolerance", tolerance_range, &s->diffusion.tolerance);
     if (nc_json_get_integer(ld, obj, "seed_iterations", 0, 1000000, &v))
         s->diffusion.seed_iterations = (uint32_t)v;
+    nc_json_get_bool(ld, obj, "single_scattering", &s->diffusion.single_scattering);
     nc_json_get_double(ld, obj, "time_limit", R_NONNEG, &s->pathtrace.time_limit);
     if (nc_json_get_integer(ld, obj, "max_scatter", 0, UINT32_MAX, &v))
         s->pathtrace.max_scatter = (uint32_t)v;

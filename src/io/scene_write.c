@@ -484,6 +484,7 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
     add_string(w, o, "source", nacre_source_name(s->diffusion.source));
     add_float(w, o, "tolerance", s->diffusion.tolerance);
     add_uint(w, o, "seed_iterations", s->diffusion.seed_iterations);
+    add_bool(w, o, "single_scattering", s->diffusion.single_scattering);
     add_uint(w, o, "spp", s->pathtrace.spp);
     add_uint(w, o, "seed", s->pathtrace.seed);
     add_double(w, o, "time_limit", s->pathtrace.time_limit);

@@ -21,6 +21,9 @@ static nacre_result diffusion_check(nacre_context *ctx, const nacre_render_setti
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: solver: unknown (%d)", (int)s->diffusion.solver);
     if (s->diffusion.source != NACRE_SOURCE_VOLUME && s->diffusion.source != NACRE_SOURCE_FACE)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: source: unknown (%d)", (int)s->diffusion.source);
+    if (s->diffusion.single_scattering && s->diffusion.source != NACRE_SOURCE_VOLUME)
+        return nc_fail(ctx, NACRE_ERROR_UNSUPPORTED,
+                       "render: single_scattering: not implemented with face sources (use source volume)");
     if (s->diffusion.seed_iterations > 100000)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: seed_iterations: %u is not in 0..100000",
                        s->diffusion.seed_iterations);

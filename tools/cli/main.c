@@ -130,6 +130,7 @@ static const char render_help[] =
     "  --tsm-size N        translucent shadow map texels per side (default 512)\n"
     "  --solver S          multigrid (default: PCG to --tolerance) | seed (Jacobi cascade)\n"
     "  --source S          volume (default) | face (the seed's face injection)\n"
+    "  --single-scattering on|off  diffusion: march light scattered once per pixel, diffuse the rest\n"
     "  --tolerance T       relative residual for multigrid (default 1e-4)\n"
     "  --seed-iterations N Jacobi sweeps for the seed solver (default: the seed's table 5.6)\n"
     "pathtrace:\n"
@@ -239,6 +240,7 @@ static int cmd_render(int argc, char **argv)
     nacre_layered_integration integration = NACRE_LAYERED_ANALYTIC;
     nacre_volumetrics_mode volumetrics = NACRE_VOLUMETRICS_OFF;
     bool stats = false, exr_float = false;
+    int single_scattering = -1;
     int code;
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
@@ -292,6 +294,10 @@ static int cmd_render(int argc, char **argv)
             particles_name = argv[++i];
             if (!nacre_particles_draw_from_name(particles_name, &particles_draw))
                 return nc_tool_usage("render", "--particles '%s': expected billboards, sprites or voxel", particles_name);
+        } else if (strcmp(a, "--single-scattering") == 0) {
+            if (!has_value || (strcmp(argv[i + 1], "on") != 0 && strcmp(argv[i + 1], "off") != 0))
+                return nc_tool_usage("render", "--single-scattering needs on or off");
+            single_scattering = strcmp(argv[++i], "on") == 0 ? 1 : 0;
         } else if (strcmp(a, "--source") == 0) {
             if (!has_value)
                 return nc_tool_usage("render", "--source needs volume or face");
@@ -469,6 +475,8 @@ static int cmd_render(int argc, char **argv)
         rs.diffusion.solver = solver;
     if (source_name)
         rs.diffusion.source = source;
+    if (single_scattering >= 0)
+        rs.diffusion.single_scattering = single_scattering == 1;
     if (particles_name)
         rs.particles = particles_draw;
     if (!isnan(tolerance))
