@@ -77,6 +77,32 @@ static inline nc_v8i nc_v8_first(uint32_t n)
 }
 
 /* Bit l set where lane l of m is set */
+/* base[idx] per lane. */
+static inline nc_v8f nc_v8_gather(const float *base, nc_v8i idx)
+{
+#ifdef __AVX2__
+    return (nc_v8f)_mm256_i32gather_ps(base, (__m256i)idx, 4);
+#else
+    nc_v8f r;
+    for (int l = 0; l < 8; l++)
+        r[l] = base[idx[l]];
+    return r;
+#endif
+}
+
+/* Round to the nearest integer (ties to even, as lrintf). */
+static inline nc_v8i nc_v8_rint(nc_v8f x)
+{
+#ifdef __AVX__
+    return (nc_v8i)_mm256_cvtps_epi32((__m256)x);
+#else
+    nc_v8i r;
+    for (int l = 0; l < 8; l++)
+        r[l] = (int32_t)lrintf(x[l]);
+    return r;
+#endif
+}
+
 static inline uint32_t nc_v8_bits(nc_v8i m)
 {
 #ifdef __AVX__

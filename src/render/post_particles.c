@@ -549,30 +549,6 @@ static void accumulate(pp_state *st, const pp_frame *fr, uint32_t ntx, uint32_t 
     }
 }
 
-static inline nc_v8f v8_gather(const float *base, nc_v8i idx)
-{
-#ifdef __AVX2__
-    return (nc_v8f)_mm256_i32gather_ps(base, (__m256i)idx, 4);
-#else
-    nc_v8f r;
-    for (int l = 0; l < 8; l++)
-        r[l] = base[idx[l]];
-    return r;
-#endif
-}
-
-/* Round to the nearest integer (ties to even, as lrintf). */
-static inline nc_v8i v8_rint(nc_v8f x)
-{
-#ifdef __AVX__
-    return (nc_v8i)_mm256_cvtps_epi32((__m256)x);
-#else
-    nc_v8i r;
-    for (int l = 0; l < 8; l++)
-        r[l] = (int32_t)lrintf(x[l]);
-    return r;
-#endif
-}
 
 /* Per rect pixel, what the light march reads, packed as one 32-byte record: near, 1 / (far -
  * near) (0 where nothing was drawn) and tau_t[3]. */
@@ -614,10 +590,10 @@ static inline void sigma_at8(const pp_state *st, const pp_frame *fr, const nc_v8
     /* Clamped before rounding so that far points cannot overflow the conversion. */
     const nc_v8f fx = v8_min(v8_max(X * kx + cx, nc_v8_splat(-1e6f)), nc_v8_splat(1e6f));
     const nc_v8f fy = v8_min(v8_max(Y * ky + cy, nc_v8_splat(-1e6f)), nc_v8_splat(1e6f));
-    const nc_v8i x = v8_rint(fx) - fr->rx0, y = v8_rint(fy) - fr->ry0;
+    const nc_v8i x = nc_v8_rint(fx) - fr->rx0, y = nc_v8_rint(fy) - fr->ry0;
     ok &= (x >= 0) & (y >= 0) & (x < fr->rw) & (y < fr->rh);
     const nc_v8i idx = nc_v8i_sel(ok, (y * fr->rw + x) * LOOK, (nc_v8i){0});
-    const nc_v8f nr = v8_gather(st->look, idx), il = v8_gather(st->look + 1, idx);
+    const nc_v8f nr = nc_v8_gather(st->look, idx), il = nc_v8_gather(st->look + 1, idx);
     const nc_v8f u = (t - nr) * il;
     /* r(x) of particles/billboard.h, lane by lane. */
     const nc_v8f yv = 1.0f - 2.0f * v8_max(u - 0.5f, 0.5f - u);
@@ -625,7 +601,7 @@ static inline void sigma_at8(const pp_state *st, const pp_frame *fr, const nc_v8
                      (1.0f / (1.0f - 0.5f * NC_BILLBOARD_REMAP_T)) * il;
     ok &= (u > 0.0f) & (u < 1.0f) & (il > 0.0f);
     for (int c = 0; c < 3; c++)
-        sig[c] = nc_v8_sel(ok, v8_gather(st->look + 2 + c, idx) * r, zero);
+        sig[c] = nc_v8_sel(ok, nc_v8_gather(st->look + 2 + c, idx) * r, zero);
 }
 
 /* Pass 2: ray march each pixel of the rect through its reconstruction, 8 pixels of a row at a

@@ -340,6 +340,37 @@ static bool write_constant_nrrd(const char *path, float value)
     return fclose(f) == 0 && ok;
 }
 
+/* json's box against the closed form of absorption sa and emission em: the fog pass to 1e-5,
+ * froxels and the march to 2%, the path tracer per band of rows within 4 standard errors. */
+static void check_emitting_box(const char *json, const double *sa, const double *em, uint32_t seed, const char *what)
+{
+    nacre_image fp = {0}, fx = {0}, rm = {0}, pt = {0}, var = {0};
+    if (render_techniques(json, 64, 64, 64, seed, &fp, &fx, &rm, &pt, &var)) {
+        double e_fp = worst_box_error_of(&fp, false, sa, em), e_fx = worst_box_error_of(&fx, true, sa, em),
+               e_rm = worst_box_error_of(&rm, true, sa, em), worst_sigma = 0;
+        for (int y0 = 9; y0 + 4 <= 23; y0 += 4) {
+            double m[3], se[3];
+            media_region(&pt, &var, 9, 23, y0, y0 + 4, m, se);
+            for (int c = 0; c < 3; c++) {
+                double x = box_exact_of(16, y0, c, sa, em);
+                CHECK_NEAR(m[c], x, 4 * se[c]);
+                worst_sigma = fmax(worst_sigma, fabs(m[c] - x) / se[c]);
+            }
+        }
+        printf("  %s: largest relative error fog pass %.2e, froxel %.2e, raymarch %.2e; path tracer within %.2f "
+               "standard errors\n",
+               what, e_fp, e_fx, e_rm, worst_sigma);
+        CHECK(e_fp < 1e-5);
+        CHECK(e_fx < 0.02);
+        CHECK(e_rm < 0.02);
+    }
+    nacre_image_free(ctx, &fp);
+    nacre_image_free(ctx, &fx);
+    nacre_image_free(ctx, &rm);
+    nacre_image_free(ctx, &pt);
+    nacre_image_free(ctx, &var);
+}
+
 /* The box of EMIT_BOX with a density volume of `dens` (0: none) and an emission volume of
  * `scale` (0: none), against its closed form: sigma = dens sigma_a (the density scales medium
  * 1), emission = scale eps with an emission pattern, else dens eps (the density's rule). */
@@ -360,31 +391,9 @@ static void emission_pattern_case(const char *dens_path, double dens, const char
         sa[c] = d * BOX_SA[c];
         em[c] = e * BOX_EM[c];
     }
-    nacre_image fp = {0}, fx = {0}, rm = {0}, pt = {0}, var = {0};
-    if (render_techniques(json, 64, 64, 64, 3, &fp, &fx, &rm, &pt, &var)) {
-        double e_fp = worst_box_error_of(&fp, false, sa, em), e_fx = worst_box_error_of(&fx, true, sa, em),
-               e_rm = worst_box_error_of(&rm, true, sa, em), worst_sigma = 0;
-        for (int y0 = 9; y0 + 4 <= 23; y0 += 4) {
-            double m[3], se[3];
-            media_region(&pt, &var, 9, 23, y0, y0 + 4, m, se);
-            for (int c = 0; c < 3; c++) {
-                double x = box_exact_of(16, y0, c, sa, em);
-                CHECK_NEAR(m[c], x, 4 * se[c]);
-                worst_sigma = fmax(worst_sigma, fabs(m[c] - x) / se[c]);
-            }
-        }
-        printf("  density %.1f, emission pattern %.1f: largest relative error fog pass %.2e, froxel %.2e, "
-               "raymarch %.2e; path tracer within %.2f standard errors\n",
-               dens, scale, e_fp, e_fx, e_rm, worst_sigma);
-        CHECK(e_fp < 1e-5);
-        CHECK(e_fx < 0.02);
-        CHECK(e_rm < 0.02);
-    }
-    nacre_image_free(ctx, &fp);
-    nacre_image_free(ctx, &fx);
-    nacre_image_free(ctx, &rm);
-    nacre_image_free(ctx, &pt);
-    nacre_image_free(ctx, &var);
+    char what[128];
+    snprintf(what, sizeof(what), "density %.1f, emission pattern %.1f", dens, scale);
+    check_emitting_box(json, sa, em, 3, what);
 }
 
 static void emission_pattern(void)
@@ -509,31 +518,7 @@ static void blackbody(void)
     nacre_blackbody_rgb(4000.0, c); /* 2000 x kelvin_scale 2 */
     for (int k = 0; k < 3; k++)
         em[k] = emission[k] * c[k];
-    nacre_image fp = {0}, fx = {0}, rm = {0}, pt = {0}, var = {0};
-    if (render_techniques(json, 64, 64, 64, 4, &fp, &fx, &rm, &pt, &var)) {
-        double e_fp = worst_box_error_of(&fp, false, BOX_SA, em), e_fx = worst_box_error_of(&fx, true, BOX_SA, em),
-               e_rm = worst_box_error_of(&rm, true, BOX_SA, em), worst_sigma = 0;
-        for (int y0 = 9; y0 + 4 <= 23; y0 += 4) {
-            double m[3], se[3];
-            media_region(&pt, &var, 9, 23, y0, y0 + 4, m, se);
-            for (int k = 0; k < 3; k++) {
-                double x = box_exact_of(16, y0, k, BOX_SA, em);
-                CHECK_NEAR(m[k], x, 4 * se[k]);
-                worst_sigma = fmax(worst_sigma, fabs(m[k] - x) / se[k]);
-            }
-        }
-        printf("  black-body box (4000 K): largest relative error fog pass %.2e, froxel %.2e, raymarch %.2e; "
-               "path tracer within %.2f standard errors\n",
-               e_fp, e_fx, e_rm, worst_sigma);
-        CHECK(e_fp < 1e-5);
-        CHECK(e_fx < 0.02);
-        CHECK(e_rm < 0.02);
-    }
-    nacre_image_free(ctx, &fp);
-    nacre_image_free(ctx, &fx);
-    nacre_image_free(ctx, &rm);
-    nacre_image_free(ctx, &pt);
-    nacre_image_free(ctx, &var);
+    check_emitting_box(json, BOX_SA, em, 4, "black-body box (4000 K)");
     /* Saved and reloaded with its scale; refused elsewhere. */
     nacre_scene *sc = media_load(ctx, json, NULL);
     if (sc) {
