@@ -897,62 +897,194 @@ static uint32_t lit_mask(const nc_march_point *pt, const nc_shade_light *lights,
     return lit;
 }
 
-/* The lights along the view ray r cut into pieces (make_pieces' pts[0..np] and layers, with
- * pts[np + 1] = len for ANALYTIC), added to rgb. bm: the layer bottoms at the points where the
- * lights are evaluated (ANALYTIC: pts[0..np + 1]; SAMPLES: the pieces' midpoints), stride floats
- * per layer, from nc_march_ray_make; NULL: read here. */
-static void light_ray(const ray_ctx *rp, float t_out, const float *pts, const uint8_t *layers, uint32_t np,
-                      const float *bm, uint32_t stride, const nc_shade_light *lights, uint32_t light_count,
-                      uint32_t lit, const nc_march_params *prm, float rgb[3])
+/* A view ray cut into pieces (make_pieces' pts[0..np] and layers, with pts[np + 1] = len for
+ * ANALYTIC). bm: the layer bottoms at the points where the lights are evaluated (ANALYTIC:
+ * pts[0..np + 1]; SAMPLES: the pieces' midpoints), stride floats per layer, from
+ * nc_march_ray_make; NULL: read where needed. */
+typedef struct cut_ray {
+    ray_ctx r;
+    float t_out;
+    const float *pts;
+    const uint8_t *layers;
+    uint32_t np;
+    const float *bm;
+    uint32_t stride;
+} cut_ray;
+
+/* One light's evaluation along a cut ray: the batch of points base .. base + filled - 1 in lb. */
+typedef struct light_eval {
+    const nacre_light_desc *l;
+    float co, ci; /* a spot light's cone cosines */
+    light_batch lb;
+    uint32_t base, filled;
+} light_eval;
+
+static void light_eval_init(light_eval *le, const nacre_light_desc *l)
 {
-    const ray_ctx r = *rp;
-    const nc_layer_medium *m = r.m;
-    const nc_march_point *pt = r.pt;
-    for (uint32_t li = 0; li < light_count; li++) {
-        const nacre_light_desc *l = lights[li].desc;
-        if (li < 32 && !(lit & (1u << li)))
-            continue;
-        const float co = l->type == NACRE_LIGHT_SPOT ? cosf(l->outer_angle * NC_DEG2RAD) : 0.0f;
-        const float ci = l->type == NACRE_LIGHT_SPOT ? cosf(l->inner_angle * NC_DEG2RAD) : 0.0f;
-        /* ANALYTIC evaluates the light at the pieces' ends in batches (eval_batch through
-         * FETCH): point q is pts[q]. bm is only given for rays of one batch (base 0). */
-        const uint32_t npts = np + 1;
-        light_batch lb;
-        float spts[NC_MARCH_BATCH];
-        uint32_t base = 0, filled = 0;
+    le->l = l;
+    le->co = l->type == NACRE_LIGHT_SPOT ? cosf(l->outer_angle * NC_DEG2RAD) : 0.0f;
+    le->ci = l->type == NACRE_LIGHT_SPOT ? cosf(l->inner_angle * NC_DEG2RAD) : 0.0f;
+    le->base = le->filled = 0;
+}
+
+/* ANALYTIC rays of one batch (np + 1 < NC_MARCH_BATCH): the light at every piece end, and at M_max
+ * when it is not the last end (the ray stopped early), for the shadow lookup at M_max's entry
+ * point K': whether light reaches M_max and K'. */
+static bool eval_ends_and_far(const cut_ray *cr, light_eval *le, float far_k[3])
+{
+    const uint32_t npts = cr->np + 1;
+    float spts[NC_MARCH_BATCH];
+    for (uint32_t e = 0; e < npts; e++)
+        spts[e] = cr->pts[e];
+    uint32_t fi = npts - 1;
+    if (spts[fi] != cr->r.len)
+        spts[++fi] = cr->r.len; /* pts[np + 1]: bm has it */
+    eval_batch(&cr->r, le->l, le->co, le->ci, spts, fi + 1, cr->bm, cr->stride, &le->lb);
+    le->base = 0;
+    le->filled = npts;
+    for (int c = 0; c < 3; c++)
+        far_k[c] = le->lb.k[c][fi];
+    return le->lb.w[fi] > 0;
+}
+
+/* The light of le along the cut ray with visibilities vis0 at P and vis1 at M_max's entry point,
+ * added to rgb. */
+static void light_sum(const cut_ray *cr, light_eval *le, float vis0, float vis1, const nc_march_params *prm,
+                      float rgb[3])
+{
+    const ray_ctx *r = &cr->r;
+    const nc_layer_medium *m = r->m;
+    const nacre_light_desc *l = le->l;
+    const float *pts = cr->pts;
+    const uint8_t *layers = cr->layers;
+    const uint32_t np = cr->np, npts = np + 1;
+    light_batch *lb = &le->lb;
+    float spts[NC_MARCH_BATCH];
+    /* ANALYTIC evaluates the light at the pieces' ends in batches (FETCH): point q is pts[q].
+     * bm is only given for rays of one batch (base 0). */
 #define FETCH(q)                                                                                                       \
     do {                                                                                                               \
-        if ((q) >= base + filled) {                                                                                    \
-            base = (q);                                                                                                \
-            filled = npts - base < NC_MARCH_BATCH ? npts - base : NC_MARCH_BATCH;                                      \
-            for (uint32_t e = 0; e < filled; e++)                                                                      \
-                spts[e] = pts[base + e];                                                                               \
-            eval_batch(&r, l, co, ci, spts, filled, bm ? bm + base : NULL, stride, &lb);                              \
+        if ((q) >= le->base + le->filled) {                                                                            \
+            le->base = (q);                                                                                            \
+            le->filled = npts - le->base < NC_MARCH_BATCH ? npts - le->base : NC_MARCH_BATCH;                          \
+            for (uint32_t e = 0; e < le->filled; e++)                                                                  \
+                spts[e] = pts[le->base + e];                                                                           \
+            eval_batch(r, l, le->co, le->ci, spts, le->filled, cr->bm ? cr->bm + le->base : NULL, cr->stride, lb);    \
         }                                                                                                              \
     } while (0)
-        /* Visibility at P and at the entry point of M_max's light. When all the pieces' ends fit
-         * in one batch, M_max is its last point (or one more lane): its entry point comes with
-         * the batch instead of a scalar evaluation of its own. */
+    /* Per channel, ln of the integrand without sigma_s * strength (kc): the pieces' ends
+     * share it when the layer does not change, and its difference gives the exponential's
+     * rate without a logarithm per channel. */
+    float tau[3] = {0, 0, 0}, sum[3] = {0, 0, 0}, kc[3];
+    float lfa[3] = {0, 0, 0}, ea[3] = {0, 0, 0}; /* ea = e^lfa: a piece's end starts the next */
+    bool a_lit = false;
+    uint32_t a_layer = UINT32_MAX, qa = 0;
+    const float vis_rate = (vis1 - vis0) / r->len;
+    if (!prm->analytic) {
+        /* The seed's sums, a batch of samples at a time: the weights and exponents first
+         * (the transmittance to P runs from sample to sample), then the exponentials 8 at a
+         * time (sum_k_exp). */
+        float ks[3][NC_MARCH_BATCH], arg[3][NC_MARCH_BATCH];
+        for (uint32_t i0 = 0; i0 < np; i0 += NC_MARCH_BATCH) {
+            const uint32_t nb = np - i0 < NC_MARCH_BATCH ? np - i0 : NC_MARCH_BATCH;
+            for (uint32_t e = 0; e < nb; e++)
+                spts[e] = 0.5f * (pts[i0 + e] + pts[i0 + e + 1]);
+            eval_batch(r, l, le->co, le->ci, spts, nb, cr->bm ? cr->bm + i0 : NULL, cr->stride, lb);
+            for (uint32_t e = 0; e < nb; e++) {
+                const uint32_t j = layers[i0 + e];
+                const float len = pts[i0 + e + 1] - pts[i0 + e];
+                float w = hg(lb->cos_s[e], m->g[j]) * (vis0 + vis_rate * spts[e]) * len * lb->w[e];
+                w = w > 0 ? w : 0.0f;
+                for (int c = 0; c < 3; c++) {
+                    ks[c][e] = m->ss[j][c] * l->strength[c] * w;
+                    arg[c][e] = -lb->tau[c][e] - tau[c] - 0.5f * m->st[j][c] * len;
+                    tau[c] += m->st[j][c] * len;
+                }
+            }
+            for (int c = 0; c < 3; c++)
+                sum[c] += sum_k_exp(ks[c], arg[c], nb);
+        }
+        for (int c = 0; c < 3; c++)
+            rgb[c] += sum[c] * cr->t_out;
+        return;
+    }
+#ifdef __AVX2__
+    if (npts <= NC_MARCH_BATCH) {
+        FETCH(0);
+        closed_forms8(m, l->strength, pts, layers, np, lb, vis0, vis_rate, sum);
+        for (int c = 0; c < 3; c++)
+            rgb[c] += sum[c] * cr->t_out;
+        return;
+    }
+#endif
+    for (uint32_t i = 0; i < np; i++) {
+        const uint32_t j = layers[i];
+        const float s0 = pts[i], s1 = pts[i + 1], len = s1 - s0;
+        for (int c = 0; c < 3; c++)
+            kc[c] = m->ss[j][c] * l->strength[c];
+        if (a_layer != j) { /* the first piece, or a new layer: the start's phase changed */
+            FETCH(i);
+            qa = i - le->base;
+            const float pa = hg(lb->cos_s[qa], m->g[j]) * (vis0 + vis_rate * s0) * lb->w[qa];
+            a_lit = pa > FLT_MIN; /* fast_log takes normal numbers */
+            if (a_lit) {
+                const float lp = fast_log(pa);
+                for (int c = 0; c < 3; c++) {
+                    lfa[c] = lp - lb->tau[c][qa] - tau[c];
+                    ea[c] = fast_exp(lfa[c]);
+                }
+            }
+        }
+        FETCH(i + 1);
+        const uint32_t qb = i + 1 - le->base;
+        const float pb = hg(lb->cos_s[qb], m->g[j]) * (vis0 + vis_rate * s1) * lb->w[qb];
+        const bool b_lit = pb > FLT_MIN;
+        const float lpb = b_lit ? fast_log(pb) : 0.0f;
+        for (int c = 0; c < 3; c++) {
+            const float tb = tau[c] + m->st[j][c] * len;
+            const float lfb = lpb - lb->tau[c][qb] - tb;
+            const float fb = b_lit ? fast_exp(lfb) : 0.0f;
+            if (a_lit && b_lit) {
+                const float q = lfa[c] - lfb, fa = ea[c];
+                sum[c] += kc[c] * (q > 1e-4f || q < -1e-4f ? len * (fa - fb) / q : len * 0.5f * (fa + fb));
+            } else { /* light on one end only: the trapezoid */
+                sum[c] += kc[c] * len * 0.5f * ((a_lit ? ea[c] : 0.0f) + fb);
+            }
+            tau[c] = tb;
+            lfa[c] = lfb;
+            ea[c] = fb;
+        }
+        a_lit = b_lit;
+        a_layer = j;
+    }
+#undef FETCH
+    for (int c = 0; c < 3; c++)
+        rgb[c] += sum[c] * cr->t_out;
+}
+
+/* The lights (those of mask lit among the first 32, and every later one) along a cut ray, added
+ * to rgb. Visibility: the shadow maps at P and at the entry point K' of M_max's light; when all
+ * the pieces' ends fit in one batch, M_max is its last point (or one more lane), so K' comes
+ * with the batch instead of a scalar evaluation of its own. */
+static void light_ray(const cut_ray *cr, const nc_shade_light *lights, uint32_t light_count, uint32_t lit,
+                      const nc_march_params *prm, float rgb[3])
+{
+    const nc_march_point *pt = cr->r.pt;
+    for (uint32_t li = 0; li < light_count; li++) {
+        if (li < 32 && !(lit & (1u << li)))
+            continue;
+        light_eval le;
+        light_eval_init(&le, lights[li].desc);
         float vis0 = 1, vis1 = 1;
         if (lights[li].shadow) {
-            nc_vec3 n = nc_v3a(pt->n);
-            vis0 = nc_shadow_lookup(lights[li].shadow, nc_v3a(pt->p), n, prm->pcf_radius, prm->shadow_bias);
+            vis0 = nc_shadow_lookup(lights[li].shadow, nc_v3a(pt->p), nc_v3a(pt->n), prm->pcf_radius, prm->shadow_bias);
             bool far_lit;
             float far_k[3];
-            if (prm->analytic && npts < NC_MARCH_BATCH) {
-                for (uint32_t e = 0; e < npts; e++)
-                    spts[e] = pts[e];
-                uint32_t fi = npts - 1;
-                if (spts[fi] != r.len)
-                    spts[++fi] = r.len; /* pts[np + 1]: bm has it */
-                eval_batch(&r, l, co, ci, spts, fi + 1, bm, stride, &lb);
-                filled = npts;
-                far_lit = lb.w[fi] > 0;
-                for (int c = 0; c < 3; c++)
-                    far_k[c] = lb.k[c][fi];
+            if (prm->analytic && cr->np + 1 < NC_MARCH_BATCH) {
+                far_lit = eval_ends_and_far(cr, &le, far_k);
             } else {
                 light_at far;
-                eval_light(&r, l, co, ci, r.len, NULL, 0, &far);
+                eval_light(&cr->r, le.l, le.co, le.ci, cr->r.len, NULL, 0, &far);
                 far_lit = far.lit;
                 memcpy(far_k, far.k, sizeof(far_k));
             }
@@ -962,94 +1094,7 @@ static void light_ray(const ray_ctx *rp, float t_out, const float *pts, const ui
             if (vis0 <= 0 && vis1 <= 0)
                 continue;
         }
-        /* Per channel, ln of the integrand without sigma_s * strength (kc): the pieces' ends
-         * share it when the layer does not change, and its difference gives the exponential's
-         * rate without a logarithm per channel. */
-        float tau[3] = {0, 0, 0}, sum[3] = {0, 0, 0}, kc[3];
-        float lfa[3] = {0, 0, 0}, ea[3] = {0, 0, 0}; /* ea = e^lfa: a piece's end starts the next */
-        bool a_lit = false;
-        uint32_t a_layer = UINT32_MAX, qa = 0;
-        const float vis_rate = (vis1 - vis0) / r.len;
-        if (!prm->analytic) {
-            /* The seed's sums, a batch of samples at a time: the weights and exponents first
-             * (the transmittance to P runs from sample to sample), then the exponentials 8 at a
-             * time (sum_k_exp). */
-            float ks[3][NC_MARCH_BATCH], arg[3][NC_MARCH_BATCH];
-            for (uint32_t i0 = 0; i0 < np; i0 += NC_MARCH_BATCH) {
-                const uint32_t nb = np - i0 < NC_MARCH_BATCH ? np - i0 : NC_MARCH_BATCH;
-                for (uint32_t e = 0; e < nb; e++)
-                    spts[e] = 0.5f * (pts[i0 + e] + pts[i0 + e + 1]);
-                eval_batch(&r, l, co, ci, spts, nb, bm ? bm + i0 : NULL, stride, &lb);
-                for (uint32_t e = 0; e < nb; e++) {
-                    const uint32_t j = layers[i0 + e];
-                    const float len = pts[i0 + e + 1] - pts[i0 + e];
-                    float w = hg(lb.cos_s[e], m->g[j]) * (vis0 + vis_rate * spts[e]) * len * lb.w[e];
-                    w = w > 0 ? w : 0.0f;
-                    for (int c = 0; c < 3; c++) {
-                        ks[c][e] = m->ss[j][c] * l->strength[c] * w;
-                        arg[c][e] = -lb.tau[c][e] - tau[c] - 0.5f * m->st[j][c] * len;
-                        tau[c] += m->st[j][c] * len;
-                    }
-                }
-                for (int c = 0; c < 3; c++)
-                    sum[c] += sum_k_exp(ks[c], arg[c], nb);
-            }
-            for (int c = 0; c < 3; c++)
-                rgb[c] += sum[c] * t_out;
-            continue;
-        }
-#ifdef __AVX2__
-        if (npts <= NC_MARCH_BATCH) {
-            FETCH(0);
-            closed_forms8(m, l->strength, pts, layers, np, &lb, vis0, vis_rate, sum);
-            for (int c = 0; c < 3; c++)
-                rgb[c] += sum[c] * t_out;
-            continue;
-        }
-#endif
-        for (uint32_t i = 0; i < np; i++) {
-            const uint32_t j = layers[i];
-            const float s0 = pts[i], s1 = pts[i + 1], len = s1 - s0;
-            for (int c = 0; c < 3; c++)
-                kc[c] = m->ss[j][c] * l->strength[c];
-            if (a_layer != j) { /* the first piece, or a new layer: the start's phase changed */
-                FETCH(i);
-                qa = i - base;
-                const float pa = hg(lb.cos_s[qa], m->g[j]) * (vis0 + vis_rate * s0) * lb.w[qa];
-                a_lit = pa > FLT_MIN; /* fast_log takes normal numbers */
-                if (a_lit) {
-                    const float lp = fast_log(pa);
-                    for (int c = 0; c < 3; c++) {
-                        lfa[c] = lp - lb.tau[c][qa] - tau[c];
-                        ea[c] = fast_exp(lfa[c]);
-                    }
-                }
-            }
-            FETCH(i + 1);
-            const uint32_t qb = i + 1 - base;
-            const float pb = hg(lb.cos_s[qb], m->g[j]) * (vis0 + vis_rate * s1) * lb.w[qb];
-            const bool b_lit = pb > FLT_MIN;
-            const float lpb = b_lit ? fast_log(pb) : 0.0f;
-            for (int c = 0; c < 3; c++) {
-                const float tb = tau[c] + m->st[j][c] * len;
-                const float lfb = lpb - lb.tau[c][qb] - tb;
-                const float fb = b_lit ? fast_exp(lfb) : 0.0f;
-                if (a_lit && b_lit) {
-                    const float q = lfa[c] - lfb, fa = ea[c];
-                    sum[c] += kc[c] * (q > 1e-4f || q < -1e-4f ? len * (fa - fb) / q : len * 0.5f * (fa + fb));
-                } else { /* light on one end only: the trapezoid */
-                    sum[c] += kc[c] * len * 0.5f * ((a_lit ? ea[c] : 0.0f) + fb);
-                }
-                tau[c] = tb;
-                lfa[c] = lfb;
-                ea[c] = fb;
-            }
-            a_lit = b_lit;
-            a_layer = j;
-        }
-#undef FETCH
-        for (int c = 0; c < 3; c++)
-            rgb[c] += sum[c] * t_out;
+        light_sum(cr, &le, vis0, vis1, prm, rgb);
     }
 }
 
@@ -1068,7 +1113,8 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
     uint8_t layers[NC_MARCH_MAX_PIECES];
     const uint32_t np = make_pieces(&r, prm, NC_MARCH_MAX_PIECES, pts, layers);
     pts[np + 1] = r.len;
-    light_ray(&r, t_out, pts, layers, np, NULL, 0, lights, light_count, lit, prm, rgb);
+    const cut_ray cr = {.r = r, .t_out = t_out, .pts = pts, .layers = layers, .np = np};
+    light_ray(&cr, lights, light_count, lit, prm, rgb);
 }
 
 /* A slot: the header, then cap points, layers x cap bottoms, cap layer indices. */
@@ -1145,6 +1191,20 @@ uint32_t nc_march_ray_make(const nc_layer_medium *m, const nc_march_point *pt, c
     return ray->kind = NC_MARCH_RAY_OK;
 }
 
+/* The cut ray of a made slot. */
+static void ray_cut(const nc_layer_medium *m, const nc_march_ray *ray, cut_ray *cr)
+{
+    const float *pts = (const float *)((const char *)ray + NC_MARCH_RAY_HEAD), *bm = pts + ray->cap;
+    *cr = (cut_ray){.r = {.m = m, .pt = &ray->pt, .dz = ray->dz, .du = ray->du, .dv = ray->dv, .len = ray->len},
+                    .t_out = ray->t_out,
+                    .pts = pts,
+                    .layers = (const uint8_t *)(bm + (size_t)ray->layers * ray->cap),
+                    .np = ray->np,
+                    .bm = m->count ? bm : NULL,
+                    .stride = ray->cap};
+    memcpy(cr->r.d, ray->d, sizeof(cr->r.d));
+}
+
 void nc_march_ray_radiance(const nc_layer_medium *m, const void *slot, const nc_shade_light *lights,
                            uint32_t light_count, const nc_march_params *prm, float rgb[3])
 {
@@ -1155,9 +1215,63 @@ void nc_march_ray_radiance(const nc_layer_medium *m, const void *slot, const nc_
     const uint32_t lit = lit_mask(&ray->pt, lights, light_count);
     if (!lit && light_count <= 32)
         return;
-    const float *pts = (const float *)((const char *)slot + NC_MARCH_RAY_HEAD), *bm = pts + ray->cap;
-    const uint8_t *lay = (const uint8_t *)(bm + (size_t)ray->layers * ray->cap);
-    ray_ctx r = {.m = m, .pt = &ray->pt, .dz = ray->dz, .du = ray->du, .dv = ray->dv, .len = ray->len};
-    memcpy(r.d, ray->d, sizeof(r.d));
-    light_ray(&r, ray->t_out, pts, lay, ray->np, m->count ? bm : NULL, ray->cap, lights, light_count, lit, prm, rgb);
+    cut_ray cr;
+    ray_cut(m, ray, &cr);
+    light_ray(&cr, lights, light_count, lit, prm, rgb);
+}
+
+void nc_march_rays_radiance(const nc_layer_medium *const *media, const void *const *rays, uint32_t n,
+                            const nc_shade_light *lights, uint32_t light_count, const nc_march_params *prm,
+                            float *const *rgb)
+{
+    cut_ray cr[NC_MARCH_CHUNK];
+    uint32_t lit[NC_MARCH_CHUNK];
+    bool on[NC_MARCH_CHUNK];
+    n = n < NC_MARCH_CHUNK ? n : NC_MARCH_CHUNK;
+    for (uint32_t k = 0; k < n; k++) {
+        const nc_march_ray *ray = rays[k];
+        rgb[k][0] = rgb[k][1] = rgb[k][2] = 0;
+        on[k] = ray->kind == NC_MARCH_RAY_OK && light_count > 0;
+        lit[k] = on[k] ? lit_mask(&ray->pt, lights, light_count) : 0;
+        on[k] = on[k] && (lit[k] || light_count > 32);
+        if (on[k])
+            ray_cut(media[k], ray, &cr[k]);
+    }
+    light_eval le[NC_MARCH_CHUNK];
+    for (uint32_t li = 0; li < light_count; li++) {
+        const nc_shade_light *sl = &lights[li];
+        uint32_t act[NC_MARCH_CHUNK], na = 0;
+        for (uint32_t k = 0; k < n; k++)
+            if (on[k] && (li >= 32 || (lit[k] & (1u << li))))
+                act[na++] = k;
+        if (!sl->shadow || !prm->analytic) {
+            for (uint32_t a = 0; a < na; a++)
+                light_ray(&cr[act[a]], sl, 1, 1u, prm, rgb[act[a]]);
+            continue;
+        }
+        /* Every ray's light first, then the lookups at the points P (normal n) and K' (normal
+         * N_SP) of all of them in one call, then the sums. */
+        float q[3][2 * NC_MARCH_CHUNK], qn[3][2 * NC_MARCH_CHUNK], vis[2 * NC_MARCH_CHUNK];
+        bool far_lit[NC_MARCH_CHUNK];
+        for (uint32_t a = 0; a < na; a++) {
+            const cut_ray *c = &cr[act[a]];
+            light_eval_init(&le[a], sl->desc);
+            float far_k[3];
+            far_lit[a] = eval_ends_and_far(c, &le[a], far_k);
+            for (int k = 0; k < 3; k++) {
+                q[k][a] = c->r.pt->p[k];
+                qn[k][a] = c->r.pt->n[k];
+                q[k][na + a] = far_lit[a] ? far_k[k] : c->r.pt->p[k];
+                qn[k][na + a] = c->r.pt->ns[k];
+            }
+        }
+        nc_shadow_lookup_n(sl->shadow, 2 * na, q[0], q[1], q[2], qn[0], qn[1], qn[2], prm->pcf_radius,
+                           prm->shadow_bias, vis);
+        for (uint32_t a = 0; a < na; a++) {
+            const float vis0 = vis[a], vis1 = far_lit[a] ? vis[na + a] : vis0;
+            if (vis0 <= 0 && vis1 <= 0)
+                continue;
+            light_sum(&cr[act[a]], &le[a], vis0, vis1, prm, rgb[act[a]]);
+        }
+    }
 }

@@ -81,4 +81,13 @@ uint32_t nc_march_ray_make(const nc_layer_medium *m, const nc_march_point *pt, c
 void nc_march_ray_radiance(const nc_layer_medium *m, const void *slot, const nc_shade_light *lights,
                            uint32_t light_count, const nc_march_params *prm, float rgb[3]);
 
+/* Rays lit together by nc_march_rays_radiance. */
+#define NC_MARCH_CHUNK 16
+/* nc_march_ray_radiance of n <= NC_MARCH_CHUNK made rays (media[k]: the medium of rays[k]) into
+ * rgb[k][0..2], with each light's shadow lookups (2 per ray) made together by nc_shadow_lookup_n:
+ * the values are nc_march_ray_radiance's up to that function's float rounding. Thread-safe. */
+void nc_march_rays_radiance(const nc_layer_medium *const *media, const void *const *rays, uint32_t n,
+                            const nc_shade_light *lights, uint32_t light_count, const nc_march_params *prm,
+                            float *const *rgb);
+
 #endif /* NACRE_LAYERED_MARCH_H */

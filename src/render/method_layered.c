@@ -253,11 +253,27 @@ static void march_point(const nacre_scene *s, const nc_gbuffer *gb, const layere
     }
 }
 
+/* Kept rays waiting to be lit together (nc_march_rays_radiance), per thread. */
+typedef struct ray_queue {
+    uint32_t n;
+    const nc_layer_medium *media[NC_MARCH_CHUNK];
+    const void *rays[NC_MARCH_CHUNK];
+    float *rgb[NC_MARCH_CHUNK];
+} ray_queue;
+
+static void flush_rays(const nacre_scene *s, const nc_raster_frame *rf, const nc_march_params *prm, ray_queue *q)
+{
+    if (q->n)
+        nc_march_rays_radiance(q->media, q->rays, q->n, rf->shade_lights, s->light_count, prm, q->rgb);
+    q->n = 0;
+}
+
 /* March G-buffer pixel i if it shows a translucent object; false if it does not. With kept rays,
- * the pixel's ray is made on its first march and lit from then on (a pixel is marched by one
- * thread per frame, so its slot has one writer). */
+ * the pixel's ray is made on its first march (a pixel is marched by one thread per frame, so its
+ * slot has one writer) and queued in q to be lit with others; its radiance is written when q is
+ * flushed. */
 static inline bool march_pixel(const layered_state *st, const nacre_scene *s, const nc_raster_frame *rf,
-                               const nc_shade_params *sp, const nc_march_params *prm, size_t i)
+                               const nc_shade_params *sp, const nc_march_params *prm, size_t i, ray_queue *q)
 {
     const nc_gbuffer *gb = &rf->gbuffer;
     uint32_t o = gb->object[i];
@@ -280,10 +296,15 @@ static inline bool march_pixel(const layered_state *st, const nacre_scene *s, co
         st->ray_made[slot] = 1;
     }
     const nc_march_ray *r = ray;
-    if (r->kind == NC_MARCH_RAY_LONG)
+    if (r->kind == NC_MARCH_RAY_LONG) {
         nc_layered_radiance(m, &r->pt, rf->shade_lights, s->light_count, prm, rgb);
-    else
-        nc_march_ray_radiance(m, ray, rf->shade_lights, s->light_count, prm, rgb);
+        return true;
+    }
+    q->media[q->n] = m;
+    q->rays[q->n] = ray;
+    q->rgb[q->n] = rgb;
+    if (++q->n == NC_MARCH_CHUNK)
+        flush_rays(s, rf, prm, q);
     return true;
 }
 
@@ -402,13 +423,16 @@ static nacre_result march(layered_state *st, const nacre_scene *s, const nc_rast
 #pragma omp parallel for schedule(dynamic, 2) num_threads(nc_threads(st->ctx))
     for (int32_t y = 0; y < h; y += stride) {
         int32_t x0 = gb->row_span ? gb->row_span[2 * y] : 0, x1 = gb->row_span ? gb->row_span[2 * y + 1] : w;
+        ray_queue q = {.n = 0};
         for (int32_t x = x0 + (x0 % stride); x < x1; x += stride)
-            march_pixel(st, s, rf, sp, &prm, (size_t)y * (size_t)w + (size_t)x);
+            march_pixel(st, s, rf, sp, &prm, (size_t)y * (size_t)w + (size_t)x, &q);
+        flush_rays(s, rf, &prm, &q);
     }
     if (stride > 1) {
 #pragma omp parallel for schedule(dynamic, 4) num_threads(nc_threads(st->ctx))
         for (int32_t y = 0; y < h; y++) {
             int32_t x0 = gb->row_span ? gb->row_span[2 * y] : 0, x1 = gb->row_span ? gb->row_span[2 * y + 1] : w;
+            ray_queue q = {.n = 0};
             for (int32_t x = x0; x < x1; x++) {
                 const bool ox = x & 1, oy = y & 1;
                 const size_t i = (size_t)y * (size_t)w + (size_t)x;
@@ -429,8 +453,9 @@ static nacre_result march(layered_state *st, const nacre_scene *s, const nc_rast
                     }
                 }
                 if (!in || !interpolate_pixel(st, gb, i, nb, count, tol))
-                    march_pixel(st, s, rf, sp, &prm, i);
+                    march_pixel(st, s, rf, sp, &prm, i, &q);
             }
+            flush_rays(s, rf, &prm, &q);
         }
     }
     stats->stage_us[NACRE_STAGE_MARCH] += nc_now_us() - t0;
