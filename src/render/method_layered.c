@@ -300,6 +300,9 @@ static inline bool march_pixel(const layered_state *st, const nacre_scene *s, co
         nc_layered_radiance(m, &r->pt, rf->shade_lights, s->light_count, prm, rgb);
         return true;
     }
+    /* The slot is read when the queue is lit: fetch it now, behind the other pixels' work. */
+    for (size_t b = 0; b < st->ray_bytes; b += 64)
+        __builtin_prefetch((const char *)ray + b);
     q->media[q->n] = m;
     q->rays[q->n] = ray;
     q->rgb[q->n] = rgb;

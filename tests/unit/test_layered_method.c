@@ -582,9 +582,16 @@ static void test_rays_kept(void)
     rs.layered.integration = NACRE_LAYERED_ANALYTIC;
     nacre_light_desc ld0, ld;
     CHECK(nacre_scene_get_light(s, (nacre_light){1}, &ld0) == NACRE_OK);
-    nacre_object_desc od;
+    /* The layered object's material */
+    nacre_material layered = {0};
     nacre_material_desc md;
-    CHECK(nacre_scene_get_object(s, (nacre_object){1}, &od) == NACRE_OK);
+    for (uint32_t i = 1; i <= nacre_scene_object_count(s); i++) {
+        nacre_object_desc od;
+        if (nacre_scene_get_object(s, (nacre_object){i}, &od) == NACRE_OK &&
+            nacre_scene_get_material(s, od.material, &md) == NACRE_OK && md.layering.count > 0)
+            layered = od.material;
+    }
+    CHECK(layered.id != 0);
     nacre_image kept = {0}, fresh = {0};
     size_t differ = 0, checked = 0;
     for (int frame = 0; frame < 9; frame++) {
@@ -601,10 +608,9 @@ static void test_rays_kept(void)
             cd.position[0] += 3.0f;
             CHECK(nacre_scene_set_camera(s, &cd) == NACRE_OK);
         }
-        if (frame == 5 && nacre_scene_get_material(s, od.material, &md) == NACRE_OK) {
-            CHECK(md.layering.count > 0);
+        if (frame == 5 && nacre_scene_get_material(s, layered, &md) == NACRE_OK) {
             md.layering.layers[0].depth *= 1.5f;
-            CHECK(nacre_scene_set_material(s, od.material, &md) == NACRE_OK);
+            CHECK(nacre_scene_set_material(s, layered, &md) == NACRE_OK);
         }
         if (frame == 7)
             rs.layered.samples = 16;
