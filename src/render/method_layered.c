@@ -14,10 +14,10 @@
  *
  * What no light changes is kept across frames: each marched pixel's view ray, cut into pieces at
  * the layer boundaries, with the depth map's bottoms along it (nc_march_ray, one slot per
- * translucent pixel, made the first time the pixel is marched), until the G-buffer (camera,
- * geometry, size), the materials or the march settings change. A frame where only lights move
- * then evaluates the lights, the shadow lookups and the closed forms; the image is the same as
- * marching from scratch.
+ * translucent pixel, made the first time the pixel is marched), from the second frame with the
+ * same G-buffer (camera, geometry, size), materials and march settings on. A frame where only
+ * lights move then evaluates the lights, the shadow lookups and the closed forms; the image is
+ * the same as marching from scratch.
  *
  * Multiple scattering (material option multiple_scattering = DIFFUSION): the seed's march is
  * single scattering only, which leaves thick, high-albedo layers too dark. For such objects the
@@ -46,6 +46,15 @@ typedef struct layered_object {
     nc_layer_planes planes;
 } layered_object;
 
+/* What the kept rays were made for: the G-buffer's inputs, the materials, the march settings. */
+typedef struct ray_key {
+    uint64_t scene_uid, geometry, camera, materials;
+    int32_t width, height;
+    uint32_t samples, cap, layers;
+    int32_t integration;
+    float epsilon;
+} ray_key;
+
 typedef struct layered_state {
     nacre_context *ctx;
     layered_object *objects;
@@ -58,17 +67,14 @@ typedef struct layered_state {
     float *radiance;        /* 3 per pixel of the G-buffer, translucent pixels only */
     size_t radiance_pixels;
     /* The kept view rays: slot ray_index[pixel] (UINT32_MAX: none) of ray_bytes bytes, made when
-     * ray_made[slot]; valid for the inputs below while rays_on. */
-    bool rays_on;
+     * ray_made[slot]; valid for ray_key while rays_on (rays_tried: set up for it, or found not
+     * possible). */
+    ray_key ray_key;
+    bool rays_on, rays_tried;
     uint8_t *rays, *ray_made;
     uint32_t *ray_index;
     size_t rays_capacity, made_capacity, index_capacity, ray_bytes;
     uint32_t ray_cap, ray_layers;
-    uint64_t ray_scene_uid, ray_geometry, ray_camera, ray_materials;
-    int32_t ray_width, ray_height;
-    uint32_t ray_samples;
-    nacre_layered_integration ray_integration;
-    float ray_epsilon;
 } layered_state;
 
 static nacre_result layered_check(nacre_context *ctx, const nacre_render_settings *s)
@@ -311,9 +317,11 @@ static inline bool march_pixel(const layered_state *st, const nacre_scene *s, co
     return true;
 }
 
-/* The kept rays for this frame: slots for the translucent pixels, all unmade when the G-buffer,
- * the materials or the march settings changed since they were made. Without room under the
- * memory limit (or for rays too long to keep), every pixel is marched from scratch. */
+/* The kept rays for this frame: slots for the translucent pixels, all unmade, once the G-buffer,
+ * the materials and the march settings are those of the previous frame. A frame after a change
+ * marches from scratch: while the camera moves every frame, rays would be made and never lit
+ * again (writing them made such frames slower). Without room under the memory limit (or for rays
+ * too long to keep), every pixel is marched from scratch. */
 static nacre_result update_rays(layered_state *st, const nacre_scene *s, const nc_gbuffer *gb,
                                 const nacre_render_settings *settings, const nc_march_params *prm)
 {
@@ -322,13 +330,27 @@ static nacre_result update_rays(layered_state *st, const nacre_scene *s, const n
     for (uint32_t i = 0; i < s->material_count; i++)
         if (s->materials[i].type == NACRE_MATERIAL_TRANSLUCENT && st->media[i].count > layers)
             layers = st->media[i].count;
-    if (st->rays_on && st->ray_scene_uid == s->uid && st->ray_geometry == s->versions.geometry &&
-        st->ray_camera == s->versions.camera && st->ray_materials == s->versions.materials &&
-        st->ray_width == gb->width && st->ray_height == gb->height && st->ray_samples == prm->samples &&
-        st->ray_integration == settings->layered.integration && st->ray_epsilon == settings->layered.epsilon &&
-        st->ray_cap == cap && st->ray_layers == layers)
+    ray_key key;
+    memset(&key, 0, sizeof(key)); /* the padding too: keys are compared as bytes */
+    key.scene_uid = s->uid;
+    key.geometry = s->versions.geometry;
+    key.camera = s->versions.camera;
+    key.materials = s->versions.materials;
+    key.width = gb->width;
+    key.height = gb->height;
+    key.samples = prm->samples;
+    key.cap = cap;
+    key.layers = layers;
+    key.integration = (int32_t)settings->layered.integration;
+    key.epsilon = settings->layered.epsilon;
+    if (memcmp(&key, &st->ray_key, sizeof(key)) != 0) {
+        st->ray_key = key;
+        st->rays_on = st->rays_tried = false;
         return NACRE_OK;
-    st->rays_on = false;
+    }
+    if (st->rays_tried)
+        return NACRE_OK;
+    st->rays_tried = true;
     if (cap == 0)
         return NACRE_OK;
     nacre_context *ctx = st->ctx;
@@ -365,15 +387,6 @@ static nacre_result update_rays(layered_state *st, const nacre_scene *s, const n
     st->ray_bytes = bytes;
     st->ray_cap = cap;
     st->ray_layers = layers;
-    st->ray_scene_uid = s->uid;
-    st->ray_geometry = s->versions.geometry;
-    st->ray_camera = s->versions.camera;
-    st->ray_materials = s->versions.materials;
-    st->ray_width = gb->width;
-    st->ray_height = gb->height;
-    st->ray_samples = prm->samples;
-    st->ray_integration = settings->layered.integration;
-    st->ray_epsilon = settings->layered.epsilon;
     return NACRE_OK;
 }
 
