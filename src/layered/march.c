@@ -211,7 +211,9 @@ typedef struct light_at {
     float k[3];   /* K' */
 } light_at;
 
-static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, float ci, float s, light_at *out)
+/* bmc: the layer bottoms at M (stride floats apart) from nc_march_ray_make, or NULL: read here. */
+static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, float ci, float s, const float *bmc,
+                       uint32_t stride, light_at *out)
 {
     const nc_march_point *pt = r->pt;
     const nc_layer_medium *m = r->m;
@@ -288,7 +290,11 @@ static void eval_light(const ray_ctx *r, const nacre_light_desc *l, float co, fl
     } else {
         float bm[NACRE_MAX_LAYERS], bk[NACRE_MAX_LAYERS];
         float dpk[3] = {out->k[0] - pt->p[0], out->k[1] - pt->p[1], out->k[2] - pt->p[2]};
-        bottoms_at(&m->stack, pt->uv[0] + s * r->du, pt->uv[1] + s * r->dv, bm);
+        if (bmc)
+            for (uint32_t j = 0; j < m->count; j++)
+                bm[j] = bmc[(size_t)j * stride];
+        else
+            bottoms_at(&m->stack, pt->uv[0] + s * r->du, pt->uv[1] + s * r->dv, bm);
         bottoms_at(&m->stack, pt->uv[0] + dot3(pt->gu, dpk), pt->uv[1] + dot3(pt->gv, dpk), bk);
         float above = 0, prev_m = 0, prev_k = 0;
         for (uint32_t j = 0; j < m->count; j++) {
@@ -325,11 +331,11 @@ typedef struct light_batch {
 } light_batch;
 
 static void eval_scalar(const ray_ctx *r, const nacre_light_desc *l, float co, float ci, const float *s, uint32_t n,
-                        light_batch *out)
+                        const float *bm, uint32_t stride, light_batch *out)
 {
     for (uint32_t i = 0; i < n; i++) {
         light_at la;
-        eval_light(r, l, co, ci, s[i], &la);
+        eval_light(r, l, co, ci, s[i], bm ? bm + i : NULL, stride, &la);
         const bool lit = la.lit && la.w > 0;
         out->w[i] = lit ? la.w : 0.0f;
         for (int c = 0; c < 3; c++)
@@ -433,9 +439,10 @@ static inline __m256 dot8(const __m256 a[3], const __m256 b[3])
 }
 
 /* eval_light on 8 points of the ray (directional and point lights; spot lights take the scalar
- * path for their falloff). Lanes past n repeat the last point and are not stored. */
-static void eval8(const ray_ctx *r, const nacre_light_desc *l, const float *sp, uint32_t n, light_batch *out,
-                  uint32_t at)
+ * path for their falloff). Lanes past n repeat the last point and are not stored. bmc: the
+ * bottoms at the 8 points (8 readable lanes per layer, stride floats apart) or NULL. */
+static void eval8(const ray_ctx *r, const nacre_light_desc *l, const float *sp, uint32_t n, const float *bmc,
+                  uint32_t stride, light_batch *out, uint32_t at)
 {
     const nc_march_point *pt = r->pt;
     const nc_layer_medium *m = r->m;
@@ -508,9 +515,14 @@ static void eval8(const ray_ctx *r, const nacre_light_desc *l, const float *sp, 
             tau[c] = _mm256_mul_ps(_mm256_set1_ps(m->st[0][c]), km);
     } else {
         __m256 bm[NACRE_MAX_LAYERS], bk[NACRE_MAX_LAYERS], dpk[3];
-        const __m256 u = _mm256_fmadd_ps(s, _mm256_set1_ps(r->du), _mm256_set1_ps(pt->uv[0]));
-        const __m256 v = _mm256_fmadd_ps(s, _mm256_set1_ps(r->dv), _mm256_set1_ps(pt->uv[1]));
-        bottoms8(&m->stack, u, v, bm);
+        if (bmc) {
+            for (uint32_t j = 0; j < m->count; j++)
+                bm[j] = _mm256_loadu_ps(bmc + (size_t)j * stride);
+        } else {
+            const __m256 u = _mm256_fmadd_ps(s, _mm256_set1_ps(r->du), _mm256_set1_ps(pt->uv[0]));
+            const __m256 v = _mm256_fmadd_ps(s, _mm256_set1_ps(r->dv), _mm256_set1_ps(pt->uv[1]));
+            bottoms8(&m->stack, u, v, bm);
+        }
         for (int c = 0; c < 3; c++)
             dpk[c] = _mm256_sub_ps(k[c], _mm256_set1_ps(pt->p[c]));
         const __m256 gu[3] = {_mm256_set1_ps(pt->gu[0]), _mm256_set1_ps(pt->gu[1]), _mm256_set1_ps(pt->gu[2])};
@@ -593,25 +605,21 @@ static inline float sum_k_exp(const float *k, const float *a, uint32_t n)
     return acc;
 }
 
-/* The light at points s[0..n-1] (n <= NC_MARCH_BATCH) into out[0..n-1]. */
+/* The light at points s[0..n-1] (n <= NC_MARCH_BATCH) into out[0..n-1]; bm: the bottoms at
+ * those points (nc_march_ray_make's, n rounded up to 8 readable per layer) or NULL. */
 static void eval_batch(const ray_ctx *r, const nacre_light_desc *l, float co, float ci, const float *s, uint32_t n,
-                       light_batch *out)
+                       const float *bm, uint32_t stride, light_batch *out)
 {
 #ifdef __AVX2__
     if (l->type != NACRE_LIGHT_SPOT) {
         for (uint32_t i = 0; i < n; i += 8)
-            eval8(r, l, s + i, n - i < 8 ? n - i : 8, out, i);
+            eval8(r, l, s + i, n - i < 8 ? n - i : 8, bm ? bm + i : NULL, stride, out, i);
         return;
     }
+    bm = NULL; /* the cached bottoms are bottoms8's; the scalar path reads its own */
 #endif
-    eval_scalar(r, l, co, ci, s, n, out);
+    eval_scalar(r, l, co, ci, s, n, bm, stride, out);
 }
-
-/* A piece of the view ray [s0, s1] inside one layer. */
-typedef struct piece {
-    float s0, s1;
-    uint8_t layer;
-} piece;
 
 #ifdef __AVX2__
 /* fast_log on 8 lanes, the same operations. */
@@ -644,14 +652,15 @@ static inline __m256 hg8(__m256 c, __m256 g)
                          _mm256_mul_ps(_mm256_mul_ps(_mm256_set1_ps(4.0f * (float)NC_PI), d), _mm256_sqrt_ps(d)));
 }
 
-/* The ANALYTIC sum of nc_layered_radiance over pieces 0..np-1 with every piece end in lb (np <
+/* The ANALYTIC sum of nc_layered_radiance over pieces 0..np-1 (piece i: [pts[i], pts[i + 1]] in
+ * layer layers[i]) with every piece end in lb (np <
  * NC_MARCH_BATCH), 8 pieces at a time: the same closed forms as its scalar loop, the integrand's
  * log and exponential at both ends of every piece at once. A piece's start takes the previous
  * piece's end values when the layer (so the phase) does not change, as the scalar loop does;
  * the lanes' sums are added at the end, so the result differs from that loop's by float
  * rounding only. */
-static void closed_forms8(const nc_layer_medium *m, const float strength[3], const piece *pcs, uint32_t np,
-                          const light_batch *lb, float vis0, float vis_rate, float sum[3])
+static void closed_forms8(const nc_layer_medium *m, const float strength[3], const float *pts, const uint8_t *layers,
+                          uint32_t np, const light_batch *lb, float vis0, float vis_rate, float sum[3])
 {
     enum { N = NC_MARCH_BATCH + NC_MARCH_PAD };
     float ts[3][N], te[3][N], len[N], s0[N], s1[N], g[N], kc[3][N], change[N];
@@ -660,12 +669,12 @@ static void closed_forms8(const nc_layer_medium *m, const float strength[3], con
     const uint32_t nr = (np + 7u) & ~7u;
     for (uint32_t i = 0; i < nr; i++) {
         const bool in = i < np;
-        const uint32_t j = in ? pcs[i].layer : 0;
-        len[i] = in ? pcs[i].s1 - pcs[i].s0 : 0.0f;
-        s0[i] = in ? pcs[i].s0 : 0.0f;
-        s1[i] = in ? pcs[i].s1 : 0.0f;
+        const uint32_t j = in ? layers[i] : 0;
+        len[i] = in ? pts[i + 1] - pts[i] : 0.0f;
+        s0[i] = in ? pts[i] : 0.0f;
+        s1[i] = in ? pts[i + 1] : 0.0f;
         g[i] = m->g[j];
-        change[i] = (i == 0 || !in || pcs[i - 1].layer != j) ? -1.0f : 0.0f; /* sign bit: blend mask */
+        change[i] = (i == 0 || !in || layers[i - 1] != j) ? -1.0f : 0.0f; /* sign bit: blend mask */
         for (int c = 0; c < 3; c++) {
             ts[c][i] = tau[c];
             if (in)
@@ -774,8 +783,10 @@ static inline float probe_bottom(const ray_ctx *r, probe *p, uint32_t edge)
 }
 
 /* The pieces of constant layer along [0, len] (ANALYTIC), or the N steps with the layer at their
- * midpoints (SAMPLES); stops early where the transmittance to P is negligible. */
-static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece *out)
+ * midpoints (SAMPLES); stops early where the transmittance to P is negligible. Piece i is
+ * [pts[i], pts[i + 1]] in layer layers[i] (pts[0] = 0); at most limit - 1 pieces (ANALYTIC; limit
+ * <= NC_MARCH_MAX_PIECES): fewer than limit - 2 means none was cut off. */
+static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, uint32_t limit, float *pts, uint8_t *layers)
 {
     const nc_layer_medium *m = r->m;
     const uint32_t n = prm->samples;
@@ -783,10 +794,13 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
     const float tau_stop = -logf(NC_MARCH_T_MIN);
     float tau_min = 0; /* view optical depth in the least extinguishing channel */
     uint32_t count = 0;
+    pts[0] = 0.0f;
+/* the next piece, from the last one's end to b */
+#define PIECE(b, j) (layers[count] = (uint8_t)(j), pts[++count] = (b))
     if (!prm->analytic) {
         for (uint32_t i = 0; i < n && tau_min < tau_stop; i++) {
             uint32_t j = layer_at(r, ((float)i + 0.5f) * step);
-            out[count++] = (piece){(float)i * step, (float)(i + 1) * step, (uint8_t)j};
+            PIECE((float)(i + 1) * step, j);
             tau_min += minf(m->st[j][0], minf(m->st[j][1], m->st[j][2])) * step;
         }
         return count;
@@ -801,7 +815,7 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
         const float s = i == n ? r->len : (float)i * step;
         probe_at(r, s, ps);
         const uint32_t j = ps->layer;
-        while (j != jl && count < NC_MARCH_MAX_PIECES - 2) {
+        while (j != jl && count < limit - 2) {
             /* First change of layer after lo: layer_at(a) == jl, layer_at(b) != jl. */
             probe *pa = plo, *pb = ps;
             for (int it = 0; it < NC_MARCH_BISECT; it++) {
@@ -820,7 +834,7 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
             const float fb = b * r->dz - probe_bottom(r, pb, edge);
             float cut = fa != fb ? a + (b - a) * fa / (fa - fb) : b;
             cut = cut >= a && cut <= b ? cut : b;
-            out[count++] = (piece){lo, cut, (uint8_t)jl};
+            PIECE(cut, jl);
             tau_min += minf(m->st[jl][0], minf(m->st[jl][1], m->st[jl][2])) * (cut - lo);
             lo = cut;
             /* The layer just past the cut: a bracket that held two boundaries goes on with the
@@ -831,100 +845,246 @@ static uint32_t make_pieces(const ray_ctx *r, const nc_march_params *prm, piece 
             plo->layer = jl;
             plo->has_bot = false;
         }
-        out[count++] = (piece){lo, s, (uint8_t)jl};
+        PIECE(s, jl);
         tau_min += minf(m->st[jl][0], minf(m->st[jl][1], m->st[jl][2])) * (s - lo);
         lo = s;
         jl = j;
         probe *t = plo; /* the end probe starts the next step */
         plo = ps;
         ps = t;
-        if (count >= NC_MARCH_MAX_PIECES - 2)
+        if (count >= limit - 2)
             break;
     }
+#undef PIECE
     return count;
 }
 
-void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, const nc_shade_light *lights,
-                         uint32_t light_count, const nc_march_params *prm, float rgb[3])
+/* The refracted view ray of pt into r and the Fresnel transmittance out; false when no light
+ * leaves P towards the eye. */
+static bool view_ray(const nc_layer_medium *m, const nc_march_point *pt, ray_ctx *r, float *t_out)
 {
-    rgb[0] = rgb[1] = rgb[2] = 0;
     const float eta = m->eta;
     const float cos_o = dot3(pt->n, pt->v);
-    if (!(cos_o > 0) || light_count == 0)
-        return;
-    /* The refracted view ray, pointing into the material. */
+    if (!(cos_o > 0))
+        return false;
     float sin2_t = (1.0f - cos_o * cos_o) / (eta * eta);
     if (sin2_t >= 1.0f)
-        return;
+        return false;
     float cos_t = sqrtf(1.0f - sin2_t);
-    ray_ctx r = {.m = m, .pt = pt};
+    *r = (ray_ctx){.m = m, .pt = pt};
     for (int k = 0; k < 3; k++)
-        r.d[k] = -pt->v[k] / eta + (cos_o / eta - cos_t) * pt->n[k];
-    r.dz = -dot3(r.d, pt->n);
-    r.du = dot3(pt->gu, r.d);
-    r.dv = dot3(pt->gv, r.d);
+        r->d[k] = -pt->v[k] / eta + (cos_o / eta - cos_t) * pt->n[k];
+    r->dz = -dot3(r->d, pt->n);
+    r->du = dot3(pt->gu, r->d);
+    r->dv = dot3(pt->gv, r->d);
     /* Eq. 15, with the refracted direction */
-    r.len = m->depth_max / maxf(-dot3(pt->ns, r.d), 0.1f);
-    const float t_out = (1.0f - nc_fresnel_dielectric_f(cos_o, eta, 1.0f / (eta * eta))) / (eta * eta);
+    r->len = m->depth_max / maxf(-dot3(pt->ns, r->d), 0.1f);
+    *t_out = (1.0f - nc_fresnel_dielectric_f(cos_o, eta, 1.0f / (eta * eta))) / (eta * eta);
+    return true;
+}
 
-    /* A directional light behind both P's tangent plane and the fitted plane is behind every
-     * plane of eq. 9 (their normals are positive blends of the two): it lights no sample. */
+/* The lights that can light a sample of pt's ray (bit li, the first 32): a directional light
+ * behind both P's tangent plane and the fitted plane is behind every plane of eq. 9 (their
+ * normals are positive blends of the two). */
+static uint32_t lit_mask(const nc_march_point *pt, const nc_shade_light *lights, uint32_t light_count)
+{
     uint32_t lit = 0;
     for (uint32_t li = 0; li < light_count && li < 32; li++) {
         const nacre_light_desc *l = lights[li].desc;
         if (l->type != NACRE_LIGHT_DIRECTIONAL || dot3(pt->n, l->direction) < 0 || dot3(pt->ns, l->direction) < 0)
             lit |= 1u << li;
     }
-    if (!lit && light_count <= 32)
-        return;
-    piece pieces[NC_MARCH_MAX_PIECES];
-    const uint32_t np = make_pieces(&r, prm, pieces);
-    for (uint32_t li = 0; li < light_count; li++) {
-        const nacre_light_desc *l = lights[li].desc;
-        if (li < 32 && !(lit & (1u << li)))
-            continue;
-        const float co = l->type == NACRE_LIGHT_SPOT ? cosf(l->outer_angle * NC_DEG2RAD) : 0.0f;
-        const float ci = l->type == NACRE_LIGHT_SPOT ? cosf(l->inner_angle * NC_DEG2RAD) : 0.0f;
-        /* ANALYTIC evaluates the light at the pieces' ends in batches (eval_batch through
-         * FETCH): point 0 is the first piece's start, point q the end of piece q - 1. */
-        const uint32_t npts = np + 1;
-        light_batch lb;
-        float spts[NC_MARCH_BATCH];
-        uint32_t base = 0, filled = 0;
-#define POINT(q) ((q) == 0 ? pieces[0].s0 : pieces[(q) - 1].s1)
+    return lit;
+}
+
+/* A view ray cut into pieces (make_pieces' pts[0..np] and layers, with pts[np + 1] = len for
+ * ANALYTIC). bm: the layer bottoms at the points where the lights are evaluated (ANALYTIC:
+ * pts[0..np + 1]; SAMPLES: the pieces' midpoints), stride floats per layer, from
+ * nc_march_ray_make; NULL: read where needed. */
+typedef struct cut_ray {
+    ray_ctx r;
+    float t_out;
+    const float *pts;
+    const uint8_t *layers;
+    uint32_t np;
+    const float *bm;
+    uint32_t stride;
+} cut_ray;
+
+/* One light's evaluation along a cut ray: the batch of points base .. base + filled - 1 in lb. */
+typedef struct light_eval {
+    const nacre_light_desc *l;
+    float co, ci; /* a spot light's cone cosines */
+    light_batch lb;
+    uint32_t base, filled;
+} light_eval;
+
+static void light_eval_init(light_eval *le, const nacre_light_desc *l)
+{
+    le->l = l;
+    le->co = l->type == NACRE_LIGHT_SPOT ? cosf(l->outer_angle * NC_DEG2RAD) : 0.0f;
+    le->ci = l->type == NACRE_LIGHT_SPOT ? cosf(l->inner_angle * NC_DEG2RAD) : 0.0f;
+    le->base = le->filled = 0;
+}
+
+/* ANALYTIC rays of one batch (np + 1 < NC_MARCH_BATCH): the light at every piece end, and at M_max
+ * when it is not the last end (the ray stopped early), for the shadow lookup at M_max's entry
+ * point K': whether light reaches M_max and K'. */
+static bool eval_ends_and_far(const cut_ray *cr, light_eval *le, float far_k[3])
+{
+    const uint32_t npts = cr->np + 1;
+    float spts[NC_MARCH_BATCH];
+    for (uint32_t e = 0; e < npts; e++)
+        spts[e] = cr->pts[e];
+    uint32_t fi = npts - 1;
+    if (spts[fi] != cr->r.len)
+        spts[++fi] = cr->r.len; /* pts[np + 1]: bm has it */
+    eval_batch(&cr->r, le->l, le->co, le->ci, spts, fi + 1, cr->bm, cr->stride, &le->lb);
+    le->base = 0;
+    le->filled = npts;
+    for (int c = 0; c < 3; c++)
+        far_k[c] = le->lb.k[c][fi];
+    return le->lb.w[fi] > 0;
+}
+
+/* The light of le along the cut ray with visibilities vis0 at P and vis1 at M_max's entry point,
+ * added to rgb. */
+static void light_sum(const cut_ray *cr, light_eval *le, float vis0, float vis1, const nc_march_params *prm,
+                      float rgb[3])
+{
+    const ray_ctx *r = &cr->r;
+    const nc_layer_medium *m = r->m;
+    const nacre_light_desc *l = le->l;
+    const float *pts = cr->pts;
+    const uint8_t *layers = cr->layers;
+    const uint32_t np = cr->np, npts = np + 1;
+    light_batch *lb = &le->lb;
+    float spts[NC_MARCH_BATCH];
+    /* ANALYTIC evaluates the light at the pieces' ends in batches (FETCH): point q is pts[q].
+     * bm is only given for rays of one batch (base 0). */
 #define FETCH(q)                                                                                                       \
     do {                                                                                                               \
-        if ((q) >= base + filled) {                                                                                    \
-            base = (q);                                                                                                \
-            filled = npts - base < NC_MARCH_BATCH ? npts - base : NC_MARCH_BATCH;                                      \
-            for (uint32_t e = 0; e < filled; e++)                                                                      \
-                spts[e] = POINT(base + e);                                                                             \
-            eval_batch(&r, l, co, ci, spts, filled, &lb);                                                              \
+        if ((q) >= le->base + le->filled) {                                                                            \
+            le->base = (q);                                                                                            \
+            le->filled = npts - le->base < NC_MARCH_BATCH ? npts - le->base : NC_MARCH_BATCH;                          \
+            for (uint32_t e = 0; e < le->filled; e++)                                                                  \
+                spts[e] = pts[le->base + e];                                                                           \
+            eval_batch(r, l, le->co, le->ci, spts, le->filled, cr->bm ? cr->bm + le->base : NULL, cr->stride, lb);    \
         }                                                                                                              \
     } while (0)
-        /* Visibility at P and at the entry point of M_max's light. When all the pieces' ends fit
-         * in one batch, M_max is its last point (or one more lane): its entry point comes with
-         * the batch instead of a scalar evaluation of its own. */
+    /* Per channel, ln of the integrand without sigma_s * strength (kc): the pieces' ends
+     * share it when the layer does not change, and its difference gives the exponential's
+     * rate without a logarithm per channel. */
+    float tau[3] = {0, 0, 0}, sum[3] = {0, 0, 0}, kc[3];
+    float lfa[3] = {0, 0, 0}, ea[3] = {0, 0, 0}; /* ea = e^lfa: a piece's end starts the next */
+    bool a_lit = false;
+    uint32_t a_layer = UINT32_MAX, qa = 0;
+    const float vis_rate = (vis1 - vis0) / r->len;
+    if (!prm->analytic) {
+        /* The seed's sums, a batch of samples at a time: the weights and exponents first
+         * (the transmittance to P runs from sample to sample), then the exponentials 8 at a
+         * time (sum_k_exp). */
+        float ks[3][NC_MARCH_BATCH], arg[3][NC_MARCH_BATCH];
+        for (uint32_t i0 = 0; i0 < np; i0 += NC_MARCH_BATCH) {
+            const uint32_t nb = np - i0 < NC_MARCH_BATCH ? np - i0 : NC_MARCH_BATCH;
+            for (uint32_t e = 0; e < nb; e++)
+                spts[e] = 0.5f * (pts[i0 + e] + pts[i0 + e + 1]);
+            eval_batch(r, l, le->co, le->ci, spts, nb, cr->bm ? cr->bm + i0 : NULL, cr->stride, lb);
+            for (uint32_t e = 0; e < nb; e++) {
+                const uint32_t j = layers[i0 + e];
+                const float len = pts[i0 + e + 1] - pts[i0 + e];
+                float w = hg(lb->cos_s[e], m->g[j]) * (vis0 + vis_rate * spts[e]) * len * lb->w[e];
+                w = w > 0 ? w : 0.0f;
+                for (int c = 0; c < 3; c++) {
+                    ks[c][e] = m->ss[j][c] * l->strength[c] * w;
+                    arg[c][e] = -lb->tau[c][e] - tau[c] - 0.5f * m->st[j][c] * len;
+                    tau[c] += m->st[j][c] * len;
+                }
+            }
+            for (int c = 0; c < 3; c++)
+                sum[c] += sum_k_exp(ks[c], arg[c], nb);
+        }
+        for (int c = 0; c < 3; c++)
+            rgb[c] += sum[c] * cr->t_out;
+        return;
+    }
+#ifdef __AVX2__
+    if (npts <= NC_MARCH_BATCH) {
+        FETCH(0);
+        closed_forms8(m, l->strength, pts, layers, np, lb, vis0, vis_rate, sum);
+        for (int c = 0; c < 3; c++)
+            rgb[c] += sum[c] * cr->t_out;
+        return;
+    }
+#endif
+    for (uint32_t i = 0; i < np; i++) {
+        const uint32_t j = layers[i];
+        const float s0 = pts[i], s1 = pts[i + 1], len = s1 - s0;
+        for (int c = 0; c < 3; c++)
+            kc[c] = m->ss[j][c] * l->strength[c];
+        if (a_layer != j) { /* the first piece, or a new layer: the start's phase changed */
+            FETCH(i);
+            qa = i - le->base;
+            const float pa = hg(lb->cos_s[qa], m->g[j]) * (vis0 + vis_rate * s0) * lb->w[qa];
+            a_lit = pa > FLT_MIN; /* fast_log takes normal numbers */
+            if (a_lit) {
+                const float lp = fast_log(pa);
+                for (int c = 0; c < 3; c++) {
+                    lfa[c] = lp - lb->tau[c][qa] - tau[c];
+                    ea[c] = fast_exp(lfa[c]);
+                }
+            }
+        }
+        FETCH(i + 1);
+        const uint32_t qb = i + 1 - le->base;
+        const float pb = hg(lb->cos_s[qb], m->g[j]) * (vis0 + vis_rate * s1) * lb->w[qb];
+        const bool b_lit = pb > FLT_MIN;
+        const float lpb = b_lit ? fast_log(pb) : 0.0f;
+        for (int c = 0; c < 3; c++) {
+            const float tb = tau[c] + m->st[j][c] * len;
+            const float lfb = lpb - lb->tau[c][qb] - tb;
+            const float fb = b_lit ? fast_exp(lfb) : 0.0f;
+            if (a_lit && b_lit) {
+                const float q = lfa[c] - lfb, fa = ea[c];
+                sum[c] += kc[c] * (q > 1e-4f || q < -1e-4f ? len * (fa - fb) / q : len * 0.5f * (fa + fb));
+            } else { /* light on one end only: the trapezoid */
+                sum[c] += kc[c] * len * 0.5f * ((a_lit ? ea[c] : 0.0f) + fb);
+            }
+            tau[c] = tb;
+            lfa[c] = lfb;
+            ea[c] = fb;
+        }
+        a_lit = b_lit;
+        a_layer = j;
+    }
+#undef FETCH
+    for (int c = 0; c < 3; c++)
+        rgb[c] += sum[c] * cr->t_out;
+}
+
+/* The lights (those of mask lit among the first 32, and every later one) along a cut ray, added
+ * to rgb. Visibility: the shadow maps at P and at the entry point K' of M_max's light; when all
+ * the pieces' ends fit in one batch, M_max is its last point (or one more lane), so K' comes
+ * with the batch instead of a scalar evaluation of its own. */
+static void light_ray(const cut_ray *cr, const nc_shade_light *lights, uint32_t light_count, uint32_t lit,
+                      const nc_march_params *prm, float rgb[3])
+{
+    const nc_march_point *pt = cr->r.pt;
+    for (uint32_t li = 0; li < light_count; li++) {
+        if (li < 32 && !(lit & (1u << li)))
+            continue;
+        light_eval le;
+        light_eval_init(&le, lights[li].desc);
         float vis0 = 1, vis1 = 1;
         if (lights[li].shadow) {
-            nc_vec3 n = nc_v3a(pt->n);
-            vis0 = nc_shadow_lookup(lights[li].shadow, nc_v3a(pt->p), n, prm->pcf_radius, prm->shadow_bias);
+            vis0 = nc_shadow_lookup(lights[li].shadow, nc_v3a(pt->p), nc_v3a(pt->n), prm->pcf_radius, prm->shadow_bias);
             bool far_lit;
             float far_k[3];
-            if (prm->analytic && npts < NC_MARCH_BATCH) {
-                for (uint32_t e = 0; e < npts; e++)
-                    spts[e] = POINT(e);
-                uint32_t fi = npts - 1;
-                if (spts[fi] != r.len)
-                    spts[++fi] = r.len;
-                eval_batch(&r, l, co, ci, spts, fi + 1, &lb);
-                filled = npts;
-                far_lit = lb.w[fi] > 0;
-                for (int c = 0; c < 3; c++)
-                    far_k[c] = lb.k[c][fi];
+            if (prm->analytic && cr->np + 1 < NC_MARCH_BATCH) {
+                far_lit = eval_ends_and_far(cr, &le, far_k);
             } else {
                 light_at far;
-                eval_light(&r, l, co, ci, r.len, &far);
+                eval_light(&cr->r, le.l, le.co, le.ci, cr->r.len, NULL, 0, &far);
                 far_lit = far.lit;
                 memcpy(far_k, far.k, sizeof(far_k));
             }
@@ -934,96 +1094,184 @@ void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, con
             if (vis0 <= 0 && vis1 <= 0)
                 continue;
         }
-        /* Per channel, ln of the integrand without sigma_s * strength (kc): the pieces' ends
-         * share it when the layer does not change, and its difference gives the exponential's
-         * rate without a logarithm per channel. */
-        float tau[3] = {0, 0, 0}, sum[3] = {0, 0, 0}, kc[3];
-        float lfa[3] = {0, 0, 0}, ea[3] = {0, 0, 0}; /* ea = e^lfa: a piece's end starts the next */
-        bool a_lit = false;
-        uint32_t a_layer = UINT32_MAX, qa = 0;
-        const float vis_rate = (vis1 - vis0) / r.len;
-        if (!prm->analytic) {
-            /* The seed's sums, a batch of samples at a time: the weights and exponents first
-             * (the transmittance to P runs from sample to sample), then the exponentials 8 at a
-             * time (sum_k_exp). */
-            float ks[3][NC_MARCH_BATCH], arg[3][NC_MARCH_BATCH];
-            for (uint32_t i0 = 0; i0 < np; i0 += NC_MARCH_BATCH) {
-                const uint32_t nb = np - i0 < NC_MARCH_BATCH ? np - i0 : NC_MARCH_BATCH;
-                for (uint32_t e = 0; e < nb; e++)
-                    spts[e] = 0.5f * (pieces[i0 + e].s0 + pieces[i0 + e].s1);
-                eval_batch(&r, l, co, ci, spts, nb, &lb);
-                for (uint32_t e = 0; e < nb; e++) {
-                    const piece *pc = &pieces[i0 + e];
-                    const uint32_t j = pc->layer;
-                    const float len = pc->s1 - pc->s0;
-                    float w = hg(lb.cos_s[e], m->g[j]) * (vis0 + vis_rate * spts[e]) * len * lb.w[e];
-                    w = w > 0 ? w : 0.0f;
-                    for (int c = 0; c < 3; c++) {
-                        ks[c][e] = m->ss[j][c] * l->strength[c] * w;
-                        arg[c][e] = -lb.tau[c][e] - tau[c] - 0.5f * m->st[j][c] * len;
-                        tau[c] += m->st[j][c] * len;
-                    }
-                }
-                for (int c = 0; c < 3; c++)
-                    sum[c] += sum_k_exp(ks[c], arg[c], nb);
-            }
-            for (int c = 0; c < 3; c++)
-                rgb[c] += sum[c] * t_out;
-            continue;
+        light_sum(cr, &le, vis0, vis1, prm, rgb);
+    }
+}
+
+void nc_layered_radiance(const nc_layer_medium *m, const nc_march_point *pt, const nc_shade_light *lights,
+                         uint32_t light_count, const nc_march_params *prm, float rgb[3])
+{
+    rgb[0] = rgb[1] = rgb[2] = 0;
+    ray_ctx r;
+    float t_out;
+    if (light_count == 0 || !view_ray(m, pt, &r, &t_out))
+        return;
+    const uint32_t lit = lit_mask(pt, lights, light_count);
+    if (!lit && light_count <= 32)
+        return;
+    float pts[NC_MARCH_MAX_PIECES + 2];
+    uint8_t layers[NC_MARCH_MAX_PIECES];
+    const uint32_t np = make_pieces(&r, prm, NC_MARCH_MAX_PIECES, pts, layers);
+    pts[np + 1] = r.len;
+    const cut_ray cr = {.r = r, .t_out = t_out, .pts = pts, .layers = layers, .np = np};
+    light_ray(&cr, lights, light_count, lit, prm, rgb);
+}
+
+/* A slot: the header, then cap points, layers x cap bottoms, cap layer indices. */
+#define NC_MARCH_RAY_HEAD ((sizeof(nc_march_ray) + 31) & ~(size_t)31)
+
+uint32_t nc_march_ray_cap(const nc_march_params *prm)
+{
+    /* ANALYTIC: the steps' ends, 8 boundary crossings (beyond them a ray is LONG) and M_max;
+     * SAMPLES: the steps' ends and M_max. One batch of NC_MARCH_BATCH points at most. */
+    const uint64_t need = (uint64_t)prm->samples + (prm->analytic ? 11u : 2u);
+    const uint64_t cap = (need + 7u) & ~(uint64_t)7u;
+    return cap <= NC_MARCH_BATCH ? (uint32_t)cap : 0u;
+}
+
+size_t nc_march_ray_bytes(uint32_t cap, uint32_t layers)
+{
+    return (NC_MARCH_RAY_HEAD + (size_t)cap * ((1u + layers) * sizeof(float) + 1u) + 15u) & ~(size_t)15u;
+}
+
+uint32_t nc_march_ray_make(const nc_layer_medium *m, const nc_march_point *pt, const nc_march_params *prm,
+                           uint32_t cap, uint32_t layers, void *slot)
+{
+    nc_march_ray *ray = slot;
+    float *pts = (float *)((char *)slot + NC_MARCH_RAY_HEAD), *bm = pts + cap;
+    uint8_t *lay = (uint8_t *)(bm + (size_t)layers * cap);
+    ray->pt = *pt;
+    ray->cap = cap;
+    ray->layers = layers;
+    ray->np = 0;
+    ray->kind = NC_MARCH_RAY_DARK;
+    if (m->count > layers || cap < 8 || cap > NC_MARCH_BATCH)
+        return ray->kind = NC_MARCH_RAY_LONG;
+    ray_ctx r;
+    if (!view_ray(m, &ray->pt, &r, &ray->t_out))
+        return ray->kind;
+    memcpy(ray->d, r.d, sizeof(ray->d));
+    ray->dz = r.dz;
+    ray->du = r.du;
+    ray->dv = r.dv;
+    ray->len = r.len;
+    const uint32_t np = make_pieces(&r, prm, cap - 1, pts, lay);
+    if ((prm->analytic && np + 3 >= cap) || np + 2 > cap) /* possibly cut off by the limit */
+        return ray->kind = NC_MARCH_RAY_LONG;
+    pts[np + 1] = r.len;
+    ray->np = np;
+    /* The bottoms where light_ray evaluates the lights, 8 points at a time as eval8 reads them
+     * (the last point repeated past the end). */
+    const uint32_t ne = prm->analytic ? np + 2 : np;
+    if (m->count && ne > 0) {
+        const uint32_t ne8 = (ne + 7u) & ~7u; /* <= cap */
+        float e[NC_MARCH_BATCH];
+        for (uint32_t q = 0; q < ne8; q++) {
+            const uint32_t qq = q < ne ? q : ne - 1;
+            e[q] = prm->analytic ? pts[qq] : 0.5f * (pts[qq] + pts[qq + 1]);
         }
 #ifdef __AVX2__
-        if (npts <= NC_MARCH_BATCH) {
-            FETCH(0);
-            closed_forms8(m, l->strength, pieces, np, &lb, vis0, vis_rate, sum);
-            for (int c = 0; c < 3; c++)
-                rgb[c] += sum[c] * t_out;
-            continue;
+        for (uint32_t q = 0; q < ne8; q += 8) {
+            const __m256 s = _mm256_loadu_ps(e + q);
+            __m256 b[NACRE_MAX_LAYERS];
+            bottoms8(&m->stack, _mm256_fmadd_ps(s, _mm256_set1_ps(r.du), _mm256_set1_ps(pt->uv[0])),
+                     _mm256_fmadd_ps(s, _mm256_set1_ps(r.dv), _mm256_set1_ps(pt->uv[1])), b);
+            for (uint32_t j = 0; j < m->count; j++)
+                _mm256_storeu_ps(bm + (size_t)j * cap + q, b[j]);
+        }
+#else
+        for (uint32_t q = 0; q < ne8; q++) {
+            float b[NACRE_MAX_LAYERS];
+            bottoms_at(&m->stack, pt->uv[0] + e[q] * r.du, pt->uv[1] + e[q] * r.dv, b);
+            for (uint32_t j = 0; j < m->count; j++)
+                bm[(size_t)j * cap + q] = b[j];
         }
 #endif
-        for (uint32_t i = 0; i < np; i++) {
-            const piece *pc = &pieces[i];
-            const uint32_t j = pc->layer;
-            const float len = pc->s1 - pc->s0;
-            for (int c = 0; c < 3; c++)
-                kc[c] = m->ss[j][c] * l->strength[c];
-            if (a_layer != j) { /* the first piece, or a new layer: the start's phase changed */
-                FETCH(i);
-                qa = i - base;
-                const float pa = hg(lb.cos_s[qa], m->g[j]) * (vis0 + vis_rate * pc->s0) * lb.w[qa];
-                a_lit = pa > FLT_MIN; /* fast_log takes normal numbers */
-                if (a_lit) {
-                    const float lp = fast_log(pa);
-                    for (int c = 0; c < 3; c++) {
-                        lfa[c] = lp - lb.tau[c][qa] - tau[c];
-                        ea[c] = fast_exp(lfa[c]);
-                    }
-                }
-            }
-            FETCH(i + 1);
-            const uint32_t qb = i + 1 - base;
-            const float pb = hg(lb.cos_s[qb], m->g[j]) * (vis0 + vis_rate * pc->s1) * lb.w[qb];
-            const bool b_lit = pb > FLT_MIN;
-            const float lpb = b_lit ? fast_log(pb) : 0.0f;
-            for (int c = 0; c < 3; c++) {
-                const float tb = tau[c] + m->st[j][c] * len;
-                const float lfb = lpb - lb.tau[c][qb] - tb;
-                const float fb = b_lit ? fast_exp(lfb) : 0.0f;
-                if (a_lit && b_lit) {
-                    const float q = lfa[c] - lfb, fa = ea[c];
-                    sum[c] += kc[c] * (q > 1e-4f || q < -1e-4f ? len * (fa - fb) / q : len * 0.5f * (fa + fb));
-                } else { /* light on one end only: the trapezoid */
-                    sum[c] += kc[c] * len * 0.5f * ((a_lit ? ea[c] : 0.0f) + fb);
-                }
-                tau[c] = tb;
-                lfa[c] = lfb;
-                ea[c] = fb;
-            }
-            a_lit = b_lit;
-            a_layer = j;
+    }
+    return ray->kind = NC_MARCH_RAY_OK;
+}
+
+/* The cut ray of a made slot. */
+static void ray_cut(const nc_layer_medium *m, const nc_march_ray *ray, cut_ray *cr)
+{
+    const float *pts = (const float *)((const char *)ray + NC_MARCH_RAY_HEAD), *bm = pts + ray->cap;
+    *cr = (cut_ray){.r = {.m = m, .pt = &ray->pt, .dz = ray->dz, .du = ray->du, .dv = ray->dv, .len = ray->len},
+                    .t_out = ray->t_out,
+                    .pts = pts,
+                    .layers = (const uint8_t *)(bm + (size_t)ray->layers * ray->cap),
+                    .np = ray->np,
+                    .bm = m->count ? bm : NULL,
+                    .stride = ray->cap};
+    memcpy(cr->r.d, ray->d, sizeof(cr->r.d));
+}
+
+void nc_march_ray_radiance(const nc_layer_medium *m, const void *slot, const nc_shade_light *lights,
+                           uint32_t light_count, const nc_march_params *prm, float rgb[3])
+{
+    const nc_march_ray *ray = slot;
+    rgb[0] = rgb[1] = rgb[2] = 0;
+    if (ray->kind != NC_MARCH_RAY_OK || light_count == 0)
+        return;
+    const uint32_t lit = lit_mask(&ray->pt, lights, light_count);
+    if (!lit && light_count <= 32)
+        return;
+    cut_ray cr;
+    ray_cut(m, ray, &cr);
+    light_ray(&cr, lights, light_count, lit, prm, rgb);
+}
+
+void nc_march_rays_radiance(const nc_layer_medium *const *media, const void *const *rays, uint32_t n,
+                            const nc_shade_light *lights, uint32_t light_count, const nc_march_params *prm,
+                            float *const *rgb)
+{
+    cut_ray cr[NC_MARCH_CHUNK];
+    uint32_t lit[NC_MARCH_CHUNK];
+    bool on[NC_MARCH_CHUNK];
+    n = n < NC_MARCH_CHUNK ? n : NC_MARCH_CHUNK;
+    for (uint32_t k = 0; k < n; k++) {
+        const nc_march_ray *ray = rays[k];
+        rgb[k][0] = rgb[k][1] = rgb[k][2] = 0;
+        on[k] = ray->kind == NC_MARCH_RAY_OK && light_count > 0;
+        lit[k] = on[k] ? lit_mask(&ray->pt, lights, light_count) : 0;
+        on[k] = on[k] && (lit[k] || light_count > 32);
+        if (on[k])
+            ray_cut(media[k], ray, &cr[k]);
+    }
+    light_eval le[NC_MARCH_CHUNK];
+    for (uint32_t li = 0; li < light_count; li++) {
+        const nc_shade_light *sl = &lights[li];
+        uint32_t act[NC_MARCH_CHUNK], na = 0;
+        for (uint32_t k = 0; k < n; k++)
+            if (on[k] && (li >= 32 || (lit[k] & (1u << li))))
+                act[na++] = k;
+        if (!sl->shadow || !prm->analytic) {
+            for (uint32_t a = 0; a < na; a++)
+                light_ray(&cr[act[a]], sl, 1, 1u, prm, rgb[act[a]]);
+            continue;
         }
-#undef FETCH
-#undef POINT
-        for (int c = 0; c < 3; c++)
-            rgb[c] += sum[c] * t_out;
+        /* Every ray's light first, then the lookups at the points P (normal n) and K' (normal
+         * N_SP) of all of them in one call, then the sums. */
+        float q[3][2 * NC_MARCH_CHUNK], qn[3][2 * NC_MARCH_CHUNK], vis[2 * NC_MARCH_CHUNK];
+        bool far_lit[NC_MARCH_CHUNK];
+        for (uint32_t a = 0; a < na; a++) {
+            const cut_ray *c = &cr[act[a]];
+            light_eval_init(&le[a], sl->desc);
+            float far_k[3];
+            far_lit[a] = eval_ends_and_far(c, &le[a], far_k);
+            for (int k = 0; k < 3; k++) {
+                q[k][a] = c->r.pt->p[k];
+                qn[k][a] = c->r.pt->n[k];
+                q[k][na + a] = far_lit[a] ? far_k[k] : c->r.pt->p[k];
+                qn[k][na + a] = c->r.pt->ns[k];
+            }
+        }
+        nc_shadow_lookup_n(sl->shadow, 2 * na, q[0], q[1], q[2], qn[0], qn[1], qn[2], prm->pcf_radius,
+                           prm->shadow_bias, vis);
+        for (uint32_t a = 0; a < na; a++) {
+            const float vis0 = vis[a], vis1 = far_lit[a] ? vis[na + a] : vis0;
+            if (vis0 <= 0 && vis1 <= 0)
+                continue;
+            light_sum(&cr[act[a]], &le[a], vis0, vis1, prm, rgb[act[a]]);
+        }
     }
 }

@@ -12,6 +12,13 @@
  * layers is one layer, the core, so every scene renders. The material's pattern is not read:
  * the core is its first medium.
  *
+ * What no light changes is kept across frames: each marched pixel's view ray, cut into pieces at
+ * the layer boundaries, with the depth map's bottoms along it (nc_march_ray, one slot per
+ * translucent pixel, made the first time the pixel is marched), from the second frame with the
+ * same G-buffer (camera, geometry, size), materials and march settings on. A frame where only
+ * lights move then evaluates the lights, the shadow lookups and the closed forms; the image is
+ * the same as marching from scratch.
+ *
  * Multiple scattering (material option multiple_scattering = DIFFUSION): the seed's march is
  * single scattering only, which leaves thick, high-albedo layers too dark. For such objects the
  * diffusion method's pipeline (seed 000, Blanchard 2012; diffusion/pipeline.c, stages voxelize,
@@ -39,6 +46,15 @@ typedef struct layered_object {
     nc_layer_planes planes;
 } layered_object;
 
+/* What the kept rays were made for: the G-buffer's inputs, the materials, the march settings. */
+typedef struct ray_key {
+    uint64_t scene_uid, geometry, camera, materials;
+    int32_t width, height;
+    uint32_t samples, cap, layers;
+    int32_t integration;
+    float epsilon;
+} ray_key;
+
 typedef struct layered_state {
     nacre_context *ctx;
     layered_object *objects;
@@ -50,6 +66,15 @@ typedef struct layered_state {
     nc_diff_state *diff;    /* that pipeline's state (created on first use) */
     float *radiance;        /* 3 per pixel of the G-buffer, translucent pixels only */
     size_t radiance_pixels;
+    /* The kept view rays: slot ray_index[pixel] (UINT32_MAX: none) of ray_bytes bytes, made when
+     * ray_made[slot]; valid for ray_key while rays_on (rays_tried: set up for it, or found not
+     * possible). */
+    ray_key ray_key;
+    bool rays_on, rays_tried;
+    uint8_t *rays, *ray_made;
+    uint32_t *ray_index;
+    size_t rays_capacity, made_capacity, index_capacity, ray_bytes;
+    uint32_t ray_cap, ray_layers;
 } layered_state;
 
 static nacre_result layered_check(nacre_context *ctx, const nacre_render_settings *s)
@@ -92,6 +117,9 @@ static void layered_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->multiple);
     nc_diff_state_destroy(st->diff);
     nc_free(ctx, st->radiance);
+    nc_free(ctx, st->rays);
+    nc_free(ctx, st->ray_made);
+    nc_free(ctx, st->ray_index);
     nc_free(ctx, st);
 }
 
@@ -231,19 +259,135 @@ static void march_point(const nacre_scene *s, const nc_gbuffer *gb, const layere
     }
 }
 
-/* March G-buffer pixel i if it shows a translucent object; false if it does not. */
+/* Kept rays waiting to be lit together (nc_march_rays_radiance), per thread. */
+typedef struct ray_queue {
+    uint32_t n;
+    const nc_layer_medium *media[NC_MARCH_CHUNK];
+    const void *rays[NC_MARCH_CHUNK];
+    float *rgb[NC_MARCH_CHUNK];
+} ray_queue;
+
+static void flush_rays(const nacre_scene *s, const nc_raster_frame *rf, const nc_march_params *prm, ray_queue *q)
+{
+    if (q->n)
+        nc_march_rays_radiance(q->media, q->rays, q->n, rf->shade_lights, s->light_count, prm, q->rgb);
+    q->n = 0;
+}
+
+/* March G-buffer pixel i if it shows a translucent object; false if it does not. With kept rays,
+ * the pixel's ray is made on its first march (a pixel is marched by one thread per frame, so its
+ * slot has one writer) and queued in q to be lit with others; its radiance is written when q is
+ * flushed. */
 static inline bool march_pixel(const layered_state *st, const nacre_scene *s, const nc_raster_frame *rf,
-                               const nc_shade_params *sp, const nc_march_params *prm, size_t i)
+                               const nc_shade_params *sp, const nc_march_params *prm, size_t i, ray_queue *q)
 {
     const nc_gbuffer *gb = &rf->gbuffer;
     uint32_t o = gb->object[i];
     if (o == NC_NO_OBJECT || !st->subsurface[o])
         return false;
-    nc_march_point pt;
-    march_point(s, gb, &st->objects[o], i, sp, &pt);
     const nc_layer_medium *m = &st->media[s->objects[o].desc.material.id - 1];
-    nc_layered_radiance(m, &pt, rf->shade_lights, s->light_count, prm, st->radiance + 3 * i);
+    float *rgb = st->radiance + 3 * i;
+    const uint32_t slot = st->rays_on ? st->ray_index[i] : UINT32_MAX;
+    if (slot == UINT32_MAX) {
+        nc_march_point pt;
+        march_point(s, gb, &st->objects[o], i, sp, &pt);
+        nc_layered_radiance(m, &pt, rf->shade_lights, s->light_count, prm, rgb);
+        return true;
+    }
+    void *ray = st->rays + (size_t)slot * st->ray_bytes;
+    if (!st->ray_made[slot]) {
+        nc_march_point pt;
+        march_point(s, gb, &st->objects[o], i, sp, &pt);
+        nc_march_ray_make(m, &pt, prm, st->ray_cap, st->ray_layers, ray);
+        st->ray_made[slot] = 1;
+    }
+    const nc_march_ray *r = ray;
+    if (r->kind == NC_MARCH_RAY_LONG) {
+        nc_layered_radiance(m, &r->pt, rf->shade_lights, s->light_count, prm, rgb);
+        return true;
+    }
+    /* The slot is read when the queue is lit: fetch it now, behind the other pixels' work. */
+    for (size_t b = 0; b < st->ray_bytes; b += 64)
+        __builtin_prefetch((const char *)ray + b);
+    q->media[q->n] = m;
+    q->rays[q->n] = ray;
+    q->rgb[q->n] = rgb;
+    if (++q->n == NC_MARCH_CHUNK)
+        flush_rays(s, rf, prm, q);
     return true;
+}
+
+/* The kept rays for this frame: slots for the translucent pixels, all unmade, once the G-buffer,
+ * the materials and the march settings are those of the previous frame. A frame after a change
+ * marches from scratch: while the camera moves every frame, rays would be made and never lit
+ * again (writing them made such frames slower). Without room under the memory limit (or for rays
+ * too long to keep), every pixel is marched from scratch. */
+static nacre_result update_rays(layered_state *st, const nacre_scene *s, const nc_gbuffer *gb,
+                                const nacre_render_settings *settings, const nc_march_params *prm)
+{
+    const uint32_t cap = nc_march_ray_cap(prm);
+    uint32_t layers = 0;
+    for (uint32_t i = 0; i < s->material_count; i++)
+        if (s->materials[i].type == NACRE_MATERIAL_TRANSLUCENT && st->media[i].count > layers)
+            layers = st->media[i].count;
+    ray_key key;
+    memset(&key, 0, sizeof(key)); /* the padding too: keys are compared as bytes */
+    key.scene_uid = s->uid;
+    key.geometry = s->versions.geometry;
+    key.camera = s->versions.camera;
+    key.materials = s->versions.materials;
+    key.width = gb->width;
+    key.height = gb->height;
+    key.samples = prm->samples;
+    key.cap = cap;
+    key.layers = layers;
+    key.integration = (int32_t)settings->layered.integration;
+    key.epsilon = settings->layered.epsilon;
+    if (memcmp(&key, &st->ray_key, sizeof(key)) != 0) {
+        st->ray_key = key;
+        st->rays_on = st->rays_tried = false;
+        return NACRE_OK;
+    }
+    if (st->rays_tried)
+        return NACRE_OK;
+    st->rays_tried = true;
+    if (cap == 0)
+        return NACRE_OK;
+    nacre_context *ctx = st->ctx;
+    const size_t pixels = (size_t)gb->width * (size_t)gb->height;
+    if (!nc_reserve(ctx, &st->ray_index, &st->index_capacity, pixels, sizeof(uint32_t)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    size_t count = 0;
+    for (int32_t y = 0; y < gb->height; y++) {
+        uint32_t *row = st->ray_index + (size_t)y * (size_t)gb->width;
+        for (int32_t x = 0; x < gb->width; x++)
+            row[x] = UINT32_MAX;
+        const int32_t x0 = gb->row_span ? gb->row_span[2 * y] : 0;
+        const int32_t x1 = gb->row_span ? gb->row_span[2 * y + 1] : gb->width;
+        for (int32_t x = x0; x < x1 && count < UINT32_MAX; x++) {
+            const uint32_t o = gb->object[(size_t)y * (size_t)gb->width + (size_t)x];
+            if (o != NC_NO_OBJECT && st->subsurface[o])
+                row[x] = (uint32_t)count++;
+        }
+    }
+    const size_t bytes = nc_march_ray_bytes(cap, layers);
+    if (count == 0)
+        return NACRE_OK;
+    /* The rays are a speed-up: without room for them under the limit, march from scratch. */
+    size_t total;
+    const uint64_t used = atomic_load_explicit(&ctx->memory_used, memory_order_relaxed);
+    if (!nc_mul_size_ok(count, bytes, &total) ||
+        (total > st->rays_capacity && (total > ctx->memory_limit || used > ctx->memory_limit - total)))
+        return NACRE_OK;
+    if (!nc_reserve(ctx, &st->rays, &st->rays_capacity, total, 1) ||
+        !nc_reserve(ctx, &st->ray_made, &st->made_capacity, count, 1))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    memset(st->ray_made, 0, count);
+    st->rays_on = true;
+    st->ray_bytes = bytes;
+    st->ray_cap = cap;
+    st->ray_layers = layers;
+    return NACRE_OK;
 }
 
 /* Half resolution (settings.layered.half_res > 0): pixel i between marched pixels a and b (and c,
@@ -276,8 +420,8 @@ static bool interpolate_pixel(const layered_state *st, const nc_gbuffer *gb, siz
     return true;
 }
 
-static void march(layered_state *st, const nacre_scene *s, const nc_raster_frame *rf,
-                  const nacre_render_settings *settings, const nc_shade_params *sp, nacre_render_stats *stats)
+static nacre_result march(layered_state *st, const nacre_scene *s, const nc_raster_frame *rf,
+                          const nacre_render_settings *settings, const nc_shade_params *sp, nacre_render_stats *stats)
 {
     uint64_t t0 = nc_now_us();
     const nc_gbuffer *gb = &rf->gbuffer;
@@ -285,6 +429,9 @@ static void march(layered_state *st, const nacre_scene *s, const nc_raster_frame
                                  .analytic = settings->layered.integration == NACRE_LAYERED_ANALYTIC,
                                  .pcf_radius = settings->shadow.pcf_radius,
                                  .shadow_bias = settings->shadow.bias};
+    nacre_result res = update_rays(st, s, gb, settings, &prm);
+    if (res != NACRE_OK)
+        return res;
     const int32_t w = gb->width, h = gb->height;
     const float tol = settings->layered.half_res;
     /* Every pixel, or (half resolution) those of even x and y first. */
@@ -292,13 +439,16 @@ static void march(layered_state *st, const nacre_scene *s, const nc_raster_frame
 #pragma omp parallel for schedule(dynamic, 2) num_threads(nc_threads(st->ctx))
     for (int32_t y = 0; y < h; y += stride) {
         int32_t x0 = gb->row_span ? gb->row_span[2 * y] : 0, x1 = gb->row_span ? gb->row_span[2 * y + 1] : w;
+        ray_queue q = {.n = 0};
         for (int32_t x = x0 + (x0 % stride); x < x1; x += stride)
-            march_pixel(st, s, rf, sp, &prm, (size_t)y * (size_t)w + (size_t)x);
+            march_pixel(st, s, rf, sp, &prm, (size_t)y * (size_t)w + (size_t)x, &q);
+        flush_rays(s, rf, &prm, &q);
     }
     if (stride > 1) {
 #pragma omp parallel for schedule(dynamic, 4) num_threads(nc_threads(st->ctx))
         for (int32_t y = 0; y < h; y++) {
             int32_t x0 = gb->row_span ? gb->row_span[2 * y] : 0, x1 = gb->row_span ? gb->row_span[2 * y + 1] : w;
+            ray_queue q = {.n = 0};
             for (int32_t x = x0; x < x1; x++) {
                 const bool ox = x & 1, oy = y & 1;
                 const size_t i = (size_t)y * (size_t)w + (size_t)x;
@@ -319,13 +469,15 @@ static void march(layered_state *st, const nacre_scene *s, const nc_raster_frame
                     }
                 }
                 if (!in || !interpolate_pixel(st, gb, i, nb, count, tol))
-                    march_pixel(st, s, rf, sp, &prm, i);
+                    march_pixel(st, s, rf, sp, &prm, i, &q);
             }
+            flush_rays(s, rf, &prm, &q);
         }
     }
     stats->stage_us[NACRE_STAGE_MARCH] += nc_now_us() - t0;
     stats->stage_ran[NACRE_STAGE_MARCH] = true;
     stats->stage_runs[NACRE_STAGE_MARCH] = 1;
+    return NACRE_OK;
 }
 
 /* The shading pass's hook: the march's radiance in place of Lambert, plus the diffusion
@@ -405,7 +557,8 @@ static nacre_result layered_render(void *state, nc_frame *f)
         return res;
     nc_shade_params params;
     nc_raster_frame_shade_params(f->raster, f->settings, &params);
-    march(st, s, f->raster, f->settings, &params, f->stats);
+    if ((res = march(st, s, f->raster, f->settings, &params, f->stats)) != NACRE_OK)
+        return res;
     params.subsurface_object = st->subsurface;
     params.subsurface = layered_subsurface;
     params.subsurface_user = st;

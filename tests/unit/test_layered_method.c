@@ -5,7 +5,8 @@
  * exit, for both integrations; one layer of constant thickness against its closed form; the
  * seed's point sampling converging as N grows (10 .. 200) and the analytic pieces reaching the
  * 200-sample image with few steps on a slab with the vein depth map; the planes stage cached
- * across light and camera edits; half resolution against the full image; bad input (a layered mesh without uvs, samples and epsilon out
+ * across light and camera edits; half resolution against the full image; the view rays kept
+ * across frames against new renderers after light, camera, material and settings edits; bad input (a layered mesh without uvs, samples and epsilon out
  * of range) refused with messages naming the object or the field.
  */
 #include "test_util.h"
@@ -560,6 +561,83 @@ static void test_half_res(void)
     nacre_scene_destroy(s);
 }
 
+/* Kept view rays: a renderer keeps each pixel's ray (pieces and layer bottoms) while only lights
+ * move (made on the second frame after a change, lit again from the third), and drops them after
+ * a camera, material or settings change; every frame must be bit for bit the image of a new
+ * renderer, which marches from scratch. */
+static void test_rays_kept(void)
+{
+    nacre_scene *s = NULL;
+    nacre_scene_file_settings fs;
+    CHECK(nacre_scene_load_file(ctx, NACRE_SOURCE_DIR "/examples/layered.json", &s, &fs) == NACRE_OK);
+    if (!s)
+        return;
+    CHECK(nacre_scene_commit(s, 0) == NACRE_OK);
+    nacre_renderer *r = NULL;
+    CHECK(nacre_renderer_create(ctx, &r) == NACRE_OK);
+    nacre_render_settings rs = fs.render;
+    rs.method = NACRE_METHOD_LAYERED;
+    rs.width = 160;
+    rs.height = 120;
+    rs.layered.samples = 2;
+    rs.layered.integration = NACRE_LAYERED_ANALYTIC;
+    nacre_light_desc ld0, ld;
+    CHECK(nacre_scene_get_light(s, (nacre_light){1}, &ld0) == NACRE_OK);
+    /* The layered object's material */
+    nacre_material layered = {0};
+    nacre_material_desc md;
+    for (uint32_t i = 1; i <= nacre_scene_object_count(s); i++) {
+        nacre_object_desc od;
+        if (nacre_scene_get_object(s, (nacre_object){i}, &od) == NACRE_OK &&
+            nacre_scene_get_material(s, od.material, &md) == NACRE_OK && md.layering.count > 0)
+            layered = od.material;
+    }
+    CHECK(layered.id != 0);
+    nacre_image kept = {0}, fresh = {0};
+    size_t differ = 0, checked = 0;
+    for (int frame = 0; frame < 15; frame++) {
+        /* The light moves every frame; 3: the camera; 6: the layers' depths; 9: 16 steps; 12: 10
+         * point samples */
+        const float a = 0.05f * (float)frame;
+        ld = ld0;
+        ld.direction[0] = ld0.direction[0] * cosf(a) - ld0.direction[2] * sinf(a);
+        ld.direction[2] = ld0.direction[0] * sinf(a) + ld0.direction[2] * cosf(a);
+        CHECK(nacre_scene_set_light(s, (nacre_light){1}, &ld) == NACRE_OK);
+        if (frame == 3) {
+            nacre_camera_desc cd;
+            CHECK(nacre_scene_get_camera(s, &cd) == NACRE_OK);
+            cd.position[0] += 3.0f;
+            CHECK(nacre_scene_set_camera(s, &cd) == NACRE_OK);
+        }
+        if (frame == 6 && nacre_scene_get_material(s, layered, &md) == NACRE_OK) {
+            md.layering.layers[0].depth *= 1.5f;
+            CHECK(nacre_scene_set_material(s, layered, &md) == NACRE_OK);
+        }
+        if (frame == 9)
+            rs.layered.samples = 16;
+        if (frame == 12) {
+            rs.layered.samples = 10;
+            rs.layered.integration = NACRE_LAYERED_SAMPLES;
+        }
+        CHECK(nacre_scene_commit(s, 0) == NACRE_OK);
+        CHECK(nacre_renderer_render(r, s, &rs, &kept, NULL) == NACRE_OK);
+        CHECK(nacre_render(s, &rs, &fresh, NULL) == NACRE_OK);
+        if (!kept.pixels || !fresh.pixels)
+            break;
+        for (int32_t y = 0; y < kept.height; y++)
+            for (int32_t x = 0; x < 3 * kept.width; x++) {
+                differ += kept.pixels[kept.stride * (size_t)y + (size_t)x] != fresh.pixels[fresh.stride * (size_t)y + (size_t)x];
+                checked++;
+            }
+    }
+    printf("kept rays: %zu of %zu values differ from new renderers' over 15 frames\n", differ, checked);
+    CHECK(checked > 0 && differ == 0);
+    nacre_image_free(ctx, &kept);
+    nacre_image_free(ctx, &fresh);
+    nacre_renderer_destroy(r);
+    nacre_scene_destroy(s);
+}
+
 int main(void)
 {
     CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
@@ -571,6 +649,7 @@ int main(void)
     test_bad_input();
     test_maps_and_fish();
     test_half_res();
+    test_rays_kept();
     nacre_context_destroy(ctx);
     return TEST_MAIN_END();
 }
