@@ -42,6 +42,13 @@ double nc_fresnel_fdr(double eta);
 double nc_dipole_rd(double alpha_p, double eta);
 /* Henyey-Greenstein phase function value (per steradian) for cos_theta between the directions. */
 double nc_hg_phase(double cos_theta, double g);
+/* The same in float without pow, for the per-point loops of the real-time passes (froxels, the
+ * layered march, diffusion's single scattering), where pow was a tenth of the lighting. */
+static inline float nc_hg_phasef(float cos_theta, float g)
+{
+    float x = 1.0f + g * g - 2.0f * g * cos_theta;
+    return (1.0f - g * g) / (4.0f * 3.14159265358979323846f * x * sqrtf(x));
+}
 /* Sample the cosine of the Henyey-Greenstein scattering angle from u uniform in [0, 1) by
  * inverting its CDF; the density of the result is 2 pi nc_hg_phase. */
 double nc_hg_sample_cos(double g, double u);

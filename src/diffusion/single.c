@@ -45,12 +45,6 @@
 /* Steps of the light's path through a heterogeneous medium. */
 #define NC_SS_LIGHT_STEPS 4
 
-static inline float hg(float c, float g)
-{
-    float d = 1.0f + g * g - 2.0f * g * c;
-    return (1.0f - g * g) / (4.0f * (float)NC_PI * d * sqrtf(d));
-}
-
 /* int_0^len f over a step where f is the exponential through f_a and f_b. */
 static inline float closed_form(float fa, float fb, float len)
 {
@@ -155,7 +149,7 @@ static void light_at(const nc_diff_state *st, const nc_diff_object *o, const nac
         /* The refracted direction of travel (n faces the light) and the phase towards -wv */
         const float ie = 1.0f / eta, kn = ie * cos_i - cos_t;
         const float wt[3] = {ie * dir[0] + kn * n[0], ie * dir[1] + kn * n[1], ie * dir[2] + kn * n[2]};
-        const float ph = hg(-(wt[0] * wv[0] + wt[1] * wv[1] + wt[2] * wv[2]), m->g);
+        const float ph = nc_hg_phasef(-(wt[0] * wv[0] + wt[1] * wv[1] + wt[2] * wv[2]), m->g);
         const float common = strength * trans * cos_i / cos_t * ph;
         for (int c = 0; c < 3; c++)
             e[c] += l->strength[c] * common * nc_fast_exp(-tau[c]);

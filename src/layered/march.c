@@ -57,12 +57,6 @@ static inline float maxf(float a, float b) { return a > b ? a : b; }
 
 static inline float dot3(const float a[3], const float b[3]) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
 
-static inline float hg(float c, float g)
-{
-    float d = 1.0f + g * g - 2.0f * g * c;
-    return (1.0f - g * g) / (4.0f * (float)NC_PI * d * sqrtf(d));
-}
-
 /* e^x: core/math.h's nc_fast_exp (relative error under 4e-6), where expf is a library call per
  * channel and piece end. */
 #define fast_exp nc_fast_exp
@@ -993,7 +987,7 @@ static void light_sum(const cut_ray *cr, light_eval *le, float vis0, float vis1,
             for (uint32_t e = 0; e < nb; e++) {
                 const uint32_t j = layers[i0 + e];
                 const float len = pts[i0 + e + 1] - pts[i0 + e];
-                float w = hg(lb->cos_s[e], m->g[j]) * (vis0 + vis_rate * spts[e]) * len * lb->w[e];
+                float w = nc_hg_phasef(lb->cos_s[e], m->g[j]) * (vis0 + vis_rate * spts[e]) * len * lb->w[e];
                 w = w > 0 ? w : 0.0f;
                 for (int c = 0; c < 3; c++) {
                     ks[c][e] = m->ss[j][c] * l->strength[c] * w;
@@ -1025,7 +1019,7 @@ static void light_sum(const cut_ray *cr, light_eval *le, float vis0, float vis1,
         if (a_layer != j) { /* the first piece, or a new layer: the start's phase changed */
             FETCH(i);
             qa = i - le->base;
-            const float pa = hg(lb->cos_s[qa], m->g[j]) * (vis0 + vis_rate * s0) * lb->w[qa];
+            const float pa = nc_hg_phasef(lb->cos_s[qa], m->g[j]) * (vis0 + vis_rate * s0) * lb->w[qa];
             a_lit = pa > FLT_MIN; /* fast_log takes normal numbers */
             if (a_lit) {
                 const float lp = fast_log(pa);
@@ -1037,7 +1031,7 @@ static void light_sum(const cut_ray *cr, light_eval *le, float vis0, float vis1,
         }
         FETCH(i + 1);
         const uint32_t qb = i + 1 - le->base;
-        const float pb = hg(lb->cos_s[qb], m->g[j]) * (vis0 + vis_rate * s1) * lb->w[qb];
+        const float pb = nc_hg_phasef(lb->cos_s[qb], m->g[j]) * (vis0 + vis_rate * s1) * lb->w[qb];
         const bool b_lit = pb > FLT_MIN;
         const float lpb = b_lit ? fast_log(pb) : 0.0f;
         for (int c = 0; c < 3; c++) {

@@ -410,14 +410,6 @@ static float *thread_scratch(const vol_state *st)
 
 /* ---- lighting of fog points ---------------------------------------------------------------- */
 
-/* Henyey-Greenstein phase (core/optics.h's nc_hg_phase) in float, without pow: per froxel and
- * light it was a tenth of the lighting's time. */
-static inline float hg_phase(float cos_theta, float g)
-{
-    float x = 1.0f + g * g - 2.0f * g * cos_theta;
-    return (1.0f - g * g) / (4.0f * (float)NC_PI * x * sqrtf(x));
-}
-
 /* Where light l reaches point x: the way it travels (wi), the distance (INFINITY for
  * directional lights) and the factor of its strength there (1 / d^2, spot falloff); false if
  * it does not. */
@@ -478,7 +470,7 @@ static void light_points(const vol_state *st, uint32_t n, const float *p, const 
             nc_fog_field_optical_depth(&st->field, x, w, dist, NC_FOG_ALL, td, tau_scratch);
             for (int c = 0; c < 3; c++)
                 tau[c] = td[c] < TAU_MAX ? (float)td[c] : TAU_MAX;
-            float ph = hg_phase(-(d[0] * wi[0] + d[1] * wi[1] + d[2] * wi[2]), g[k]) * vis * scale;
+            float ph = nc_hg_phasef(-(d[0] * wi[0] + d[1] * wi[1] + d[2] * wi[2]), g[k]) * vis * scale;
             for (int c = 0; c < 3; c++)
                 acc[c] += li->e[c] * ph * expf(-tau[c]);
         }

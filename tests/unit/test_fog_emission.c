@@ -276,17 +276,25 @@ static void expect_error(const char *fog, const char *needle)
     nacre_scene_destroy(s);
 }
 
+/* s saved to JSON (which must hold `needle`) and loaded back; NULL on failure. */
+static nacre_scene *reloaded(nacre_scene *s, const char *needle)
+{
+    char *json = NULL;
+    CHECK(nacre_scene_save_json(s, NULL, NACRE_TEST_TMP, &json, NULL) == NACRE_OK);
+    CHECK(json && strstr(json, needle));
+    nacre_scene *t = NULL;
+    nacre_scene_file_settings fs;
+    if (json)
+        CHECK(nacre_scene_load_json(ctx, json, strlen(json), "saved.json", NACRE_TEST_TMP, &t, &fs) == NACRE_OK);
+    nacre_free(ctx, json);
+    return t;
+}
+
 static void files_and_api(void)
 {
     nacre_scene *s = media_load(ctx, NOISE_BOX, NULL);
     if (s) {
-        char *json = NULL;
-        CHECK(nacre_scene_save_json(s, NULL, NACRE_TEST_TMP, &json, NULL) == NACRE_OK);
-        CHECK(json && strstr(json, "\"emission\""));
-        nacre_scene *t = NULL;
-        nacre_scene_file_settings fs2;
-        if (json)
-            CHECK(nacre_scene_load_json(ctx, json, strlen(json), "saved.json", NACRE_TEST_TMP, &t, &fs2) == NACRE_OK);
+        nacre_scene *t = reloaded(s, "\"emission\"");
         if (t) {
             nacre_fog_desc a, b;
             CHECK(nacre_scene_get_fog(s, (nacre_fog){1}, &a) == NACRE_OK);
@@ -295,7 +303,6 @@ static void files_and_api(void)
             CHECK(a.emission[0] == 1.0f && a.emission[1] == 0.8f && a.emission[2] == 0.5f);
             nacre_scene_destroy(t);
         }
-        nacre_free(ctx, json);
         /* The API: NaN and negative values name the field. */
         nacre_fog_desc d = nacre_fog_desc_defaults(NACRE_FOG_BOX);
         nacre_fog h;
@@ -415,13 +422,7 @@ static void emission_pattern(void)
              dens, em);
     nacre_scene *s = media_load(ctx, json, NULL);
     if (s) {
-        char *saved = NULL;
-        CHECK(nacre_scene_save_json(s, NULL, NACRE_TEST_TMP, &saved, NULL) == NACRE_OK);
-        CHECK(saved && strstr(saved, "\"emission_pattern\""));
-        nacre_scene *t = NULL;
-        nacre_scene_file_settings fs;
-        if (saved)
-            CHECK(nacre_scene_load_json(ctx, saved, strlen(saved), "saved.json", NACRE_TEST_TMP, &t, &fs) == NACRE_OK);
+        nacre_scene *t = reloaded(s, "\"emission_pattern\"");
         if (t) {
             nacre_fog_desc a, b;
             CHECK(nacre_scene_get_fog(t, (nacre_fog){1}, &a) == NACRE_OK);
@@ -432,7 +433,6 @@ static void emission_pattern(void)
             CHECK(b.emission_pattern.cell_size == 0.25f);
             nacre_scene_destroy(t);
         }
-        nacre_free(ctx, saved);
         nacre_scene_destroy(s);
     }
     /* From an OpenVDB file: the cloud's grid as the emission of a homogeneous box renders as
@@ -522,19 +522,13 @@ static void blackbody(void)
     /* Saved and reloaded with its scale; refused elsewhere. */
     nacre_scene *sc = media_load(ctx, json, NULL);
     if (sc) {
-        char *saved = NULL;
-        CHECK(nacre_scene_save_json(sc, NULL, NACRE_TEST_TMP, &saved, NULL) == NACRE_OK);
-        nacre_scene *t = NULL;
-        nacre_scene_file_settings fs;
-        if (saved)
-            CHECK(nacre_scene_load_json(ctx, saved, strlen(saved), "saved.json", NACRE_TEST_TMP, &t, &fs) == NACRE_OK);
+        nacre_scene *t = reloaded(sc, "\"blackbody\"");
         if (t) {
             nacre_fog_desc a;
             CHECK(nacre_scene_get_fog(t, (nacre_fog){1}, &a) == NACRE_OK);
             CHECK(a.emission_pattern.blackbody && a.emission_pattern.kelvin_scale == 2.0f);
             nacre_scene_destroy(t);
         }
-        nacre_free(ctx, saved);
         nacre_fog_desc d = nacre_fog_desc_defaults(NACRE_FOG_BOX);
         nacre_fog h;
         d.emission_pattern.type = NACRE_PATTERN_CHECKER;
