@@ -285,19 +285,24 @@ static void constant_source(void)
     nacre_image_free(ctx, &rm4);
 }
 
+/* A sphere on a plane under a spot light and a sun, in a box of noise-patterned height fog, and
+ * MORE_FOG (",{...}" or ""). */
+#define SPOT_SUN_SCENE(MORE_FOG)                                                                    \
+    "{\"camera\": {\"position\": [0, 3, 6], \"target\": [0, 0, 0]}, \"environment\": 0.1,"              \
+    "\"materials\": {\"m\": {\"type\": \"opaque\"}},"                                                 \
+    "\"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"},"                          \
+    "{\"shape\": {\"type\": \"plane\", \"size\": [8, 8]}, \"material\": \"m\","                      \
+    "\"transform\": {\"translate\": [0, -1, 0]}}],"                                                   \
+    "\"lights\": [{\"type\": \"spot\", \"position\": [0, 3, 0], \"direction\": [0, -1, 0],"            \
+    "\"intensity\": 20, \"outer_angle\": 30, \"inner_angle\": 20},"                                  \
+    "{\"type\": \"directional\", \"direction\": [1, -1, 0], \"irradiance\": 1}],"                    \
+    "\"fog\": [{\"shape\": \"box\", \"size\": [6, 4, 6], \"sigma_s\": 0.2, \"height_falloff\": 0.3,"   \
+    "\"pattern\": {\"type\": \"noise\", \"cell_size\": 0.5, \"sigma_a2\": 0, \"sigma_s2\": 0}}" MORE_FOG "]}"
+
 /* The same froxel and march frames from 1 and 2 threads. */
 static void thread_count(void)
 {
-    const char *json = "{\"camera\": {\"position\": [0, 3, 6], \"target\": [0, 0, 0]}, \"environment\": 0.1,"
-                       "\"materials\": {\"m\": {\"type\": \"opaque\"}},"
-                       "\"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"},"
-                       "{\"shape\": {\"type\": \"plane\", \"size\": [8, 8]}, \"material\": \"m\","
-                       "\"transform\": {\"translate\": [0, -1, 0]}}],"
-                       "\"lights\": [{\"type\": \"spot\", \"position\": [0, 3, 0], \"direction\": [0, -1, 0],"
-                       "\"intensity\": 20, \"outer_angle\": 30, \"inner_angle\": 20},"
-                       "{\"type\": \"directional\", \"direction\": [1, -1, 0], \"irradiance\": 1}],"
-                       "\"fog\": [{\"shape\": \"box\", \"size\": [6, 4, 6], \"sigma_s\": 0.2, \"height_falloff\": 0.3,"
-                       "\"pattern\": {\"type\": \"noise\", \"cell_size\": 0.5, \"sigma_a2\": 0, \"sigma_s2\": 0}}]}";
+    const char *json = SPOT_SUN_SCENE("");
     for (int mode = NACRE_VOLUMETRICS_FROXEL; mode <= NACRE_VOLUMETRICS_RAYMARCH; mode++) {
         nacre_image img[2] = {{0}, {0}};
         for (int k = 0; k < 2; k++) {
@@ -353,17 +358,7 @@ static void reuse_check(nacre_renderer *r, nacre_scene *s, const nacre_render_se
 
 static void frame_reuse(void)
 {
-    const char *json = "{\"camera\": {\"position\": [0, 3, 6], \"target\": [0, 0, 0]}, \"environment\": 0.1,"
-                       "\"materials\": {\"m\": {\"type\": \"opaque\"}},"
-                       "\"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"},"
-                       "{\"shape\": {\"type\": \"plane\", \"size\": [8, 8]}, \"material\": \"m\","
-                       "\"transform\": {\"translate\": [0, -1, 0]}}],"
-                       "\"lights\": [{\"type\": \"spot\", \"position\": [0, 3, 0], \"direction\": [0, -1, 0],"
-                       "\"intensity\": 20, \"outer_angle\": 30, \"inner_angle\": 20},"
-                       "{\"type\": \"directional\", \"direction\": [1, -1, 0], \"irradiance\": 1}],"
-                       "\"fog\": [{\"shape\": \"box\", \"size\": [6, 4, 6], \"sigma_s\": 0.2, \"height_falloff\": 0.3,"
-                       "\"pattern\": {\"type\": \"noise\", \"cell_size\": 0.5, \"sigma_a2\": 0, \"sigma_s2\": 0}},"
-                       "{\"shape\": \"global\", \"sigma_s\": 0.02, \"height_falloff\": 0.5}]}";
+    const char *json = SPOT_SUN_SCENE(",{\"shape\": \"global\", \"sigma_s\": 0.02, \"height_falloff\": 0.5}");
     for (int mode = NACRE_VOLUMETRICS_OFF; mode <= NACRE_VOLUMETRICS_FROXEL; mode++) {
         nacre_scene *s = media_load(ctx, json, NULL);
         if (!s)
