@@ -5,6 +5,7 @@
  *     CHECK(cond)            counts a pass, or prints "file:line: CHECK(cond) failed" and goes on
  *     CHECK_NEAR(a, b, tol)  |a - b| <= tol as doubles (NaN fails), printing both values
  *     return TEST_MAIN_END(); prints "N passed, M failed" on its own line; nonzero if any failed
+ *     test_error_names(ctx, s) the context's last error is one line that contains s
  *
  * TEST_MAIN_END() also exits with status 1 itself when a check failed, so a bare
  * `TEST_MAIN_END();` at the end of main cannot turn a failure into exit status 0.
@@ -19,6 +20,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include <nacre/core.h>
 
 static struct test_util_state {
     int passed;
@@ -48,6 +51,16 @@ static inline void test_util_check_near_(double a, double b, double tol, const c
         return;
     }
     test_util_state_.passed++;
+}
+
+/* Whether ctx's last error is one line naming `needle` (printed when it is not). */
+static inline bool test_error_names(nacre_context *ctx, const char *needle)
+{
+    const char *msg = nacre_context_last_error(ctx);
+    bool ok = msg && strstr(msg, needle) && !strchr(msg, '\n');
+    if (!ok)
+        printf("expected a one-line error naming %s, got: %s\n", needle, msg ? msg : "(none)");
+    return ok;
 }
 
 static inline int test_util_end_(void)

@@ -79,6 +79,20 @@ static inline void media_region(const nacre_image *img, const nacre_image *var, 
     }
 }
 
+/* A scene whose "fog" array holds `fog` must fail to load with one line containing `needle`. */
+static inline void media_expect_fog_error(nacre_context *c, const char *fog, const char *needle)
+{
+    char json[2048];
+    snprintf(json, sizeof(json), "{\"fog\": [%s]}", fog);
+    nacre_scene *s = NULL;
+    nacre_scene_file_settings fs;
+    nacre_result r = nacre_scene_load_json(c, json, strlen(json), "bad.json", ".", &s, &fs);
+    CHECK(r != NACRE_OK && s == NULL);
+    CHECK(test_error_names(c, needle));
+    printf("  %s -> %s\n", fog, nacre_context_last_error(c));
+    nacre_scene_destroy(s);
+}
+
 static inline nacre_render_settings media_settings(nacre_method method, nacre_volumetrics_mode mode, int w, int h)
 {
     nacre_render_settings rs = nacre_render_settings_defaults();

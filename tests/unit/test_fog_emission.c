@@ -262,19 +262,7 @@ static void noise_box(void)
 
 /* ---- scene files and the API ---------------------------------------------------------------- */
 
-static void expect_error(const char *fog, const char *needle)
-{
-    char json[1024];
-    snprintf(json, sizeof(json), "{\"fog\": [%s]}", fog);
-    nacre_scene *s = NULL;
-    nacre_scene_file_settings fs;
-    nacre_result r = nacre_scene_load_json(ctx, json, strlen(json), "bad.json", ".", &s, &fs);
-    const char *msg = nacre_context_last_error(ctx);
-    CHECK(r != NACRE_OK && s == NULL);
-    CHECK(msg && strstr(msg, needle) && !strchr(msg, '\n'));
-    printf("  %s -> %s\n", fog, msg ? msg : "(none)");
-    nacre_scene_destroy(s);
-}
+static void expect_error(const char *fog, const char *needle) { media_expect_fog_error(ctx, fog, needle); }
 
 /* s saved to JSON (which must hold `needle`) and loaded back; NULL on failure. */
 static nacre_scene *reloaded(nacre_scene *s, const char *needle)

@@ -14,7 +14,7 @@
  *   - the pass against the path tracer with max_scatter 1 (single scattering) on a thin slab of
  *     box fog lit by a delta sun, per band of rows (its noise plus 2%).
  */
-#include "test_util.h"
+#include "media_util.h"
 
 #include "volume/volume.h"
 
@@ -198,26 +198,10 @@ static void segment_integral(void)
 
 /* ---- the pass ----------------------------------------------------------------------------- */
 
-static nacre_scene *load(nacre_context *c, const char *json, nacre_render_settings *rs)
-{
-    nacre_scene *s = NULL;
-    nacre_scene_file_settings fs;
-    nacre_result r = nacre_scene_load_json(c, json, strlen(json), "fog_pass.json", ".", &s, &fs);
-    CHECK(r == NACRE_OK);
-    if (r != NACRE_OK) {
-        printf("  %s\n", nacre_context_last_error(c));
-        return NULL;
-    }
-    if (rs)
-        *rs = fs.render;
-    CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
-    return s;
-}
-
 static bool render_json(nacre_context *c, const char *json, nacre_method method, int32_t w, int32_t h,
                         nacre_image *img, nacre_render_stats *st)
 {
-    nacre_scene *s = load(c, json, NULL);
+    nacre_scene *s = media_load(c, json, NULL);
     if (!s)
         return false;
     nacre_render_settings rs = nacre_render_settings_defaults();
@@ -422,7 +406,7 @@ static void pass_threads_and_reuse(void)
                       " \"height_falloff\": 0.1}]}";
     nacre_image fresh = {0};
     render_json(ctx, box, NACRE_METHOD_PHONG, W, H, &fresh, NULL);
-    nacre_scene *s = load(ctx, box, NULL);
+    nacre_scene *s = media_load(ctx, box, NULL);
     if (s) {
         nacre_render_settings rs = nacre_render_settings_defaults();
         rs.width = W;
@@ -502,7 +486,7 @@ static void pass_against_path_tracer(void)
     nacre_image pass = {0}, ref = {0}, var = {0};
     if (!render_json(ctx, SLAB, NACRE_METHOD_PHONG, PW, PH, &pass, NULL))
         return;
-    nacre_scene *s = load(ctx, SLAB, NULL);
+    nacre_scene *s = media_load(ctx, SLAB, NULL);
     if (!s)
         return;
     nacre_render_settings rs = nacre_render_settings_defaults();

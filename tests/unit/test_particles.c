@@ -230,15 +230,6 @@ static void test_fog_optical_depth(void)
     nacre_context_destroy(ctx);
 }
 
-static bool error_names(nacre_context *ctx, const char *field)
-{
-    const char *msg = nacre_context_last_error(ctx);
-    bool ok = msg && strstr(msg, field);
-    if (!ok)
-        printf("expected an error naming %s, got: %s\n", field, msg ? msg : "(none)");
-    return ok;
-}
-
 static void test_bad_input(void)
 {
     nacre_context *ctx = make_ctx(0);
@@ -247,47 +238,47 @@ static void test_bad_input(void)
     nacre_particles h;
     nacre_particles_desc d = plume();
     d.radius = -1.0f;
-    CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT && error_names(ctx, "radius"));
+    CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT && test_error_names(ctx, "radius"));
     d = plume();
     d.density = -0.5f;
-    CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT && error_names(ctx, "density"));
+    CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT && test_error_names(ctx, "density"));
     d = plume();
     d.lifetime = 0.0f;
-    CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT && error_names(ctx, "lifetime"));
+    CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT && test_error_names(ctx, "lifetime"));
     d = plume();
     d.rate = 1e8f; /* 4e8 alive */
-    CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT && error_names(ctx, "rate"));
+    CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT && test_error_names(ctx, "rate"));
     d = plume();
     d.grid_resolution = 4;
     CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT &&
-          error_names(ctx, "grid_resolution"));
+          test_error_names(ctx, "grid_resolution"));
     float pos[6] = {0, 0, 0, 1, NAN, 0}, rad[2] = {1.0f, -2.0f};
     d = nacre_particles_desc_defaults(NACRE_PARTICLES_LIST);
     d.count = 2;
     d.positions = pos;
     CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT &&
-          error_names(ctx, "positions[1]"));
+          test_error_names(ctx, "positions[1]"));
     pos[4] = 0.0f;
     d.radii = rad;
-    CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT && error_names(ctx, "radii[1]"));
+    CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT && test_error_names(ctx, "radii[1]"));
     d.count = 100000000u;
-    CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT && error_names(ctx, "count"));
+    CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT && test_error_names(ctx, "count"));
     CHECK(nacre_scene_particles_count(scene) == 0);
     /* Scene files: the field path. */
     static const char bad[] = "{\"particles\": [{\"type\": \"list\", \"positions\": [[0,0,0],[1,2,3]], "
                               "\"radii\": [1, -1]}]}";
     nacre_scene *s2 = NULL;
     CHECK(nacre_scene_load_json(ctx, bad, sizeof(bad) - 1, "bad.json", NULL, &s2, NULL) != NACRE_OK);
-    CHECK(error_names(ctx, "particles[0].radii[1]"));
+    CHECK(test_error_names(ctx, "particles[0].radii[1]"));
     static const char bad2[] = "{\"particles\": [{\"lifetime\": 0}]}";
     CHECK(nacre_scene_load_json(ctx, bad2, sizeof(bad2) - 1, "bad.json", NULL, &s2, NULL) != NACRE_OK);
-    CHECK(error_names(ctx, "lifetime"));
+    CHECK(test_error_names(ctx, "lifetime"));
     static const char bad3[] = "{\"particles\": [{\"rate\": 1e8, \"lifetime\": 1}]}";
     CHECK(nacre_scene_load_json(ctx, bad3, sizeof(bad3) - 1, "bad.json", NULL, &s2, NULL) != NACRE_OK);
-    CHECK(error_names(ctx, "rate"));
+    CHECK(test_error_names(ctx, "rate"));
     static const char bad4[] = "{\"particles\": [{\"type\": \"list\", \"positions\": [[0,0,0]], \"rate\": 3}]}";
     CHECK(nacre_scene_load_json(ctx, bad4, sizeof(bad4) - 1, "bad.json", NULL, &s2, NULL) != NACRE_OK);
-    CHECK(error_names(ctx, "rate"));
+    CHECK(test_error_names(ctx, "rate"));
     nacre_scene_destroy(scene);
     nacre_context_destroy(ctx);
 }

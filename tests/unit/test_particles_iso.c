@@ -48,15 +48,6 @@ static bool sphere_hit(const float o[3], const float d[3], double r, double *t)
     return *t > 0.0;
 }
 
-static bool error_names(nacre_context *ctx, const char *field)
-{
-    const char *msg = nacre_context_last_error(ctx);
-    bool ok = msg && strstr(msg, field) && !strchr(msg, '\n');
-    if (!ok)
-        printf("expected a one-line error naming %s, got: %s\n", field, msg ? msg : "(none)");
-    return ok;
-}
-
 /* Hits and normals of rays from one eye through a 61 x 61 fan against the analytic sphere. */
 static void test_geometry(void)
 {
@@ -397,18 +388,18 @@ static void test_bad_input_and_round_trip(void)
     nacre_particles h;
     d.isosurface.density = -1.0f;
     CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT &&
-          error_names(ctx, "isosurface.density"));
+          test_error_names(ctx, "isosurface.density"));
     d.isosurface.density = NAN;
     CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT &&
-          error_names(ctx, "isosurface.density"));
+          test_error_names(ctx, "isosurface.density"));
     d.isosurface.density = 2.0f;
     d.isosurface.ior = 0.5f;
     CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT &&
-          error_names(ctx, "isosurface.ior"));
+          test_error_names(ctx, "isosurface.ior"));
     d.isosurface.ior = 1.4f;
     d.isosurface.roughness = 1.5f;
     CHECK(nacre_scene_add_particles(scene, &d, &h) == NACRE_ERROR_INVALID_ARGUMENT &&
-          error_names(ctx, "isosurface.roughness"));
+          test_error_names(ctx, "isosurface.roughness"));
     CHECK(nacre_scene_particles_count(scene) == 0);
     static const char *const bad[][2] = {
         {"{\"particles\": [{\"isosurface\": {\"density\": -1}}]}", "particles[0].isosurface.density"},
@@ -423,7 +414,7 @@ static void test_bad_input_and_round_trip(void)
         nacre_scene *s2 = NULL;
         CHECK(nacre_scene_load_json(ctx, bad[i][0], strlen(bad[i][0]), "bad.json", NULL, &s2, NULL) ==
               NACRE_ERROR_INVALID_ARGUMENT);
-        CHECK(s2 == NULL && error_names(ctx, bad[i][1]));
+        CHECK(s2 == NULL && test_error_names(ctx, bad[i][1]));
     }
     /* Round trip: the surface's fields come back bit for bit; without one, none is written. */
     d.isosurface.density = 0.3f;

@@ -24,28 +24,12 @@
 
 static nacre_context *ctx;
 
-static nacre_scene *load(const char *json, nacre_render_settings *rs)
-{
-    nacre_scene *s = NULL;
-    nacre_scene_file_settings fs;
-    nacre_result r = nacre_scene_load_json(ctx, json, strlen(json), "fog.json", ".", &s, &fs);
-    if (r == NACRE_OK && rs)
-        *rs = fs.render;
-    CHECK(r == NACRE_OK);
-    if (r != NACRE_OK) {
-        printf("  %s\n", nacre_context_last_error(ctx));
-        return NULL;
-    }
-    CHECK(nacre_scene_commit(s, 0.0) == NACRE_OK);
-    return s;
-}
-
 /* Render a scene file with the path tracer; the variance image too when asked. */
 static bool render(const char *json, int32_t w, int32_t h, uint32_t spp, uint32_t max_scatter, nacre_image *img,
                    nacre_image *var)
 {
     nacre_render_settings rs = nacre_render_settings_defaults();
-    nacre_scene *s = load(json, &rs);
+    nacre_scene *s = media_load(ctx, json, &rs);
     if (!s)
         return false;
     rs.method = NACRE_METHOD_PATHTRACE;
@@ -319,19 +303,7 @@ static void furnaces(void)
             "\"objects\": [{\"shape\": {\"type\": \"sphere\", \"radius\": 0.6}, \"material\": \"m\"}]");
 }
 
-static void expect_error(const char *fog, const char *needle)
-{
-    char json[1024];
-    snprintf(json, sizeof(json), "{\"fog\": [%s]}", fog);
-    nacre_scene *s = NULL;
-    nacre_result r = nacre_scene_load_json(ctx, json, strlen(json), "bad.json", ".", &s, NULL);
-    const char *msg = nacre_context_last_error(ctx);
-    bool ok = r != NACRE_OK && s == NULL && strstr(msg, needle) != NULL;
-    if (!ok)
-        printf("  fog %s: expected an error with \"%s\", got %d \"%s\"\n", fog, needle, (int)r, msg);
-    CHECK(ok);
-    nacre_scene_destroy(s);
-}
+static void expect_error(const char *fog, const char *needle) { media_expect_fog_error(ctx, fog, needle); }
 
 static void parsing(void)
 {
