@@ -35,10 +35,10 @@ void nc_json_parse_fog(loader *ld, const cJSON *obj)
     nc_json_get_number(ld, obj, "height_base", R_FINITE, &d.height_base);
     const cJSON *pattern = nc_json_member(obj, "pattern");
     if (pattern && !ld->err)
-        nc_json_parse_pattern(ld, pattern, "pattern", &d.pattern);
+        nc_json_parse_pattern(ld, pattern, "pattern", false, &d.pattern);
     const cJSON *em_pattern = nc_json_member(obj, "emission_pattern");
     if (em_pattern && !ld->err)
-        nc_json_parse_pattern(ld, em_pattern, "emission_pattern", &d.emission_pattern);
+        nc_json_parse_pattern(ld, em_pattern, "emission_pattern", true, &d.emission_pattern);
     if (ld->err)
         return;
     nacre_fog handle;

@@ -99,7 +99,8 @@ static void load_volume(loader *ld, const cJSON *obj, nacre_medium_pattern *p)
 
 /* "pattern": heterogeneity of a translucent material (nacre_medium_pattern). Medium 2 comes
  * from "preset2" and/or "sigma_a2" + "sigma_s2" (explicit values override the preset's). */
-void nc_json_parse_pattern(loader *ld, const cJSON *obj, const char *key, nacre_medium_pattern *p)
+void nc_json_parse_pattern(loader *ld, const cJSON *obj, const char *key, bool medium2_optional,
+                           nacre_medium_pattern *p)
 {
     static const char *const types[] = {"random_mix", "checker", "noise", "volume"};
     static const char *const mix_keys[] = {"type", "preset2", "sigma_a2", "sigma_s2", "cell_size",
@@ -152,7 +153,7 @@ void nc_json_parse_pattern(loader *ld, const cJSON *obj, const char *key, nacre_
             memcpy(p->sigma_a2, m2.sigma_a, sizeof(p->sigma_a2));
             memcpy(p->sigma_s2, m2.sigma_s, sizeof(p->sigma_s2));
         }
-    } else if (!ld->err && strcmp(key, "emission_pattern") != 0 && /* medium 2 does not emit */
+    } else if (!ld->err && !medium2_optional &&
                (!nc_json_member(obj, "sigma_a2") || !nc_json_member(obj, "sigma_s2"))) {
         nc_json_fail(ld, NACRE_ERROR_INVALID_ARGUMENT,
                      "medium 2 needs \"preset2\" or both \"sigma_a2\" and \"sigma_s2\"");
@@ -322,7 +323,7 @@ static void parse_material(loader *ld, const cJSON *obj, const nacre_material *r
     nc_json_get_number(ld, obj, "eta", R_ETA, &d.eta);
     const cJSON *pattern = nc_json_member(obj, "pattern");
     if (pattern && type == 1 && !ld->err)
-        nc_json_parse_pattern(ld, pattern, "pattern", &d.pattern);
+        nc_json_parse_pattern(ld, pattern, "pattern", false, &d.pattern);
     if (type == 1 && !ld->err)
         parse_layering(ld, obj, &d.layering);
     if (type == 1 && !ld->err && nc_json_member(obj, "multiple_scattering")) {

@@ -110,7 +110,10 @@ void nc_json_parse_render(loader *ld, const cJSON *obj);
 void nc_json_parse_environment(loader *ld, const cJSON *item);
 void nc_json_parse_camera(loader *ld, const cJSON *obj);
 void nc_json_parse_light(loader *ld, const cJSON *obj);
-void nc_json_parse_pattern(loader *ld, const cJSON *obj, const char *key, nacre_medium_pattern *p);
+/* A pattern object under `key`; medium2_optional: medium 2 may be left out (an emission pattern,
+ * whose medium 2 does not emit). */
+void nc_json_parse_pattern(loader *ld, const cJSON *obj, const char *key, bool medium2_optional,
+                           nacre_medium_pattern *p);
 void nc_json_parse_materials(loader *ld, const cJSON *obj);
 bool nc_json_find_material(const loader *ld, const char *name, nacre_material *out);
 void nc_json_parse_object(loader *ld, const cJSON *obj);
