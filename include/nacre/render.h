@@ -79,6 +79,22 @@ typedef struct nacre_shadow_settings {
     float bias;               /* depth bias in shadow texels, default 1.5 */
 } nacre_shadow_settings;
 
+/* The diffusion method's first order at pixel resolution (docs/accuracy.md, "Single scattering
+ * per pixel"): ON marches each pixel's refracted view ray for the light scattered once and solves
+ * the diffusion from the sources of orders >= 2; OFF lets the diffusion stand for every order;
+ * AUTO (the default) is ON for objects whose medium varies in space (a pattern: the first orders
+ * carry detail finer than the diffusion length) and OFF for homogeneous ones (the march adds no
+ * detail there and costs about 1.6x the frame). OFF and ON keep the values of the former bool. */
+typedef enum nacre_single_scattering {
+    NACRE_SINGLE_SCATTERING_OFF = 0,
+    NACRE_SINGLE_SCATTERING_ON = 1,
+    NACRE_SINGLE_SCATTERING_AUTO = 2
+} nacre_single_scattering;
+
+/* "off", "on", "auto"; false if unknown. */
+NACRE_API const char *nacre_single_scattering_name(nacre_single_scattering mode);
+NACRE_API bool nacre_single_scattering_from_name(const char *name, nacre_single_scattering *out);
+
 /* The diffusion method (Blanchard 2012). */
 typedef struct nacre_diffusion_settings {
     uint32_t voxel_resolution;       /* voxels along the longest axis of each translucent object, default 32 */
@@ -89,8 +105,8 @@ typedef struct nacre_diffusion_settings {
     nacre_diffusion_source source;   /* default VOLUME */
     float tolerance;                 /* MULTIGRID: relative residual, default 1e-4 */
     uint32_t seed_iterations;        /* SEED: Jacobi sweeps per level, 0 = the seed's table 5.6 count */
-    bool single_scattering;          /* light scattered once marched per pixel, the solution from the
-                                        sources of orders >= 2 (volume sources only), default false */
+    nacre_single_scattering single_scattering; /* default AUTO; ON needs volume sources (AUTO
+                                        is OFF with face sources) */
 } nacre_diffusion_settings;
 
 /* How the layered method integrates single scattering along each refracted view ray. */

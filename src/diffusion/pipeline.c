@@ -794,6 +794,16 @@ static nacre_result ensure_objects(nc_diff_state *st, uint32_t count)
     return NACRE_OK;
 }
 
+/* Whether an object of material m gets the per-pixel first order (nacre_single_scattering:
+ * AUTO for media that vary in space, and only with volume sources, which ON requires). Layered
+ * materials are left to the layered method's own march. */
+bool nc_diff_single_for(const nacre_diffusion_settings *d, const nacre_material_desc *m)
+{
+    if (d->single_scattering == NACRE_SINGLE_SCATTERING_AUTO)
+        return d->source == NACRE_SOURCE_VOLUME && nc_medium_heterogeneous(m) && m->layering.count == 0;
+    return d->single_scattering == NACRE_SINGLE_SCATTERING_ON;
+}
+
 /* Whether the light-dependent settings are those the cached solution was computed with. */
 static bool same_light_settings(const nacre_render_settings *a, const nacre_render_settings *b)
 {
@@ -860,7 +870,7 @@ nacre_result nc_diffusion_frame_objects(nc_diff_state *st, const nacre_scene *s,
         nc_diff_object *o = &st->objects[i];
         o->ctx = st->ctx;
         /* Single scattering per pixel (single.c): the solution stands for orders >= 2 */
-        const bool single = !st->multiple_only && settings->diffusion.single_scattering;
+        const bool single = !st->multiple_only && nc_diff_single_for(&settings->diffusion, m);
         if (o->single != single || o->multiple_only != (st->multiple_only || single))
             o->medium_valid = false;
         o->single = single;

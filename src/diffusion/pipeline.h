@@ -186,6 +186,9 @@ nacre_result nc_diffusion_frame_objects(nc_diff_state *st, const nacre_scene *sc
                                         const nacre_render_settings *settings, const nc_shade_light *lights,
                                         uint32_t light_count, const uint8_t *only, nacre_render_stats *stats);
 
+/* Whether an object of material m gets the per-pixel first order (single.c) under settings d. */
+bool nc_diff_single_for(const nacre_diffusion_settings *d, const nacre_material_desc *m);
+
 /* Fill the subsurface hook of the phong pass (shade.h) from the state of the last frame. */
 void nc_diffusion_shade_params(const nc_diff_state *st, const nacre_scene *scene,
                                nc_shade_params *params);

@@ -108,7 +108,18 @@ void nc_json_parse_render(loader *ld, const cJSON *obj)
     nc_json_get_number(ld, obj, "tolerance", tolerance_range, &s->diffusion.tolerance);
     if (nc_json_get_integer(ld, obj, "seed_iterations", 0, 1000000, &v))
         s->diffusion.seed_iterations = (uint32_t)v;
-    nc_json_get_bool(ld, obj, "single_scattering", &s->diffusion.single_scattering);
+    /* true and false stay valid (the setting was a bool before "auto") */
+    const cJSON *single = nc_json_member(obj, "single_scattering");
+    if (single && cJSON_IsBool(single)) {
+        s->diffusion.single_scattering = cJSON_IsTrue(single) ? NACRE_SINGLE_SCATTERING_ON : NACRE_SINGLE_SCATTERING_OFF;
+    } else if (single) {
+        const char *const modes[] = {nacre_single_scattering_name(NACRE_SINGLE_SCATTERING_OFF),
+                                     nacre_single_scattering_name(NACRE_SINGLE_SCATTERING_ON),
+                                     nacre_single_scattering_name(NACRE_SINGLE_SCATTERING_AUTO)};
+        choice = nc_json_get_choice(ld, obj, "single_scattering", "single_scattering mode", modes, COUNT_OF(modes));
+        if (choice >= 0)
+            s->diffusion.single_scattering = (nacre_single_scattering)choice;
+    }
     nc_json_get_double(ld, obj, "time_limit", R_NONNEG, &s->pathtrace.time_limit);
     if (nc_json_get_integer(ld, obj, "max_scatter", 0, UINT32_MAX, &v))
         s->pathtrace.max_scatter = (uint32_t)v;

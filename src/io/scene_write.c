@@ -444,6 +444,7 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
          "source"},
         {s->diffusion.tolerance > 0 && s->diffusion.tolerance < 1, "tolerance"},
         {s->diffusion.seed_iterations <= 1000000, "seed_iterations"},
+        {(unsigned)s->diffusion.single_scattering <= NACRE_SINGLE_SCATTERING_AUTO, "single_scattering"},
         {s->pathtrace.time_limit >= 0 && s->pathtrace.time_limit <= FLT_MAX, "time_limit"},
         {s->layered.samples >= 1 && s->layered.samples <= 4096, "layered_samples"},
         {s->layered.epsilon > 0 && s->layered.epsilon < 1, "layered_epsilon"},
@@ -484,7 +485,7 @@ static cJSON *render_section(writer *w, const nacre_scene_file_settings *fs)
     add_string(w, o, "source", nacre_source_name(s->diffusion.source));
     add_float(w, o, "tolerance", s->diffusion.tolerance);
     add_uint(w, o, "seed_iterations", s->diffusion.seed_iterations);
-    add_bool(w, o, "single_scattering", s->diffusion.single_scattering);
+    add_string(w, o, "single_scattering", nacre_single_scattering_name(s->diffusion.single_scattering));
     add_uint(w, o, "spp", s->pathtrace.spp);
     add_uint(w, o, "seed", s->pathtrace.seed);
     add_double(w, o, "time_limit", s->pathtrace.time_limit);

@@ -21,7 +21,10 @@ static nacre_result diffusion_check(nacre_context *ctx, const nacre_render_setti
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: solver: unknown (%d)", (int)s->diffusion.solver);
     if (s->diffusion.source != NACRE_SOURCE_VOLUME && s->diffusion.source != NACRE_SOURCE_FACE)
         return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: source: unknown (%d)", (int)s->diffusion.source);
-    if (s->diffusion.single_scattering && s->diffusion.source != NACRE_SOURCE_VOLUME)
+    if ((unsigned)s->diffusion.single_scattering > NACRE_SINGLE_SCATTERING_AUTO)
+        return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "render: single_scattering: unknown (%d)",
+                       (int)s->diffusion.single_scattering);
+    if (s->diffusion.single_scattering == NACRE_SINGLE_SCATTERING_ON && s->diffusion.source != NACRE_SOURCE_VOLUME)
         return nc_fail(ctx, NACRE_ERROR_UNSUPPORTED,
                        "render: single_scattering: not implemented with face sources (use source volume)");
     if (s->diffusion.seed_iterations > 100000)

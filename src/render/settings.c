@@ -23,6 +23,7 @@ nacre_render_settings nacre_render_settings_defaults(void)
     s.diffusion.solver = NACRE_SOLVER_MULTIGRID;
     s.diffusion.source = NACRE_SOURCE_VOLUME;
     s.diffusion.tolerance = 1e-4f;
+    s.diffusion.single_scattering = NACRE_SINGLE_SCATTERING_AUTO;
     s.layered.samples = 16;
     s.layered.epsilon = 0.01f;
     s.layered.integration = NACRE_LAYERED_ANALYTIC;
@@ -39,6 +40,7 @@ nacre_render_settings nacre_render_settings_defaults(void)
 static const char *const solver_names[] = {"multigrid", "seed"};
 static const char *const source_names[] = {"volume", "face"};
 static const char *const volumetrics_names[] = {"off", "froxel", "raymarch"};
+static const char *const single_names[] = {"off", "on", "auto"};
 
 const char *nacre_solver_name(nacre_diffusion_solver solver)
 {
@@ -99,6 +101,19 @@ bool nacre_volumetrics_from_name(const char *name, nacre_volumetrics_mode *out)
     int i = name_index(name, volumetrics_names, 3);
     if (i >= 0)
         *out = (nacre_volumetrics_mode)i;
+    return i >= 0;
+}
+
+const char *nacre_single_scattering_name(nacre_single_scattering mode)
+{
+    return (unsigned)mode < 3 ? single_names[mode] : "unknown";
+}
+
+bool nacre_single_scattering_from_name(const char *name, nacre_single_scattering *out)
+{
+    int i = name_index(name, single_names, 3);
+    if (i >= 0)
+        *out = (nacre_single_scattering)i;
     return i >= 0;
 }
 

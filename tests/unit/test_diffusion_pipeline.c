@@ -858,14 +858,24 @@ static void test_bad_settings(void)
             CHECK(res == NACRE_ERROR_UNSUPPORTED);
         }
     }
-    /* Single scattering needs the volume sources (the factor of orders >= 2 is theirs). */
+    /* Single scattering needs the volume sources (the factor of orders >= 2 is theirs): ON
+     * fails with face sources, AUTO renders without it, an unknown mode is refused. */
     {
         nacre_render_settings rs = diffusion_settings(16, 16);
-        rs.diffusion.single_scattering = true;
+        rs.diffusion.single_scattering = NACRE_SINGLE_SCATTERING_ON;
         rs.diffusion.source = NACRE_SOURCE_FACE;
         nacre_image img = {0};
         nacre_result res = nacre_render(f.scene, &rs, &img, NULL);
         CHECK(img.pixels == NULL && res == NACRE_ERROR_UNSUPPORTED);
+        if (avail)
+            CHECK(strstr(nacre_context_last_error(f.ctx), "single_scattering") != NULL);
+        rs.diffusion.single_scattering = NACRE_SINGLE_SCATTERING_AUTO;
+        res = nacre_render(f.scene, &rs, &img, NULL);
+        CHECK(avail ? res == NACRE_OK : res == NACRE_ERROR_UNSUPPORTED);
+        nacre_image_free(f.ctx, &img);
+        rs.diffusion.single_scattering = (nacre_single_scattering)7;
+        res = nacre_render(f.scene, &rs, &img, NULL);
+        CHECK(img.pixels == NULL && res != NACRE_OK);
         if (avail)
             CHECK(strstr(nacre_context_last_error(f.ctx), "single_scattering") != NULL);
     }

@@ -454,6 +454,9 @@ static const bad_case bad_cases[] = {
     {"{\"render\": {\"solver\": \"jacobi\"}}", INVALID, "render.solver: unknown solver \"jacobi\"", "multigrid, seed"},
     {"{\"render\": {\"solver\": 1}}", INVALID, "render.solver: expected a string, got a number", NULL},
     {"{\"render\": {\"source\": \"surface\"}}", INVALID, "render.source: unknown source \"surface\"", "volume, face"},
+    {"{\"render\": {\"single_scattering\": \"sometimes\"}}", INVALID,
+     "render.single_scattering: unknown single_scattering mode \"sometimes\"", "off, on, auto"},
+    {"{\"render\": {\"single_scattering\": 1}}", INVALID, "render.single_scattering: expected a string, got a number", NULL},
     {"{\"render\": {\"tolerance\": 0}}", INVALID, "render.tolerance: must be in (0, 1) (got 0)", NULL},
     {"{\"render\": {\"tolerance\": 1}}", INVALID, "render.tolerance: must be in (0, 1)", NULL},
     {"{\"render\": {\"seed_iterations\": -1}}", INVALID, "render.seed_iterations: must be an integer in 0..1000000", NULL},
@@ -1018,9 +1021,34 @@ static void test_limits_and_nul(void)
     CHECK(c.live == 0);
 }
 
+/* single_scattering: "auto" by default, the three names, and true / false (a bool before "auto"). */
+static void test_single_scattering_values(void)
+{
+    counter c;
+    nacre_context *ctx = make_context(&c);
+    const struct {
+        const char *json;
+        nacre_single_scattering want;
+    } cases[] = {{"{}", NACRE_SINGLE_SCATTERING_AUTO},
+                 {"{\"render\": {\"single_scattering\": \"auto\"}}", NACRE_SINGLE_SCATTERING_AUTO},
+                 {"{\"render\": {\"single_scattering\": \"on\"}}", NACRE_SINGLE_SCATTERING_ON},
+                 {"{\"render\": {\"single_scattering\": \"off\"}}", NACRE_SINGLE_SCATTERING_OFF},
+                 {"{\"render\": {\"single_scattering\": true}}", NACRE_SINGLE_SCATTERING_ON},
+                 {"{\"render\": {\"single_scattering\": false}}", NACRE_SINGLE_SCATTERING_OFF}};
+    for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+        nacre_scene *s = NULL;
+        nacre_scene_file_settings fs;
+        CHECK(load(ctx, cases[i].json, &s, &fs) == NACRE_OK);
+        CHECK(fs.render.diffusion.single_scattering == cases[i].want);
+        nacre_scene_destroy(s);
+    }
+    nacre_context_destroy(ctx);
+}
+
 int main(void)
 {
     test_full_scene();
+    test_single_scattering_values();
     test_bad_inputs();
     test_limits_and_nul();
     test_files();

@@ -130,7 +130,8 @@ static const char render_help[] =
     "  --tsm-size N        translucent shadow map texels per side (default 512)\n"
     "  --solver S          multigrid (default: PCG to --tolerance) | seed (Jacobi cascade)\n"
     "  --source S          volume (default) | face (the seed's face injection)\n"
-    "  --single-scattering on|off  diffusion: march light scattered once per pixel, diffuse the rest\n"
+    "  --single-scattering on|off|auto  diffusion: march light scattered once per pixel, diffuse the\n"
+    "                      rest (auto, the default: on for patterned media)\n"
     "  --tolerance T       relative residual for multigrid (default 1e-4)\n"
     "  --seed-iterations N Jacobi sweeps for the seed solver (default: the seed's table 5.6)\n"
     "pathtrace:\n"
@@ -295,9 +296,11 @@ static int cmd_render(int argc, char **argv)
             if (!nacre_particles_draw_from_name(particles_name, &particles_draw))
                 return nc_tool_usage("render", "--particles '%s': expected billboards, sprites or voxel", particles_name);
         } else if (strcmp(a, "--single-scattering") == 0) {
-            if (!has_value || (strcmp(argv[i + 1], "on") != 0 && strcmp(argv[i + 1], "off") != 0))
-                return nc_tool_usage("render", "--single-scattering needs on or off");
-            single_scattering = strcmp(argv[++i], "on") == 0 ? 1 : 0;
+            nacre_single_scattering mode;
+            if (!has_value || !nacre_single_scattering_from_name(argv[i + 1], &mode))
+                return nc_tool_usage("render", "--single-scattering needs on, off or auto");
+            single_scattering = (int)mode;
+            i++;
         } else if (strcmp(a, "--source") == 0) {
             if (!has_value)
                 return nc_tool_usage("render", "--source needs volume or face");
@@ -476,7 +479,7 @@ static int cmd_render(int argc, char **argv)
     if (source_name)
         rs.diffusion.source = source;
     if (single_scattering >= 0)
-        rs.diffusion.single_scattering = single_scattering == 1;
+        rs.diffusion.single_scattering = (nacre_single_scattering)single_scattering;
     if (particles_name)
         rs.particles = particles_draw;
     if (!isnan(tolerance))

@@ -330,6 +330,18 @@ void settings_controls(nc_view *v)
         ImGui::SameLine();
         ImGui::RadioButton("seed (Jacobi)", &solver, NACRE_SOLVER_SEED);
         nc_view_solver(v, (nacre_diffusion_solver)solver);
+        /* The per-pixel first order (single.c); auto: on for patterned media. */
+        int single = (int)v->fs.render.diffusion.single_scattering;
+        ImGui::Text("single scattering");
+        ImGui::SameLine();
+        ImGui::RadioButton("auto", &single, NACRE_SINGLE_SCATTERING_AUTO);
+        ImGui::SameLine();
+        ImGui::RadioButton("on", &single, NACRE_SINGLE_SCATTERING_ON);
+        ImGui::SameLine();
+        ImGui::RadioButton("off", &single, NACRE_SINGLE_SCATTERING_OFF);
+        if (single != (int)v->fs.render.diffusion.single_scattering)
+            nc_view_render_setting(v, "single_scattering", nacre_single_scattering_name((nacre_single_scattering)single),
+                                   false);
     }
     if (ImGui::CollapsingHeader("timeline", ImGuiTreeNodeFlags_DefaultOpen)) {
         if (ImGui::Button(v->playing ? "pause (p)" : "play (p)"))

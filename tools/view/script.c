@@ -22,7 +22,8 @@
  *                                  layered_integration
  *                                  analytic|samples, volumetrics off|froxel|raymarch,
  *                                  froxel_width|froxel_height|froxel_slices N, raymarch_steps N,
- *                                  shadow_steps N, froxel_temporal A, particles billboards|sprites|voxel
+ *                                  shadow_steps N, froxel_temporal A, particles billboards|sprites|voxel,
+ *                                  single_scattering auto|on|off
  *   FRAME exposure EV              display and PNG exposure (stops)
  *   FRAME time T                   timeline time (seconds, deformers)
  *   FRAME play | pause             timeline playback (1/30 s per frame in headless runs)

@@ -419,6 +419,10 @@ bool nc_view_render_setting(nc_view *v, const char *name, const char *value, boo
             vol->temporal = (float)e;
         else
             snprintf(v->message, sizeof(v->message), "froxel_temporal '%s': expected a number in [0, 1)", value);
+    } else if (strcmp(name, "single_scattering") == 0) {
+        ok = nacre_single_scattering_from_name(value, &rs.diffusion.single_scattering);
+        if (!ok)
+            snprintf(v->message, sizeof(v->message), "single_scattering '%s': expected auto, on or off", value);
     } else if (strcmp(name, "particles") == 0) {
         ok = nacre_particles_draw_from_name(value, &rs.particles);
         if (!ok)
@@ -426,7 +430,8 @@ bool nc_view_render_setting(nc_view *v, const char *name, const char *value, boo
     } else {
         snprintf(v->message, sizeof(v->message),
                  "unknown setting '%s' (layered_samples, layered_epsilon, layered_integration, volumetrics, "
-                 "froxel_width, froxel_height, froxel_slices, froxel_temporal, raymarch_steps, shadow_steps, particles)",
+                 "froxel_width, froxel_height, froxel_slices, froxel_temporal, raymarch_steps, shadow_steps, particles, "
+                 "single_scattering)",
                  name);
         return false;
     }
