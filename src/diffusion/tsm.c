@@ -71,6 +71,8 @@
 /* Most mesh triangles per map texel for which the map takes the light's entry from the mesh
  * (mesh_band); finer meshes keep the voxel staircase's entry. */
 #define MESH_PER_TEXEL 4.0
+/* Texels per batch of occlusion lookups (raster_band). */
+#define SHADOW_BATCH 64
 /* Smallest adapted map side. */
 #define MIN_TSM_SIZE 16
 /* Volume injection from a rasterized (orthographic, parallel-ray) map marches one refracted ray
@@ -113,7 +115,6 @@ void nc_tsm_band_free(nacre_context *ctx, nc_tsm_band *b)
 {
     texels_free(ctx, b);
     nc_free(ctx, b->scratch);
-    nc_free(ctx, b->faces);
     nc_free(ctx, b->depth);
     nc_free(ctx, b->hit);
     nc_free(ctx, b->mesh_t);
@@ -621,7 +622,7 @@ static void face_steps(const float d[3], int step[3])
 /* List the exposed faces that face direction d: cell * 8 + face id, ordered by cell then axis.
  * Two passes over z-slabs (count, then fill at the slab's prefix offset), so the order does not
  * depend on the thread count. Returns the face count, or SIZE_MAX when out of memory. */
-static size_t list_faces(const nc_diff_object *o, nc_tsm_band *b, const float d[3], int threads)
+static size_t list_faces(nc_diff_object *o, const float d[3], int threads)
 {
     int step[3];
     face_steps(d, step);
@@ -634,7 +635,7 @@ static size_t list_faces(const nc_diff_object *o, nc_tsm_band *b, const float d[
     const int32_t zn = (int32_t)(hi[2] - lo[2]);
     /* Per-slab counts (then offsets) on the stack: the caller guarantees at most 1024 slabs. */
     size_t counts[1025];
-    uint32_t *faces = b->faces;
+    uint32_t *faces = o->faces;
     for (int pass = 0; pass < 2; pass++) {
 #pragma omp parallel for schedule(static) num_threads(threads) if (o->cells > 32768)
         for (int32_t zi = 0; zi < zn; zi++) {
@@ -670,14 +671,14 @@ static size_t list_faces(const nc_diff_object *o, nc_tsm_band *b, const float d[
                 counts[zi] = total;
                 total += cnt;
             }
-            if (total > b->face_capacity) {
-                nc_free(o->ctx, b->faces);
-                b->faces = nc_alloc(o->ctx, total * sizeof(*b->faces));
-                b->face_capacity = b->faces ? total : 0;
-                if (!b->faces)
+            if (total > o->face_capacity) {
+                nc_free(o->ctx, o->faces);
+                o->faces = nc_alloc(o->ctx, total * sizeof(*o->faces));
+                o->face_capacity = o->faces ? total : 0;
+                if (!o->faces)
                     return SIZE_MAX;
             }
-            faces = b->faces;
+            faces = o->faces;
             counts[zn] = total;
         }
     }
@@ -699,7 +700,7 @@ static void raster_band(const nc_diff_object *o, const tsm_view *w, const tsm_li
     const int64_t count = (int64_t)(j1 - j0) * size;
     float *depth = b->depth;
     uint32_t *hit = b->hit;
-    const uint32_t *faces = b->faces;
+    const uint32_t *faces = o->faces;
     /* Chunks of rows; every chunk scans the whole face list (cheap next to the texels). */
     const int32_t nrows = j1 - j0;
     const int chunks = threads > 1 ? 4 * threads : 1;
@@ -765,47 +766,70 @@ static void raster_band(const nc_diff_object *o, const tsm_view *w, const tsm_li
     }
     const float lo_g[3] = {(float)o->lo[0] - 1, (float)o->lo[1] - 1, (float)o->lo[2] - 1};
     const float hi_g[3] = {(float)o->hi[0] + 1, (float)o->hi[1] + 1, (float)o->hi[2] + 1};
+    /* Texels in chunks of SHADOW_BATCH: the occlusion by other objects is looked up for a chunk's
+     * lit texels in one nc_shadow_lookup_n call (its set-up vectorized across the points; one
+     * call per texel was a third of the stage). */
+    const int64_t nchunks = (count + SHADOW_BATCH - 1) / SHADOW_BATCH;
 #pragma omp parallel for schedule(static) num_threads(threads) if (count > 4096)
-    for (int64_t t = 0; t < count; t++) {
-        b->cell[t] = UINT32_MAX;
-        b->weight[t] = 0.0f;
-        if (hit[t] == UINT32_MAX)
-            continue;
-        int32_t j = j0 + (int32_t)(t / size), i = (int32_t)(t % size);
-        float a = w->a0 + ((float)i + 0.5f) * da, bb = w->b0 + ((float)j + 0.5f) * db;
-        uint32_t cell = faces[hit[t]] >> 3;
-        uint8_t face = (uint8_t)(faces[hit[t]] & 7);
-        int axis = face / 2 == 0 ? 2 : (face / 2 == 1 ? 0 : 1);
-        float org[3];
-        for (int k = 0; k < 3; k++)
-            org[k] = oo[k] + (rr[k] * a + uu[k] * bb);
-        float wgt = w->ortho_area * ft[axis];
-        if (use_mesh) {
-            if (!(b->mesh_t[t] < INFINITY))
+    for (int64_t ch = 0; ch < nchunks; ch++) {
+        float qx[SHADOW_BATCH], qy[SHADOW_BATCH], qz[SHADOW_BATCH], vis[SHADOW_BATCH];
+        float nx_[SHADOW_BATCH], ny_[SHADOW_BATCH], nz_[SHADOW_BATCH];
+        int64_t qt[SHADOW_BATCH];
+        uint32_t nq = 0;
+        const int64_t t_end = (ch + 1) * SHADOW_BATCH < count ? (ch + 1) * SHADOW_BATCH : count;
+        for (int64_t t = ch * SHADOW_BATCH; t < t_end; t++) {
+            b->cell[t] = UINT32_MAX;
+            b->weight[t] = 0.0f;
+            if (hit[t] == UINT32_MAX)
                 continue;
-            float cos_n = -(d3[0] * b->mesh_n[3 * t] + d3[1] * b->mesh_n[3 * t + 1] + d3[2] * b->mesh_n[3 * t + 2]);
-            wgt = w->ortho_area * (float)(1.0 - nc_fresnel_dielectric(fabs((double)cos_n), o->eta));
-        }
-        if (shadowed && wgt > 0.0f) {
-            float tin, tout;
-            int ax;
-            if (ray_box(org, d3, lo_g, hi_g, &tin, &tout, &ax) && tin > 0.0f) {
-                nc_vec3 pw = nc_add(nc_v3a(o->origin), nc_scale(nc_add(nc_v3a(org), nc_scale(w->f, tin)), o->h));
-                wgt *= nc_shadow_lookup(tl->shadow, pw, nc_scale(w->f, -1.0f), tl->pcf_radius, tl->bias);
-            }
-        }
-        b->cell[t] = cell;
-        b->face[t] = face;
-        b->weight[t] = wgt;
-        for (int k = 0; k < 3; k++) {
-            b->pos[3 * t + k] = org[k] + d3[k] * depth[t];
-            b->dir[3 * t + k] = d3[k];
-        }
-        const float plane = (float)((face & 1) ? (cell_coord(cell, axis, nx, ny) + 1) : cell_coord(cell, axis, nx, ny));
-        b->pos[3 * t + axis] = plane;
-        if (use_mesh)
+            int32_t j = j0 + (int32_t)(t / size), i = (int32_t)(t % size);
+            float a = w->a0 + ((float)i + 0.5f) * da, bb = w->b0 + ((float)j + 0.5f) * db;
+            uint32_t cell = faces[hit[t]] >> 3;
+            uint8_t face = (uint8_t)(faces[hit[t]] & 7);
+            int axis = face / 2 == 0 ? 2 : (face / 2 == 1 ? 0 : 1);
+            float org[3];
             for (int k = 0; k < 3; k++)
-                b->pos[3 * t + k] = org[k] + d3[k] * b->mesh_t[t];
+                org[k] = oo[k] + (rr[k] * a + uu[k] * bb);
+            float wgt = w->ortho_area * ft[axis];
+            if (use_mesh) {
+                if (!(b->mesh_t[t] < INFINITY))
+                    continue;
+                float cos_n = -(d3[0] * b->mesh_n[3 * t] + d3[1] * b->mesh_n[3 * t + 1] + d3[2] * b->mesh_n[3 * t + 2]);
+                wgt = w->ortho_area * (float)(1.0 - nc_fresnel_dielectric(fabs((double)cos_n), o->eta));
+            }
+            if (shadowed && wgt > 0.0f) {
+                float tin, tout;
+                int ax;
+                if (ray_box(org, d3, lo_g, hi_g, &tin, &tout, &ax) && tin > 0.0f) {
+                    nc_vec3 pw = nc_add(nc_v3a(o->origin), nc_scale(nc_add(nc_v3a(org), nc_scale(w->f, tin)), o->h));
+                    qx[nq] = pw.x;
+                    qy[nq] = pw.y;
+                    qz[nq] = pw.z;
+                    nx_[nq] = -w->f.x;
+                    ny_[nq] = -w->f.y;
+                    nz_[nq] = -w->f.z;
+                    qt[nq++] = t;
+                }
+            }
+            b->cell[t] = cell;
+            b->face[t] = face;
+            b->weight[t] = wgt;
+            for (int k = 0; k < 3; k++) {
+                b->pos[3 * t + k] = org[k] + d3[k] * depth[t];
+                b->dir[3 * t + k] = d3[k];
+            }
+            const float plane =
+                (float)((face & 1) ? (cell_coord(cell, axis, nx, ny) + 1) : cell_coord(cell, axis, nx, ny));
+            b->pos[3 * t + axis] = plane;
+            if (use_mesh)
+                for (int k = 0; k < 3; k++)
+                    b->pos[3 * t + k] = org[k] + d3[k] * b->mesh_t[t];
+        }
+        if (nq > 0) {
+            nc_shadow_lookup_n(tl->shadow, nq, qx, qy, qz, nx_, ny_, nz_, tl->pcf_radius, tl->bias, vis);
+            for (uint32_t k = 0; k < nq; k++)
+                b->weight[qt[k]] *= vis[k];
+        }
     }
 }
 
@@ -1146,6 +1170,49 @@ static double view_power_bound(const nacre_light_desc *l, const tsm_view *w)
     return smax * (double)(w->a1 - w->a0) * (double)(w->b1 - w->b0);
 }
 
+/* The solid rows' x spans (inj_span), once per voxelization; a new set of spans leaves the
+ * sources to be cleared whole (src_clean false). */
+static nacre_result injection_spans(nc_diff_object *o, int threads)
+{
+    if (o->inj_valid)
+        return NACRE_OK;
+    const uint32_t nx = o->dims[0], ny = o->dims[1], nz = o->dims[2];
+    const size_t rows = (size_t)ny * nz;
+    if (o->inj_span_capacity < rows) {
+        nc_free(o->ctx, o->inj_span);
+        o->inj_span_capacity = 0;
+        if (!(o->inj_span = nc_alloc(o->ctx, 2 * rows * sizeof(uint32_t))))
+            return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the injection spans");
+        o->inj_span_capacity = rows;
+    }
+#pragma omp parallel for schedule(static) num_threads(threads) if (o->cells > 32768)
+    for (int64_t r = 0; r < (int64_t)rows; r++) {
+        const uint8_t *row = o->solid + (size_t)r * nx;
+        uint32_t a = 0, e = nx;
+        while (a < nx && !row[a])
+            a++;
+        while (e > a && !row[e - 1])
+            e--;
+        o->inj_span[2 * r] = a;
+        o->inj_span[2 * r + 1] = e;
+    }
+    o->inj_valid = true;
+    o->src_clean = false;
+    return NACRE_OK;
+}
+
+/* Sources (and q) all 0: a frame that injects nothing. */
+static void clear_sources(nc_diff_object *o, int threads)
+{
+    (void)threads;
+    for (int c = 0; c < 3; c++) {
+        memset(o->source[c], 0, o->cells * sizeof(float));
+        if (o->q[c])
+            memset(o->q[c], 0, o->cells * sizeof(float));
+    }
+    o->src_clean = true;
+}
+
 nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const nacre_scene *scene,
                                    const nc_shade_light *lights, uint32_t light_count, bool others_cast,
                                    const nacre_render_settings *settings, uint64_t *tsm_us, uint64_t *inject_us)
@@ -1153,15 +1220,17 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
     nacre_context *ctx = o->ctx;
     /* Clearing the per-frame arrays is part of the injection's cost: timed with it. */
     const uint64_t t_clear = nc_now_us();
+    const int threads = nc_threads(ctx);
+    nacre_result res = injection_spans(o, threads);
+    if (res != NACRE_OK)
+        return res;
     for (int c = 0; c < 3; c++) {
-        memset(o->source[c], 0, o->cells * sizeof(float));
-        if (o->q[c])
-            memset(o->q[c], 0, o->cells * sizeof(float));
         o->tsm_flux[c] = 0.0;
         o->injected[c] = 0.0;
     }
     o->lmap_count = 0;
     if (o->solid_count == 0 || light_count == 0) {
+        clear_sources(o, threads);
         *inject_us += nc_now_us() - t_clear;
         return NACRE_OK;
     }
@@ -1169,7 +1238,6 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
     if (face_mode && !o->q[0])
         return nc_fail(ctx, NACRE_ERROR_INVALID_OPERATION, "diffusion: face injection without its buffers");
     const int32_t max_size = settings->diffusion.tsm_size;
-    const int threads = nc_threads(ctx);
     const int64_t cells = (int64_t)o->cells;
 
     /* Deposits are summed in 64-bit fixed point so that the parallel injection gives the same
@@ -1194,10 +1262,13 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
             band_texels = rows * (size_t)w->size > band_texels ? rows * (size_t)w->size : band_texels;
         }
     }
-    *inject_us += nc_now_us() - t_clear;
-    if (!(bound > 0.0) || !isfinite(bound))
+    if (!(bound > 0.0) || !isfinite(bound)) {
+        clear_sources(o, threads);
+        *inject_us += nc_now_us() - t_clear;
         return NACRE_OK;
-    nacre_result res = band_reserve(ctx, band, band_texels);
+    }
+    *inject_us += nc_now_us() - t_clear;
+    res = band_reserve(ctx, band, band_texels);
     if (res != NACRE_OK)
         return res;
     if (band->raster_capacity < band_texels) {
@@ -1243,14 +1314,17 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
     if (o->single && (res = lmaps_reserve(o, nl, views, nviews)) != NACRE_OK)
         return res;
     const double scale = ldexp(1.0, 61) / bound, inv_scale = 1.0 / scale;
-    /* Deposits only go to solid cells, so the accumulators are used, cleared and read only in
-     * the z-slabs [lo.z, hi.z) of the solid cells' box: cells [c_lo, c_hi). */
+    /* Deposits only go to solid cells, so the accumulators are read and cleared only in the
+     * solid rows' spans (inj_span), by the pass that turns them into sources: they are all 0
+     * when an injection starts, unless one stopped half-way (an error). */
     const uint64_t t_acc = nc_now_us();
     const size_t slab = (size_t)o->dims[0] * o->dims[1];
     const size_t c_lo = (size_t)o->lo[2] * slab, c_hi = (size_t)o->hi[2] * slab;
     /* Interleaved RGB per cell: a deposit touches one cache line for its three channels. */
     int64_t *acc = o->acc;
-    memset(acc + 3 * c_lo, 0, 3 * (c_hi - c_lo) * sizeof(int64_t));
+    if (o->acc_dirty)
+        memset(acc, 0, 3 * o->cells * sizeof(int64_t));
+    o->acc_dirty = true;
     int64_t total[3] = {0, 0, 0};
     /* Each extra thread adds into its own copy (plain adds; the copies are summed at the end,
      * still exactly); past PRIVATE_BYTES of copies, threads share the arrays with atomic adds. */
@@ -1260,13 +1334,15 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
     if (private_acc) {
         if (band->scratch_bytes < private_bytes) {
             nc_free(ctx, band->scratch);
-            band->scratch = nc_alloc(ctx, private_bytes);
+            band->scratch = nc_calloc(ctx, 1, private_bytes);
             band->scratch_bytes = band->scratch ? private_bytes : 0;
+            band->scratch_dirty = false;
             if (!band->scratch)
                 return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for injection");
         }
-        for (size_t k = 0; k < (size_t)extra; k++)
-            memset(band->scratch + 3 * (k * o->cells + c_lo), 0, 3 * (c_hi - c_lo) * sizeof(int64_t));
+        if (band->scratch_dirty)
+            memset(band->scratch, 0, band->scratch_bytes);
+        band->scratch_dirty = true;
     }
     *inject_us += nc_now_us() - t_acc;
     const bool atomic = extra > 0 && !private_acc;
@@ -1291,9 +1367,21 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
             float ft[3] = {0, 0, 0};
             if (raster) {
                 const float d3[3] = {w->f.x, w->f.y, w->f.z};
-                nfaces = list_faces(o, band, d3, threads);
-                if (nfaces == SIZE_MAX)
-                    return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
+                int step[3];
+                face_steps(d3, step);
+                if (!o->faces_valid || step[0] != o->face_steps[0] || step[1] != o->face_steps[1] ||
+                    step[2] != o->face_steps[2]) {
+                    o->faces_valid = false;
+                    size_t n = list_faces(o, d3, threads);
+                    if (n == SIZE_MAX)
+                        return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY,
+                                       "diffusion: out of memory for a translucent shadow map");
+                    o->face_count = n;
+                    for (int k = 0; k < 3; k++)
+                        o->face_steps[k] = (int8_t)step[k];
+                    o->faces_valid = true;
+                }
+                nfaces = o->face_count;
                 for (int k = 0; k < 3; k++)
                     ft[k] = (float)(1.0 - nc_fresnel_dielectric(fabs((double)d3[k]), o->eta));
             }
@@ -1422,36 +1510,65 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
      * power summed per z slab and the slabs added in order: neither depends on the thread
      * count. */
     const int copies = private_acc ? extra : 0;
-    const int64_t *scratch = band->scratch;
     const size_t z_lo = o->lo[2], z_hi = o->hi[2];
     double slab_sum[3][1024 + 1];
     const bool per_slab = z_hi - z_lo <= 1024;
+    const bool clean = o->src_clean;
+    const uint32_t ny = o->dims[1];
 #pragma omp parallel for schedule(static) num_threads(threads) if (c_hi - c_lo > 65536)
     for (size_t zz = z_lo; zz < z_hi; zz++) {
         double sum[3] = {0.0, 0.0, 0.0};
-        for (size_t i = zz * slab; i < (zz + 1) * slab; i++) {
+        if (!clean)
             for (int c = 0; c < 3; c++) {
-                int64_t v = acc[3 * i + (size_t)c];
-                for (int k = 0; k < copies; k++)
-                    v += scratch[3 * ((size_t)k * (size_t)cells + i) + (size_t)c];
-                if (!v)
-                    continue;
-                double flux = (double)v * inv_scale;
-                float sv;
-                if (face_mode) {
-                    sv = (float)(flux * face_factor(o, i, c));
-                    o->q[c][i] = (float)flux * inv_h2;
-                } else {
-                    sv = (float)flux;
+                memset(o->source[c] + zz * slab, 0, slab * sizeof(float));
+                if (o->q[c])
+                    memset(o->q[c] + zz * slab, 0, slab * sizeof(float));
+            }
+        for (uint32_t y = o->lo[1]; y < o->hi[1]; y++) {
+            const uint32_t *sp = o->inj_span + 2 * (y + (size_t)ny * zz);
+            const size_t row = zz * slab + (size_t)y * o->dims[0];
+            for (size_t i = row + sp[0]; i < row + sp[1]; i++) {
+                for (int c = 0; c < 3; c++) {
+                    int64_t v = acc[3 * i + (size_t)c];
+                    acc[3 * i + (size_t)c] = 0;
+                    for (int k = 0; k < copies; k++) {
+                        int64_t *sc = &band->scratch[3 * ((size_t)k * (size_t)cells + i) + (size_t)c];
+                        v += *sc;
+                        *sc = 0;
+                    }
+                    float sv = 0.0f;
+                    if (v) {
+                        double flux = (double)v * inv_scale;
+                        if (face_mode)
+                            sv = (float)(flux * face_factor(o, i, c));
+                        else
+                            sv = (float)flux;
+                        sum[c] += sv;
+                    }
+                    o->source[c][i] = sv;
+                    if (face_mode)
+                        o->q[c][i] = v ? (float)((double)v * inv_scale) * inv_h2 : 0.0f;
                 }
-                o->source[c][i] = sv;
-                sum[c] += sv;
             }
         }
         if (per_slab)
             for (int c = 0; c < 3; c++)
                 slab_sum[c][zz - z_lo] = sum[c];
     }
+    /* the slabs outside [lo.z, hi.z) hold no solid cell and no source */
+    if (!clean)
+        for (int c = 0; c < 3; c++) {
+            memset(o->source[c], 0, c_lo * sizeof(float));
+            memset(o->source[c] + c_hi, 0, (o->cells - c_hi) * sizeof(float));
+            if (o->q[c]) {
+                memset(o->q[c], 0, c_lo * sizeof(float));
+                memset(o->q[c] + c_hi, 0, (o->cells - c_hi) * sizeof(float));
+            }
+        }
+    o->src_clean = true;
+    o->acc_dirty = false;
+    if (private_acc)
+        band->scratch_dirty = false;
     for (int c = 0; c < 3; c++) {
         double sum = 0.0;
         if (per_slab) {
