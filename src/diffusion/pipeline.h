@@ -157,6 +157,8 @@ typedef struct nc_tsm_band {
     float *depth;                    /* per band texel: distance along the light to the nearest face */
     uint32_t *hit;                   /* per band texel: index into faces, UINT32_MAX: none */
     size_t raster_capacity;          /* texels of depth and hit */
+    int32_t *fbox;                   /* per listed face: its texel bounds i0, i1, j0, j1 */
+    size_t fbox_capacity;            /* faces */
     /* The object's true surface along each band texel's ray (tsm.c mesh_band): */
     float *mesh_t;                   /* per band texel: distance to the mesh (grid units), INFINITY: misses */
     float *mesh_n;                   /* 3 per band texel: unit mesh normal there, facing the light */

@@ -116,6 +116,7 @@ void nc_tsm_band_free(nacre_context *ctx, nc_tsm_band *b)
     texels_free(ctx, b);
     nc_free(ctx, b->scratch);
     nc_free(ctx, b->depth);
+    nc_free(ctx, b->fbox);
     nc_free(ctx, b->hit);
     nc_free(ctx, b->mesh_t);
     nc_free(ctx, b->mesh_n);
@@ -701,7 +702,39 @@ static void raster_band(const nc_diff_object *o, const tsm_view *w, const tsm_li
     float *depth = b->depth;
     uint32_t *hit = b->hit;
     const uint32_t *faces = o->faces;
-    /* Chunks of rows; every chunk scans the whole face list (cheap next to the texels). */
+    /* Each face's texel bounds first (i clamped to the map; j as computed), then chunks of rows,
+     * each scanning the bounds for the faces that reach its rows: the chunks used to project
+     * every face's corners again. */
+    int32_t *fbox = b->fbox;
+#pragma omp parallel for schedule(static) num_threads(threads) if (nfaces > 4096)
+    for (int64_t fi = 0; fi < (int64_t)nfaces; fi++) {
+        uint32_t cell = faces[fi] >> 3, face = faces[fi] & 7;
+        int axis = face / 2 == 0 ? 2 : (face / 2 == 1 ? 0 : 1);
+        int k1 = (axis + 1) % 3, k2 = (axis + 2) % 3;
+        const float c[3] = {(float)(cell % nx), (float)((cell / nx) % ny), (float)(cell / ((size_t)nx * ny))};
+        float plane = (face & 1) ? c[axis] + 1.0f : c[axis];
+        /* Projected bounds of the square: its 4 corners on the map. */
+        float amin = INFINITY, amax = -INFINITY, bmin = INFINITY, bmax = -INFINITY;
+        for (int q = 0; q < 4; q++) {
+            float p[3];
+            p[axis] = plane;
+            p[k1] = c[k1] + (float)(q & 1);
+            p[k2] = c[k2] + (float)(q >> 1);
+            float a = p[0] * rr[0] + p[1] * rr[1] + p[2] * rr[2], bb = p[0] * uu[0] + p[1] * uu[1] + p[2] * uu[2];
+            amin = a < amin ? a : amin;
+            amax = a > amax ? a : amax;
+            bmin = bb < bmin ? bb : bmin;
+            bmax = bb > bmax ? bb : bmax;
+        }
+        /* Texel centres a0 + (i + 0.5) da within [amin, amax], rounded outwards as slack
+         * for round-off (the exact test below decides). */
+        int32_t i0 = (int32_t)floorf((amin - w->a0) * inv_da - 0.5f);
+        int32_t i1 = (int32_t)ceilf((amax - w->a0) * inv_da - 0.5f);
+        fbox[4 * fi + 0] = i0 < 0 ? 0 : i0;
+        fbox[4 * fi + 1] = i1 > size - 1 ? size - 1 : i1;
+        fbox[4 * fi + 2] = (int32_t)floorf((bmin - w->b0) * inv_db - 0.5f);
+        fbox[4 * fi + 3] = (int32_t)ceilf((bmax - w->b0) * inv_db - 0.5f);
+    }
     const int32_t nrows = j1 - j0;
     const int chunks = threads > 1 ? 4 * threads : 1;
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads) if (count > 4096 && nfaces > 256)
@@ -714,34 +747,15 @@ static void raster_band(const nc_diff_object *o, const tsm_view *w, const tsm_li
             hit[t] = UINT32_MAX;
         }
         for (size_t fi = 0; fi < nfaces; fi++) {
+            const int32_t *fb = fbox + 4 * fi;
+            if (fb[2] > r1 - 1 || fb[3] < r0 || fb[0] > fb[1])
+                continue;
+            const int32_t i0 = fb[0], i1 = fb[1], jj0 = fb[2] < r0 ? r0 : fb[2], jj1 = fb[3] > r1 - 1 ? r1 - 1 : fb[3];
             uint32_t cell = faces[fi] >> 3, face = faces[fi] & 7;
             int axis = face / 2 == 0 ? 2 : (face / 2 == 1 ? 0 : 1);
             int k1 = (axis + 1) % 3, k2 = (axis + 2) % 3;
             const float c[3] = {(float)(cell % nx), (float)((cell / nx) % ny), (float)(cell / ((size_t)nx * ny))};
             float plane = (face & 1) ? c[axis] + 1.0f : c[axis];
-            /* Projected bounds of the square: its 4 corners on the map. */
-            float amin = INFINITY, amax = -INFINITY, bmin = INFINITY, bmax = -INFINITY;
-            for (int q = 0; q < 4; q++) {
-                float p[3];
-                p[axis] = plane;
-                p[k1] = c[k1] + (float)(q & 1);
-                p[k2] = c[k2] + (float)(q >> 1);
-                float a = p[0] * rr[0] + p[1] * rr[1] + p[2] * rr[2], bb = p[0] * uu[0] + p[1] * uu[1] + p[2] * uu[2];
-                amin = a < amin ? a : amin;
-                amax = a > amax ? a : amax;
-                bmin = bb < bmin ? bb : bmin;
-                bmax = bb > bmax ? bb : bmax;
-            }
-            /* Texel centres a0 + (i + 0.5) da within [amin, amax], rounded outwards as slack
-             * for round-off (the exact test below decides). */
-            int32_t i0 = (int32_t)floorf((amin - w->a0) * inv_da - 0.5f);
-            int32_t i1 = (int32_t)ceilf((amax - w->a0) * inv_da - 0.5f);
-            int32_t jj0 = (int32_t)floorf((bmin - w->b0) * inv_db - 0.5f);
-            int32_t jj1 = (int32_t)ceilf((bmax - w->b0) * inv_db - 0.5f);
-            i0 = i0 < 0 ? 0 : i0;
-            i1 = i1 > size - 1 ? size - 1 : i1;
-            jj0 = jj0 < r0 ? r0 : jj0;
-            jj1 = jj1 > r1 - 1 ? r1 - 1 : jj1;
             const float inv_dk = 1.0f / d3[axis];
             for (int32_t j = jj0; j <= jj1; j++) {
                 float bb = w->b0 + ((float)j + 0.5f) * db;
@@ -1382,6 +1396,14 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
                     o->faces_valid = true;
                 }
                 nfaces = o->face_count;
+                if (band->fbox_capacity < nfaces) {
+                    nc_free(ctx, band->fbox);
+                    band->fbox = nc_alloc(ctx, 4 * nfaces * sizeof(int32_t));
+                    band->fbox_capacity = band->fbox ? nfaces : 0;
+                    if (!band->fbox)
+                        return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY,
+                                       "diffusion: out of memory for a translucent shadow map");
+                }
                 for (int k = 0; k < 3; k++)
                     ft[k] = (float)(1.0 - nc_fresnel_dielectric(fabs((double)d3[k]), o->eta));
             }
