@@ -44,6 +44,7 @@
 #include "diffusion/pipeline.h"
 #include "core/optics.h"
 #include "scene/lights.h"
+#include "volume/volume.h"
 
 #include <math.h>
 #include <string.h>
@@ -958,29 +959,28 @@ static void inject_volume(const nc_diff_object *o, int64_t *acc, bool atomic, do
     /* Homogeneous media: the remaining fraction after the crossing at path length t is
      * exp(-sigma_t' h t), and the crossings of axis a are at tmax[a] + k tdelta[a], so each
      * axis' next remaining fraction is a geometric sequence: ea[a] (the value at tmax[a]) times
-     * ma[a] per crossing. Nine expf per ray (fewer for equal channels) replace one or two per
+     * ma[a] per crossing. Eighteen exponentials per ray replace one or two per
      * step; the repeated products drift by ~1e-7 per step, far below the 1e-4 cutoff. */
     const bool geometric = !o->heterogeneous;
     float ea[3][3], ma[3][3];
-    if (geometric)
+    if (geometric) {
+        /* The 18 exponentials as three 8-lane vectors (nc_vol_exp_fast8, expf's accuracy): as
+         * expf calls they took a fifth of the injection. An argument of -inf gives 0. */
+        float in[24], out[24]; /* ea then ma, [channel][axis]; 6 lanes of padding */
         for (int ch = 0; ch < 3; ch++) {
-            float sa, ssp;
-            nc_diff_object_coeffs(o, cell, ch, &sa, &ssp);
-            float st = sa + ssp;
+            float st = o->sigma_a_const[ch] + o->sigma_sp_const[ch];
             for (int i = 0; i < 3; i++) {
-                if (ch > 0) {
-                    float sa0, ssp0;
-                    nc_diff_object_coeffs(o, cell, ch - 1, &sa0, &ssp0);
-                    if (sa0 + ssp0 == st) {
-                        ea[ch][i] = ea[ch - 1][i];
-                        ma[ch][i] = ma[ch - 1][i];
-                        continue;
-                    }
-                }
-                ea[ch][i] = st > 0.0f && tmax[i] < INFINITY ? expf(-st * o->h * tmax[i]) : 0.0f;
-                ma[ch][i] = st > 0.0f && tdelta[i] < INFINITY ? expf(-st * o->h * tdelta[i]) : 0.0f;
+                in[3 * ch + i] = st > 0.0f && tmax[i] < INFINITY ? -st * o->h * tmax[i] : -INFINITY;
+                in[9 + 3 * ch + i] = st > 0.0f && tdelta[i] < INFINITY ? -st * o->h * tdelta[i] : -INFINITY;
             }
         }
+        for (int k = 18; k < 24; k++)
+            in[k] = -INFINITY;
+        for (int k = 0; k < 24; k += 8)
+            nc_v8_store(out + k, nc_vol_exp_fast8(nc_v8_load(in + k)));
+        memcpy(ea, out, sizeof(ea));
+        memcpy(ma, out + 9, sizeof(ma));
+    }
     uint32_t max_steps = o->dims[0] + o->dims[1] + o->dims[2] + 3;
     for (uint32_t it = 0; it < max_steps; it++) {
         int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
