@@ -158,6 +158,8 @@ typedef struct nc_tsm_band {
     uint32_t *hit;                   /* per band texel: index into faces, UINT32_MAX: none */
     size_t raster_capacity;          /* texels of depth and hit */
     int32_t *fbox;                   /* per listed face: its texel bounds i0, i1, j0, j1 */
+    int32_t *tbox;                   /* per mesh triangle: the same (mesh_band) */
+    size_t tbox_capacity;            /* triangles */
     size_t fbox_capacity;            /* faces */
     /* The object's true surface along each band texel's ray (tsm.c mesh_band): */
     float *mesh_t;                   /* per band texel: distance to the mesh (grid units), INFINITY: misses */

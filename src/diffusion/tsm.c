@@ -118,6 +118,7 @@ void nc_tsm_band_free(nacre_context *ctx, nc_tsm_band *b)
     nc_free(ctx, b->scratch);
     nc_free(ctx, b->depth);
     nc_free(ctx, b->fbox);
+    nc_free(ctx, b->tbox);
     nc_free(ctx, b->hit);
     nc_free(ctx, b->mesh_t);
     nc_free(ctx, b->mesh_n);
@@ -503,9 +504,9 @@ static inline void texel_ray(const tsm_view *w, float a, float bb, nc_vec3 *org,
 
 /* Per texel of rows [j0, j1): the distance to the nearest triangle along its ray (mesh_t,
  * INFINITY when it misses) and that triangle's unit normal turned towards the light (mesh_n).
- * One parallel pass over the triangles: each covered texel keeps the smallest key (distance bits,
- * then triangle index) by atomic minimum, so the result does not depend on the order or the
- * thread count; a pass over the texels then turns keys into distances and normals. */
+ * Each covered texel keeps the smallest key (distance bits, then triangle index), so the result
+ * does not depend on the order or the thread count; a pass over the texels then turns keys into
+ * distances and normals. */
 static void mesh_band(const nc_diff_object *o, const tsm_view *w, const float *pos, const uint32_t *idx,
                       uint32_t tri_count, const float *vp, int32_t j0, int32_t j1, nc_tsm_band *b, int threads)
 {
@@ -518,8 +519,16 @@ static void mesh_band(const nc_diff_object *o, const tsm_view *w, const float *p
     for (int64_t t = 0; t < count; t++)
         key[t] = UINT64_MAX;
     const float rb0 = w->b0 + (float)j0 * db, rb1 = w->b0 + (float)j1 * db;
+    /* Each triangle's texel bounds first (rows j0 > j1 when it holds no texel centre of the
+     * band); then chunks of rows, each drawing the triangles that reach its rows with plain
+     * stores (a texel belongs to one chunk), where one pass over the triangles needed an atomic
+     * compare-and-swap per covered texel. */
+    int32_t *tbox = b->tbox;
 #pragma omp parallel for schedule(static, 4096) num_threads(threads) if (tri_count > 4096)
     for (int64_t tri = 0; tri < (int64_t)tri_count; tri++) {
+        int32_t *tb = tbox + 4 * tri;
+        tb[2] = 1;
+        tb[3] = 0;
         const float *p0 = vp + 3 * (size_t)idx[3 * tri], *p1 = vp + 3 * (size_t)idx[3 * tri + 1];
         const float *p2 = vp + 3 * (size_t)idx[3 * tri + 2];
         if (p0[2] == 0.0f || p1[2] == 0.0f || p2[2] == 0.0f)
@@ -540,34 +549,53 @@ static void mesh_band(const nc_diff_object *o, const tsm_view *w, const float *p
         float area = (p1[0] - p0[0]) * (p2[1] - p0[1]) - (p2[0] - p0[0]) * (p1[1] - p0[1]);
         if (area == 0.0f)
             continue;
-        const float sgn = area > 0.0f ? 1.0f : -1.0f;
-        nc_vec3 v0 = nc_scale(nc_sub(nc_v3a(pos + 3 * (size_t)idx[3 * tri]), nc_v3a(o->origin)), inv_h);
-        nc_vec3 v1 = nc_scale(nc_sub(nc_v3a(pos + 3 * (size_t)idx[3 * tri + 1]), nc_v3a(o->origin)), inv_h);
-        nc_vec3 v2 = nc_scale(nc_sub(nc_v3a(pos + 3 * (size_t)idx[3 * tri + 2]), nc_v3a(o->origin)), inv_h);
-        nc_vec3 n = nc_cross(nc_sub(v1, v0), nc_sub(v2, v0));
-        for (int32_t j = ja; j <= jb; j++) {
-            float bb = w->b0 + ((float)j + 0.5f) * db;
-            for (int32_t i = ia; i <= ib; i++) {
-                float a = w->a0 + ((float)i + 0.5f) * da;
-                /* Inside, edges inclusive: a texel on a shared edge takes the smaller key. */
-                float e0 = ((p1[0] - p0[0]) * (bb - p0[1]) - (p1[1] - p0[1]) * (a - p0[0])) * sgn;
-                float e1 = ((p2[0] - p1[0]) * (bb - p1[1]) - (p2[1] - p1[1]) * (a - p1[0])) * sgn;
-                float e2 = ((p0[0] - p2[0]) * (bb - p2[1]) - (p0[1] - p2[1]) * (a - p2[0])) * sgn;
-                if (e0 < 0.0f || e1 < 0.0f || e2 < 0.0f)
-                    continue;
-                nc_vec3 org, dir;
-                texel_ray(w, a, bb, &org, &dir);
-                float dn = nc_dot(dir, n);
-                if (dn == 0.0f)
-                    continue;
-                float dist = nc_dot(nc_sub(v0, org), n) / dn;
-                dist = dist > 0.0f ? dist : 0.0f;
-                uint32_t bits;
-                memcpy(&bits, &dist, sizeof(bits)); /* non-negative floats order as their bits */
-                uint64_t k = ((uint64_t)bits << 32) | (uint64_t)tri;
-                uint64_t *slot = &key[(int64_t)(j - j0) * size + i];
-                uint64_t cur = __atomic_load_n(slot, __ATOMIC_RELAXED);
-                while (k < cur && !__atomic_compare_exchange_n(slot, &cur, k, true, __ATOMIC_RELAXED, __ATOMIC_RELAXED)) {
+        tb[0] = ia;
+        tb[1] = ib;
+        tb[2] = ja;
+        tb[3] = jb;
+    }
+    const int32_t nrows = j1 - j0;
+    const int chunks = threads > 1 ? 4 * threads : 1;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads) if (count > 4096 && tri_count > 256)
+    for (int ch = 0; ch < chunks; ch++) {
+        const int32_t r0 = j0 + (int32_t)((int64_t)nrows * ch / chunks);
+        const int32_t r1 = j0 + (int32_t)((int64_t)nrows * (ch + 1) / chunks);
+        for (int64_t tri = 0; r0 < r1 && tri < (int64_t)tri_count; tri++) {
+            const int32_t *tb = tbox + 4 * tri;
+            if (tb[2] > r1 - 1 || tb[3] < r0 || tb[2] > tb[3])
+                continue;
+            const int32_t ia = tb[0], ib = tb[1], ja = tb[2] < r0 ? r0 : tb[2], jb = tb[3] > r1 - 1 ? r1 - 1 : tb[3];
+            const float *p0 = vp + 3 * (size_t)idx[3 * tri], *p1 = vp + 3 * (size_t)idx[3 * tri + 1];
+            const float *p2 = vp + 3 * (size_t)idx[3 * tri + 2];
+            float area = (p1[0] - p0[0]) * (p2[1] - p0[1]) - (p2[0] - p0[0]) * (p1[1] - p0[1]);
+            const float sgn = area > 0.0f ? 1.0f : -1.0f;
+            nc_vec3 v0 = nc_scale(nc_sub(nc_v3a(pos + 3 * (size_t)idx[3 * tri]), nc_v3a(o->origin)), inv_h);
+            nc_vec3 v1 = nc_scale(nc_sub(nc_v3a(pos + 3 * (size_t)idx[3 * tri + 1]), nc_v3a(o->origin)), inv_h);
+            nc_vec3 v2 = nc_scale(nc_sub(nc_v3a(pos + 3 * (size_t)idx[3 * tri + 2]), nc_v3a(o->origin)), inv_h);
+            nc_vec3 n = nc_cross(nc_sub(v1, v0), nc_sub(v2, v0));
+            for (int32_t j = ja; j <= jb; j++) {
+                float bb = w->b0 + ((float)j + 0.5f) * db;
+                for (int32_t i = ia; i <= ib; i++) {
+                    float a = w->a0 + ((float)i + 0.5f) * da;
+                    /* Inside, edges inclusive: a texel on a shared edge takes the smaller key. */
+                    float e0 = ((p1[0] - p0[0]) * (bb - p0[1]) - (p1[1] - p0[1]) * (a - p0[0])) * sgn;
+                    float e1 = ((p2[0] - p1[0]) * (bb - p1[1]) - (p2[1] - p1[1]) * (a - p1[0])) * sgn;
+                    float e2 = ((p0[0] - p2[0]) * (bb - p2[1]) - (p0[1] - p2[1]) * (a - p2[0])) * sgn;
+                    if (e0 < 0.0f || e1 < 0.0f || e2 < 0.0f)
+                        continue;
+                    nc_vec3 org, dir;
+                    texel_ray(w, a, bb, &org, &dir);
+                    float dn = nc_dot(dir, n);
+                    if (dn == 0.0f)
+                        continue;
+                    float dist = nc_dot(nc_sub(v0, org), n) / dn;
+                    dist = dist > 0.0f ? dist : 0.0f;
+                    uint32_t bits;
+                    memcpy(&bits, &dist, sizeof(bits)); /* non-negative floats order as their bits */
+                    uint64_t k = ((uint64_t)bits << 32) | (uint64_t)tri;
+                    uint64_t *slot = &key[(int64_t)(j - j0) * size + i];
+                    if (k < *slot)
+                        *slot = k;
                 }
             }
         }
@@ -1316,6 +1344,13 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
         band->mesh_key = nc_alloc(ctx, band_texels * sizeof(uint64_t));
         band->mesh_capacity = band->mesh_t && band->mesh_n && band->mesh_key ? band_texels : 0;
         if (!band->mesh_capacity)
+            return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
+    }
+    if (have_mesh && band->tbox_capacity < mesh->triangle_count) {
+        nc_free(ctx, band->tbox);
+        band->tbox = nc_alloc(ctx, 4 * (size_t)mesh->triangle_count * sizeof(int32_t));
+        band->tbox_capacity = band->tbox ? mesh->triangle_count : 0;
+        if (!band->tbox)
             return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
     }
     if (have_mesh && band->vproj_capacity < mesh->vertex_count) {
