@@ -519,10 +519,9 @@ static void mesh_band(const nc_diff_object *o, const tsm_view *w, const float *p
     for (int64_t t = 0; t < count; t++)
         key[t] = UINT64_MAX;
     const float rb0 = w->b0 + (float)j0 * db, rb1 = w->b0 + (float)j1 * db;
-    /* Each triangle's texel bounds first (rows j0 > j1 when it holds no texel centre of the
-     * band); then chunks of rows, each drawing the triangles that reach its rows with plain
-     * stores (a texel belongs to one chunk), where one pass over the triangles needed an atomic
-     * compare-and-swap per covered texel. */
+    /* Each triangle's texel bounds first (first row > last row when it holds no texel centre
+     * of the band); then chunks of rows, each drawing the triangles that reach its rows. A texel
+     * belongs to one chunk, so its minimum needs no atomic compare-and-swap. */
     int32_t *tbox = b->tbox;
 #pragma omp parallel for schedule(static, 4096) num_threads(threads) if (tri_count > 4096)
     for (int64_t tri = 0; tri < (int64_t)tri_count; tri++) {
@@ -732,7 +731,7 @@ static void raster_band(const nc_diff_object *o, const tsm_view *w, const tsm_li
     uint32_t *hit = b->hit;
     const uint32_t *faces = o->faces;
     /* Each face's texel bounds first (i clamped to the map; j as computed), then chunks of rows,
-     * each scanning the bounds for the faces that reach its rows: the chunks used to project
+     * each scanning the bounds for the faces that reach its rows, so that no chunk projects
      * every face's corners again. */
     int32_t *fbox = b->fbox;
 #pragma omp parallel for schedule(static) num_threads(threads) if (nfaces > 4096)
@@ -810,8 +809,7 @@ static void raster_band(const nc_diff_object *o, const tsm_view *w, const tsm_li
     const float lo_g[3] = {(float)o->lo[0] - 1, (float)o->lo[1] - 1, (float)o->lo[2] - 1};
     const float hi_g[3] = {(float)o->hi[0] + 1, (float)o->hi[1] + 1, (float)o->hi[2] + 1};
     /* Texels in chunks of SHADOW_BATCH: the occlusion by other objects is looked up for a chunk's
-     * lit texels in one nc_shadow_lookup_n call (its set-up vectorized across the points; one
-     * call per texel was a third of the stage). */
+     * lit texels in one nc_shadow_lookup_n call, whose set-up is vectorized across the points. */
     const int64_t nchunks = (count + SHADOW_BATCH - 1) / SHADOW_BATCH;
 #pragma omp parallel for schedule(static) num_threads(threads) if (count > 4096)
     for (int64_t ch = 0; ch < nchunks; ch++) {
@@ -992,8 +990,8 @@ static void inject_volume(const nc_diff_object *o, int64_t *acc, bool atomic, do
     const bool geometric = !o->heterogeneous;
     float ea[3][3], ma[3][3];
     if (geometric) {
-        /* The 18 exponentials as three 8-lane vectors (nc_vol_exp_fast8, expf's accuracy): as
-         * expf calls they took a fifth of the injection. An argument of -inf gives 0. */
+        /* The 18 exponentials as three 8-lane vectors (nc_vol_exp_fast8, expf's accuracy): 18
+         * expf calls would be a fifth of the injection. An argument of -inf gives 0. */
         float in[24], out[24]; /* ea then ma, [channel][axis]; 6 lanes of padding */
         for (int ch = 0; ch < 3; ch++) {
             float st = o->sigma_a_const[ch] + o->sigma_sp_const[ch];
