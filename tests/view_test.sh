@@ -69,10 +69,27 @@ out=$(windowed --frames 5 --script "$tmp/camera.txt" --threads 2) || fail "camer
 [ "$(json_int "$out" voxelize)" = 2 ] && [ "$(json_int "$out" propagate)" = 2 ] && [ "$(json_int "$out" shadow)" = 1 ] &&
     [ "$(json_int "$out" raster)" = 5 ] || fail "camera-only frames: stage_runs in '$out'"
 
+# --- interactive light edits: a frame in which a light moved solves the diffusion to 1e-3; two
+# frames after the last light edit, or before a screenshot, the frame is solved again to the
+# scene's tolerance (tsm/inject/propagate for both objects); --exact never does either.
+printf '1 light 0 direction 0.3 -1 0.2\n2 light 0 direction 0.32 -1 0.2\n' >"$tmp/lights.txt"
+out=$(windowed --frames 6 --script "$tmp/lights.txt" --threads 2) || fail "lights run failed: $out"
+[ "$(json_int "$out" rendered)" = 4 ] && [ "$(json_int "$out" propagate)" = 8 ] ||
+    fail "interactive light edits: the refinement at frame 4 in '$out'"
+out=$(windowed --frames 3 --script "$tmp/lights.txt" --screenshot "$tmp/lights.png" --threads 2) ||
+    fail "lights run failed: $out"
+[ "$(json_int "$out" rendered)" = 4 ] && [ "$(json_int "$out" propagate)" = 8 ] ||
+    fail "interactive light edits: the refinement before the screenshot in '$out'"
+out=$(windowed --frames 6 --script "$tmp/lights.txt" --exact --threads 2) || fail "--exact run failed: $out"
+[ "$(json_int "$out" rendered)" = 3 ] && [ "$(json_int "$out" propagate)" = 6 ] ||
+    fail "--exact: stage_runs in '$out'"
+
 # --- orbit, material, light, method; compare with nacre render of the saved scene ------------
 # Frame 0 renders all; 1-2 camera; 3 material (medium onward for both translucent objects, the
-# material version is scene-wide); 4 light (its shadow map, tsm/inject/propagate); 5 nothing
-# changes (not rendered); 6 the method switch; 7 nothing.
+# material version is scene-wide); 4 light (its shadow map, tsm/inject/propagate, solved to the
+# interactive tolerance); 5 nothing changes (not rendered); 6 the method switch (phong), or for
+# diffusion the refinement of frame 4 (tsm/inject/propagate again, to the scene's tolerance);
+# 7 nothing.
 for final in phong diffusion; do
     key=$([ $final = phong ] && echo 1 || echo 2)
     printf '1 orbit 20 0\n2 orbit 0 10\n3 material 0 sigma_a_scale 2\n4 light 0 direction 0.3 -1 0.2\n6 key %s\n' \
@@ -80,10 +97,10 @@ for final in phong diffusion; do
     out=$(windowed --frames 8 --script "$tmp/edit.txt" --screenshot "$tmp/view_$final.png" \
         --save-scene "$tmp/saved_$final.json" --threads 2) || { fail "$final run failed: $out"; continue; }
     echo "$out"
-    expect_rendered=$([ $final = phong ] && echo 6 || echo 5)
-    [ "$(json_int "$out" rendered)" = "$expect_rendered" ] && [ "$(json_int "$out" voxelize)" = 2 ] &&
+    expect_propagate=$([ $final = phong ] && echo 6 || echo 8)
+    [ "$(json_int "$out" rendered)" = 6 ] && [ "$(json_int "$out" voxelize)" = 2 ] &&
         [ "$(json_int "$out" raster)" = 3 ] && [ "$(json_int "$out" shadow)" = 2 ] &&
-        [ "$(json_int "$out" medium)" = 4 ] && [ "$(json_int "$out" propagate)" = 6 ] ||
+        [ "$(json_int "$out" medium)" = 4 ] && [ "$(json_int "$out" propagate)" = "$expect_propagate" ] ||
         fail "$final: stage_runs in '$out'"
     "$nacre" render "$tmp/saved_$final.json" -o "$tmp/render_$final.png" --threads 2 ||
         { fail "$final: nacre render of the saved scene"; continue; }

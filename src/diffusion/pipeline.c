@@ -57,6 +57,14 @@ static void free_arrays(nc_diff_object *o)
     nc_free(ctx, o->packed);
     nc_free(ctx, o->acc);
     nc_free(ctx, o->exit_span);
+    nc_free(ctx, o->inj_span);
+    nc_free(ctx, o->faces);
+    o->faces = NULL;
+    o->face_capacity = o->face_count = 0;
+    o->faces_valid = false;
+    o->inj_span = NULL;
+    o->inj_span_capacity = 0;
+    o->inj_valid = o->src_clean = o->acc_dirty = false;
     nc_free(ctx, o->packed_ghost);
     o->packed_ghost = NULL;
     o->ghost_capacity = 0;
@@ -304,6 +312,7 @@ nacre_result nc_diff_object_voxelize(nc_diff_object *o, const nacre_scene *s, ui
     nacre_result res = o->grid ? nacre_voxelize_update(o->grid, &dm, &vs, &rep)
                                : nacre_voxelize(ctx, &dm, &vs, &o->grid, &rep);
     o->vox_valid = o->medium_valid = o->light_valid = o->lit = false;
+    o->inj_valid = o->faces_valid = false; /* new solid cells: new injection spans and faces */
     if (res != NACRE_OK)
         return res;
     o->rule_known = true;

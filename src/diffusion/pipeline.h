@@ -81,7 +81,23 @@ typedef struct nc_diff_object {
     float *source[3];                /* W per cell */
     float *q[3];                     /* FACE mode: lit face flux per unit area, summed per cell */
     int64_t *acc;                    /* 3 * cells: injection scratch, fixed-point power per cell,
-                                      * channels interleaved (tsm.c) */
+                                      * channels interleaved (tsm.c); all 0 between injections
+                                      * unless acc_dirty */
+    bool acc_dirty;
+    /* Per row (y, z) of the grid, the x range [lo, hi) from its first to its last solid cell
+     * (inj_span, 2 per row; valid for the current voxels when inj_valid). Deposits go to solid
+     * cells only, so the injection reads and clears its accumulators and writes the sources in
+     * these ranges only; source (and q) are 0 outside them when src_clean. */
+    /* The exposed faces that face a directional light (tsm.c list_faces): cell index * 8 + face
+     * id. They depend only on the voxels and on the signs of the light's direction, so they are
+     * listed again only when one of those changes (faces_valid, for face_steps). */
+    uint32_t *faces;
+    size_t face_count, face_capacity;
+    int8_t face_steps[3];
+    bool faces_valid;
+    uint32_t *inj_span;
+    size_t inj_span_capacity;        /* rows */
+    bool inj_valid, src_clean;
     float *phi[3];                   /* fluence, kept for the next frame's warm start */
     float *exitance[3];              /* outgoing flux per unit area */
     float *packed;                   /* exitance RGB and solid (1/0) per cell, 4 floats each, the
@@ -133,14 +149,18 @@ typedef struct nc_tsm_band {
     float *weight;                   /* flux per unit light strength (area or solid angle x Ft x ...) */
     float *pos;                      /* 3: entry point, grid coordinates */
     float *dir;                      /* 3: unit direction of travel */
-    int64_t *scratch;                /* per-thread injection accumulators (tsm.c) */
+    int64_t *scratch;                /* per-thread injection accumulators (tsm.c); all 0
+                                      * between injections unless scratch_dirty */
+    bool scratch_dirty;
     size_t scratch_bytes;
     /* Orthographic maps are rasterized from the exposed faces (tsm.c): */
-    uint32_t *faces;                 /* exposed, light-facing faces: cell index * 8 + face id */
-    size_t face_capacity;
     float *depth;                    /* per band texel: distance along the light to the nearest face */
     uint32_t *hit;                   /* per band texel: index into faces, UINT32_MAX: none */
     size_t raster_capacity;          /* texels of depth and hit */
+    int32_t *fbox;                   /* per listed face: its texel bounds i0, i1, j0, j1 */
+    int32_t *tbox;                   /* per mesh triangle: the same (mesh_band) */
+    size_t tbox_capacity;            /* triangles */
+    size_t fbox_capacity;            /* faces */
     /* The object's true surface along each band texel's ray (tsm.c mesh_band): */
     float *mesh_t;                   /* per band texel: distance to the mesh (grid units), INFINITY: misses */
     float *mesh_n;                   /* 3 per band texel: unit mesh normal there, facing the light */

@@ -44,6 +44,7 @@
 #include "diffusion/pipeline.h"
 #include "core/optics.h"
 #include "scene/lights.h"
+#include "volume/volume.h"
 
 #include <math.h>
 #include <string.h>
@@ -71,6 +72,8 @@
 /* Most mesh triangles per map texel for which the map takes the light's entry from the mesh
  * (mesh_band); finer meshes keep the voxel staircase's entry. */
 #define MESH_PER_TEXEL 4.0
+/* Texels per batch of occlusion lookups (raster_band). */
+#define SHADOW_BATCH 64
 /* Smallest adapted map side. */
 #define MIN_TSM_SIZE 16
 /* Volume injection from a rasterized (orthographic, parallel-ray) map marches one refracted ray
@@ -113,8 +116,9 @@ void nc_tsm_band_free(nacre_context *ctx, nc_tsm_band *b)
 {
     texels_free(ctx, b);
     nc_free(ctx, b->scratch);
-    nc_free(ctx, b->faces);
     nc_free(ctx, b->depth);
+    nc_free(ctx, b->fbox);
+    nc_free(ctx, b->tbox);
     nc_free(ctx, b->hit);
     nc_free(ctx, b->mesh_t);
     nc_free(ctx, b->mesh_n);
@@ -500,9 +504,9 @@ static inline void texel_ray(const tsm_view *w, float a, float bb, nc_vec3 *org,
 
 /* Per texel of rows [j0, j1): the distance to the nearest triangle along its ray (mesh_t,
  * INFINITY when it misses) and that triangle's unit normal turned towards the light (mesh_n).
- * One parallel pass over the triangles: each covered texel keeps the smallest key (distance bits,
- * then triangle index) by atomic minimum, so the result does not depend on the order or the
- * thread count; a pass over the texels then turns keys into distances and normals. */
+ * Each covered texel keeps the smallest key (distance bits, then triangle index), so the result
+ * does not depend on the order or the thread count; a pass over the texels then turns keys into
+ * distances and normals. */
 static void mesh_band(const nc_diff_object *o, const tsm_view *w, const float *pos, const uint32_t *idx,
                       uint32_t tri_count, const float *vp, int32_t j0, int32_t j1, nc_tsm_band *b, int threads)
 {
@@ -515,8 +519,15 @@ static void mesh_band(const nc_diff_object *o, const tsm_view *w, const float *p
     for (int64_t t = 0; t < count; t++)
         key[t] = UINT64_MAX;
     const float rb0 = w->b0 + (float)j0 * db, rb1 = w->b0 + (float)j1 * db;
+    /* Each triangle's texel bounds first (first row > last row when it holds no texel centre
+     * of the band); then chunks of rows, each drawing the triangles that reach its rows. A texel
+     * belongs to one chunk, so its minimum needs no atomic compare-and-swap. */
+    int32_t *tbox = b->tbox;
 #pragma omp parallel for schedule(static, 4096) num_threads(threads) if (tri_count > 4096)
     for (int64_t tri = 0; tri < (int64_t)tri_count; tri++) {
+        int32_t *tb = tbox + 4 * tri;
+        tb[2] = 1;
+        tb[3] = 0;
         const float *p0 = vp + 3 * (size_t)idx[3 * tri], *p1 = vp + 3 * (size_t)idx[3 * tri + 1];
         const float *p2 = vp + 3 * (size_t)idx[3 * tri + 2];
         if (p0[2] == 0.0f || p1[2] == 0.0f || p2[2] == 0.0f)
@@ -537,34 +548,53 @@ static void mesh_band(const nc_diff_object *o, const tsm_view *w, const float *p
         float area = (p1[0] - p0[0]) * (p2[1] - p0[1]) - (p2[0] - p0[0]) * (p1[1] - p0[1]);
         if (area == 0.0f)
             continue;
-        const float sgn = area > 0.0f ? 1.0f : -1.0f;
-        nc_vec3 v0 = nc_scale(nc_sub(nc_v3a(pos + 3 * (size_t)idx[3 * tri]), nc_v3a(o->origin)), inv_h);
-        nc_vec3 v1 = nc_scale(nc_sub(nc_v3a(pos + 3 * (size_t)idx[3 * tri + 1]), nc_v3a(o->origin)), inv_h);
-        nc_vec3 v2 = nc_scale(nc_sub(nc_v3a(pos + 3 * (size_t)idx[3 * tri + 2]), nc_v3a(o->origin)), inv_h);
-        nc_vec3 n = nc_cross(nc_sub(v1, v0), nc_sub(v2, v0));
-        for (int32_t j = ja; j <= jb; j++) {
-            float bb = w->b0 + ((float)j + 0.5f) * db;
-            for (int32_t i = ia; i <= ib; i++) {
-                float a = w->a0 + ((float)i + 0.5f) * da;
-                /* Inside, edges inclusive: a texel on a shared edge takes the smaller key. */
-                float e0 = ((p1[0] - p0[0]) * (bb - p0[1]) - (p1[1] - p0[1]) * (a - p0[0])) * sgn;
-                float e1 = ((p2[0] - p1[0]) * (bb - p1[1]) - (p2[1] - p1[1]) * (a - p1[0])) * sgn;
-                float e2 = ((p0[0] - p2[0]) * (bb - p2[1]) - (p0[1] - p2[1]) * (a - p2[0])) * sgn;
-                if (e0 < 0.0f || e1 < 0.0f || e2 < 0.0f)
-                    continue;
-                nc_vec3 org, dir;
-                texel_ray(w, a, bb, &org, &dir);
-                float dn = nc_dot(dir, n);
-                if (dn == 0.0f)
-                    continue;
-                float dist = nc_dot(nc_sub(v0, org), n) / dn;
-                dist = dist > 0.0f ? dist : 0.0f;
-                uint32_t bits;
-                memcpy(&bits, &dist, sizeof(bits)); /* non-negative floats order as their bits */
-                uint64_t k = ((uint64_t)bits << 32) | (uint64_t)tri;
-                uint64_t *slot = &key[(int64_t)(j - j0) * size + i];
-                uint64_t cur = __atomic_load_n(slot, __ATOMIC_RELAXED);
-                while (k < cur && !__atomic_compare_exchange_n(slot, &cur, k, true, __ATOMIC_RELAXED, __ATOMIC_RELAXED)) {
+        tb[0] = ia;
+        tb[1] = ib;
+        tb[2] = ja;
+        tb[3] = jb;
+    }
+    const int32_t nrows = j1 - j0;
+    const int chunks = threads > 1 ? 4 * threads : 1;
+#pragma omp parallel for schedule(dynamic, 1) num_threads(threads) if (count > 4096 && tri_count > 256)
+    for (int ch = 0; ch < chunks; ch++) {
+        const int32_t r0 = j0 + (int32_t)((int64_t)nrows * ch / chunks);
+        const int32_t r1 = j0 + (int32_t)((int64_t)nrows * (ch + 1) / chunks);
+        for (int64_t tri = 0; r0 < r1 && tri < (int64_t)tri_count; tri++) {
+            const int32_t *tb = tbox + 4 * tri;
+            if (tb[2] > r1 - 1 || tb[3] < r0 || tb[2] > tb[3])
+                continue;
+            const int32_t ia = tb[0], ib = tb[1], ja = tb[2] < r0 ? r0 : tb[2], jb = tb[3] > r1 - 1 ? r1 - 1 : tb[3];
+            const float *p0 = vp + 3 * (size_t)idx[3 * tri], *p1 = vp + 3 * (size_t)idx[3 * tri + 1];
+            const float *p2 = vp + 3 * (size_t)idx[3 * tri + 2];
+            float area = (p1[0] - p0[0]) * (p2[1] - p0[1]) - (p2[0] - p0[0]) * (p1[1] - p0[1]);
+            const float sgn = area > 0.0f ? 1.0f : -1.0f;
+            nc_vec3 v0 = nc_scale(nc_sub(nc_v3a(pos + 3 * (size_t)idx[3 * tri]), nc_v3a(o->origin)), inv_h);
+            nc_vec3 v1 = nc_scale(nc_sub(nc_v3a(pos + 3 * (size_t)idx[3 * tri + 1]), nc_v3a(o->origin)), inv_h);
+            nc_vec3 v2 = nc_scale(nc_sub(nc_v3a(pos + 3 * (size_t)idx[3 * tri + 2]), nc_v3a(o->origin)), inv_h);
+            nc_vec3 n = nc_cross(nc_sub(v1, v0), nc_sub(v2, v0));
+            for (int32_t j = ja; j <= jb; j++) {
+                float bb = w->b0 + ((float)j + 0.5f) * db;
+                for (int32_t i = ia; i <= ib; i++) {
+                    float a = w->a0 + ((float)i + 0.5f) * da;
+                    /* Inside, edges inclusive: a texel on a shared edge takes the smaller key. */
+                    float e0 = ((p1[0] - p0[0]) * (bb - p0[1]) - (p1[1] - p0[1]) * (a - p0[0])) * sgn;
+                    float e1 = ((p2[0] - p1[0]) * (bb - p1[1]) - (p2[1] - p1[1]) * (a - p1[0])) * sgn;
+                    float e2 = ((p0[0] - p2[0]) * (bb - p2[1]) - (p0[1] - p2[1]) * (a - p2[0])) * sgn;
+                    if (e0 < 0.0f || e1 < 0.0f || e2 < 0.0f)
+                        continue;
+                    nc_vec3 org, dir;
+                    texel_ray(w, a, bb, &org, &dir);
+                    float dn = nc_dot(dir, n);
+                    if (dn == 0.0f)
+                        continue;
+                    float dist = nc_dot(nc_sub(v0, org), n) / dn;
+                    dist = dist > 0.0f ? dist : 0.0f;
+                    uint32_t bits;
+                    memcpy(&bits, &dist, sizeof(bits)); /* non-negative floats order as their bits */
+                    uint64_t k = ((uint64_t)bits << 32) | (uint64_t)tri;
+                    uint64_t *slot = &key[(int64_t)(j - j0) * size + i];
+                    if (k < *slot)
+                        *slot = k;
                 }
             }
         }
@@ -621,7 +651,7 @@ static void face_steps(const float d[3], int step[3])
 /* List the exposed faces that face direction d: cell * 8 + face id, ordered by cell then axis.
  * Two passes over z-slabs (count, then fill at the slab's prefix offset), so the order does not
  * depend on the thread count. Returns the face count, or SIZE_MAX when out of memory. */
-static size_t list_faces(const nc_diff_object *o, nc_tsm_band *b, const float d[3], int threads)
+static size_t list_faces(nc_diff_object *o, const float d[3], int threads)
 {
     int step[3];
     face_steps(d, step);
@@ -634,7 +664,7 @@ static size_t list_faces(const nc_diff_object *o, nc_tsm_band *b, const float d[
     const int32_t zn = (int32_t)(hi[2] - lo[2]);
     /* Per-slab counts (then offsets) on the stack: the caller guarantees at most 1024 slabs. */
     size_t counts[1025];
-    uint32_t *faces = b->faces;
+    uint32_t *faces = o->faces;
     for (int pass = 0; pass < 2; pass++) {
 #pragma omp parallel for schedule(static) num_threads(threads) if (o->cells > 32768)
         for (int32_t zi = 0; zi < zn; zi++) {
@@ -670,14 +700,14 @@ static size_t list_faces(const nc_diff_object *o, nc_tsm_band *b, const float d[
                 counts[zi] = total;
                 total += cnt;
             }
-            if (total > b->face_capacity) {
-                nc_free(o->ctx, b->faces);
-                b->faces = nc_alloc(o->ctx, total * sizeof(*b->faces));
-                b->face_capacity = b->faces ? total : 0;
-                if (!b->faces)
+            if (total > o->face_capacity) {
+                nc_free(o->ctx, o->faces);
+                o->faces = nc_alloc(o->ctx, total * sizeof(*o->faces));
+                o->face_capacity = o->faces ? total : 0;
+                if (!o->faces)
                     return SIZE_MAX;
             }
-            faces = b->faces;
+            faces = o->faces;
             counts[zn] = total;
         }
     }
@@ -699,8 +729,40 @@ static void raster_band(const nc_diff_object *o, const tsm_view *w, const tsm_li
     const int64_t count = (int64_t)(j1 - j0) * size;
     float *depth = b->depth;
     uint32_t *hit = b->hit;
-    const uint32_t *faces = b->faces;
-    /* Chunks of rows; every chunk scans the whole face list (cheap next to the texels). */
+    const uint32_t *faces = o->faces;
+    /* Each face's texel bounds first (i clamped to the map; j as computed), then chunks of rows,
+     * each scanning the bounds for the faces that reach its rows, so that no chunk projects
+     * every face's corners again. */
+    int32_t *fbox = b->fbox;
+#pragma omp parallel for schedule(static) num_threads(threads) if (nfaces > 4096)
+    for (int64_t fi = 0; fi < (int64_t)nfaces; fi++) {
+        uint32_t cell = faces[fi] >> 3, face = faces[fi] & 7;
+        int axis = face / 2 == 0 ? 2 : (face / 2 == 1 ? 0 : 1);
+        int k1 = (axis + 1) % 3, k2 = (axis + 2) % 3;
+        const float c[3] = {(float)(cell % nx), (float)((cell / nx) % ny), (float)(cell / ((size_t)nx * ny))};
+        float plane = (face & 1) ? c[axis] + 1.0f : c[axis];
+        /* Projected bounds of the square: its 4 corners on the map. */
+        float amin = INFINITY, amax = -INFINITY, bmin = INFINITY, bmax = -INFINITY;
+        for (int q = 0; q < 4; q++) {
+            float p[3];
+            p[axis] = plane;
+            p[k1] = c[k1] + (float)(q & 1);
+            p[k2] = c[k2] + (float)(q >> 1);
+            float a = p[0] * rr[0] + p[1] * rr[1] + p[2] * rr[2], bb = p[0] * uu[0] + p[1] * uu[1] + p[2] * uu[2];
+            amin = a < amin ? a : amin;
+            amax = a > amax ? a : amax;
+            bmin = bb < bmin ? bb : bmin;
+            bmax = bb > bmax ? bb : bmax;
+        }
+        /* Texel centres a0 + (i + 0.5) da within [amin, amax], rounded outwards as slack
+         * for round-off (the exact test below decides). */
+        int32_t i0 = (int32_t)floorf((amin - w->a0) * inv_da - 0.5f);
+        int32_t i1 = (int32_t)ceilf((amax - w->a0) * inv_da - 0.5f);
+        fbox[4 * fi + 0] = i0 < 0 ? 0 : i0;
+        fbox[4 * fi + 1] = i1 > size - 1 ? size - 1 : i1;
+        fbox[4 * fi + 2] = (int32_t)floorf((bmin - w->b0) * inv_db - 0.5f);
+        fbox[4 * fi + 3] = (int32_t)ceilf((bmax - w->b0) * inv_db - 0.5f);
+    }
     const int32_t nrows = j1 - j0;
     const int chunks = threads > 1 ? 4 * threads : 1;
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads) if (count > 4096 && nfaces > 256)
@@ -713,34 +775,15 @@ static void raster_band(const nc_diff_object *o, const tsm_view *w, const tsm_li
             hit[t] = UINT32_MAX;
         }
         for (size_t fi = 0; fi < nfaces; fi++) {
+            const int32_t *fb = fbox + 4 * fi;
+            if (fb[2] > r1 - 1 || fb[3] < r0 || fb[0] > fb[1])
+                continue;
+            const int32_t i0 = fb[0], i1 = fb[1], jj0 = fb[2] < r0 ? r0 : fb[2], jj1 = fb[3] > r1 - 1 ? r1 - 1 : fb[3];
             uint32_t cell = faces[fi] >> 3, face = faces[fi] & 7;
             int axis = face / 2 == 0 ? 2 : (face / 2 == 1 ? 0 : 1);
             int k1 = (axis + 1) % 3, k2 = (axis + 2) % 3;
             const float c[3] = {(float)(cell % nx), (float)((cell / nx) % ny), (float)(cell / ((size_t)nx * ny))};
             float plane = (face & 1) ? c[axis] + 1.0f : c[axis];
-            /* Projected bounds of the square: its 4 corners on the map. */
-            float amin = INFINITY, amax = -INFINITY, bmin = INFINITY, bmax = -INFINITY;
-            for (int q = 0; q < 4; q++) {
-                float p[3];
-                p[axis] = plane;
-                p[k1] = c[k1] + (float)(q & 1);
-                p[k2] = c[k2] + (float)(q >> 1);
-                float a = p[0] * rr[0] + p[1] * rr[1] + p[2] * rr[2], bb = p[0] * uu[0] + p[1] * uu[1] + p[2] * uu[2];
-                amin = a < amin ? a : amin;
-                amax = a > amax ? a : amax;
-                bmin = bb < bmin ? bb : bmin;
-                bmax = bb > bmax ? bb : bmax;
-            }
-            /* Texel centres a0 + (i + 0.5) da within [amin, amax], rounded outwards as slack
-             * for round-off (the exact test below decides). */
-            int32_t i0 = (int32_t)floorf((amin - w->a0) * inv_da - 0.5f);
-            int32_t i1 = (int32_t)ceilf((amax - w->a0) * inv_da - 0.5f);
-            int32_t jj0 = (int32_t)floorf((bmin - w->b0) * inv_db - 0.5f);
-            int32_t jj1 = (int32_t)ceilf((bmax - w->b0) * inv_db - 0.5f);
-            i0 = i0 < 0 ? 0 : i0;
-            i1 = i1 > size - 1 ? size - 1 : i1;
-            jj0 = jj0 < r0 ? r0 : jj0;
-            jj1 = jj1 > r1 - 1 ? r1 - 1 : jj1;
             const float inv_dk = 1.0f / d3[axis];
             for (int32_t j = jj0; j <= jj1; j++) {
                 float bb = w->b0 + ((float)j + 0.5f) * db;
@@ -765,47 +808,69 @@ static void raster_band(const nc_diff_object *o, const tsm_view *w, const tsm_li
     }
     const float lo_g[3] = {(float)o->lo[0] - 1, (float)o->lo[1] - 1, (float)o->lo[2] - 1};
     const float hi_g[3] = {(float)o->hi[0] + 1, (float)o->hi[1] + 1, (float)o->hi[2] + 1};
+    /* Texels in chunks of SHADOW_BATCH: the occlusion by other objects is looked up for a chunk's
+     * lit texels in one nc_shadow_lookup_n call, whose set-up is vectorized across the points. */
+    const int64_t nchunks = (count + SHADOW_BATCH - 1) / SHADOW_BATCH;
 #pragma omp parallel for schedule(static) num_threads(threads) if (count > 4096)
-    for (int64_t t = 0; t < count; t++) {
-        b->cell[t] = UINT32_MAX;
-        b->weight[t] = 0.0f;
-        if (hit[t] == UINT32_MAX)
-            continue;
-        int32_t j = j0 + (int32_t)(t / size), i = (int32_t)(t % size);
-        float a = w->a0 + ((float)i + 0.5f) * da, bb = w->b0 + ((float)j + 0.5f) * db;
-        uint32_t cell = faces[hit[t]] >> 3;
-        uint8_t face = (uint8_t)(faces[hit[t]] & 7);
-        int axis = face / 2 == 0 ? 2 : (face / 2 == 1 ? 0 : 1);
-        float org[3];
-        for (int k = 0; k < 3; k++)
-            org[k] = oo[k] + (rr[k] * a + uu[k] * bb);
-        float wgt = w->ortho_area * ft[axis];
-        if (use_mesh) {
-            if (!(b->mesh_t[t] < INFINITY))
+    for (int64_t ch = 0; ch < nchunks; ch++) {
+        float qx[SHADOW_BATCH], qy[SHADOW_BATCH], qz[SHADOW_BATCH], vis[SHADOW_BATCH];
+        float nx_[SHADOW_BATCH], ny_[SHADOW_BATCH], nz_[SHADOW_BATCH];
+        int64_t qt[SHADOW_BATCH];
+        uint32_t nq = 0;
+        const int64_t t_end = (ch + 1) * SHADOW_BATCH < count ? (ch + 1) * SHADOW_BATCH : count;
+        for (int64_t t = ch * SHADOW_BATCH; t < t_end; t++) {
+            b->cell[t] = UINT32_MAX;
+            b->weight[t] = 0.0f;
+            if (hit[t] == UINT32_MAX)
                 continue;
-            float cos_n = -(d3[0] * b->mesh_n[3 * t] + d3[1] * b->mesh_n[3 * t + 1] + d3[2] * b->mesh_n[3 * t + 2]);
-            wgt = w->ortho_area * (float)(1.0 - nc_fresnel_dielectric(fabs((double)cos_n), o->eta));
-        }
-        if (shadowed && wgt > 0.0f) {
-            float tin, tout;
-            int ax;
-            if (ray_box(org, d3, lo_g, hi_g, &tin, &tout, &ax) && tin > 0.0f) {
-                nc_vec3 pw = nc_add(nc_v3a(o->origin), nc_scale(nc_add(nc_v3a(org), nc_scale(w->f, tin)), o->h));
-                wgt *= nc_shadow_lookup(tl->shadow, pw, nc_scale(w->f, -1.0f), tl->pcf_radius, tl->bias);
-            }
-        }
-        b->cell[t] = cell;
-        b->face[t] = face;
-        b->weight[t] = wgt;
-        for (int k = 0; k < 3; k++) {
-            b->pos[3 * t + k] = org[k] + d3[k] * depth[t];
-            b->dir[3 * t + k] = d3[k];
-        }
-        const float plane = (float)((face & 1) ? (cell_coord(cell, axis, nx, ny) + 1) : cell_coord(cell, axis, nx, ny));
-        b->pos[3 * t + axis] = plane;
-        if (use_mesh)
+            int32_t j = j0 + (int32_t)(t / size), i = (int32_t)(t % size);
+            float a = w->a0 + ((float)i + 0.5f) * da, bb = w->b0 + ((float)j + 0.5f) * db;
+            uint32_t cell = faces[hit[t]] >> 3;
+            uint8_t face = (uint8_t)(faces[hit[t]] & 7);
+            int axis = face / 2 == 0 ? 2 : (face / 2 == 1 ? 0 : 1);
+            float org[3];
             for (int k = 0; k < 3; k++)
-                b->pos[3 * t + k] = org[k] + d3[k] * b->mesh_t[t];
+                org[k] = oo[k] + (rr[k] * a + uu[k] * bb);
+            float wgt = w->ortho_area * ft[axis];
+            if (use_mesh) {
+                if (!(b->mesh_t[t] < INFINITY))
+                    continue;
+                float cos_n = -(d3[0] * b->mesh_n[3 * t] + d3[1] * b->mesh_n[3 * t + 1] + d3[2] * b->mesh_n[3 * t + 2]);
+                wgt = w->ortho_area * (float)(1.0 - nc_fresnel_dielectric(fabs((double)cos_n), o->eta));
+            }
+            if (shadowed && wgt > 0.0f) {
+                float tin, tout;
+                int ax;
+                if (ray_box(org, d3, lo_g, hi_g, &tin, &tout, &ax) && tin > 0.0f) {
+                    nc_vec3 pw = nc_add(nc_v3a(o->origin), nc_scale(nc_add(nc_v3a(org), nc_scale(w->f, tin)), o->h));
+                    qx[nq] = pw.x;
+                    qy[nq] = pw.y;
+                    qz[nq] = pw.z;
+                    nx_[nq] = -w->f.x;
+                    ny_[nq] = -w->f.y;
+                    nz_[nq] = -w->f.z;
+                    qt[nq++] = t;
+                }
+            }
+            b->cell[t] = cell;
+            b->face[t] = face;
+            b->weight[t] = wgt;
+            for (int k = 0; k < 3; k++) {
+                b->pos[3 * t + k] = org[k] + d3[k] * depth[t];
+                b->dir[3 * t + k] = d3[k];
+            }
+            const float plane =
+                (float)((face & 1) ? (cell_coord(cell, axis, nx, ny) + 1) : cell_coord(cell, axis, nx, ny));
+            b->pos[3 * t + axis] = plane;
+            if (use_mesh)
+                for (int k = 0; k < 3; k++)
+                    b->pos[3 * t + k] = org[k] + d3[k] * b->mesh_t[t];
+        }
+        if (nq > 0) {
+            nc_shadow_lookup_n(tl->shadow, nq, qx, qy, qz, nx_, ny_, nz_, tl->pcf_radius, tl->bias, vis);
+            for (uint32_t k = 0; k < nq; k++)
+                b->weight[qt[k]] *= vis[k];
+        }
     }
 }
 
@@ -920,29 +985,28 @@ static void inject_volume(const nc_diff_object *o, int64_t *acc, bool atomic, do
     /* Homogeneous media: the remaining fraction after the crossing at path length t is
      * exp(-sigma_t' h t), and the crossings of axis a are at tmax[a] + k tdelta[a], so each
      * axis' next remaining fraction is a geometric sequence: ea[a] (the value at tmax[a]) times
-     * ma[a] per crossing. Nine expf per ray (fewer for equal channels) replace one or two per
+     * ma[a] per crossing. Eighteen exponentials per ray replace one or two per
      * step; the repeated products drift by ~1e-7 per step, far below the 1e-4 cutoff. */
     const bool geometric = !o->heterogeneous;
     float ea[3][3], ma[3][3];
-    if (geometric)
+    if (geometric) {
+        /* The 18 exponentials as three 8-lane vectors (nc_vol_exp_fast8, expf's accuracy): 18
+         * expf calls would be a fifth of the injection. An argument of -inf gives 0. */
+        float in[24], out[24]; /* ea then ma, [channel][axis]; 6 lanes of padding */
         for (int ch = 0; ch < 3; ch++) {
-            float sa, ssp;
-            nc_diff_object_coeffs(o, cell, ch, &sa, &ssp);
-            float st = sa + ssp;
+            float st = o->sigma_a_const[ch] + o->sigma_sp_const[ch];
             for (int i = 0; i < 3; i++) {
-                if (ch > 0) {
-                    float sa0, ssp0;
-                    nc_diff_object_coeffs(o, cell, ch - 1, &sa0, &ssp0);
-                    if (sa0 + ssp0 == st) {
-                        ea[ch][i] = ea[ch - 1][i];
-                        ma[ch][i] = ma[ch - 1][i];
-                        continue;
-                    }
-                }
-                ea[ch][i] = st > 0.0f && tmax[i] < INFINITY ? expf(-st * o->h * tmax[i]) : 0.0f;
-                ma[ch][i] = st > 0.0f && tdelta[i] < INFINITY ? expf(-st * o->h * tdelta[i]) : 0.0f;
+                in[3 * ch + i] = st > 0.0f && tmax[i] < INFINITY ? -st * o->h * tmax[i] : -INFINITY;
+                in[9 + 3 * ch + i] = st > 0.0f && tdelta[i] < INFINITY ? -st * o->h * tdelta[i] : -INFINITY;
             }
         }
+        for (int k = 18; k < 24; k++)
+            in[k] = -INFINITY;
+        for (int k = 0; k < 24; k += 8)
+            nc_v8_store(out + k, nc_vol_exp_fast8(nc_v8_load(in + k)));
+        memcpy(ea, out, sizeof(ea));
+        memcpy(ma, out + 9, sizeof(ma));
+    }
     uint32_t max_steps = o->dims[0] + o->dims[1] + o->dims[2] + 3;
     for (uint32_t it = 0; it < max_steps; it++) {
         int a = tmax[0] < tmax[1] ? (tmax[0] < tmax[2] ? 0 : 2) : (tmax[1] < tmax[2] ? 1 : 2);
@@ -1146,6 +1210,49 @@ static double view_power_bound(const nacre_light_desc *l, const tsm_view *w)
     return smax * (double)(w->a1 - w->a0) * (double)(w->b1 - w->b0);
 }
 
+/* The solid rows' x spans (inj_span), once per voxelization; a new set of spans leaves the
+ * sources to be cleared whole (src_clean false). */
+static nacre_result injection_spans(nc_diff_object *o, int threads)
+{
+    if (o->inj_valid)
+        return NACRE_OK;
+    const uint32_t nx = o->dims[0], ny = o->dims[1], nz = o->dims[2];
+    const size_t rows = (size_t)ny * nz;
+    if (o->inj_span_capacity < rows) {
+        nc_free(o->ctx, o->inj_span);
+        o->inj_span_capacity = 0;
+        if (!(o->inj_span = nc_alloc(o->ctx, 2 * rows * sizeof(uint32_t))))
+            return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the injection spans");
+        o->inj_span_capacity = rows;
+    }
+#pragma omp parallel for schedule(static) num_threads(threads) if (o->cells > 32768)
+    for (int64_t r = 0; r < (int64_t)rows; r++) {
+        const uint8_t *row = o->solid + (size_t)r * nx;
+        uint32_t a = 0, e = nx;
+        while (a < nx && !row[a])
+            a++;
+        while (e > a && !row[e - 1])
+            e--;
+        o->inj_span[2 * r] = a;
+        o->inj_span[2 * r + 1] = e;
+    }
+    o->inj_valid = true;
+    o->src_clean = false;
+    return NACRE_OK;
+}
+
+/* Sources (and q) all 0: a frame that injects nothing. */
+static void clear_sources(nc_diff_object *o, int threads)
+{
+    (void)threads;
+    for (int c = 0; c < 3; c++) {
+        memset(o->source[c], 0, o->cells * sizeof(float));
+        if (o->q[c])
+            memset(o->q[c], 0, o->cells * sizeof(float));
+    }
+    o->src_clean = true;
+}
+
 nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const nacre_scene *scene,
                                    const nc_shade_light *lights, uint32_t light_count, bool others_cast,
                                    const nacre_render_settings *settings, uint64_t *tsm_us, uint64_t *inject_us)
@@ -1153,15 +1260,17 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
     nacre_context *ctx = o->ctx;
     /* Clearing the per-frame arrays is part of the injection's cost: timed with it. */
     const uint64_t t_clear = nc_now_us();
+    const int threads = nc_threads(ctx);
+    nacre_result res = injection_spans(o, threads);
+    if (res != NACRE_OK)
+        return res;
     for (int c = 0; c < 3; c++) {
-        memset(o->source[c], 0, o->cells * sizeof(float));
-        if (o->q[c])
-            memset(o->q[c], 0, o->cells * sizeof(float));
         o->tsm_flux[c] = 0.0;
         o->injected[c] = 0.0;
     }
     o->lmap_count = 0;
     if (o->solid_count == 0 || light_count == 0) {
+        clear_sources(o, threads);
         *inject_us += nc_now_us() - t_clear;
         return NACRE_OK;
     }
@@ -1169,7 +1278,6 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
     if (face_mode && !o->q[0])
         return nc_fail(ctx, NACRE_ERROR_INVALID_OPERATION, "diffusion: face injection without its buffers");
     const int32_t max_size = settings->diffusion.tsm_size;
-    const int threads = nc_threads(ctx);
     const int64_t cells = (int64_t)o->cells;
 
     /* Deposits are summed in 64-bit fixed point so that the parallel injection gives the same
@@ -1194,10 +1302,13 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
             band_texels = rows * (size_t)w->size > band_texels ? rows * (size_t)w->size : band_texels;
         }
     }
-    *inject_us += nc_now_us() - t_clear;
-    if (!(bound > 0.0) || !isfinite(bound))
+    if (!(bound > 0.0) || !isfinite(bound)) {
+        clear_sources(o, threads);
+        *inject_us += nc_now_us() - t_clear;
         return NACRE_OK;
-    nacre_result res = band_reserve(ctx, band, band_texels);
+    }
+    *inject_us += nc_now_us() - t_clear;
+    res = band_reserve(ctx, band, band_texels);
     if (res != NACRE_OK)
         return res;
     if (band->raster_capacity < band_texels) {
@@ -1233,6 +1344,13 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
         if (!band->mesh_capacity)
             return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
     }
+    if (have_mesh && band->tbox_capacity < mesh->triangle_count) {
+        nc_free(ctx, band->tbox);
+        band->tbox = nc_alloc(ctx, 4 * (size_t)mesh->triangle_count * sizeof(int32_t));
+        band->tbox_capacity = band->tbox ? mesh->triangle_count : 0;
+        if (!band->tbox)
+            return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
+    }
     if (have_mesh && band->vproj_capacity < mesh->vertex_count) {
         nc_free(ctx, band->vproj);
         band->vproj = nc_alloc(ctx, 3 * (size_t)mesh->vertex_count * sizeof(float));
@@ -1243,14 +1361,17 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
     if (o->single && (res = lmaps_reserve(o, nl, views, nviews)) != NACRE_OK)
         return res;
     const double scale = ldexp(1.0, 61) / bound, inv_scale = 1.0 / scale;
-    /* Deposits only go to solid cells, so the accumulators are used, cleared and read only in
-     * the z-slabs [lo.z, hi.z) of the solid cells' box: cells [c_lo, c_hi). */
+    /* Deposits only go to solid cells, so the accumulators are read and cleared only in the
+     * solid rows' spans (inj_span), by the pass that turns them into sources: they are all 0
+     * when an injection starts, unless one stopped half-way (an error). */
     const uint64_t t_acc = nc_now_us();
     const size_t slab = (size_t)o->dims[0] * o->dims[1];
     const size_t c_lo = (size_t)o->lo[2] * slab, c_hi = (size_t)o->hi[2] * slab;
     /* Interleaved RGB per cell: a deposit touches one cache line for its three channels. */
     int64_t *acc = o->acc;
-    memset(acc + 3 * c_lo, 0, 3 * (c_hi - c_lo) * sizeof(int64_t));
+    if (o->acc_dirty)
+        memset(acc, 0, 3 * o->cells * sizeof(int64_t));
+    o->acc_dirty = true;
     int64_t total[3] = {0, 0, 0};
     /* Each extra thread adds into its own copy (plain adds; the copies are summed at the end,
      * still exactly); past PRIVATE_BYTES of copies, threads share the arrays with atomic adds. */
@@ -1260,13 +1381,15 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
     if (private_acc) {
         if (band->scratch_bytes < private_bytes) {
             nc_free(ctx, band->scratch);
-            band->scratch = nc_alloc(ctx, private_bytes);
+            band->scratch = nc_calloc(ctx, 1, private_bytes);
             band->scratch_bytes = band->scratch ? private_bytes : 0;
+            band->scratch_dirty = false;
             if (!band->scratch)
                 return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for injection");
         }
-        for (size_t k = 0; k < (size_t)extra; k++)
-            memset(band->scratch + 3 * (k * o->cells + c_lo), 0, 3 * (c_hi - c_lo) * sizeof(int64_t));
+        if (band->scratch_dirty)
+            memset(band->scratch, 0, band->scratch_bytes);
+        band->scratch_dirty = true;
     }
     *inject_us += nc_now_us() - t_acc;
     const bool atomic = extra > 0 && !private_acc;
@@ -1291,9 +1414,29 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
             float ft[3] = {0, 0, 0};
             if (raster) {
                 const float d3[3] = {w->f.x, w->f.y, w->f.z};
-                nfaces = list_faces(o, band, d3, threads);
-                if (nfaces == SIZE_MAX)
-                    return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
+                int step[3];
+                face_steps(d3, step);
+                if (!o->faces_valid || step[0] != o->face_steps[0] || step[1] != o->face_steps[1] ||
+                    step[2] != o->face_steps[2]) {
+                    o->faces_valid = false;
+                    size_t n = list_faces(o, d3, threads);
+                    if (n == SIZE_MAX)
+                        return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY,
+                                       "diffusion: out of memory for a translucent shadow map");
+                    o->face_count = n;
+                    for (int k = 0; k < 3; k++)
+                        o->face_steps[k] = (int8_t)step[k];
+                    o->faces_valid = true;
+                }
+                nfaces = o->face_count;
+                if (band->fbox_capacity < nfaces) {
+                    nc_free(ctx, band->fbox);
+                    band->fbox = nc_alloc(ctx, 4 * nfaces * sizeof(int32_t));
+                    band->fbox_capacity = band->fbox ? nfaces : 0;
+                    if (!band->fbox)
+                        return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY,
+                                       "diffusion: out of memory for a translucent shadow map");
+                }
                 for (int k = 0; k < 3; k++)
                     ft[k] = (float)(1.0 - nc_fresnel_dielectric(fabs((double)d3[k]), o->eta));
             }
@@ -1422,36 +1565,65 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
      * power summed per z slab and the slabs added in order: neither depends on the thread
      * count. */
     const int copies = private_acc ? extra : 0;
-    const int64_t *scratch = band->scratch;
     const size_t z_lo = o->lo[2], z_hi = o->hi[2];
     double slab_sum[3][1024 + 1];
     const bool per_slab = z_hi - z_lo <= 1024;
+    const bool clean = o->src_clean;
+    const uint32_t ny = o->dims[1];
 #pragma omp parallel for schedule(static) num_threads(threads) if (c_hi - c_lo > 65536)
     for (size_t zz = z_lo; zz < z_hi; zz++) {
         double sum[3] = {0.0, 0.0, 0.0};
-        for (size_t i = zz * slab; i < (zz + 1) * slab; i++) {
+        if (!clean)
             for (int c = 0; c < 3; c++) {
-                int64_t v = acc[3 * i + (size_t)c];
-                for (int k = 0; k < copies; k++)
-                    v += scratch[3 * ((size_t)k * (size_t)cells + i) + (size_t)c];
-                if (!v)
-                    continue;
-                double flux = (double)v * inv_scale;
-                float sv;
-                if (face_mode) {
-                    sv = (float)(flux * face_factor(o, i, c));
-                    o->q[c][i] = (float)flux * inv_h2;
-                } else {
-                    sv = (float)flux;
+                memset(o->source[c] + zz * slab, 0, slab * sizeof(float));
+                if (o->q[c])
+                    memset(o->q[c] + zz * slab, 0, slab * sizeof(float));
+            }
+        for (uint32_t y = o->lo[1]; y < o->hi[1]; y++) {
+            const uint32_t *sp = o->inj_span + 2 * (y + (size_t)ny * zz);
+            const size_t row = zz * slab + (size_t)y * o->dims[0];
+            for (size_t i = row + sp[0]; i < row + sp[1]; i++) {
+                for (int c = 0; c < 3; c++) {
+                    int64_t v = acc[3 * i + (size_t)c];
+                    acc[3 * i + (size_t)c] = 0;
+                    for (int k = 0; k < copies; k++) {
+                        int64_t *sc = &band->scratch[3 * ((size_t)k * (size_t)cells + i) + (size_t)c];
+                        v += *sc;
+                        *sc = 0;
+                    }
+                    float sv = 0.0f;
+                    if (v) {
+                        double flux = (double)v * inv_scale;
+                        if (face_mode)
+                            sv = (float)(flux * face_factor(o, i, c));
+                        else
+                            sv = (float)flux;
+                        sum[c] += sv;
+                    }
+                    o->source[c][i] = sv;
+                    if (face_mode)
+                        o->q[c][i] = v ? (float)((double)v * inv_scale) * inv_h2 : 0.0f;
                 }
-                o->source[c][i] = sv;
-                sum[c] += sv;
             }
         }
         if (per_slab)
             for (int c = 0; c < 3; c++)
                 slab_sum[c][zz - z_lo] = sum[c];
     }
+    /* the slabs outside [lo.z, hi.z) hold no solid cell and no source */
+    if (!clean)
+        for (int c = 0; c < 3; c++) {
+            memset(o->source[c], 0, c_lo * sizeof(float));
+            memset(o->source[c] + c_hi, 0, (o->cells - c_hi) * sizeof(float));
+            if (o->q[c]) {
+                memset(o->q[c], 0, c_lo * sizeof(float));
+                memset(o->q[c] + c_hi, 0, (o->cells - c_hi) * sizeof(float));
+            }
+        }
+    o->src_clean = true;
+    o->acc_dirty = false;
+    if (private_acc)
+        band->scratch_dirty = false;
     for (int c = 0; c < 3; c++) {
         double sum = 0.0;
         if (per_slab) {

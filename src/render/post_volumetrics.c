@@ -826,23 +826,11 @@ static nacre_result column_depths(vol_state *st, nacre_context *ctx, const float
 
 /* ---- the froxels' lighting, 8 froxels of a column at a time (core/simd.h) ------------------- */
 
-/* nc_vol_exp_fast (volume.h) lane by lane. */
-static inline nc_v8f v8_exp_fast(nc_v8f x)
-{
-    nc_v8f n = nc_v8_floor(x * 1.44269504f + 0.5f);
-    n = nc_v8_sel(n > -127.0f, n, nc_v8_splat(-127.0f));
-    n = nc_v8_sel(n < 127.0f, n, nc_v8_splat(127.0f));
-    nc_v8f r = NC_VOL_EXP_REDUCE(x, n);
-    nc_v8f y = NC_VOL_EXP_POLY(r) * r * r + r + 1.0f;
-    nc_v8i bits = (__builtin_convertvector(n, nc_v8i) + 127) << 23;
-    return nc_v8_sel(x > -87.0f, y * (nc_v8f)bits, (nc_v8f){0});
-}
-
 /* nc_vol_exp_ratio_fast lane by lane (x >= 0, finite where selected). */
 static inline nc_v8f v8_exp_ratio_fast(nc_v8f x)
 {
     nc_v8f series = 1.0f - x * (0.5f - x * (1.0f / 6.0f - x * (1.0f / 24.0f - x * (1.0f / 120.0f))));
-    return nc_v8_sel(x < 0.1f, series, (1.0f - v8_exp_fast(-x)) / x);
+    return nc_v8_sel(x < 0.1f, series, (1.0f - nc_vol_exp_fast8(-x)) / x);
 }
 
 /* hg_phase lane by lane. */
@@ -906,7 +894,7 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
         const nc_fog_one *o = st->gfog[f].o;
         for (uint32_t k = 0; k < n8; k += 8) {
             nc_v8f e = -o->hf_falloff * (nc_v8_load(Y + k) - o->hf_base);
-            nc_v8f hf = o->height ? v8_exp_fast(nc_v8_sel(e < o->hf_cap, e, nc_v8_splat(o->hf_cap)))
+            nc_v8f hf = o->height ? nc_vol_exp_fast8(nc_v8_sel(e < o->hf_cap, e, nc_v8_splat(o->hf_cap)))
                                   : nc_v8_splat(st->gfog[f].flat);
             nc_v8_store(HF + f * S + k, hf);
         }
@@ -1026,7 +1014,7 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
         for (uint32_t k = 0; k < n8; k += 8) {
             nc_v8f fk = nc_v8_load(F + k);
             for (int c = 0; c < 3; c++)
-                nc_v8_store(A[c] + k, nc_v8_load(A[c] + k) + li->e[c] * fk * v8_exp_fast(-nc_v8_load(T[c] + k)));
+                nc_v8_store(A[c] + k, nc_v8_load(A[c] + k) + li->e[c] * fk * nc_vol_exp_fast8(-nc_v8_load(T[c] + k)));
         }
     }
     for (uint32_t k = 0; k < n; k++)
@@ -1247,7 +1235,7 @@ static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
         const float *sig = st->st + 3 * base, *src = st->src + 3 * base;
         uint32_t i = 0;
         for (; i + 8 <= D3; i += 8) {
-            nc_v8f sg = nc_v8_load(sig + i), len = nc_v8_load(len3 + i), x = sg * len, T = v8_exp_fast(-x);
+            nc_v8f sg = nc_v8_load(sig + i), len = nc_v8_load(len3 + i), x = sg * len, T = nc_vol_exp_fast8(-x);
             nc_v8f w = nc_v8_sel(x < 1e-3f, len * (1.0f - 0.5f * x), (1.0f - T) / sg);
             nc_v8_store(T3 + i, T);
             nc_v8_store(S3 + i, nc_v8_load(src + i) * w);

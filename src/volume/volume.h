@@ -22,6 +22,7 @@
 #define NACRE_VOLUME_H
 
 #include "core/optics.h"
+#include "core/simd.h"
 
 #include <math.h>
 #include <stdbool.h>
@@ -128,6 +129,18 @@ static inline float nc_vol_exp_fast(float x)
     float scale;
     memcpy(&scale, &bits, sizeof(scale));
     return x > -87.0f ? y * scale : 0.0f;
+}
+
+/* nc_vol_exp_fast lane by lane (core/simd.h). */
+static inline nc_v8f nc_vol_exp_fast8(nc_v8f x)
+{
+    nc_v8f n = nc_v8_floor(x * 1.44269504f + 0.5f);
+    n = nc_v8_sel(n > -127.0f, n, nc_v8_splat(-127.0f));
+    n = nc_v8_sel(n < 127.0f, n, nc_v8_splat(127.0f));
+    nc_v8f r = NC_VOL_EXP_REDUCE(x, n);
+    nc_v8f y = NC_VOL_EXP_POLY(r) * r * r + r + 1.0f;
+    nc_v8i bits = (__builtin_convertvector(n, nc_v8i) + 127) << 23;
+    return nc_v8_sel(x > -87.0f, y * (nc_v8f)bits, (nc_v8f){0});
 }
 
 /* (1 - e^(-x)) / x in float for x >= 0 (finite), with nc_vol_exp_fast: the series through x^4

@@ -61,6 +61,15 @@ typedef struct nc_view {
     float wipe;              /* wipe line, fraction of the width from the left */
     double mean_rel_err;     /* of the current method against the truth; < 0: not known */
 
+    /* Interactive light edits (on unless --exact): a frame in which a light moved solves the
+     * diffusion only to a relative residual of NC_VIEW_LIGHT_TOLERANCE (when the scene asks for
+     * less); once no light has moved for NC_VIEW_REFINE_FRAMES frames, or before an image is
+     * saved, the frame is rendered again at the scene's settings (README, `nacre view`). */
+    bool interactive;
+    bool light_moved;        /* a light edit since the last frame */
+    bool refine_due;         /* the last frame was rendered with the interactive tolerance */
+    uint32_t still_frames;   /* frames since the last light edit */
+
     bool dirty;              /* an edit since the last commit */
     bool need_render;        /* something changed since the last frame (edit, size, method, view) */
     char message[256];       /* the last problem or note, shown in the panel */
@@ -71,6 +80,11 @@ typedef struct nc_view {
     uint64_t stage_runs[NACRE_STAGE_COUNT];
     double fps;              /* smoothed, of rendered frames */
 } nc_view;
+
+/* The interactive light edits' solver tolerance, and the frames without a light edit after
+ * which the frame is refined (see nc_view.interactive). */
+#define NC_VIEW_LIGHT_TOLERANCE 1e-3f
+#define NC_VIEW_REFINE_FRAMES 2
 
 /* Material presets offered by the panel and the script, NULL-terminated. */
 extern const char *const nc_view_presets[];
@@ -130,6 +144,9 @@ bool nc_view_key(nc_view *v, const char *key, bool check_only);
 /* Advance the timeline by dt seconds if playing (fixed_step instead when set), commit the edits,
  * render what the view needs. false with v->message on a library error (the window stays). */
 bool nc_view_frame(nc_view *v, double dt);
+/* If the last frame was rendered with the interactive tolerance, render it again at the
+ * scene's settings (before an image is saved). */
+bool nc_view_refine(nc_view *v);
 /* The frame for display: RGBA 8-bit sRGB, width x height of the settings, with the view mode
  * applied; `rgba` has room for width * height * 4 bytes. */
 void nc_view_display(nc_view *v, uint8_t *rgba);

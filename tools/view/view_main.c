@@ -28,6 +28,9 @@ static const char view_help[] =
     "  --threads N         worker threads (default: all cores)\n"
     "  --camera NAME       glTF: view from the camera of this name (default: the first)\n"
     "  --thickness-layer   glTF: thickness textures become one-layer depth maps (see nacre render)\n"
+    "  --exact             solve every frame to the scene's tolerance (default: a frame in which a\n"
+    "                      light moved solves the diffusion to 1e-3, and the frame is rendered\n"
+    "                      again at the scene's tolerance once the light rests for 2 frames)\n"
     "headless (tests, scripts):\n"
     "  --frames N          render N frames, then exit (the timeline steps 1/30 s per frame)\n"
     "  --script FILE       timed events, one per line: FRAME COMMAND ARGS (README, `nacre view`)\n"
@@ -45,7 +48,7 @@ static const char view_help[] =
 typedef struct view_options {
     const char *scene, *method, *script, *screenshot, *window_shot, *save_scene, *camera;
     long width, height, frames, voxel_res, spp, threads;
-    bool thickness_layer;
+    bool thickness_layer, exact;
 } view_options;
 
 /* Case-insensitive suffix test (file extensions). */
@@ -86,6 +89,8 @@ static int parse_options(int argc, char **argv, view_options *o, bool *done)
             o->camera = argv[++i];
         } else if (strcmp(a, "--thickness-layer") == 0) {
             o->thickness_layer = true;
+        } else if (strcmp(a, "--exact") == 0) {
+            o->exact = true;
         } else if (strcmp(a, "--script") == 0 && v) {
             o->script = argv[++i];
         } else if (strcmp(a, "--screenshot") == 0 && v) {
@@ -158,6 +163,7 @@ static bool open_view(nc_view *v, nacre_context *ctx, const view_options *o)
         nc_tool_error("view: %s", v->message); /* the caller frees the view */
         return false;
     }
+    v->interactive = !o->exact;
     if (o->spp)
         v->pathtrace_spp = (uint32_t)o->spp;
     if (o->method) {
