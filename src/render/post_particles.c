@@ -232,14 +232,16 @@ static nacre_result gather(pp_state *st, const nc_post_input *in, pp_frame *fr)
                     x0 = INFINITY;
                     break;
                 }
-                x0 = fminf(x0, px), x1 = fmaxf(x1, px), y0 = fminf(y0, py), y1 = fmaxf(y1, py);
+                /* Comparisons, as fminf and fmaxf give (they skip a NaN too), without their libm calls. */
+                x0 = px < x0 ? px : x0, x1 = px > x1 ? px : x1, y0 = py < y0 ? py : y0, y1 = py > y1 ? py : y1;
             }
             if (!(x0 <= x1) || x1 < 0 || y1 < 0 || x0 > (float)(w - 1) || y0 > (float)(h - 1))
                 continue;
-            rc[0] = (int32_t)fmaxf(ceilf(x0), 0.0f);
-            rc[1] = (int32_t)fminf(floorf(x1), (float)(w - 1));
-            rc[2] = (int32_t)fmaxf(ceilf(y0), 0.0f);
-            rc[3] = (int32_t)fminf(floorf(y1), (float)(h - 1));
+            const float cx0 = ceilf(x0), fx1 = floorf(x1), cy0 = ceilf(y0), fy1 = floorf(y1);
+            rc[0] = (int32_t)(cx0 > 0.0f ? cx0 : 0.0f);
+            rc[1] = (int32_t)(fx1 < (float)(w - 1) ? fx1 : (float)(w - 1));
+            rc[2] = (int32_t)(cy0 > 0.0f ? cy0 : 0.0f);
+            rc[3] = (int32_t)(fy1 < (float)(h - 1) ? fy1 : (float)(h - 1));
         }
         base += set->count;
     }
@@ -253,8 +255,10 @@ static nacre_result gather(pp_state *st, const nc_post_input *in, pp_frame *fr)
         x0 = rc[0] < x0 ? rc[0] : x0, x1 = rc[1] > x1 ? rc[1] : x1;
         y0 = rc[2] < y0 ? rc[2] : y0, y1 = rc[3] > y1 ? rc[3] : y1;
         float R = st->radius[j];
-        b0 = fminf(b0, st->cx[j] - R), b1 = fminf(b1, st->cy[j] - R), b2 = fminf(b2, st->cz[j] - R);
-        e0 = fmaxf(e0, st->cx[j] + R), e1 = fmaxf(e1, st->cy[j] + R), e2 = fmaxf(e2, st->cz[j] + R);
+        const float a0 = st->cx[j] - R, a1 = st->cy[j] - R, a2 = st->cz[j] - R;
+        const float c0 = st->cx[j] + R, c1 = st->cy[j] + R, c2 = st->cz[j] + R;
+        b0 = a0 < b0 ? a0 : b0, b1 = a1 < b1 ? a1 : b1, b2 = a2 < b2 ? a2 : b2;
+        e0 = c0 > e0 ? c0 : e0, e1 = c1 > e1 ? c1 : e1, e2 = c2 > e2 ? c2 : e2;
     }
     /* The rect's width is a whole number of 8-pixel vectors; the columns past the buffer's
      * edge hold no particle (their rects are clipped) and composite never reads them. */
@@ -738,7 +742,9 @@ static void sprites(pp_state *st, const pp_frame *fr, uint32_t bands, int thread
                     float v[3] = {st->cx[j] - o[0], st->cy[j] - o[1], st->cz[j] - o[2]};
                     if (!nc_billboard_hit(v, d, R, &wgt, &tm, &hc))
                         continue;
-                    float fade = fminf(fmaxf((ts - tm) / R, 0.0f), 1.0f); /* soft particles */
+                    /* Soft particles; the clamp as fminf(fmaxf()) gives it, a NaN to 0. */
+                    float fade = (ts - tm) / R;
+                    fade = fade > 0.0f ? (fade < 1.0f ? fade : 1.0f) : 0.0f;
                     if (!(fade > 0.0f))
                         continue;
                     const size_t i = ri + (size_t)x;
