@@ -129,8 +129,12 @@ int nc_cli_bench(int argc, char **argv)
         return nc_bench_load(json, (int)runs, load_ply, load_glb);
     if (layered)
         return nc_bench_layered(json, (int)runs, layered_scene, &filter);
-    if (particles)
+    if (particles) {
+        if (filter.only && !strstr("smoke10k smoke100k dust10k iso", filter.only))
+            return nc_tool_usage("bench", "--only '%s': no particles case (smoke10k, smoke100k, dust10k, iso)",
+                                 filter.only);
         return nc_bench_particles(json, (int)runs, filter.only);
+    }
     if (volumetrics)
         return nc_bench_volumetrics(json, (int)runs, raymarch);
     int rc = nc_bench_raster(argc - 1, argv + 1);
