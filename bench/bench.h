@@ -41,7 +41,7 @@ int nc_bench_load(bool json, int runs, const char *ply, const char *glb);
 /* The layered method at 640x480 on a scene file, cold and while the light moves (bench/bench_layered.c). */
 int nc_bench_layered(bool json, int runs, const char *scene_path, const nc_bench_filter *filter);
 /* Particles: simulate, splat, billboards and sprites passes (bench/bench_particles.c). */
-int nc_bench_particles(bool json, int runs);
+int nc_bench_particles(bool json, int runs, const char *only);
 /* The froxel stages, the per-pixel march and the analytic fog pass (bench/bench_volumetrics.c). */
 int nc_bench_volumetrics(bool json, int runs, bool raymarch);
 

@@ -5,14 +5,18 @@
  * look like sparse dust), per stage: simulate (nc_particles_simulate), splat into 128^3 (nc_particles_splat, scratch
  * reused as between frames), commit (both, plus the fog the grid becomes), and the post pass of
  * the raster methods at 1280x720 drawing them as volumetric billboards and as sorted sprites
- * (stage "particles" of a phong frame whose other stages are cached). Median of --runs runs
- * after one warm-up, in ms.
+ * (stage "particles" of a phong frame whose other stages are cached), and the voxelized frame:
+ * the same phong frame drawing the grid through the froxel pass (160x90x64, `--particles voxel
+ * --volumetrics froxel`; stage "march" = froxel fill + light + integrate + apply), "voxel_frame"
+ * = simulate + splat + march. Median of --runs runs after one warm-up, in ms.
  * The splat's cost is the cells the particles write (the mean kernel footprint in grid cells,
  * "cells", and the cells written, fewer where large particles go to the coarse level), the
  * passes' the pixels they cover.
  * Then the blob of examples/particles_iso.json (300 particles, 96^3) drawn as voxels by the
  * ray-march pass at 1280x720 (48 steps), without and with its isosurface (stage "raymarch").
- * Targets (2 cores): splat of 10k particles into 128^3 under 2 ms; billboards of 10k under 10 ms.
+ * Targets (2 cores): splat of 10k particles into 128^3 under 2 ms; billboards of 10k under 10 ms;
+ * the voxelized frame of 10k under 10 ms. `only` (NULL: all) keeps the cases whose name
+ * (smoke10k, smoke100k, dust10k, iso) contains it.
  */
 #include "bench.h"
 
@@ -46,6 +50,8 @@ static const char iso_fmt[] =
     " \"particles\": [{\"shape\": \"sphere\", \"center\": [0, 14, 0], \"emit_radius\": 9, \"rate\": 300,"
     " \"lifetime\": 1, \"velocity\": [0, 0, 0], \"spread\": 0, \"radius\": 5, \"radius_jitter\": 0.4, \"seed\": 3,"
     " \"sigma_a\": [0.001, 0.008, 0.03], \"sigma_s\": [0.06, 0.05, 0.035], \"g\": 0.2, \"grid_resolution\": 96%s}]}";
+
+#define NCOL 7 /* simulate, splat, commit, billboards, sprites, march, voxel frame */
 
 static double median_of(double *v, int n) { return nc_tool_median(v, n); }
 
@@ -93,26 +99,29 @@ static int bench_iso(nacre_context *ctx, bool json, int runs, double *t)
     return 0;
 }
 
-int nc_bench_particles(bool json, int runs)
+int nc_bench_particles(bool json, int runs, const char *only)
 {
     nacre_context *ctx = nc_tool_context(0);
     if (!ctx)
         return 2;
     int rc = 2;
-    double *t = calloc((size_t)runs * 5, sizeof(double));
+    double *t = calloc((size_t)runs * NCOL, sizeof(double));
     if (!t)
         goto out;
     if (!json)
         printf("particles: smoke plume, t = 5 s, grid 128^3, passes at 1280x720, %d threads, median of %d runs (ms)\n"
-               "%-10s %-6s %8s %10s %10s %10s %12s %10s\n",
+               "%-10s %-6s %8s %10s %10s %10s %12s %10s %10s %12s\n",
                nacre_context_threads(ctx), runs, "particles", "size", "cells", "simulate", "splat", "commit", "billboards",
-               "sprites");
+               "sprites", "march", "voxel_frame");
     static const struct {
         int rate;
         double radius, radius_rate;
-        const char *label;
-    } cases[] = {{2500, 4, 3, "smoke"}, {25000, 4, 3, "smoke"}, {2500, 1, 0.25, "dust"}};
+        const char *label, *name;
+    } cases[] = {{2500, 4, 3, "smoke", "smoke10k"}, {25000, 4, 3, "smoke", "smoke100k"}, {2500, 1, 0.25, "dust", "dust10k"}};
+    rc = 0;
     for (int k = 0; k < 3; k++) {
+        if (only && !strstr(cases[k].name, only))
+            continue;
         char text[2048];
         snprintf(text, sizeof(text), scene_fmt, cases[k].rate, cases[k].radius, cases[k].radius_rate);
         nacre_scene *scene = NULL;
@@ -134,7 +143,7 @@ int nc_bench_particles(bool json, int runs)
         rs.height = 720;
         nacre_result r = NACRE_OK;
         for (int i = -1; i < runs && r == NACRE_OK; i++) {
-            double *row = t + 5 * (size_t)(i < 0 ? 0 : i);
+            double *row = t + NCOL * (size_t)(i < 0 ? 0 : i);
             uint64_t t0 = nc_tool_now_us();
             r = nc_particles_simulate(ctx, &d, 5.0, &set);
             uint64_t t1 = nc_tool_now_us();
@@ -154,6 +163,17 @@ int nc_bench_particles(bool json, int runs)
                 r = nacre_renderer_render(renderer, scene, &rs, &img, &st);
                 row[3 + p] = (double)st.stage_us[NACRE_STAGE_PARTICLES] / 1000.0;
             }
+            if (r == NACRE_OK) {
+                nacre_render_stats st;
+                rs.particles = NACRE_PARTICLES_DRAW_VOXEL;
+                rs.volumetrics.mode = NACRE_VOLUMETRICS_FROXEL;
+                r = nacre_renderer_render(renderer, scene, &rs, &img, &st);
+                rs.volumetrics.mode = NACRE_VOLUMETRICS_OFF;
+                row[5] = (double)(st.stage_us[NACRE_STAGE_FROXEL_FILL] + st.stage_us[NACRE_STAGE_FROXEL_LIGHT] +
+                                  st.stage_us[NACRE_STAGE_FROXEL_INTEGRATE] + st.stage_us[NACRE_STAGE_FROXEL_APPLY]) /
+                         1000.0;
+                row[6] = row[0] + row[1] + row[5];
+            }
         }
         uint32_t alive = nacre_scene_particles_alive(scene, (nacre_particles){1});
         double cells = 0.0, written = 0.0;
@@ -161,29 +181,30 @@ int nc_bench_particles(bool json, int runs)
             const int32_t *rg = grid.range + 6 * (size_t)i;
             double c = (double)(rg[1] - rg[0] + 1) * (rg[3] - rg[2] + 1) * (rg[5] - rg[4] + 1);
             written += c;
-            cells += grid.level[i] ? 8.0 * c : c; /* a coarse cell is 8 of the grid's */
+            cells += c * (double)(1u << (3 * grid.level[i])); /* a level-l cell is 8^l of the grid's */
         }
         cells /= set.count ? set.count : 1;
         written /= set.count ? set.count : 1;
         if (r != NACRE_OK) {
             rc = nc_tool_fail(ctx);
         } else {
-            double med[5], col[10000];
-            for (int s = 0; s < 5; s++) {
+            double med[NCOL], col[10000];
+            for (int s = 0; s < NCOL; s++) {
                 for (int i = 0; i < runs; i++)
-                    col[i] = t[5 * (size_t)i + (size_t)s];
+                    col[i] = t[NCOL * (size_t)i + (size_t)s];
                 med[s] = median_of(col, runs);
             }
             if (json)
                 printf("{\"bench\":\"particles\",\"particles\":%u,\"size\":\"%s\",\"cells_per_particle\":%.0f,"
                        "\"cells_written_per_particle\":%.0f,"
                        "\"grid\":128,\"width\":1280,\"height\":720,\"threads\":%d,\"runs\":%d,\"simulate_ms\":%.3f,"
-                       "\"splat_ms\":%.3f,\"commit_ms\":%.3f,\"billboards_ms\":%.3f,\"sprites_ms\":%.3f}\n",
+                       "\"splat_ms\":%.3f,\"commit_ms\":%.3f,\"billboards_ms\":%.3f,\"sprites_ms\":%.3f,"
+                       "\"march_ms\":%.3f,\"voxel_frame_ms\":%.3f}\n",
                        alive, cases[k].label, cells, written, nacre_context_threads(ctx), runs, med[0], med[1], med[2], med[3],
-                       med[4]);
+                       med[4], med[5], med[6]);
             else
-                printf("%-10u %-6s %8.0f %10.3f %10.3f %10.3f %12.3f %10.3f\n", alive, cases[k].label, cells, med[0],
-                       med[1], med[2], med[3], med[4]);
+                printf("%-10u %-6s %8.0f %10.3f %10.3f %10.3f %12.3f %10.3f %10.3f %12.3f\n", alive, cases[k].label,
+                       cells, med[0], med[1], med[2], med[3], med[4], med[5], med[6]);
             rc = 0;
         }
         nc_particle_set_free(ctx, &set);
@@ -194,7 +215,8 @@ int nc_bench_particles(bool json, int runs)
         if (rc != 0)
             goto out;
     }
-    rc = bench_iso(ctx, json, runs, t);
+    if (!only || strstr("iso", only))
+        rc = bench_iso(ctx, json, runs, t);
 out:
     free(t);
     nacre_context_destroy(ctx);

@@ -15,11 +15,17 @@
  *
  * Large particles: the cost is the cells written (a smoke particle of R = 10 cells writes 10^4).
  * A particle of R >= COARSE_RADIUS cells is splatted instead on a coarse level of twice the
- * spacing (8 times fewer cells), normalised the same way, and the coarse level is added to the
- * grid by trilinear interpolation, which keeps the mass (each coarse sample's tent sums to 8 fine
- * samples) and the empty outer layers. The field then differs from the all-fine splat by the
+ * spacing (8 times fewer cells), one of R >= 2 COARSE_RADIUS cells on a second coarse level of
+ * four times the spacing (64 times fewer), normalised the same way: the kernel's standard
+ * deviation is then at least one sample of its level. Each level is added to the one below by
+ * trilinear interpolation, which keeps the mass (each coarse sample's tent sums to 8 samples
+ * below) and the empty outer layers. The field then differs from the all-fine splat by the
  * interpolation of the coarse samples (docs/accuracy.md); a system with an isosurface is splatted
  * all fine (nc_particle_grid.fine_only).
+ *
+ * Empty bricks: a brick of the grid that no particle and no coarse sample reaches is left as it
+ * is when the last splat left it all 0 (nc_particle_grid.dirty), so a sparse system (dust) pays
+ * for the bricks it covers, not for the whole grid's clearing and maximum.
  */
 #include "particles/billboard.h"
 #include "particles/particles.h"
@@ -33,10 +39,12 @@
  * size: every cell sums its particles in index order whatever the bricks. */
 #define SLAB_LAYERS 4u
 #define BRICK_ROWS 16u
-/* Particles of radius at least COARSE_RADIUS cells (the largest spacing) go to the coarse level:
- * the kernel's standard deviation R / 3 is then at least one coarse cell (error against the
- * all-fine splat: docs/accuracy.md). */
+/* Particles of radius at least COARSE_RADIUS cells (the largest spacing) go to coarse level 1,
+ * of at least 2 COARSE_RADIUS to level 2: the kernel's standard deviation R / 3 is then at least
+ * one sample of the level (error against the all-fine splat: docs/accuracy.md). */
 #define COARSE_RADIUS 6.0
+#define COARSE2_RADIUS 12.0
+#define LEVELS 3
 
 void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
 {
@@ -48,7 +56,9 @@ void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
     nc_free(ctx, g->weights);
     nc_free(ctx, g->woff);
     nc_free(ctx, g->level);
-    nc_free(ctx, g->coarse);
+    nc_free(ctx, g->coarse[0]);
+    nc_free(ctx, g->coarse[1]);
+    nc_free(ctx, g->dirty);
     memset(g, 0, sizeof(*g));
 }
 
@@ -103,12 +113,20 @@ static float axis_weights(double c, double R, double origin, double h, int32_t n
         return 1.0f;
     }
     const double inv = 1.0 / R;
-    float sum = 0.0f;
-    for (int32_t i = lo; i <= hi; i++) {
-        float t = (float)((origin + i * h - c) * inv);
-        w[i - lo] = nc_fast_exp(-NC_PARTICLE_KERNEL_A * t * t);
-        sum += w[i - lo];
+    const int32_t m = hi - lo + 1;
+    for (int32_t i = lo; i <= hi; i++)
+        w[i - lo] = (float)((origin + i * h - c) * inv);
+    /* nc_fast_exp 8 lanes at a time (the same steps), the tail in scalar form. */
+    int32_t q = 0;
+    for (; q + 8 <= m; q += 8) {
+        const nc_v8f t = nc_v8_load(w + q);
+        nc_v8_store(w + q, nc_billboard_exp8(nc_v8_splat(-NC_PARTICLE_KERNEL_A) * t * t));
     }
+    for (; q < m; q++)
+        w[q] = nc_fast_exp(-NC_PARTICLE_KERNEL_A * w[q] * w[q]);
+    float sum = 0.0f;
+    for (q = 0; q < m; q++)
+        sum += w[q];
     return sum;
 }
 
@@ -118,6 +136,28 @@ static void splat_brick_box(uint32_t res, uint32_t nby, uint32_t b, uint32_t *z0
 {
     *z0 = b / nby * SLAB_LAYERS, *z1 = *z0 + SLAB_LAYERS < res ? *z0 + SLAB_LAYERS : res;
     *y0 = b % nby * BRICK_ROWS, *y1 = *y0 + BRICK_ROWS < res ? *y0 + BRICK_ROWS : res;
+}
+
+/* Rows of NV whole vectors (row + fy wx, the generic loop's sum): the x weights stay in registers
+ * across the particle's rows, so a short row costs its NV multiply-adds and not a loop's set-up. */
+static inline __attribute__((always_inline)) void add_rows(float *restrict p0, size_t nxy, size_t nx, int32_t za,
+                                                           int32_t zb, int32_t ya, int32_t yb, const float *wz,
+                                                           int32_t oz, const float *wy, int32_t oy, float sc,
+                                                           const float *wx, int nv)
+{
+    nc_v8f w[4];
+    for (int v = 0; v < nv; v++)
+        w[v] = nc_v8_load(wx + 8 * v);
+    for (int32_t z = za; z <= zb; z++) {
+        const float fz = sc * wz[z - oz];
+        float *restrict pz = p0 + (size_t)z * nxy;
+        for (int32_t y = ya; y <= yb; y++) {
+            const float fy = fz * wy[y - oy];
+            float *restrict row = pz + (size_t)y * nx;
+            for (int v = 0; v < nv; v++)
+                nc_v8_store(row + 8 * v, nc_v8_load(row + 8 * v) + fy * w[v]);
+        }
+    }
 }
 
 /* Brick b of `data` (res samples per axis) zeroed, then its particles (start, g->bins) added in
@@ -144,6 +184,16 @@ static void splat_brick(const nc_particle_grid *g, float *data, uint32_t res, ui
         /* Whole vectors (the padding adds 0 to the cells around the range, in the same row)
          * unless they would leave the row; then the range alone. */
         const bool vec = x0 >= 0 && x0 + px <= (int32_t)res;
+        if (vec && px <= 32) {
+            float *p0 = data + (size_t)x0;
+            switch (px / 8) {
+            case 1: add_rows(p0, nxy, nx, za, zb, ya, yb, wz, rg[4], wy, rg[2], sc, wx, 1); break;
+            case 2: add_rows(p0, nxy, nx, za, zb, ya, yb, wz, rg[4], wy, rg[2], sc, wx, 2); break;
+            case 3: add_rows(p0, nxy, nx, za, zb, ya, yb, wz, rg[4], wy, rg[2], sc, wx, 3); break;
+            default: add_rows(p0, nxy, nx, za, zb, ya, yb, wz, rg[4], wy, rg[2], sc, wx, 4); break;
+            }
+            continue;
+        }
         for (int32_t z = za; z <= zb; z++) {
             const float fz = sc * wz[z - rg[4]];
             for (int32_t y = ya; y <= yb; y++) {
@@ -175,18 +225,31 @@ static void add_coarse(float *data, uint32_t res, const float *coarse, uint32_t 
     const uint32_t fy0 = 2 * (uint32_t)cbox[2] - 1, fy1 = 2 * (uint32_t)cbox[3] + 1;
     const uint32_t fz0 = 2 * (uint32_t)cbox[4] - 1, fz1 = 2 * (uint32_t)cbox[5] + 1;
     const uint32_t X0 = (uint32_t)cbox[0], X1 = (uint32_t)cbox[1];
-    float row[NACRE_PARTICLES_GRID_MAX / 2 + 2];
+    float row[NACRE_PARTICLES_GRID_MAX / 2 + 2], ex[NACRE_PARTICLES_GRID_MAX + 4];
     for (uint32_t z = z0 > fz0 ? z0 : fz0; z < z1 && z <= fz1; z++) {
         /* Outside the box the coarse samples are 0: the layer or row there reads as 0. */
         const float *pz0 = coarse + (size_t)(z / 2) * cxy, *pz1 = (z & 1) ? pz0 + cxy : pz0;
         for (uint32_t y = y0 > fy0 ? y0 : fy0; y < y1 && y <= fy1; y++) {
             const size_t o0 = (size_t)(y / 2) * cx, o1 = (y & 1) ? o0 + cx : o0;
-            for (uint32_t X = X0; X <= X1; X++)
-                row[X] = 0.25f * ((pz0[o0 + X] + pz0[o1 + X]) + (pz1[o0 + X] + pz1[o1 + X]));
+            const float *a = pz0 + o0, *b = pz0 + o1, *c = pz1 + o0, *d = pz1 + o1;
+            uint32_t X = X0;
+            for (; X + 8 <= X1 + 1; X += 8)
+                nc_v8_store(row + X, 0.25f * ((nc_v8_load(a + X) + nc_v8_load(b + X)) +
+                                              (nc_v8_load(c + X) + nc_v8_load(d + X))));
+            for (; X <= X1; X++)
+                row[X] = 0.25f * ((a[X] + b[X]) + (c[X] + d[X]));
             row[X0 - 1] = row[X1 + 1] = 0.0f;
+            /* The row at the fine spacing first, so that the sum below is one plain vector loop. */
+            for (int32_t q = (int32_t)X0 - 1; q <= (int32_t)X1; q++) {
+                ex[2 * q] = row[q];
+                ex[2 * q + 1] = 0.5f * (row[q] + row[q + 1]);
+            }
             float *out = data + (size_t)z * nxy + (size_t)y * nx;
-            for (uint32_t x = fx0; x <= fx1; x++)
-                out[x] += (x & 1) ? 0.5f * (row[x / 2] + row[x / 2 + 1]) : row[x / 2];
+            uint32_t x = fx0;
+            for (; x + 8 <= fx1 + 1; x += 8)
+                nc_v8_store(out + x, nc_v8_load(out + x) + nc_v8_load(ex + x));
+            for (; x <= fx1; x++)
+                out[x] += ex[x];
         }
     }
 }
@@ -202,23 +265,27 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
                        NACRE_PARTICLES_GRID_MIN, NACRE_PARTICLES_GRID_MAX, res);
     const uint32_t n = s->count;
     float lo0 = INFINITY, lo1 = INFINITY, lo2 = INFINITY, hi0 = -INFINITY, hi1 = -INFINITY, hi2 = -INFINITY;
-    /* min and max are exact, so the reduction's order does not matter. */
+    int bad = 0;
+    /* min and max are exact, so the reduction's order does not matter. Comparisons rather than
+     * fminf (a libm call per value here): a NaN, which they would skip, is counted instead. */
 #ifdef _OPENMP
 #pragma omp parallel for schedule(static) num_threads(nc_threads(ctx)) \
-    reduction(min : lo0, lo1, lo2) reduction(max : hi0, hi1, hi2)
+    reduction(min : lo0, lo1, lo2) reduction(max : hi0, hi1, hi2) reduction(+ : bad)
 #endif
     for (uint32_t i = 0; i < n; i++) {
-        float r = s->radius[i];
-        lo0 = fminf(lo0, s->x[i] - r);
-        lo1 = fminf(lo1, s->y[i] - r);
-        lo2 = fminf(lo2, s->z[i] - r);
-        hi0 = fmaxf(hi0, s->x[i] + r);
-        hi1 = fmaxf(hi1, s->y[i] + r);
-        hi2 = fmaxf(hi2, s->z[i] + r);
+        const float r = s->radius[i], a0 = s->x[i] - r, a1 = s->y[i] - r, a2 = s->z[i] - r;
+        const float b0 = s->x[i] + r, b1 = s->y[i] + r, b2 = s->z[i] + r;
+        bad += (a0 != a0) | (a1 != a1) | (a2 != a2) | (b0 != b0) | (b1 != b1) | (b2 != b2);
+        lo0 = a0 < lo0 ? a0 : lo0;
+        lo1 = a1 < lo1 ? a1 : lo1;
+        lo2 = a2 < lo2 ? a2 : lo2;
+        hi0 = b0 > hi0 ? b0 : hi0;
+        hi1 = b1 > hi1 ? b1 : hi1;
+        hi2 = b2 > hi2 ? b2 : hi2;
     }
     const float lo[3] = {lo0, lo1, lo2}, hi[3] = {hi0, hi1, hi2};
     for (int a = 0; a < 3; a++) {
-        if (!(isfinite(lo[a]) && isfinite(hi[a])))
+        if (bad || !(isfinite(lo[a]) && isfinite(hi[a])))
             return nc_fail(ctx, NACRE_ERROR_INVALID_ARGUMENT, "particles: positions: not finite");
         g->dims[a] = res;
         /* Two empty layers of samples outside the bounds on each side. */
@@ -228,32 +295,47 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     }
     const size_t cells = (size_t)res * res * res;
     const int threads = nc_threads(ctx) > 0 ? nc_threads(ctx) : 1;
-    /* The coarse level: sample I at fine sample 2I; its samples 2 .. (res - 4) / 2 spread (by
-     * their tents) over fine samples 3 .. res - 3 only, so the two outer layers stay empty. */
-    const uint32_t rc = (res - 1) / 2 + 1, c_lo = 2, c_hi = (res - 4) / 2;
-    const bool coarse_ok = !g->fine_only && c_hi >= c_lo + 4;
-    const uint32_t res_l[2] = {res, rc};
-    uint32_t nby[2], bricks[2];
-    for (int l = 0; l < 2; l++) {
-        nby[l] = (res_l[l] + BRICK_ROWS - 1) / BRICK_ROWS;
-        bricks[l] = (res_l[l] + SLAB_LAYERS - 1) / SLAB_LAYERS * nby[l];
+    /* Level l's sample I sits at sample 2I of level l - 1, and its samples c_lo .. c_hi[l] spread
+     * (by their tents) over samples 3 .. c_hi[l - 1] there only; the grid's samples 2 .. res - 3
+     * are inside its two empty outer layers, so those stay empty. */
+    const uint32_t c_lo = 2;
+    uint32_t res_l[LEVELS], c_hi[LEVELS], nby[LEVELS], bricks[LEVELS], base[LEVELS];
+    bool level_ok[LEVELS];
+    res_l[0] = res, c_hi[0] = res - 3, level_ok[0] = true;
+    for (int l = 1; l < LEVELS; l++) {
+        res_l[l] = (res_l[l - 1] - 1) / 2 + 1;
+        c_hi[l] = (c_hi[l - 1] - 1) / 2;
+        level_ok[l] = level_ok[l - 1] && !g->fine_only && c_hi[l] >= c_lo + 4;
     }
-    const size_t ccells = (size_t)rc * rc * rc;
-    nacre_result r = nc_memory_check(ctx, (uint64_t)(cells + (coarse_ok ? ccells : 0)) * sizeof(float),
-                                     "particle density grid (grid_resolution)");
+    size_t ccells[LEVELS] = {0}, all_cells = cells;
+    uint32_t nb = 0;
+    for (int l = 0; l < LEVELS; l++) {
+        nby[l] = (res_l[l] + BRICK_ROWS - 1) / BRICK_ROWS;
+        bricks[l] = level_ok[l] ? (res_l[l] + SLAB_LAYERS - 1) / SLAB_LAYERS * nby[l] : 0;
+        base[l] = nb;
+        nb += bricks[l];
+        if (l > 0 && level_ok[l])
+            all_cells += ccells[l] = (size_t)res_l[l] * res_l[l] * res_l[l];
+    }
+    nacre_result r = nc_memory_check(ctx, (uint64_t)all_cells * sizeof(float), "particle density grid (grid_resolution)");
     if (r != NACRE_OK)
         return r;
+    /* The bricks' state is known only for the same resolution and the same array. */
+    const bool known = g->dirty_res == res && cells <= g->capacity && g->data && g->dirty;
+    g->dirty_res = 0;
     bool ok = ensure(ctx, (void **)&g->data, &g->capacity, cells, sizeof(float));
-    ok = ok && (!coarse_ok || ensure(ctx, (void **)&g->coarse, &g->coarse_capacity, ccells, sizeof(float)));
+    for (int l = 1; l < LEVELS; l++)
+        ok = ok && (!level_ok[l] ||
+                    ensure(ctx, (void **)&g->coarse[l - 1], &g->coarse_capacity[l - 1], ccells[l], sizeof(float)));
+    ok = ok && ensure(ctx, (void **)&g->dirty, &g->dirty_capacity, bricks[0], sizeof(uint8_t));
     ok = ok && ensure(ctx, (void **)&g->range, &g->range_capacity, 6 * (size_t)n, sizeof(int32_t));
     ok = ok && ensure(ctx, (void **)&g->scale, &g->scale_capacity, n, sizeof(float));
     ok = ok && ensure(ctx, (void **)&g->level, &g->level_capacity, n, sizeof(uint8_t));
     ok = ok && ensure(ctx, (void **)&g->woff, &g->woff_capacity, (size_t)n + 1, sizeof(size_t));
-    ok = ok && ensure(ctx, (void **)&g->bin_start, &g->bin_start_capacity, (size_t)bricks[0] + bricks[1] + 2,
-                      sizeof(uint32_t));
+    ok = ok && ensure(ctx, (void **)&g->bin_start, &g->bin_start_capacity, (size_t)nb + 2, sizeof(uint32_t));
     if (!ok)
         return NACRE_ERROR_OUT_OF_MEMORY;
-    float *const data_l[2] = {g->data, coarse_ok ? g->coarse : NULL};
+    float *const data_l[LEVELS] = {g->data, level_ok[1] ? g->coarse[0] : NULL, level_ok[2] ? g->coarse[1] : NULL};
     const double hmax = fmax(fmax(g->spacing[0], g->spacing[1]), g->spacing[2]);
 
     /* Per particle: its level, its sample range per axis there, and where its weights go: x
@@ -265,41 +347,57 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     for (uint32_t i = 0; i < n; i++) {
         const double c[3] = {s->x[i], s->y[i], s->z[i]};
         int32_t *rg = g->range + 6 * (size_t)i;
-        const int l = coarse_ok && s->radius[i] >= COARSE_RADIUS * hmax;
+        int l = 0;
+        const double coarse_r[2] = {COARSE_RADIUS, COARSE2_RADIUS};
+        while (l + 1 < LEVELS && level_ok[l + 1] && s->radius[i] >= coarse_r[l] * hmax)
+            l++;
         g->level[i] = (uint8_t)l;
         for (int a = 0; a < 3; a++) {
-            axis_range(c[a], s->radius[i], g->origin[a], g->spacing[a] * (l ? 2.0 : 1.0), (int32_t)res_l[l],
+            axis_range(c[a], s->radius[i], g->origin[a], g->spacing[a] * (double)(1 << l), (int32_t)res_l[l],
                        &rg[2 * a], &rg[2 * a + 1]);
             if (l) {
                 rg[2 * a] = rg[2 * a] > (int32_t)c_lo ? rg[2 * a] : (int32_t)c_lo;
-                rg[2 * a + 1] = rg[2 * a + 1] < (int32_t)c_hi ? rg[2 * a + 1] : (int32_t)c_hi;
+                rg[2 * a + 1] = rg[2 * a + 1] < (int32_t)c_hi[l] ? rg[2 * a + 1] : (int32_t)c_hi[l];
             }
         }
         g->woff[i + 1] = (size_t)((lead(data_l[l], rg[0]) + rg[1] - rg[0] + 8) / 8 * 8) +
                          (size_t)(rg[3] - rg[2] + 1) + (size_t)(rg[5] - rg[4] + 1);
     }
     g->woff[0] = 0;
-    /* The coarse samples in use (a box per axis), so that the coarse pass costs nothing when no
-     * particle is large and only its box otherwise. */
-    int32_t cbox[6] = {INT32_MAX, -1, INT32_MAX, -1, INT32_MAX, -1};
+    /* The coarse samples in use (a box per level and axis), so that a coarse pass costs nothing
+     * when no particle is large and only its box otherwise. */
+    int32_t cbox[LEVELS][6];
+    for (int l = 0; l < LEVELS; l++)
+        for (int a = 0; a < 3; a++)
+            cbox[l][2 * a] = INT32_MAX, cbox[l][2 * a + 1] = -1;
     for (uint32_t i = 0; i < n; i++) {
         g->woff[i + 1] += g->woff[i];
-        if (g->level[i]) {
+        const int l = g->level[i];
+        if (l) {
             const int32_t *rg = g->range + 6 * (size_t)i;
             for (int a = 0; a < 3; a++) {
-                cbox[2 * a] = rg[2 * a] < cbox[2 * a] ? rg[2 * a] : cbox[2 * a];
-                cbox[2 * a + 1] = rg[2 * a + 1] > cbox[2 * a + 1] ? rg[2 * a + 1] : cbox[2 * a + 1];
+                cbox[l][2 * a] = rg[2 * a] < cbox[l][2 * a] ? rg[2 * a] : cbox[l][2 * a];
+                cbox[l][2 * a + 1] = rg[2 * a + 1] > cbox[l][2 * a + 1] ? rg[2 * a + 1] : cbox[l][2 * a + 1];
             }
         }
     }
-    const bool coarse_used = cbox[1] >= 0;
+    /* Level 2 reaches level 1 over its box's spread: level 1 is in use there too. */
+    bool used[LEVELS] = {true, cbox[1][1] >= 0, cbox[2][1] >= 0};
+    if (used[2]) {
+        for (int a = 0; a < 3; a++) {
+            const int32_t s0 = 2 * cbox[2][2 * a] - 1, s1 = 2 * cbox[2][2 * a + 1] + 1;
+            cbox[1][2 * a] = s0 < cbox[1][2 * a] ? s0 : cbox[1][2 * a];
+            cbox[1][2 * a + 1] = s1 > cbox[1][2 * a + 1] ? s1 : cbox[1][2 * a + 1];
+        }
+        used[1] = true;
+    }
     if ((r = nc_memory_check(ctx, (uint64_t)g->woff[n] * sizeof(float), "particle splat weights")) != NACRE_OK)
         return r;
     if (!ensure(ctx, (void **)&g->weights, &g->weight_capacity, g->woff[n], sizeof(float)))
         return NACRE_ERROR_OUT_OF_MEMORY;
 
-    /* The weights, and the factor that makes a particle's samples sum to its mass: on the coarse
-     * level each sample spreads over the fine samples with weights summing to 2 per axis. */
+    /* The weights, and the factor that makes a particle's samples sum to its mass: on level l
+     * each sample spreads over the grid's samples with weights summing to 2^l per axis. */
     const double V = (double)g->spacing[0] * g->spacing[1] * g->spacing[2];
 #ifdef _OPENMP
 #pragma omp parallel for schedule(static) num_threads(threads)
@@ -308,7 +406,7 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
         const double c[3] = {s->x[i], s->y[i], s->z[i]};
         const int32_t *rg = g->range + 6 * (size_t)i;
         const int l = g->level[i];
-        const double k = l ? 2.0 : 1.0;
+        const double k = (double)(1 << l);
         float *w = g->weights + g->woff[i];
         const int32_t nx = rg[1] - rg[0] + 1, ld = lead(data_l[l], rg[0]), px = (ld + nx + 7) / 8 * 8;
         for (int32_t q = 0; q < ld; q++)
@@ -327,18 +425,16 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     }
 
     /* Bin particles by brick of their level (SLAB_LAYERS z layers x BRICK_ROWS rows), in index
-     * order (counting sort): the fine bricks' lists first, then the coarse ones'. */
-    const uint32_t nb = bricks[0] + bricks[1];
+     * order (counting sort): the fine bricks' lists first, then each coarse level's. */
     uint32_t *start = g->bin_start;
     memset(start, 0, ((size_t)nb + 1) * sizeof(uint32_t));
     for (int pass = 0; pass < 2; pass++) {
         for (uint32_t i = 0; i < n; i++) {
             const int32_t *rg = g->range + 6 * (size_t)i;
             const int l = g->level[i];
-            const uint32_t base = l ? bricks[0] : 0;
             for (uint32_t bz = (uint32_t)rg[4] / SLAB_LAYERS; bz <= (uint32_t)rg[5] / SLAB_LAYERS; bz++)
                 for (uint32_t by = (uint32_t)rg[2] / BRICK_ROWS; by <= (uint32_t)rg[3] / BRICK_ROWS; by++) {
-                    const uint32_t b = base + bz * nby[l] + by;
+                    const uint32_t b = base[l] + bz * nby[l] + by;
                     if (pass == 0)
                         start[b + 1]++;
                     else
@@ -357,15 +453,28 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
         start[b] = start[b - 1];
     start[0] = 0;
 
-    /* The coarse level first (its bricks zeroed, then their particles), then each fine brick:
-     * zeroed, its particles, the coarse level's trilinear values added, its maximum. */
-    if (coarse_used) {
+    /* The coarsest level first (its bricks zeroed, then their particles), then level 1 (the
+     * same, plus level 2's trilinear values), then each fine brick: zeroed, its particles, level
+     * 1's trilinear values added, its maximum. */
+    for (int l = LEVELS - 1; l >= 1; l--) {
+        if (!used[l])
+            continue;
+        const bool add = l + 1 < LEVELS && used[l + 1];
 #ifdef _OPENMP
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
 #endif
-        for (uint32_t b = 0; b < bricks[1]; b++)
-            splat_brick(g, g->coarse, rc, nby[1], b, start + bricks[0]);
+        for (uint32_t b = 0; b < bricks[l]; b++) {
+            splat_brick(g, data_l[l], res_l[l], nby[l], b, start + base[l]);
+            if (add) {
+                uint32_t z0, z1, y0, y1;
+                splat_brick_box(res_l[l], nby[l], b, &z0, &z1, &y0, &y1);
+                add_coarse(data_l[l], res_l[l], data_l[l + 1], res_l[l + 1], cbox[l + 1], z0, z1, y0, y1);
+            }
+        }
     }
+    /* Grid samples level 1's box reaches. */
+    const int32_t fz0 = used[1] ? 2 * cbox[1][4] - 1 : 0, fz1 = used[1] ? 2 * cbox[1][5] + 1 : -1;
+    const int32_t fy0 = used[1] ? 2 * cbox[1][2] - 1 : 0, fy1 = used[1] ? 2 * cbox[1][3] + 1 : -1;
     const size_t nx = res, nxy = (size_t)res * res;
     float gmax = 0.0f;
 #ifdef _OPENMP
@@ -374,9 +483,20 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     for (uint32_t b = 0; b < bricks[0]; b++) {
         uint32_t z0, z1, y0, y1;
         splat_brick_box(res, nby[0], b, &z0, &z1, &y0, &y1);
+        const bool coarse_here = used[1] && (int32_t)z0 <= fz1 && (int32_t)z1 > fz0 && (int32_t)y0 <= fy1 &&
+                                 (int32_t)y1 > fy0;
+        if (start[b] == start[b + 1] && !coarse_here) {
+            /* Nothing reaches the brick: it is 0, and its maximum too. */
+            if (!known || g->dirty[b])
+                for (uint32_t z = z0; z < z1; z++)
+                    memset(g->data + z * nxy + y0 * nx, 0, (y1 - y0) * nx * sizeof(float));
+            g->dirty[b] = 0;
+            continue;
+        }
+        g->dirty[b] = 1;
         splat_brick(g, g->data, res, nby[0], b, start);
-        if (coarse_used)
-            add_coarse(g->data, res, g->coarse, rc, cbox, z0, z1, y0, y1);
+        if (coarse_here)
+            add_coarse(g->data, res, g->coarse[0], res_l[1], cbox[1], z0, z1, y0, y1);
         /* Eight running maxima in registers: one accumulator in memory (the reduction
          * variable) kept this scan scalar, and it cost most of a sparse splat. */
         float m8[8] = {0};
@@ -394,5 +514,6 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
             gmax = m8[k] > gmax ? m8[k] : gmax;
     }
     g->max_value = gmax;
+    g->dirty_res = res;
     return NACRE_OK;
 }

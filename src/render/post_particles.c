@@ -232,14 +232,16 @@ static nacre_result gather(pp_state *st, const nc_post_input *in, pp_frame *fr)
                     x0 = INFINITY;
                     break;
                 }
-                x0 = fminf(x0, px), x1 = fmaxf(x1, px), y0 = fminf(y0, py), y1 = fmaxf(y1, py);
+                /* Comparisons, as fminf and fmaxf give (they skip a NaN too), without their libm calls. */
+                x0 = px < x0 ? px : x0, x1 = px > x1 ? px : x1, y0 = py < y0 ? py : y0, y1 = py > y1 ? py : y1;
             }
             if (!(x0 <= x1) || x1 < 0 || y1 < 0 || x0 > (float)(w - 1) || y0 > (float)(h - 1))
                 continue;
-            rc[0] = (int32_t)fmaxf(ceilf(x0), 0.0f);
-            rc[1] = (int32_t)fminf(floorf(x1), (float)(w - 1));
-            rc[2] = (int32_t)fmaxf(ceilf(y0), 0.0f);
-            rc[3] = (int32_t)fminf(floorf(y1), (float)(h - 1));
+            const float cx0 = ceilf(x0), fx1 = floorf(x1), cy0 = ceilf(y0), fy1 = floorf(y1);
+            rc[0] = (int32_t)(cx0 > 0.0f ? cx0 : 0.0f);
+            rc[1] = (int32_t)(fx1 < (float)(w - 1) ? fx1 : (float)(w - 1));
+            rc[2] = (int32_t)(cy0 > 0.0f ? cy0 : 0.0f);
+            rc[3] = (int32_t)(fy1 < (float)(h - 1) ? fy1 : (float)(h - 1));
         }
         base += set->count;
     }
@@ -253,8 +255,10 @@ static nacre_result gather(pp_state *st, const nc_post_input *in, pp_frame *fr)
         x0 = rc[0] < x0 ? rc[0] : x0, x1 = rc[1] > x1 ? rc[1] : x1;
         y0 = rc[2] < y0 ? rc[2] : y0, y1 = rc[3] > y1 ? rc[3] : y1;
         float R = st->radius[j];
-        b0 = fminf(b0, st->cx[j] - R), b1 = fminf(b1, st->cy[j] - R), b2 = fminf(b2, st->cz[j] - R);
-        e0 = fmaxf(e0, st->cx[j] + R), e1 = fmaxf(e1, st->cy[j] + R), e2 = fmaxf(e2, st->cz[j] + R);
+        const float a0 = st->cx[j] - R, a1 = st->cy[j] - R, a2 = st->cz[j] - R;
+        const float c0 = st->cx[j] + R, c1 = st->cy[j] + R, c2 = st->cz[j] + R;
+        b0 = a0 < b0 ? a0 : b0, b1 = a1 < b1 ? a1 : b1, b2 = a2 < b2 ? a2 : b2;
+        e0 = c0 > e0 ? c0 : e0, e1 = c1 > e1 ? c1 : e1, e2 = c2 > e2 ? c2 : e2;
     }
     /* The rect's width is a whole number of 8-pixel vectors; the columns past the buffer's
      * edge hold no particle (their rects are clipped) and composite never reads them. */
@@ -526,6 +530,64 @@ static inline __attribute__((always_inline)) void accumulate_row(const pp_state 
     nc_v8_store(acc + 6 * plane, nr), nc_v8_store(acc + 7 * plane, fa);
 }
 
+/* accumulate_row's case of one system and rays from the eye, for ROWS_AT_ONCE rows of a tile together:
+ * a particle's record, rect and broadcasts are read once for the rows instead of once per row,
+ * and a particle outside the rows is skipped by one test. Each row's sums are those of
+ * accumulate_row, bit for bit (the same operations, the particles in the same order). */
+#define ROWS_AT_ONCE 8
+static void accumulate_rows(const pp_state *st, const pp_frame *fr, uint32_t e0, uint32_t e1, int32_t ry, int32_t tx)
+{
+    const size_t plane = (size_t)fr->rw * (size_t)fr->rh;
+    const int32_t y0 = ry + fr->ry0, y1 = y0 + ROWS_AT_ONCE - 1;
+    const nc_v8i lane = (nc_v8i){0, 1, 2, 3, 4, 5, 6, 7} + (tx + fr->rx0);
+    const nc_v8f zero = nc_v8_splat(0.0f);
+    const float *ray = st->ray + (size_t)ry * (size_t)fr->rw + (size_t)tx;
+    const size_t rw = (size_t)fr->rw;
+    nc_v8f a[ROWS_AT_ONCE], nr[ROWS_AT_ONCE], fa[ROWS_AT_ONCE];
+    for (int r = 0; r < ROWS_AT_ONCE; r++)
+        a[r] = zero, nr[r] = nc_v8_splat(INFINITY), fa[r] = nc_v8_splat(-INFINITY);
+    for (uint32_t e = e0; e < e1; e++) {
+        const uint32_t j = st->bins[e];
+        const int32_t *rc = st->rect + 4 * (size_t)j;
+        if (y1 < rc[2] || y0 > rc[3])
+            continue;
+        const float *q = st->rec + REC * (size_t)j;
+        const nc_v8i xm = (lane >= rc[0]) & (lane <= rc[1]);
+        for (int r = 0; r < ROWS_AT_ONCE; r++) {
+            if (y0 + r < rc[2] || y0 + r > rc[3])
+                continue;
+            const float *p = ray + (size_t)r * rw;
+            const nc_v8f dx = nc_v8_load(p + 2 * plane), dy = nc_v8_load(p + 3 * plane);
+            const nc_v8f dz = nc_v8_load(p + 4 * plane), ts = nc_v8_load(p + 5 * plane);
+            const nc_v8f t = q[0] * dx + q[1] * dy + q[2] * dz;
+            nc_v8f rho2 = q[12] - t * t;
+            nc_v8i m = (rho2 < q[3]) & xm;
+            if (!nc_v8_bits(m))
+                continue;
+            rho2 = v8_max(rho2, zero);
+            const nc_v8f h = v8_sqrt_fast(q[3] - rho2), lo = t - h;
+            m &= ~(lo > ts);
+            if (!nc_v8_bits(m))
+                continue;
+            const nc_v8f w = nc_v8_sel(m, nc_billboard_exp8(rho2 * -q[4]), zero);
+            a[r] += q[11] * w;
+            nr[r] = nc_v8_sel(m, v8_min(nr[r], lo), nr[r]);
+            fa[r] = nc_v8_sel(m, v8_max(fa[r], t + h), fa[r]);
+        }
+    }
+    const pp_system *sy = &st->sys_table[0];
+    for (int r = 0; r < ROWS_AT_ONCE; r++) {
+        const nc_v8f col = a[r];
+        float *acc = st->acc + (size_t)(ry + r) * rw + (size_t)tx;
+        nc_v8_store(acc, sy->sigma_t[0] * col), nc_v8_store(acc + plane, sy->sigma_t[1] * col);
+        nc_v8_store(acc + 2 * plane, sy->sigma_t[2] * col);
+        nc_v8_store(acc + 3 * plane, sy->sigma_t[0] * sy->albedo[0] * col);
+        nc_v8_store(acc + 4 * plane, sy->sigma_t[1] * sy->albedo[1] * col);
+        nc_v8_store(acc + 5 * plane, sy->sigma_t[2] * sy->albedo[2] * col);
+        nc_v8_store(acc + 6 * plane, nr[r]), nc_v8_store(acc + 7 * plane, fa[r]);
+    }
+}
+
 /* Pass 1: per pixel of the rect, optical depths and the chord ends (planes of `acc`). A tile's
  * rows run as 8-lane vectors, the sums held in registers over the tile's particles, which each
  * pixel adds in index order (so the sums do not depend on the threads). The particle's rect
@@ -538,7 +600,11 @@ static void accumulate(pp_state *st, const pp_frame *fr, uint32_t ntx, uint32_t 
         const int32_t tx = (tile % (int32_t)ntx) * TILE, ty = (tile / (int32_t)ntx) * TILE;
         const int32_t ye = ty + TILE < fr->rh ? ty + TILE : fr->rh;
         const uint32_t e0 = st->bin_start[tile], e1 = st->bin_start[tile + 1];
-        for (int32_t ry = ty; ry < ye; ry++) {
+        int32_t ry = ty;
+        if (one && !fr->ortho)
+            for (; ry + ROWS_AT_ONCE <= ye; ry += ROWS_AT_ONCE)
+                accumulate_rows(st, fr, e0, e1, ry, tx);
+        for (; ry < ye; ry++) {
             if (one && !fr->ortho)
                 accumulate_row(st, fr, true, true, e0, e1, ry, tx);
             else if (one)
@@ -738,7 +804,9 @@ static void sprites(pp_state *st, const pp_frame *fr, uint32_t bands, int thread
                     float v[3] = {st->cx[j] - o[0], st->cy[j] - o[1], st->cz[j] - o[2]};
                     if (!nc_billboard_hit(v, d, R, &wgt, &tm, &hc))
                         continue;
-                    float fade = fminf(fmaxf((ts - tm) / R, 0.0f), 1.0f); /* soft particles */
+                    /* Soft particles; the clamp as fminf(fmaxf()) gives it, a NaN to 0. */
+                    float fade = (ts - tm) / R;
+                    fade = fade > 0.0f ? (fade < 1.0f ? fade : 1.0f) : 0.0f;
                     if (!(fade > 0.0f))
                         continue;
                     const size_t i = ri + (size_t)x;

@@ -44,10 +44,11 @@ static const char bench_help[] =
     "           samples, on UV spheres of 2.8k and 73k triangles in FILE (default\n"
     "           examples/layered.json) in place of its translucent object;\n"
     "           --only: the meshes whose name contains it; --steps N: only the rows of N samples/steps\n"
-    "usage: nacre bench particles [--json] [--runs N]\n"
+    "usage: nacre bench particles [--json] [--runs N] [--only smoke10k|smoke100k|dust10k|iso]\n"
     "  particles  the smoke plume of examples/particles.json with 10k and 100k particles:\n"
-    "           simulate, splat into 128^3, commit, and the billboards and sprites passes at\n"
-    "           1280x720, median ms per stage\n"
+    "           simulate, splat into 128^3, commit, the billboards and sprites passes and the\n"
+    "           voxelized frame (froxel march) at 1280x720, median ms per stage\n"
+    "           --only: the cases whose name contains it\n"
     "usage: nacre bench volumetrics [--json] [--runs N] [--raymarch]\n"
     "  volumetrics  froxel stages (fill, light, integrate, apply at 160x90x64) and the analytic\n"
     "           fog pass over the demo at 1280x720 with a shadowed sun, four point lights, height\n"
@@ -89,7 +90,7 @@ int nc_cli_bench(int argc, char **argv)
             json = true;
         else if (strcmp(argv[i], "--runs") == 0 && i + 1 < argc && nc_tool_parse_int(argv[i + 1], 1, 10000, &runs))
             i++;
-        else if ((voxelize || diffusion || layered) && strcmp(argv[i], "--only") == 0 && i + 1 < argc)
+        else if ((voxelize || diffusion || layered || particles) && strcmp(argv[i], "--only") == 0 && i + 1 < argc)
             filter.only = argv[++i];
         else if ((voxelize || diffusion) && strcmp(argv[i], "--res") == 0 && i + 1 < argc &&
                  nc_tool_parse_int(argv[i + 1], 1, 4096, &res_only))
@@ -128,8 +129,12 @@ int nc_cli_bench(int argc, char **argv)
         return nc_bench_load(json, (int)runs, load_ply, load_glb);
     if (layered)
         return nc_bench_layered(json, (int)runs, layered_scene, &filter);
-    if (particles)
-        return nc_bench_particles(json, (int)runs);
+    if (particles) {
+        if (filter.only && !strstr("smoke10k smoke100k dust10k iso", filter.only))
+            return nc_tool_usage("bench", "--only '%s': no particles case (smoke10k, smoke100k, dust10k, iso)",
+                                 filter.only);
+        return nc_bench_particles(json, (int)runs, filter.only);
+    }
     if (volumetrics)
         return nc_bench_volumetrics(json, (int)runs, raymarch);
     int rc = nc_bench_raster(argc - 1, argv + 1);
