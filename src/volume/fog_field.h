@@ -73,12 +73,17 @@ void nc_fog_one_emission(const nc_fog_field *f, const nc_fog_one *o, const float
 #define NC_FOG_PATTERNED 2u /* patterned fogs (marched) */
 #define NC_FOG_ALL 3u
 #define NC_FOG_BOXES 4u /* with the above: only the box-shaped ones of those */
+#define NC_FOG_GLOBALS 8u /* with the above: only the global ones of those */
 
 /* Optical depth per channel of the fogs of `which` along p + t w, t in [0, tmax] (tmax may be
  * INFINITY; the result may be INFINITY: a global fog without falloff towards a directional
  * light). */
 void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const float w[3], float tmax, unsigned which,
                                 double tau[3], float *scratch);
+/* Fog o's optical depth along p + t w, t in [0, tmax], added to tau (nc_fog_field_optical_depth's
+ * term of one fog). */
+void nc_fog_one_optical_depth(const nc_fog_field *f, const nc_fog_one *o, const float p[3], const float w[3],
+                              float tmax, double tau[3], float *scratch);
 /* Whether any fog has a pattern. */
 bool nc_fog_field_patterned(const nc_fog_field *f);
 
