@@ -1053,42 +1053,40 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
             for (int c = 0; c < 3; c++)
                 memset(T[c], 0, n8 * sizeof(float));
         }
-        /* Per group of 8 froxels: phase and light geometry, the global fogs' closed forms, the
-         * opaque shadow and the sum, in registers; boxes without pattern need a pass per froxel
-         * between the shadow and the sum (F and T stored for it). */
-        const bool fused = !st->analytic_boxes;
-        float cs_dir = -(d[0] * li->dir[0] + d[1] * li->dir[1] + d[2] * li->dir[2]), wy = -li->dir[1];
-        float hl[NACRE_MAX_FOGS];
-        for (uint32_t f = 0; !directional && f < st->gfog_count; f++) {
-            const nc_fog_one *o = st->gfog[f].o;
-            hl[f] = o->height ? nc_vol_exp_fast(fminf(o->hf_cap, -o->hf_falloff * (li->pos[1] - o->hf_base)))
-                              : st->gfog[f].flat;
-        }
-        const nc_v8f zero = {0};
-        for (uint32_t k = 0; k < n8; k += 8) {
-            nc_v8f fk, tk[3] = {nc_v8_load(T[0] + k), nc_v8_load(T[1] + k), nc_v8_load(T[2] + k)};
-            if (directional) {
-                fk = v8_hg_phase(nc_v8_splat(cs_dir), nc_v8_load(Gp + k));
-                for (uint32_t f = 0; f < st->gfog_count; f++) {
-                    const vfog *v = &st->gfog[f];
-                    float kf = v->o->hf_falloff;
+        if (directional) {
+            float cs = -(d[0] * li->dir[0] + d[1] * li->dir[1] + d[2] * li->dir[2]), wy = -li->dir[1];
+            for (uint32_t k = 0; k < n8; k += 8)
+                nc_v8_store(F + k, v8_hg_phase(nc_v8_splat(cs), nc_v8_load(Gp + k)));
+            for (uint32_t f = 0; f < st->gfog_count; f++) {
+                const vfog *v = &st->gfog[f];
+                float kf = v->o->hf_falloff;
+                for (uint32_t k = 0; k < n8; k += 8) {
                     nc_v8f hf = nc_v8_load(HF + f * S + k), y = nc_v8_load(Y + k), G;
                     if (!(kf > 0.0f) || wy < 0.0f) {
                         G = nc_v8_splat(INFINITY); /* constant or denser fog forever */
                     } else if (wy == 0.0f) {
-                        G = nc_v8_sel(hf > 0.0f, nc_v8_splat(INFINITY), zero);
+                        G = nc_v8_sel(hf > 0.0f, nc_v8_splat(INFINITY), (nc_v8f){0});
                     } else {
                         /* Rising forever: the capped stretch below yc, then the integral of e^(-k wy t). */
                         nc_v8i below = y < v->yc;
                         nc_v8f f_lo = nc_v8_sel(below, nc_v8_splat(v->fcap), hf);
-                        nc_v8f capped = nc_v8_sel(below, (v->yc - y) / wy, zero);
+                        nc_v8f capped = nc_v8_sel(below, (v->yc - y) / wy, (nc_v8f){0});
                         G = capped * f_lo + f_lo / (kf * wy);
                     }
                     for (int c = 0; c < 3; c++)
                         if (v->sig_t[c] > 0.0f)
-                            tk[c] = tk[c] + v->sig_t[c] * G;
+                            nc_v8_store(T[c] + k, nc_v8_load(T[c] + k) + v->sig_t[c] * G);
                 }
-            } else {
+            }
+        } else {
+            float hl[NACRE_MAX_FOGS];
+            for (uint32_t f = 0; f < st->gfog_count; f++) {
+                const nc_fog_one *o = st->gfog[f].o;
+                hl[f] = o->height ? nc_vol_exp_fast(fminf(o->hf_cap, -o->hf_falloff * (li->pos[1] - o->hf_base)))
+                                  : st->gfog[f].flat;
+            }
+            const nc_v8f zero = {0};
+            for (uint32_t k = 0; k < n8; k += 8) {
                 nc_v8f vx = nc_v8_load(X + k) - li->pos[0], vy = nc_v8_load(Y + k) - li->pos[1],
                        vz = nc_v8_load(Z + k) - li->pos[2];
                 nc_v8f d2 = vx * vx + vy * vy + vz * vz;
@@ -1101,7 +1099,7 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
                         scale[q] *= nc_spot_falloff(li->falloff, wx[q] * li->dir[0] + wyv[q] * li->dir[1] + wz[q] * li->dir[2],
                                                     li->co, li->ci);
                 nc_v8f cs = -(d[0] * wx + d[1] * wyv + d[2] * wz);
-                fk = nc_v8_sel(valid, v8_hg_phase(cs, nc_v8_load(Gp + k)) * scale, zero);
+                nc_v8_store(F + k, nc_v8_sel(valid, v8_hg_phase(cs, nc_v8_load(Gp + k)) * scale, zero));
                 for (uint32_t f = 0; f < st->gfog_count; f++) {
                     const vfog *v = &st->gfog[f];
                     nc_v8f G = v->o->hf_falloff > 0.0f
@@ -1111,27 +1109,18 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
                     G = nc_v8_sel(valid, G, zero);
                     for (int c = 0; c < 3; c++)
                         if (v->sig_t[c] > 0.0f)
-                            tk[c] = tk[c] + v->sig_t[c] * G;
+                            nc_v8_store(T[c] + k, nc_v8_load(T[c] + k) + v->sig_t[c] * G);
                 }
             }
-            if (li->shadow) {
+        }
+        /* The opaque shadow, then the boxes without pattern per froxel where light arrives. */
+        if (li->shadow)
+            for (uint32_t k = 0; k < n8; k += 8) {
                 float vis[8];
                 nc_shadow_lookup_volume8(li->shadow, X + k, Y + k, Z + k, st->bias, vis);
-                fk = fk * nc_v8_load(vis);
+                nc_v8_store(F + k, nc_v8_load(F + k) * nc_v8_load(vis));
             }
-            if (fused) {
-                for (int c = 0; c < 3; c++)
-                    nc_v8_store(A[c] + k, nc_v8_load(A[c] + k) + li->e[c] * fk * v8_exp_fast(-tk[c]));
-            } else {
-                nc_v8_store(F + k, fk);
-                for (int c = 0; c < 3; c++)
-                    nc_v8_store(T[c] + k, tk[c]);
-            }
-        }
-        if (fused)
-            continue;
-        /* The boxes without pattern per froxel where light arrives, then the sum. */
-        for (uint32_t k = 0; k < n; k++) {
+        for (uint32_t k = 0; st->analytic_boxes && k < n; k++) {
             if (!(F[k] > 0.0f) || !(ss[3 * k] > 0.0f || ss[3 * k + 1] > 0.0f || ss[3 * k + 2] > 0.0f))
                 continue;
             const float *x = p + 3 * (size_t)k;
