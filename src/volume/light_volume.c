@@ -76,7 +76,9 @@ void nc_light_volume_setup(nc_light_volume *v, const nc_fog_one *o, bool directi
             v->lo[k] = -o->half[k];
             hi[k] = o->half[k];
         }
-        memcpy(v->light, pos, sizeof(v->light));
+        memcpy(v->light_world, pos, sizeof(v->light_world));
+        for (int k = 0; k < 3; k++)
+            v->light[k] = v->axes[k][0] * pos[0] + v->axes[k][1] * pos[1] + v->axes[k][2] * pos[2] + v->offset[k];
     }
     for (int k = 0; k < 3; k++) {
         float span = hi[k] - v->lo[k];
@@ -142,7 +144,8 @@ static void build_node(const nc_fog_field *f, nc_light_volume *v, uint32_t i, ui
     float q[3] = {v->lo[0] + (float)i * v->step[0], v->lo[1] + (float)j * v->step[1], v->lo[2] + (float)k * v->step[2]};
     float x[3];
     local_to_world(v->fog, q, x);
-    float w[3] = {v->light[0] - x[0], v->light[1] - x[1], v->light[2] - x[2]};
+    const float *lw = v->light_world;
+    float w[3] = {lw[0] - x[0], lw[1] - x[1], lw[2] - x[2]};
     float dist = sqrtf(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
     double tau[3] = {0, 0, 0};
     if (dist > 0.0f) {
@@ -216,20 +219,31 @@ void nc_light_volume_lookup(const nc_light_volume *v, const float x[3], float ta
         return;
     }
     if (!inside) {
-        /* Outside the box: where the ray to the light enters it (none of this fog before). */
-        float w[3] = {v->light[0] - x[0], v->light[1] - x[1], v->light[2] - x[2]};
-        float dist = sqrtf(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
-        if (!(dist > 0.0f))
-            return;
-        for (int c = 0; c < 3; c++)
-            w[c] /= dist;
-        double a = 0.0, b = dist;
-        if (!nc_fog_field_segment(v->fog, x, w, &a, &b))
-            return;
-        float e[3] = {x[0] + (float)a * w[0], x[1] + (float)a * w[1], x[2] + (float)a * w[2]};
+        /* Outside the box: where the segment to the light enters it (a slab test in the grid's
+         * frame; for a sphere too: no fog of this one lies between the box and the sphere). */
+        float a = 0.0f, b = 1.0f, c[3], d[3];
         for (int k = 0; k < 3; k++) {
-            float c = v->axes[k][0] * e[0] + v->axes[k][1] * e[1] + v->axes[k][2] * e[2] + v->offset[k];
-            float top = (float)(v->n[k] - 1), gk = (c - v->lo[k]) * v->inv_step[k];
+            c[k] = g[k] * v->step[k] + v->lo[k];
+            d[k] = v->light[k] - c[k];
+            float top = v->lo[k] + v->step[k] * (float)(v->n[k] - 1);
+            if (d[k] == 0.0f) {
+                if (c[k] < v->lo[k] || c[k] > top)
+                    return;
+                continue;
+            }
+            float inv = 1.0f / d[k], t0 = (v->lo[k] - c[k]) * inv, t1 = (top - c[k]) * inv;
+            if (t0 > t1) {
+                float u = t0;
+                t0 = t1;
+                t1 = u;
+            }
+            a = t0 > a ? t0 : a;
+            b = t1 < b ? t1 : b;
+        }
+        if (!(a < b))
+            return;
+        for (int k = 0; k < 3; k++) {
+            float top = (float)(v->n[k] - 1), gk = (c[k] + a * d[k] - v->lo[k]) * v->inv_step[k];
             g[k] = gk > 0.0f ? (gk < top ? gk : top) : 0.0f;
         }
     }

@@ -41,7 +41,8 @@ typedef struct nc_light_volume {
     float offset[3];   /* grid frame = axes x + offset */
     float lo[3];       /* grid frame coordinate of node 0 per axis */
     float step[3], inv_step[3];
-    float light[3];    /* point: the light's world position */
+    float light[3];    /* point: the light's position in the grid frame (the fog's) */
+    float light_world[3];
     const nc_fog_one *fog;
     float *tau;        /* 3 per node, x fastest then y then z (the caller's, nc_light_volume_nodes x 3) */
 } nc_light_volume;
