@@ -300,8 +300,7 @@ void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const f
     tau[0] = tau[1] = tau[2] = 0.0;
     for (uint32_t i = 0; i < f->count; i++) {
         const nc_fog_one *o = &f->fogs[i];
-        if (!(which & (o->patterned ? NC_FOG_PATTERNED : NC_FOG_ANALYTIC)) || ((which & NC_FOG_BOXES) && !o->box) ||
-            ((which & NC_FOG_GLOBALS) && o->box))
+        if (!(which & (o->patterned ? NC_FOG_PATTERNED : NC_FOG_ANALYTIC)) || ((which & NC_FOG_BOXES) && !o->box))
             continue;
         nc_fog_one_optical_depth(f, o, p, w, tmax, tau, scratch);
     }

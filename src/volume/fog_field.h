@@ -73,7 +73,6 @@ void nc_fog_one_emission(const nc_fog_field *f, const nc_fog_one *o, const float
 #define NC_FOG_PATTERNED 2u /* patterned fogs (marched) */
 #define NC_FOG_ALL 3u
 #define NC_FOG_BOXES 4u /* with the above: only the box-shaped ones of those */
-#define NC_FOG_GLOBALS 8u /* with the above: only the global ones of those */
 
 /* Optical depth per channel of the fogs of `which` along p + t w, t in [0, tmax] (tmax may be
  * INFINITY; the result may be INFINITY: a global fog without falloff towards a directional
