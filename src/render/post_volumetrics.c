@@ -24,6 +24,9 @@
  * evaluates this per point in double; the froxels in float, 8 froxels of a column at a time
  * (froxel_light_column: global fogs without pattern in closed form, patterned ones from a coarse
  * grid, boxes without pattern exactly, a fast exponential), which the tests hold to the march.
+ * The coarse grid reads each patterned box or sphere's optical depth towards each light from a
+ * grid of its own that does not move with the camera (volume/light_volume.h: light-aligned
+ * columns for directional lights, nodes over the box for point and spot lights).
  *
  * Depth slices: with a perspective camera slice 0 runs from the eye to z0 and slices 1 .. D-1
  * are spaced exponentially from z0 to zf (boundaries z0 (zf / z0)^(k / (D - 1))), zf the
@@ -39,8 +42,10 @@
  * Frames keep what did not change (froxel_apply; a viewer's frames): the filled grid while the
  * fogs, camera and grid settings are the same, the lit and integrated grid while the lights,
  * shadow settings and the depths that pixels read are too, each light's coarse optical depths
- * while that light did not move, and a still frame's per-pixel L and T. A kept frame equals a
- * new one bit for bit (test_volumetrics); froxel_temporal keeps nothing (its grid moves).
+ * while that light did not move, each light's grids through the patterned boxes while that light
+ * and the fogs did not change (a camera that moves keeps them), and a still frame's per-pixel L
+ * and T. A kept frame equals a new one bit for bit (test_volumetrics); froxel_temporal keeps
+ * nothing of the froxel grid (it moves).
  *
  * Results do not depend on the thread count: every column and pixel is computed alone.
  * Units: scene units along unit directions; coefficients per scene unit; radiance per channel.
@@ -53,6 +58,7 @@
 #include "scene/lights.h"
 #include "scene/medium.h"
 #include "volume/fog_field.h"
+#include "volume/light_volume.h"
 
 #include <math.h>
 #include <string.h>
@@ -110,6 +116,25 @@ typedef struct tau_key {
     nacre_light_type type;
     float pos[3], dir[3];
 } tau_key;
+
+/* What a light's optical-depth grid through a bounded patterned fog depends on (light_volume.h):
+ * the fogs (not the camera) and where the light is (zeroed before being set). */
+typedef struct lvol_key {
+    uint64_t uid, geometry, materials, environment, particles_built;
+    nacre_particles_draw particles;
+    uint32_t fog_count, fog, shadow_steps, res;
+    nacre_light_type type;
+    float pos[3], dir[3];
+} lvol_key;
+
+/* One light's grid through one fog, owned by vol_state (tau). */
+typedef struct lvol {
+    nc_light_volume v;
+    float *tau;
+    size_t capacity;
+    lvol_key key;
+    bool valid;
+} lvol;
 
 enum { SLICE_SHIFT = 18, SLICE_TABLE = 512 };
 
@@ -180,6 +205,10 @@ typedef struct vol_state {
     bool *tau_redo;
     size_t tau_key_capacity, tau_redo_capacity;
     uint32_t tau_count;
+    /* Per light and fog (index light x fog count + fog): the optical-depth grids of the bounded
+     * patterned fogs that tau_grid reads (light_volume.h), kept while their keys hold. */
+    lvol *lvols;
+    size_t lvol_count;
     /* per-thread scratch */
     float *scratch;
     size_t scratch_per_thread, scratch_capacity;
@@ -226,6 +255,9 @@ static void vol_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->tau_grid);
     nc_free(ctx, st->tau_keys);
     nc_free(ctx, st->tau_redo);
+    for (size_t i = 0; i < st->lvol_count; i++)
+        nc_free(ctx, st->lvols[i].tau);
+    nc_free(ctx, st->lvols);
     nc_free(ctx, st->col_depth);
     nc_free(ctx, st->scratch);
     nc_free(ctx, st->hist_st);
@@ -668,10 +700,92 @@ static uint32_t lit_slices(const vol_state *st, float z)
     return n;
 }
 
+/* The optical-depth grid of every light through every bounded patterned fog (light_volume.h),
+ * each rebuilt only when its light or the fogs changed: a camera that moves keeps them all. */
+static nacre_result light_volumes_update(vol_state *st, const nc_post_input *in, int threads)
+{
+    nacre_context *ctx = in->ctx;
+    const nacre_scene *s = in->scene;
+    uint32_t count = st->field.count;
+    size_t need = (size_t)st->light_count * count;
+    if (need > st->lvol_count) {
+        lvol *grown = nc_calloc(ctx, need, sizeof(*grown));
+        if (!grown)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        if (st->lvol_count)
+            memcpy(grown, st->lvols, st->lvol_count * sizeof(*grown));
+        nc_free(ctx, st->lvols);
+        st->lvols = grown;
+        st->lvol_count = need;
+    }
+    for (uint32_t l = 0; l < st->light_count; l++) {
+        const vlight *li = &st->lights[l];
+        bool directional = li->type == NACRE_LIGHT_DIRECTIONAL;
+        for (uint32_t i = 0; i < count; i++) {
+            const nc_fog_one *o = &st->field.fogs[i];
+            if (!o->patterned || !o->box)
+                continue;
+            lvol *e = &st->lvols[(size_t)l * count + i];
+            lvol_key k;
+            memset(&k, 0, sizeof(k));
+            k.uid = s->uid;
+            k.geometry = s->committed.geometry;
+            k.materials = s->committed.materials;
+            k.environment = s->committed.environment;
+            k.particles_built = s->particles_built;
+            k.particles = in->settings->particles;
+            k.fog_count = count;
+            k.fog = i;
+            k.shadow_steps = st->field.shadow_steps;
+            k.res = directional ? NC_LIGHT_VOLUME_DIR_RES : NC_LIGHT_VOLUME_POINT_RES;
+            k.type = li->type;
+            if (directional)
+                memcpy(k.dir, li->dir, sizeof(k.dir));
+            else
+                memcpy(k.pos, li->pos, sizeof(k.pos));
+            /* The fog record's address moves with the field; the grid's data does not. */
+            nc_light_volume_setup(&e->v, o, directional, li->dir, li->pos, k.res);
+            if (e->valid && memcmp(&k, &e->key, sizeof(k)) == 0) {
+                e->v.tau = e->tau;
+                continue;
+            }
+            e->valid = false;
+            if (!nc_reserve(ctx, &e->tau, &e->capacity, 3 * nc_light_volume_nodes(&e->v), sizeof(float)))
+                return NACRE_ERROR_OUT_OF_MEMORY;
+            e->v.tau = e->tau;
+            nc_light_volume_build(&st->field, &e->v, threads);
+            e->key = k;
+            e->valid = true;
+        }
+    }
+    return NACRE_OK;
+}
+
+/* Optical depth from x towards light l (direction w, distance dist) through the patterned fogs:
+ * the bounded ones from their grids (light_volumes_update), the global ones marched. */
+static void patterned_tau(const vol_state *st, uint32_t l, const float x[3], const float w[3], float dist, double td[3],
+                          float *scratch)
+{
+    td[0] = td[1] = td[2] = 0.0;
+    for (uint32_t i = 0; i < st->field.count; i++) {
+        const nc_fog_one *o = &st->field.fogs[i];
+        if (!o->patterned)
+            continue;
+        if (!o->box) {
+            nc_fog_one_optical_depth(&st->field, o, x, w, dist, td, scratch);
+            continue;
+        }
+        float t[3];
+        nc_light_volume_lookup(&st->lvols[(size_t)l * st->field.count + i].v, x, t);
+        for (int c = 0; c < 3; c++)
+            td[c] += t[c];
+    }
+}
+
 /* The coarse grid of the patterned fogs' optical depths towards the lights (nodes at the
- * froxels of even indices): their march towards every light is most of the lighting's cost, and
- * their shadow on themselves varies slowly next to the opaque shadows, so it is integrated at
- * 1/8 of the froxels and interpolated in optical depth. Fogs without pattern stay exact per
+ * froxels of even indices): their shadow on themselves varies slowly next to the opaque
+ * shadows, so it is looked up (bounded fogs: their light grids) or marched (global ones) at 1/8
+ * of the froxels and interpolated in optical depth. Fogs without pattern stay exact per
  * froxel (closed form, and a box's walls are sharp). With `keep` (the fill and the depths are the
  * previous frame's), the part of each light that did not move is kept. */
 static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads, uint32_t batch, bool keep)
@@ -732,7 +846,7 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
                 double td[3] = {0, 0, 0};
                 if (light_at(&st->lights[l], x, wi, &dist, &sf)) {
                     float w[3] = {-wi[0], -wi[1], -wi[2]};
-                    nc_fog_field_optical_depth(&st->field, x, w, dist, NC_FOG_PATTERNED, td, tau);
+                    patterned_tau(st, l, x, w, dist, td, tau);
                 }
                 for (int ch = 0; ch < 3; ch++)
                     out[3 * c + ch] = td[ch] < TAU_MAX ? (float)td[ch] : TAU_MAX;
@@ -1440,7 +1554,8 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
     bool same_depths = same_buffer || (same_fill && memcmp(st->col_depth, st->prev_col_depth, cols * sizeof(float)) == 0);
     same_light = same_light && same_depths;
     if (!same_light) {
-        if ((res = froxel_light(st, in->ctx, threads, batch, same_depths)) != NACRE_OK ||
+        if ((nc_fog_field_patterned(&st->field) && (res = light_volumes_update(st, in, threads)) != NACRE_OK) ||
+            (res = froxel_light(st, in->ctx, threads, batch, same_depths)) != NACRE_OK ||
             (res = temporal_end(st, in, threads)) != NACRE_OK)
             return res;
         stage_done(stats, NACRE_STAGE_FROXEL_LIGHT, t0);

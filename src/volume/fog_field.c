@@ -236,6 +236,64 @@ bool nc_fog_field_patterned(const nc_fog_field *f)
     return false;
 }
 
+void nc_fog_one_optical_depth(const nc_fog_field *f, const nc_fog_one *o, const float p[3], const float w[3],
+                              float tmax, double tau[3], float *scratch)
+{
+    double a = 0.0, b = tmax;
+    if (!nc_fog_field_segment(o, p, w, &a, &b))
+        return;
+    if (!o->patterned) {
+        double G = nc_vol_height_integral(&o->h, p[1], w[1], a, b);
+        if (!(G > 0.0))
+            return;
+        for (int c = 0; c < 3; c++) {
+            double st = (double)o->sigma_a[c] + o->sigma_s[c];
+            if (st > 0.0)
+                tau[c] += st * G; /* inf stays inf */
+        }
+        return;
+    }
+    /* Patterned: march [a, bm] (a global fog within the scene bounds), each step's pattern at
+     * its midpoint times the step's height integral; what lies beyond bm gets the mean of the
+     * marched pattern. */
+    double bm = b;
+    if (!o->box) {
+        double e = bounds_exit(f, p, w);
+        bm = e < b ? e : b;
+    }
+    uint32_t n = f->shadow_steps;
+    double len = bm > a ? bm - a : 0.0, dt = len / n;
+    float *local = scratch, *sa = scratch + 3 * (size_t)n, *ss = scratch + 6 * (size_t)n;
+    for (uint32_t k = 0; k < n; k++) {
+        float t = (float)(a + (k + 0.5) * dt);
+        float q[3] = {p[0] + t * w[0], p[1] + t * w[1], p[2] + t * w[2]};
+        to_local(o, q, local + 3 * (size_t)k);
+    }
+    nc_medium_eval(f->scene, o->medium, local, n, sa, ss);
+    double mean[3] = {0, 0, 0};
+    /* Without falloff every step has the same height integral. */
+    double G_flat = o->height ? 0.0 : nc_vol_height_integral(&o->h, p[1], w[1], 0.0, dt);
+    for (uint32_t k = 0; k < n; k++) {
+        double G = G_flat;
+        if (!(len > 0.0))
+            G = 0.0;
+        else if (o->height)
+            G = nc_vol_height_integral(&o->h, p[1], w[1], a + k * dt, a + (k + 1) * dt);
+        for (int c = 0; c < 3; c++) {
+            double st = (double)sa[3 * k + c] + ss[3 * k + c];
+            mean[c] += st / n;
+            if (st > 0.0)
+                tau[c] += st * G;
+        }
+    }
+    if (b > bm) {
+        double G = nc_vol_height_integral(&o->h, p[1], w[1], bm, b);
+        for (int c = 0; c < 3; c++)
+            if (mean[c] > 0.0 && G > 0.0)
+                tau[c] += mean[c] * G;
+    }
+}
+
 void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const float w[3], float tmax, unsigned which,
                                 double tau[3], float *scratch)
 {
@@ -244,58 +302,6 @@ void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const f
         const nc_fog_one *o = &f->fogs[i];
         if (!(which & (o->patterned ? NC_FOG_PATTERNED : NC_FOG_ANALYTIC)) || ((which & NC_FOG_BOXES) && !o->box))
             continue;
-        double a = 0.0, b = tmax;
-        if (!nc_fog_field_segment(o, p, w, &a, &b))
-            continue;
-        if (!o->patterned) {
-            double G = nc_vol_height_integral(&o->h, p[1], w[1], a, b);
-            if (!(G > 0.0))
-                continue;
-            for (int c = 0; c < 3; c++) {
-                double st = (double)o->sigma_a[c] + o->sigma_s[c];
-                if (st > 0.0)
-                    tau[c] += st * G; /* inf stays inf */
-            }
-            continue;
-        }
-        /* Patterned: march [a, bm] (a global fog within the scene bounds), each step's pattern at
-         * its midpoint times the step's height integral; what lies beyond bm gets the mean of the
-         * marched pattern. */
-        double bm = b;
-        if (!o->box) {
-            double e = bounds_exit(f, p, w);
-            bm = e < b ? e : b;
-        }
-        uint32_t n = f->shadow_steps;
-        double len = bm > a ? bm - a : 0.0, dt = len / n;
-        float *local = scratch, *sa = scratch + 3 * (size_t)n, *ss = scratch + 6 * (size_t)n;
-        for (uint32_t k = 0; k < n; k++) {
-            float t = (float)(a + (k + 0.5) * dt);
-            float q[3] = {p[0] + t * w[0], p[1] + t * w[1], p[2] + t * w[2]};
-            to_local(o, q, local + 3 * (size_t)k);
-        }
-        nc_medium_eval(f->scene, o->medium, local, n, sa, ss);
-        double mean[3] = {0, 0, 0};
-        /* Without falloff every step has the same height integral. */
-        double G_flat = o->height ? 0.0 : nc_vol_height_integral(&o->h, p[1], w[1], 0.0, dt);
-        for (uint32_t k = 0; k < n; k++) {
-            double G = G_flat;
-            if (!(len > 0.0))
-                G = 0.0;
-            else if (o->height)
-                G = nc_vol_height_integral(&o->h, p[1], w[1], a + k * dt, a + (k + 1) * dt);
-            for (int c = 0; c < 3; c++) {
-                double st = (double)sa[3 * k + c] + ss[3 * k + c];
-                mean[c] += st / n;
-                if (st > 0.0)
-                    tau[c] += st * G;
-            }
-        }
-        if (b > bm) {
-            double G = nc_vol_height_integral(&o->h, p[1], w[1], bm, b);
-            for (int c = 0; c < 3; c++)
-                if (mean[c] > 0.0 && G > 0.0)
-                    tau[c] += mean[c] * G;
-        }
+        nc_fog_one_optical_depth(f, o, p, w, tmax, tau, scratch);
     }
 }

@@ -79,6 +79,10 @@ void nc_fog_one_emission(const nc_fog_field *f, const nc_fog_one *o, const float
  * light). */
 void nc_fog_field_optical_depth(const nc_fog_field *f, const float p[3], const float w[3], float tmax, unsigned which,
                                 double tau[3], float *scratch);
+/* Fog o's optical depth along p + t w, t in [0, tmax], added to tau (nc_fog_field_optical_depth's
+ * term of one fog). */
+void nc_fog_one_optical_depth(const nc_fog_field *f, const nc_fog_one *o, const float p[3], const float w[3],
+                              float tmax, double tau[3], float *scratch);
 /* Whether any fog has a pattern. */
 bool nc_fog_field_patterned(const nc_fog_field *f);
 

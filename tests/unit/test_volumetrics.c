@@ -24,8 +24,13 @@
  *     box's faces the jittered, blended frames converge (RMS error under half of the single
  *     frame's); a first frame equals a frame with the setting off; with a moving camera and
  *     aligned slices (exact without history) the reprojected frames stay within 3% (ghosting);
- *   - frames kept between renders (froxel grid, its fill and each light's coarse optical depths;
- *     the analytic pass's per-pixel T and L): a renderer's second, unchanged frame and its frames
+ *   - the optical-depth grids towards each light through a patterned box (light_volume.h): their
+ *     transmittance against a direct march from points in and around the box (a sun's
+ *     light-aligned grid against a 256-step march, a point light's grid against the same 8-step
+ *     march its nodes use): largest |dT| under 0.1 (sun) and 0.03 (point), RMS under 0.008 and
+ *     0.006, and the same checks failing on a grid of 4 nodes an axis;
+ *   - frames kept between renders (froxel grid, its fill, each light's coarse optical depths and
+ *     grids; the analytic pass's per-pixel T and L): a renderer's second, unchanged frame and its frames
  *     after moving a sun, a spot, the camera or editing the fog equal a new renderer's frame of
  *     the same scene bit for bit;
  *   - settings: bad values give errors naming the field; scene-file keys load and save.
@@ -33,6 +38,7 @@
 #include "media_util.h"
 
 #include "volume/fog_field.h"
+#include "volume/light_volume.h"
 
 #include <nacre/nacre.h>
 
@@ -442,6 +448,93 @@ static void field_transmittance(void)
     nacre_scene_destroy(s);
 }
 
+/* Largest |T_grid - T_march| (T = e^-tau, any channel) of light volume v over points on a
+ * lattice around its (rotated) box, its margin included, and (rms) its root mean square; ref:
+ * the march's field, towards the light along dir (directional) or to pos. */
+static double light_volume_error(const nc_fog_field *ref, const nc_light_volume *v, const float dir[3],
+                                 const float pos[3], float *scratch, double *rms)
+{
+    double worst = 0, sum2 = 0;
+    int count = 0;
+    for (int i = 0; i < 11; i++)
+        for (int j = 0; j < 9; j++)
+            for (int k = 0; k < 10; k++) {
+                float x[3] = {-3.1f + 0.62f * i, -1.4f + 0.35f * j, -2.35f + 0.52f * k}, w[3];
+                float dist = INFINITY;
+                if (v->directional) {
+                    for (int c = 0; c < 3; c++)
+                        w[c] = -dir[c];
+                } else {
+                    for (int c = 0; c < 3; c++)
+                        w[c] = pos[c] - x[c];
+                    dist = sqrtf(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+                    for (int c = 0; c < 3; c++)
+                        w[c] /= dist;
+                }
+                double tr[3] = {0, 0, 0};
+                nc_fog_one_optical_depth(ref, &ref->fogs[0], x, w, dist, tr, scratch);
+                float tv[3];
+                nc_light_volume_lookup(v, x, tv);
+                for (int c = 0; c < 3; c++) {
+                    double e = fabs(exp(-(double)tv[c]) - exp(-tr[c]));
+                    worst = fmax(worst, e);
+                    sum2 += e * e;
+                    count++;
+                }
+            }
+    *rms = sqrt(sum2 / count);
+    return worst;
+}
+
+/* The optical-depth grids towards a light through a bounded patterned fog (light_volume.h)
+ * against a direct march from each point: a sun's light-aligned grid against a march of 256
+ * steps, a point light's grid (nodes marched with the renderer's 8 steps) against the same
+ * 8-step march, for a point light outside the box and one inside it. The largest differences
+ * are next to the box's walls that lie nearly along the light (the optical depth jumps there
+ * within a node's spacing); at 4 nodes an axis the same checks fail. */
+static void light_volume(void)
+{
+    const char *json = "{\"materials\": {\"m\": {\"type\": \"opaque\"}},"
+                       "\"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"}],"
+                       "\"fog\": [{\"shape\": \"box\", \"center\": [0.2, 0.1, -0.1], \"size\": [4, 2, 3],"
+                       "\"rotate\": [10, 35, 0], \"sigma_a\": 0.1, \"sigma_s\": [0.4, 0.8, 1.2],"
+                       "\"height_falloff\": 0.5, \"pattern\": {\"type\": \"noise\", \"cell_size\": 0.5,"
+                       "\"sigma_a2\": 0, \"sigma_s2\": 0}}]}";
+    nacre_scene *s = media_load(ctx, json, NULL);
+    if (!s)
+        return;
+    nc_fog_field f8, f256;
+    nc_fog_field_init(&f8, s, 1, 8);
+    nc_fog_field_init(&f256, s, 1, 256);
+    static float scratch[NC_FOG_TAU_SCRATCH(256)];
+    float dir[3] = {0.3f, -1.0f, 0.2f}, out[3] = {1.5f, 2.5f, 0.5f}, in[3] = {0.3f, 0.0f, 0.1f};
+    float l = sqrtf(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
+    for (int c = 0; c < 3; c++)
+        dir[c] /= l;
+    const double tol_max[3] = {0.1, 0.03, 0.03};
+    const double tol_rms[3] = {0.008, 0.006, 0.006};
+    const char *what[3] = {"sun (64^3, vs 256 steps)", "point light outside (24^3)", "point light inside (24^3)"};
+    for (int q = 0; q < 3; q++) {
+        for (int coarse = 0; coarse < 2; coarse++) {
+            nc_light_volume v;
+            uint32_t res = coarse ? 4u : q == 0 ? NC_LIGHT_VOLUME_DIR_RES : NC_LIGHT_VOLUME_POINT_RES;
+            const float *pos = q == 1 ? out : in;
+            nc_light_volume_setup(&v, &f8.fogs[0], q == 0, dir, pos, res);
+            v.tau = malloc(3 * nc_light_volume_nodes(&v) * sizeof(float));
+            CHECK(v.tau != NULL);
+            if (!v.tau)
+                break;
+            nc_light_volume_build(&f8, &v, 2);
+            double rms, e = light_volume_error(q == 0 ? &f256 : &f8, &v, dir, pos, scratch, &rms);
+            printf("  light volume, %s%s: |dT| largest %.4f, RMS %.4f (tolerances %.3f, %.4f)\n", what[q],
+                   coarse ? ", 4 nodes an axis" : "", e, rms, tol_max[q], tol_rms[q]);
+            CHECK(coarse ? e > tol_max[q] && rms > tol_rms[q] : e < tol_max[q] && rms < tol_rms[q]);
+            free(v.tau);
+        }
+    }
+    nacre_scene_destroy(s);
+}
+
 /* volume.h's fast exponential against exp over its range. */
 static void fast_exp(void)
 {
@@ -690,6 +783,7 @@ int main(void)
 {
     CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
     field_transmittance();
+    light_volume();
     fast_exp();
     bad_settings();
     constant_source();

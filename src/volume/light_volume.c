@@ -1,0 +1,251 @@
+/*
+ * light_volume.c: optical-depth grids towards one light through one bounded patterned fog
+ * (light_volume.h; seed 003 §2.2.3, the fog's shadow on itself).
+ */
+#include "volume/light_volume.h"
+
+#include "scene/medium.h"
+
+#include <math.h>
+#include <string.h>
+
+static void normalize3(float v[3])
+{
+    float l = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    if (l > 0.0f)
+        for (int k = 0; k < 3; k++)
+            v[k] /= l;
+}
+
+static void cross3(const float a[3], const float b[3], float c[3])
+{
+    c[0] = a[1] * b[2] - a[2] * b[1];
+    c[1] = a[2] * b[0] - a[0] * b[2];
+    c[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+/* World point of fog-local q (w2l is a rotation and a translation: its inverse is the transpose). */
+static void local_to_world(const nc_fog_one *o, const float q[3], float x[3])
+{
+    float d[3] = {q[0] - o->w2l[0][3], q[1] - o->w2l[1][3], q[2] - o->w2l[2][3]};
+    for (int c = 0; c < 3; c++)
+        x[c] = o->w2l[0][c] * d[0] + o->w2l[1][c] * d[1] + o->w2l[2][c] * d[2];
+}
+
+void nc_light_volume_setup(nc_light_volume *v, const nc_fog_one *o, bool directional, const float dir[3],
+                           const float pos[3], uint32_t res)
+{
+    memset(v, 0, sizeof(*v));
+    res = res < 2 ? 2 : res > NC_LIGHT_VOLUME_MAX_RES ? NC_LIGHT_VOLUME_MAX_RES : res;
+    v->directional = directional;
+    v->fog = o;
+    v->n[0] = v->n[1] = v->n[2] = res;
+    float hi[3];
+    if (directional) {
+        float d[3] = {dir[0], dir[1], dir[2]}, e1[3], e2[3];
+        normalize3(d);
+        float helper[3] = {0.0f, 0.0f, 0.0f};
+        helper[fabsf(d[1]) < 0.9f ? 1 : 0] = 1.0f;
+        cross3(helper, d, e1);
+        normalize3(e1);
+        cross3(d, e1, e2);
+        memcpy(v->axes[0], e1, sizeof(e1));
+        memcpy(v->axes[1], e2, sizeof(e2));
+        memcpy(v->axes[2], d, sizeof(d));
+        /* The light-space bounds of the box's corners. */
+        for (int k = 0; k < 3; k++) {
+            v->lo[k] = INFINITY;
+            hi[k] = -INFINITY;
+        }
+        for (int c = 0; c < 8; c++) {
+            float q[3] = {c & 1 ? o->half[0] : -o->half[0], c & 2 ? o->half[1] : -o->half[1],
+                          c & 4 ? o->half[2] : -o->half[2]},
+                  x[3];
+            local_to_world(o, q, x);
+            for (int k = 0; k < 3; k++) {
+                float g = v->axes[k][0] * x[0] + v->axes[k][1] * x[1] + v->axes[k][2] * x[2];
+                v->lo[k] = g < v->lo[k] ? g : v->lo[k];
+                hi[k] = g > hi[k] ? g : hi[k];
+            }
+        }
+    } else {
+        for (int k = 0; k < 3; k++) {
+            for (int c = 0; c < 3; c++)
+                v->axes[k][c] = o->w2l[k][c];
+            v->offset[k] = o->w2l[k][3];
+            v->lo[k] = -o->half[k];
+            hi[k] = o->half[k];
+        }
+        memcpy(v->light_world, pos, sizeof(v->light_world));
+        for (int k = 0; k < 3; k++)
+            v->light[k] = v->axes[k][0] * pos[0] + v->axes[k][1] * pos[1] + v->axes[k][2] * pos[2] + v->offset[k];
+    }
+    for (int k = 0; k < 3; k++) {
+        float span = hi[k] - v->lo[k];
+        v->step[k] = (span > 0.0f ? span : 1e-6f) / (float)(v->n[k] - 1);
+        v->inv_step[k] = 1.0f / v->step[k];
+    }
+}
+
+static inline float cap_tau(double t) { return t < NC_LIGHT_VOLUME_TAU_MAX ? (float)t : NC_LIGHT_VOLUME_TAU_MAX; }
+
+/* Directional: column (i, j) from where the light enters it, one step per node. */
+static void build_column(const nc_fog_field *f, nc_light_volume *v, uint32_t i, uint32_t j)
+{
+    const nc_fog_one *o = v->fog;
+    uint32_t ns = v->n[2];
+    float u = v->lo[0] + (float)i * v->step[0], w = v->lo[1] + (float)j * v->step[1];
+    const float *d = v->axes[2];
+    float p0[3];
+    for (int c = 0; c < 3; c++)
+        p0[c] = u * v->axes[0][c] + w * v->axes[1][c] + v->lo[2] * d[c];
+    float local[3 * NC_LIGHT_VOLUME_MAX_RES], sa[3 * NC_LIGHT_VOLUME_MAX_RES], ss[3 * NC_LIGHT_VOLUME_MAX_RES];
+    double G[NC_LIGHT_VOLUME_MAX_RES];
+    uint32_t step_of[NC_LIGHT_VOLUME_MAX_RES];
+    float *out = v->tau + 3 * ((size_t)j * v->n[0] + i);
+    size_t stride = 3 * (size_t)v->n[0] * v->n[1];
+    double a = 0.0, b = (double)v->step[2] * (ns - 1);
+    uint32_t m = 0;
+    if (nc_fog_field_segment(o, p0, d, &a, &b)) {
+        for (uint32_t k = 0; k + 1 < ns; k++) {
+            double t0 = (double)k * v->step[2], t1 = t0 + v->step[2];
+            t0 = t0 > a ? t0 : a;
+            t1 = t1 < b ? t1 : b;
+            if (!(t1 > t0))
+                continue;
+            float t = (float)(0.5 * (t0 + t1)), x[3] = {p0[0] + t * d[0], p0[1] + t * d[1], p0[2] + t * d[2]};
+            for (int r = 0; r < 3; r++)
+                local[3 * m + r] = o->w2l[r][0] * x[0] + o->w2l[r][1] * x[1] + o->w2l[r][2] * x[2] + o->w2l[r][3];
+            G[m] = nc_vol_height_integral(&o->h, p0[1], d[1], t0, t1);
+            step_of[m++] = k;
+        }
+    }
+    if (m > 0)
+        nc_medium_eval(f->scene, o->medium, local, m, sa, ss);
+    double tau[3] = {0, 0, 0};
+    uint32_t q = 0;
+    for (uint32_t k = 0; k < ns; k++) {
+        for (int c = 0; c < 3; c++)
+            out[k * stride + c] = cap_tau(tau[c]);
+        if (q < m && step_of[q] == k) {
+            for (int c = 0; c < 3; c++) {
+                double st = (double)sa[3 * q + c] + ss[3 * q + c];
+                if (st > 0.0 && G[q] > 0.0)
+                    tau[c] += st * G[q];
+            }
+            q++;
+        }
+    }
+}
+
+/* Point: node (i, j, k) marched towards the light. */
+static void build_node(const nc_fog_field *f, nc_light_volume *v, uint32_t i, uint32_t j, uint32_t k, float *scratch)
+{
+    float q[3] = {v->lo[0] + (float)i * v->step[0], v->lo[1] + (float)j * v->step[1], v->lo[2] + (float)k * v->step[2]};
+    float x[3];
+    local_to_world(v->fog, q, x);
+    const float *lw = v->light_world;
+    float w[3] = {lw[0] - x[0], lw[1] - x[1], lw[2] - x[2]};
+    float dist = sqrtf(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+    double tau[3] = {0, 0, 0};
+    if (dist > 0.0f) {
+        for (int c = 0; c < 3; c++)
+            w[c] /= dist;
+        nc_fog_one_optical_depth(f, v->fog, x, w, dist, tau, scratch);
+    }
+    float *out = v->tau + 3 * (((size_t)k * v->n[1] + j) * v->n[0] + i);
+    for (int c = 0; c < 3; c++)
+        out[c] = cap_tau(tau[c]);
+}
+
+void nc_light_volume_build(const nc_fog_field *f, nc_light_volume *v, int threads)
+{
+    (void)threads;
+    if (v->directional) {
+        int64_t cols = (int64_t)v->n[0] * v->n[1];
+#pragma omp parallel for schedule(dynamic, 8) num_threads(threads)
+        for (int64_t c = 0; c < cols; c++)
+            build_column(f, v, (uint32_t)(c % v->n[0]), (uint32_t)(c / v->n[0]));
+        return;
+    }
+    int64_t rows = (int64_t)v->n[1] * v->n[2];
+#pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
+    for (int64_t r = 0; r < rows; r++) {
+        float scratch[NC_FOG_TAU_SCRATCH(256)];
+        for (uint32_t i = 0; i < v->n[0]; i++)
+            build_node(f, v, i, (uint32_t)(r % v->n[1]), (uint32_t)(r / v->n[1]), scratch);
+    }
+}
+
+/* Trilinear at grid coordinates g (node units, inside [0, n - 1] per axis). */
+static void trilinear(const nc_light_volume *v, const float g[3], float tau[3])
+{
+    uint32_t i0[3];
+    float t[3];
+    for (int k = 0; k < 3; k++) {
+        uint32_t i = (uint32_t)g[k];
+        i0[k] = i + 1 < v->n[k] ? i : v->n[k] - 2;
+        t[k] = g[k] - (float)i0[k];
+    }
+    size_t sx = 3, sy = 3 * (size_t)v->n[0], sz = sy * v->n[1];
+    const float *p = v->tau + i0[0] * sx + i0[1] * sy + i0[2] * sz;
+    for (int c = 0; c < 3; c++) {
+        const float *q = p + c;
+        float a = q[0] + t[0] * (q[sx] - q[0]), b = q[sy] + t[0] * (q[sy + sx] - q[sy]);
+        float e = q[sz] + t[0] * (q[sz + sx] - q[sz]), h = q[sz + sy] + t[0] * (q[sz + sy + sx] - q[sz + sy]);
+        float ab = a + t[1] * (b - a), eh = e + t[1] * (h - e);
+        tau[c] = ab + t[2] * (eh - ab);
+    }
+}
+
+void nc_light_volume_lookup(const nc_light_volume *v, const float x[3], float tau[3])
+{
+    tau[0] = tau[1] = tau[2] = 0.0f;
+    float g[3];
+    bool inside = true;
+    for (int k = 0; k < 3; k++) {
+        float c = v->axes[k][0] * x[0] + v->axes[k][1] * x[1] + v->axes[k][2] * x[2] + v->offset[k];
+        g[k] = (c - v->lo[k]) * v->inv_step[k];
+        float top = (float)(v->n[k] - 1);
+        inside = inside && g[k] >= 0.0f && g[k] <= top;
+    }
+    if (v->directional) {
+        /* Beside the columns: the ray misses the box; before or past a column: its ends. */
+        if (!(g[0] >= 0.0f && g[0] <= (float)(v->n[0] - 1) && g[1] >= 0.0f && g[1] <= (float)(v->n[1] - 1)))
+            return;
+        float top = (float)(v->n[2] - 1);
+        g[2] = g[2] > 0.0f ? (g[2] < top ? g[2] : top) : 0.0f;
+        trilinear(v, g, tau);
+        return;
+    }
+    if (!inside) {
+        /* Outside the box: where the segment to the light enters it (a slab test in the grid's
+         * frame; for a sphere too: no fog of this one lies between the box and the sphere). */
+        float a = 0.0f, b = 1.0f, c[3], d[3];
+        for (int k = 0; k < 3; k++) {
+            c[k] = g[k] * v->step[k] + v->lo[k];
+            d[k] = v->light[k] - c[k];
+            float top = v->lo[k] + v->step[k] * (float)(v->n[k] - 1);
+            if (d[k] == 0.0f) {
+                if (c[k] < v->lo[k] || c[k] > top)
+                    return;
+                continue;
+            }
+            float inv = 1.0f / d[k], t0 = (v->lo[k] - c[k]) * inv, t1 = (top - c[k]) * inv;
+            if (t0 > t1) {
+                float u = t0;
+                t0 = t1;
+                t1 = u;
+            }
+            a = t0 > a ? t0 : a;
+            b = t1 < b ? t1 : b;
+        }
+        if (!(a < b))
+            return;
+        for (int k = 0; k < 3; k++) {
+            float top = (float)(v->n[k] - 1), gk = (c[k] + a * d[k] - v->lo[k]) * v->inv_step[k];
+            g[k] = gk > 0.0f ? (gk < top ? gk : top) : 0.0f;
+        }
+    }
+    trilinear(v, g, tau);
+}
