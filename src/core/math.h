@@ -86,6 +86,39 @@ static inline nc_vec3 nc_vmax(nc_vec3 a, nc_vec3 b)
 {
     return nc_v3(fmaxf(a.x, b.x), fmaxf(a.y, b.y), fmaxf(a.z, b.z));
 }
+/* Slab test of the ray o + t d against the box [lo, hi], narrowing [*t0, *t1] (pass the range of
+ * t to search, e.g. -inf..inf or 0..1 for a segment). *axis (when not NULL) gets the axis whose
+ * plane the ray enters by, -1 if none narrowed *t0. False when the ray runs parallel to and
+ * outside a slab; otherwise the caller tests the interval (empty when *t1 < *t0). */
+static inline bool nc_ray_box(const float o[3], const float d[3], const float lo[3], const float hi[3], float *t0,
+                              float *t1, int *axis)
+{
+    int ax = -1;
+    for (int k = 0; k < 3; k++) {
+        if (d[k] == 0.0f) {
+            if (o[k] < lo[k] || o[k] > hi[k])
+                return false;
+            continue;
+        }
+        float inv = 1.0f / d[k];
+        float a = (lo[k] - o[k]) * inv, b = (hi[k] - o[k]) * inv;
+        if (a > b) {
+            float tmp = a;
+            a = b;
+            b = tmp;
+        }
+        if (a > *t0) {
+            *t0 = a;
+            ax = k;
+        }
+        if (b < *t1)
+            *t1 = b;
+    }
+    if (axis)
+        *axis = ax;
+    return true;
+}
+
 /* A unit vector perpendicular to unit n (Duff et al. 2017 branchless frame). */
 static inline void nc_basis(nc_vec3 n, nc_vec3 *t, nc_vec3 *b)
 {

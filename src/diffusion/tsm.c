@@ -164,32 +164,10 @@ static bool ray_box(const float o[3], const float d[3], const float lo[3], const
                     float *tout, int *axis)
 {
     float t0 = -INFINITY, t1 = INFINITY;
-    int ax = -1;
-    for (int k = 0; k < 3; k++) {
-        if (d[k] == 0.0f) {
-            if (o[k] < lo[k] || o[k] > hi[k])
-                return false;
-            continue;
-        }
-        float inv = 1.0f / d[k];
-        float a = (lo[k] - o[k]) * inv, b = (hi[k] - o[k]) * inv;
-        if (a > b) {
-            float tmp = a;
-            a = b;
-            b = tmp;
-        }
-        if (a > t0) {
-            t0 = a;
-            ax = k;
-        }
-        if (b < t1)
-            t1 = b;
-    }
-    if (!(t1 >= t0) || t1 <= 0.0f)
+    if (!nc_ray_box(o, d, lo, hi, &t0, &t1, axis) || !(t1 >= t0) || t1 <= 0.0f)
         return false;
     *tin = t0;
     *tout = t1;
-    *axis = ax;
     return true;
 }
 

@@ -3,6 +3,7 @@
  * (light_volume.h; seed 003 §2.2.3, the fog's shadow on itself).
  */
 #include "volume/light_volume.h"
+#include "core/math.h"
 
 #include "scene/medium.h"
 
@@ -221,26 +222,13 @@ void nc_light_volume_lookup(const nc_light_volume *v, const float x[3], float ta
     if (!inside) {
         /* Outside the box: where the segment to the light enters it (a slab test in the grid's
          * frame; for a sphere too: no fog of this one lies between the box and the sphere). */
-        float a = 0.0f, b = 1.0f, c[3], d[3];
+        float a = 0.0f, b = 1.0f, c[3], d[3], top[3];
         for (int k = 0; k < 3; k++) {
             c[k] = g[k] * v->step[k] + v->lo[k];
             d[k] = v->light[k] - c[k];
-            float top = v->lo[k] + v->step[k] * (float)(v->n[k] - 1);
-            if (d[k] == 0.0f) {
-                if (c[k] < v->lo[k] || c[k] > top)
-                    return;
-                continue;
-            }
-            float inv = 1.0f / d[k], t0 = (v->lo[k] - c[k]) * inv, t1 = (top - c[k]) * inv;
-            if (t0 > t1) {
-                float u = t0;
-                t0 = t1;
-                t1 = u;
-            }
-            a = t0 > a ? t0 : a;
-            b = t1 < b ? t1 : b;
+            top[k] = v->lo[k] + v->step[k] * (float)(v->n[k] - 1);
         }
-        if (!(a < b))
+        if (!nc_ray_box(c, d, v->lo, top, &a, &b, NULL) || !(a < b))
             return;
         for (int k = 0; k < 3; k++) {
             float top = (float)(v->n[k] - 1), gk = (c[k] + a * d[k] - v->lo[k]) * v->inv_step[k];
