@@ -11,7 +11,8 @@
  *            1.156, 1.080);
  *   checker: mean ratio in [0.95, 1.08], the G - B checker signal correlated with the truth's at
  *            0.3 or more (0.12 when voxels sampled the pattern at the nearest surface point),
- *            darkest quarter at most 1.45, and its contrast (check_contrast).
+ *            darkest quarter at most 1.45, and its contrast over the whole object (check_contrast)
+ *            and per visible face, with the faces' means (check_faces, issue 28's targets).
  * Both at the default settings: single scattering per pixel is then off on the homogeneous sphere
  * and on for the patterned checker (check_auto).
  * The measures are nacre_image_compare's lit-pixel ones. The path tracer's noise at this sample
@@ -26,8 +27,8 @@
 #define SIZE 48
 #define SPP 48
 
-static bool render_with(nacre_context *ctx, const char *name, nacre_method method, nacre_single_scattering single,
-                        uint32_t seed, nacre_image *out)
+static bool render_sized(nacre_context *ctx, const char *name, nacre_method method, nacre_single_scattering single,
+                         uint32_t seed, int size, uint32_t spp, nacre_image *out)
 {
     char path[2048];
     snprintf(path, sizeof(path), "%s/examples/%s", NACRE_SOURCE_DIR, name);
@@ -39,9 +40,9 @@ static bool render_with(nacre_context *ctx, const char *name, nacre_method metho
     }
     nacre_render_settings rs = fs.render;
     rs.method = method;
-    rs.width = rs.height = SIZE;
+    rs.width = rs.height = size;
     rs.diffusion.voxel_resolution = 32;
-    rs.pathtrace.spp = SPP;
+    rs.pathtrace.spp = spp;
     rs.pathtrace.seed = seed;
     rs.diffusion.single_scattering = single;
     bool ok = nacre_scene_commit(scene, fs.time) == NACRE_OK && nacre_render(scene, &rs, out, NULL) == NACRE_OK;
@@ -49,6 +50,12 @@ static bool render_with(nacre_context *ctx, const char *name, nacre_method metho
         printf("%s: %s\n", name, nacre_context_last_error(ctx));
     nacre_scene_destroy(scene);
     return ok;
+}
+
+static bool render_with(nacre_context *ctx, const char *name, nacre_method method, nacre_single_scattering single,
+                        uint32_t seed, nacre_image *out)
+{
+    return render_sized(ctx, name, method, single, seed, SIZE, SPP, out);
 }
 
 static bool render(nacre_context *ctx, const char *name, nacre_method method, nacre_image *out)
@@ -219,6 +226,76 @@ static void check_auto(nacre_context *ctx)
     nacre_image_free(ctx, &b);
 }
 
+/* The visible face of the checker cube ([-0.5, 0.5]^3) under pixel (x, y) of a w x h image from
+ * examples/accuracy_checker.json's camera (position (2.4, -3.2, 2), target the origin, z up, 30
+ * degrees): 0 +X, 1 -Y, 2 +Z, -1 for a miss or a point within 0.03 of an edge (as
+ * scripts/face_stats.c). */
+static int checker_face(int x, int y, int w, int h)
+{
+    const double pos[3] = {2.4, -3.2, 2.0}, dist = sqrt(2.4 * 2.4 + 3.2 * 3.2 + 2.0 * 2.0);
+    const double f[3] = {-pos[0] / dist, -pos[1] / dist, -pos[2] / dist};
+    double r[3] = {f[1], -f[0], 0.0}; /* f x up, up = z */
+    const double rl = sqrt(r[0] * r[0] + r[1] * r[1]);
+    r[0] /= rl, r[1] /= rl;
+    const double u[3] = {r[1] * f[2] - r[2] * f[1], r[2] * f[0] - r[0] * f[2], r[0] * f[1] - r[1] * f[0]};
+    const double tf = tan(15.0 * 3.14159265358979323846 / 180.0);
+    const double sx = (2.0 * (x + 0.5) / w - 1.0) * tf * w / h, sy = (1.0 - 2.0 * (y + 0.5) / h) * tf;
+    double d[3];
+    for (int k = 0; k < 3; k++)
+        d[k] = f[k] + sx * r[k] + sy * u[k];
+    double t0 = -1e30, t1 = 1e30;
+    int axis = -1;
+    for (int k = 0; k < 3; k++) {
+        double a = (-0.5 - pos[k]) / d[k], b = (0.5 - pos[k]) / d[k];
+        if (a > b) {
+            double t = a;
+            a = b;
+            b = t;
+        }
+        if (a > t0)
+            t0 = a, axis = k;
+        t1 = b < t1 ? b : t1;
+    }
+    if (!(t0 < t1))
+        return -1;
+    for (int k = 0; k < 3; k++)
+        if (k != axis && fabs(pos[k] + t0 * d[k]) > 0.47)
+            return -1;
+    return axis; /* +X, -Y, +Z are the faces this camera sees: axis 0, 1, 2 */
+}
+
+/* Per visible face of the checker: the noise-free G - B contrast sqrt(var(d) / cov(p1, p2)) and
+ * correlation cov(d, p1) / sqrt(var(d) cov(p1, p2)) over the face's pixels. */
+static void face_contrast(const nacre_image *d, const nacre_image *p1, const nacre_image *p2, double contrast[3],
+                          double corr[3], double ratio[3][3])
+{
+    double s[3][3] = {{0}}, sdd[3] = {0}, sd1[3] = {0}, s12[3] = {0}, md[3][3] = {{0}}, mp[3][3] = {{0}};
+    long n[3] = {0};
+    for (int y = 0; y < d->height; y++)
+        for (int x = 0; x < d->width; x++) {
+            const int k = checker_face(x, y, d->width, d->height);
+            if (k < 0)
+                continue;
+            const float *a = d->pixels + (size_t)y * d->stride + 3 * (size_t)x;
+            const float *b = p1->pixels + (size_t)y * p1->stride + 3 * (size_t)x;
+            const float *c = p2->pixels + (size_t)y * p2->stride + 3 * (size_t)x;
+            const double ga = a[1] - a[2], gb = b[1] - b[2], gc = c[1] - c[2];
+            s[k][0] += ga, s[k][1] += gb, s[k][2] += gc;
+            sdd[k] += ga * ga, sd1[k] += ga * gb, s12[k] += gb * gc;
+            for (int c2 = 0; c2 < 3; c2++)
+                md[k][c2] += a[c2], mp[k][c2] += 0.5 * ((double)b[c2] + c[c2]);
+            n[k]++;
+        }
+    for (int k = 0; k < 3; k++) {
+        const double N = n[k] > 1 ? (double)n[k] : 1.0, ma = s[k][0] / N, mb = s[k][1] / N, mc = s[k][2] / N;
+        const double vd = sdd[k] / N - ma * ma, c1 = sd1[k] / N - ma * mb, truth = s12[k] / N - mb * mc;
+        contrast[k] = truth > 0.0 && vd >= 0.0 ? sqrt(vd / truth) : 0.0;
+        corr[k] = truth > 0.0 && vd > 0.0 ? c1 / sqrt(vd * truth) : 0.0;
+        for (int c2 = 0; c2 < 3; c2++)
+            ratio[k][c2] = mp[k][c2] > 0.0 ? md[k][c2] / mp[k][c2] : 0.0;
+    }
+}
+
 /* The checker's contrast by default (single scattering per pixel, AUTO on a patterned medium):
  * the noise-free forms of scripts/face_stats.c over the whole object, the truth's signal variance
  * being the covariance of two path-traced references of independent seeds (their noise is
@@ -255,6 +332,45 @@ static void check_contrast(nacre_context *ctx)
     nacre_image_free(ctx, &p2);
 }
 
+/* Issue 28's checker targets per visible face, by default: the noise-free contrast at least
+ * FACE_CONTRAST_MIN (it measures 0.96-1.03; 0.55-0.58 with single scattering off, so the check
+ * fails without it; the issue asks 0.5), the right way round (correlation at least 0.6: 0.82-0.87)
+ * and the face's mean within 10% of the truth's (the mean of the two references) per channel. At
+ * 96^2 and 192 spp the per-face estimates agree with docs/accuracy.md's at 128^2 and 600 spp
+ * within 0.07; at 48 spp they scattered by 0.5. */
+#define FACE_SIZE 96
+#define FACE_SPP 192
+#define FACE_CONTRAST_MIN 0.75
+static void check_faces(nacre_context *ctx)
+{
+    nacre_image d = {0}, off = {0}, p1 = {0}, p2 = {0};
+    const char *name = "accuracy_checker.json";
+    bool ok = render_sized(ctx, name, NACRE_METHOD_DIFFUSION, NACRE_SINGLE_SCATTERING_AUTO, 11, FACE_SIZE, FACE_SPP, &d) &&
+              render_sized(ctx, name, NACRE_METHOD_DIFFUSION, NACRE_SINGLE_SCATTERING_OFF, 11, FACE_SIZE, FACE_SPP, &off) &&
+              render_sized(ctx, name, NACRE_METHOD_PATHTRACE, NACRE_SINGLE_SCATTERING_AUTO, 11, FACE_SIZE, FACE_SPP, &p1) &&
+              render_sized(ctx, name, NACRE_METHOD_PATHTRACE, NACRE_SINGLE_SCATTERING_AUTO, 12, FACE_SIZE, FACE_SPP, &p2);
+    CHECK(ok);
+    if (ok) {
+        double fc[3], fr[3], oc[3], orr[3], m[3][3], mo[3][3];
+        face_contrast(&d, &p1, &p2, fc, fr, m);
+        face_contrast(&off, &p1, &p2, oc, orr, mo);
+        for (int k = 0; k < 3; k++) {
+            printf("checker face %s at %d^2, %d spp: G - B contrast %.3f (off %.3f), correlation %.3f (off %.3f), "
+                   "noise-free; mean ratio %.3f %.3f %.3f\n",
+                   k == 0 ? "+X" : k == 1 ? "-Y" : "+Z", FACE_SIZE, FACE_SPP, fc[k], oc[k], fr[k], orr[k], m[k][0],
+                   m[k][1], m[k][2]);
+            CHECK(fc[k] >= FACE_CONTRAST_MIN && fc[k] <= 1.5);
+            CHECK(fr[k] >= 0.6);
+            for (int c = 0; c < 3; c++)
+                CHECK(m[k][c] >= 0.9 && m[k][c] <= 1.1);
+        }
+    }
+    nacre_image_free(ctx, &d);
+    nacre_image_free(ctx, &off);
+    nacre_image_free(ctx, &p1);
+    nacre_image_free(ctx, &p2);
+}
+
 int main(void)
 {
     nacre_context *ctx = NULL;
@@ -270,6 +386,7 @@ int main(void)
     check_scene(ctx, "accuracy_checker.json", 0.95, 1.08, 1.45, 0.3);
     check_auto(ctx);
     check_contrast(ctx);
+    check_faces(ctx);
     nacre_context_destroy(ctx);
     return TEST_MAIN_END();
 }
