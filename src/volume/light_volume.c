@@ -10,21 +10,6 @@
 #include <math.h>
 #include <string.h>
 
-static void normalize3(float v[3])
-{
-    float l = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-    if (l > 0.0f)
-        for (int k = 0; k < 3; k++)
-            v[k] /= l;
-}
-
-static void cross3(const float a[3], const float b[3], float c[3])
-{
-    c[0] = a[1] * b[2] - a[2] * b[1];
-    c[1] = a[2] * b[0] - a[0] * b[2];
-    c[2] = a[0] * b[1] - a[1] * b[0];
-}
-
 /* World point of fog-local q (w2l is a rotation and a translation: its inverse is the transpose). */
 static void local_to_world(const nc_fog_one *o, const float q[3], float x[3])
 {
@@ -43,16 +28,12 @@ void nc_light_volume_setup(nc_light_volume *v, const nc_fog_one *o, bool directi
     v->n[0] = v->n[1] = v->n[2] = res;
     float hi[3];
     if (directional) {
-        float d[3] = {dir[0], dir[1], dir[2]}, e1[3], e2[3];
-        normalize3(d);
-        float helper[3] = {0.0f, 0.0f, 0.0f};
-        helper[fabsf(d[1]) < 0.9f ? 1 : 0] = 1.0f;
-        cross3(helper, d, e1);
-        normalize3(e1);
-        cross3(d, e1, e2);
-        memcpy(v->axes[0], e1, sizeof(e1));
-        memcpy(v->axes[1], e2, sizeof(e2));
-        memcpy(v->axes[2], d, sizeof(d));
+        const nc_vec3 d = nc_normalize(nc_v3a(dir));
+        const nc_vec3 helper = fabsf(d.y) < 0.9f ? nc_v3(0.0f, 1.0f, 0.0f) : nc_v3(1.0f, 0.0f, 0.0f);
+        const nc_vec3 e1 = nc_normalize(nc_cross(helper, d));
+        nc_v3store(e1, v->axes[0]);
+        nc_v3store(nc_cross(d, e1), v->axes[1]);
+        nc_v3store(d, v->axes[2]);
         /* The light-space bounds of the box's corners. */
         for (int k = 0; k < 3; k++) {
             v->lo[k] = INFINITY;

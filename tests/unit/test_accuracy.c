@@ -18,6 +18,7 @@
  * The measures are nacre_image_compare's lit-pixel ones. The path tracer's noise at this sample
  * count moves the ratios by well under 1%.
  */
+#include "core/math.h"
 #include "test_util.h"
 
 #include <nacre/nacre.h>
@@ -240,26 +241,18 @@ static int checker_face(int x, int y, int w, int h)
     const double u[3] = {r[1] * f[2] - r[2] * f[1], r[2] * f[0] - r[0] * f[2], r[0] * f[1] - r[1] * f[0]};
     const double tf = tan(15.0 * 3.14159265358979323846 / 180.0);
     const double sx = (2.0 * (x + 0.5) / w - 1.0) * tf * w / h, sy = (1.0 - 2.0 * (y + 0.5) / h) * tf;
-    double d[3];
-    for (int k = 0; k < 3; k++)
-        d[k] = f[k] + sx * r[k] + sy * u[k];
-    double t0 = -1e30, t1 = 1e30;
-    int axis = -1;
+    float o[3], d[3];
     for (int k = 0; k < 3; k++) {
-        double a = (-0.5 - pos[k]) / d[k], b = (0.5 - pos[k]) / d[k];
-        if (a > b) {
-            double t = a;
-            a = b;
-            b = t;
-        }
-        if (a > t0)
-            t0 = a, axis = k;
-        t1 = b < t1 ? b : t1;
+        o[k] = (float)pos[k];
+        d[k] = (float)(f[k] + sx * r[k] + sy * u[k]);
     }
-    if (!(t0 < t1))
+    const float lo[3] = {-0.5f, -0.5f, -0.5f}, hi[3] = {0.5f, 0.5f, 0.5f};
+    float t0 = -INFINITY, t1 = INFINITY;
+    int axis = -1;
+    if (!nc_ray_box(o, d, lo, hi, &t0, &t1, &axis) || !(t0 < t1) || axis < 0)
         return -1;
     for (int k = 0; k < 3; k++)
-        if (k != axis && fabs(pos[k] + t0 * d[k]) > 0.47)
+        if (k != axis && fabsf(o[k] + t0 * d[k]) > 0.47f)
             return -1;
     return axis; /* +X, -Y, +Z are the faces this camera sees: axis 0, 1, 2 */
 }

@@ -102,16 +102,24 @@ static void run_inject(fixture *f, nc_diff_object *o, uint32_t res, int32_t tsm,
     nc_tsm_band_free(f->ctx, &band);
 }
 
+/* A 10 mm cube of thick_medium lit along -z by add_light's sun of strength 2; the material
+ * is returned. */
+static nacre_material_desc add_lit_cube(fixture *f)
+{
+    nacre_material_desc md = thick_medium();
+    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_BOX);
+    sd.size[0] = sd.size[1] = sd.size[2] = 10.0f;
+    add_shape(f, sd, add_material(f, &md), NULL);
+    add_light(f, NACRE_LIGHT_DIRECTIONAL, nc_v3(0, 0, -1), nc_v3(0, 0, 0), 2.0f);
+    return md;
+}
+
 /* An axis-aligned cube lit along -z: the map sees exactly the top face. */
 static void test_cube_power(void)
 {
     fixture f;
     fx_init(&f);
-    nacre_material_desc md = thick_medium();
-    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_BOX);
-    sd.size[0] = sd.size[1] = sd.size[2] = 10.0f;
-    add_shape(&f, sd, add_material(&f, &md), NULL);
-    add_light(&f, NACRE_LIGHT_DIRECTIONAL, nc_v3(0, 0, -1), nc_v3(0, 0, 0), 2.0f);
+    const nacre_material_desc md = add_lit_cube(&f);
     const float E[3] = {2.0f, 1.0f, 0.5f};
     double ft = 1.0 - nc_fresnel_dielectric(1.0, md.eta);
 
@@ -1010,11 +1018,7 @@ static void test_single_scattering(void)
 {
     fixture f;
     fx_init(&f);
-    nacre_material_desc md = thick_medium();
-    nacre_shape_desc sd = nacre_shape_desc_defaults(NACRE_SHAPE_BOX);
-    sd.size[0] = sd.size[1] = sd.size[2] = 10.0f;
-    add_shape(&f, sd, add_material(&f, &md), NULL);
-    add_light(&f, NACRE_LIGHT_DIRECTIONAL, nc_v3(0, 0, -1), nc_v3(0, 0, 0), 2.0f);
+    const nacre_material_desc md = add_lit_cube(&f);
     const float E[3] = {2.0f, 1.0f, 0.5f};
     nc_diff_object o;
     memset(&o, 0, sizeof(o));

@@ -485,18 +485,26 @@ static void test_maps_and_fish(void)
     CHECK_NEAR(fish.layering.layers[0].g, 0.25, 1e-6);
 }
 
+/* examples/layered.json, loaded and committed at time 0 (NULL on failure, which is checked). */
+static nacre_scene *load_layered_example(nacre_scene_file_settings *fs)
+{
+    nacre_scene *s = NULL;
+    CHECK(nacre_scene_load_file(ctx, NACRE_SOURCE_DIR "/examples/layered.json", &s, fs) == NACRE_OK);
+    if (s)
+        CHECK(nacre_scene_commit(s, 0) == NACRE_OK);
+    return s;
+}
+
 /* Half resolution: a pixel is interpolated only where its marched neighbours agree within the
  * tolerance, so the image stays close to the full one: on the layered sphere of the example (vein
  * map, curved surface, silhouettes), the interpolated pixels' mean relative error stays below the
  * tolerance and the whole object's below a tenth of it; 0 gives the full image. */
 static void test_half_res(void)
 {
-    nacre_scene *s = NULL;
     nacre_scene_file_settings fs;
-    CHECK(nacre_scene_load_file(ctx, NACRE_SOURCE_DIR "/examples/layered.json", &s, &fs) == NACRE_OK);
+    nacre_scene *s = load_layered_example(&fs);
     if (!s)
         return;
-    CHECK(nacre_scene_commit(s, 0) == NACRE_OK);
     nacre_render_settings rs = fs.render;
     rs.method = NACRE_METHOD_LAYERED;
     rs.width = 200;
@@ -567,12 +575,10 @@ static void test_half_res(void)
  * renderer, which marches from scratch. */
 static void test_rays_kept(void)
 {
-    nacre_scene *s = NULL;
     nacre_scene_file_settings fs;
-    CHECK(nacre_scene_load_file(ctx, NACRE_SOURCE_DIR "/examples/layered.json", &s, &fs) == NACRE_OK);
+    nacre_scene *s = load_layered_example(&fs);
     if (!s)
         return;
-    CHECK(nacre_scene_commit(s, 0) == NACRE_OK);
     nacre_renderer *r = NULL;
     CHECK(nacre_renderer_create(ctx, &r) == NACRE_OK);
     nacre_render_settings rs = fs.render;
