@@ -467,6 +467,28 @@ static inline nc_v8f v8_sqrt_fast(nc_v8f x)
 #endif
 }
 
+/* Particle q's chord along 8 rays with parameter t of the closest point and squared distance rho2
+ * from its centre, on the lanes of m: false when no lane's chord is within the sphere and in front
+ * of the surface at ts; otherwise the lanes that are (*m), the Gaussian column weight of each (*w,
+ * 0 elsewhere) and the chord [*lo, *hi]. */
+static inline __attribute__((always_inline)) bool chord(const float *q, nc_v8f t, nc_v8f rho2, nc_v8f ts,
+                                                       nc_v8i *m, nc_v8f *w, nc_v8f *lo, nc_v8f *hi)
+{
+    const nc_v8f zero = nc_v8_splat(0.0f);
+    *m &= rho2 < q[3];
+    if (!nc_v8_bits(*m))
+        return false;
+    rho2 = v8_max(rho2, zero);
+    const nc_v8f h = v8_sqrt_fast(q[3] - rho2);
+    *lo = t - h;
+    *m &= ~(*lo > ts);
+    if (!nc_v8_bits(*m))
+        return false;
+    *w = nc_v8_sel(*m, nc_billboard_exp8(rho2 * -q[4]), zero);
+    *hi = t + h;
+    return true;
+}
+
 /* One row of 8 pixels of a tile against the tile's particles (index order). With one system
  * (`one`), the sums of tau_t and tau_s are its coefficients times the sum of the columns, so a
  * single sum is kept and scaled at the end. */
@@ -499,15 +521,10 @@ static inline __attribute__((always_inline)) void accumulate_row(const pp_state 
             t = vx * dx + vy * dy + vz * dz;
             rho2 = vx * vx + vy * vy + vz * vz - t * t;
         }
-        nc_v8i m = (rho2 < q[3]) & (lane >= rc[0]) & (lane <= rc[1]);
-        if (!nc_v8_bits(m))
+        nc_v8i m = (lane >= rc[0]) & (lane <= rc[1]);
+        nc_v8f w, lo, hi;
+        if (!chord(q, t, rho2, ts, &m, &w, &lo, &hi))
             continue;
-        rho2 = v8_max(rho2, zero);
-        const nc_v8f h = v8_sqrt_fast(q[3] - rho2), lo = t - h;
-        m &= ~(lo > ts);
-        if (!nc_v8_bits(m))
-            continue;
-        const nc_v8f w = nc_v8_sel(m, nc_billboard_exp8(rho2 * -q[4]), zero);
         if (one) {
             a0 += q[11] * w;
         } else {
@@ -515,7 +532,7 @@ static inline __attribute__((always_inline)) void accumulate_row(const pp_state 
             s0 += q[8] * w, s1 += q[9] * w, s2 += q[10] * w;
         }
         nr = nc_v8_sel(m, v8_min(nr, lo), nr);
-        fa = nc_v8_sel(m, v8_max(fa, t + h), fa);
+        fa = nc_v8_sel(m, v8_max(fa, hi), fa);
     }
     if (one) {
         const pp_system *sy = &st->sys_table[0];
@@ -560,19 +577,13 @@ static void accumulate_rows(const pp_state *st, const pp_frame *fr, uint32_t e0,
             const nc_v8f dx = nc_v8_load(p + 2 * plane), dy = nc_v8_load(p + 3 * plane);
             const nc_v8f dz = nc_v8_load(p + 4 * plane), ts = nc_v8_load(p + 5 * plane);
             const nc_v8f t = q[0] * dx + q[1] * dy + q[2] * dz;
-            nc_v8f rho2 = q[12] - t * t;
-            nc_v8i m = (rho2 < q[3]) & xm;
-            if (!nc_v8_bits(m))
+            nc_v8i m = xm;
+            nc_v8f w, lo, hi;
+            if (!chord(q, t, q[12] - t * t, ts, &m, &w, &lo, &hi))
                 continue;
-            rho2 = v8_max(rho2, zero);
-            const nc_v8f h = v8_sqrt_fast(q[3] - rho2), lo = t - h;
-            m &= ~(lo > ts);
-            if (!nc_v8_bits(m))
-                continue;
-            const nc_v8f w = nc_v8_sel(m, nc_billboard_exp8(rho2 * -q[4]), zero);
             a[r] += q[11] * w;
             nr[r] = nc_v8_sel(m, v8_min(nr[r], lo), nr[r]);
-            fa[r] = nc_v8_sel(m, v8_max(fa[r], t + h), fa[r]);
+            fa[r] = nc_v8_sel(m, v8_max(fa[r], hi), fa[r]);
         }
     }
     const pp_system *sy = &st->sys_table[0];
