@@ -51,7 +51,7 @@ static const char iso_fmt[] =
     " \"lifetime\": 1, \"velocity\": [0, 0, 0], \"spread\": 0, \"radius\": 5, \"radius_jitter\": 0.4, \"seed\": 3,"
     " \"sigma_a\": [0.001, 0.008, 0.03], \"sigma_s\": [0.06, 0.05, 0.035], \"g\": 0.2, \"grid_resolution\": 96%s}]}";
 
-#define NCOL 7 /* simulate, splat, commit, billboards, sprites, march, voxel frame */
+#define NCOL 11 /* simulate, splat, commit, billboards, sprites, march, voxel frame, march stages */
 
 static double median_of(double *v, int n) { return nc_tool_median(v, n); }
 
@@ -173,6 +173,10 @@ int nc_bench_particles(bool json, int runs, const char *only)
                                   st.stage_us[NACRE_STAGE_FROXEL_INTEGRATE] + st.stage_us[NACRE_STAGE_FROXEL_APPLY]) /
                          1000.0;
                 row[6] = row[0] + row[1] + row[5];
+                const nacre_stage ms[4] = {NACRE_STAGE_FROXEL_FILL, NACRE_STAGE_FROXEL_LIGHT,
+                                           NACRE_STAGE_FROXEL_INTEGRATE, NACRE_STAGE_FROXEL_APPLY};
+                for (int m = 0; m < 4; m++)
+                    row[7 + m] = (double)st.stage_us[ms[m]] / 1000.0;
             }
         }
         uint32_t alive = nacre_scene_particles_alive(scene, (nacre_particles){1});
@@ -199,9 +203,10 @@ int nc_bench_particles(bool json, int runs, const char *only)
                        "\"cells_written_per_particle\":%.0f,"
                        "\"grid\":128,\"width\":1280,\"height\":720,\"threads\":%d,\"runs\":%d,\"simulate_ms\":%.3f,"
                        "\"splat_ms\":%.3f,\"commit_ms\":%.3f,\"billboards_ms\":%.3f,\"sprites_ms\":%.3f,"
-                       "\"march_ms\":%.3f,\"voxel_frame_ms\":%.3f}\n",
+                       "\"march_ms\":%.3f,\"voxel_frame_ms\":%.3f,\"march_stages_ms\":{\"fill\":%.3f,"
+                       "\"light\":%.3f,\"integrate\":%.3f,\"apply\":%.3f}}\n",
                        alive, cases[k].label, cells, written, nacre_context_threads(ctx), runs, med[0], med[1], med[2], med[3],
-                       med[4], med[5], med[6]);
+                       med[4], med[5], med[6], med[7], med[8], med[9], med[10]);
             else
                 printf("%-10u %-6s %8.0f %10.3f %10.3f %10.3f %12.3f %10.3f %10.3f %12.3f\n", alive, cases[k].label,
                        cells, med[0], med[1], med[2], med[3], med[4], med[5], med[6]);
