@@ -1,8 +1,9 @@
 /*
  * bench_volumetrics.c: `nacre bench volumetrics`: the volumetric fog passes at 1280x720 over the
  * built-in demo scene (phong) with one shadowed directional light, four point lights, a global
- * height fog and a box fog whose density is a 128^3 volume (a procedural cloud; the issue's
- * OpenVDB cloud is not read by nacre). One renderer across frames, as a viewer, in three
+ * height fog and a box fog whose density is a 128^3 volume (a procedural cloud, made here so that
+ * the bench needs no file: a .vdb cloud is densified at load into the same kind of grid, so the
+ * froxel stages do the same work for either). One renderer across frames, as a viewer, in three
  * sequences: the camera turns a little every frame (every froxel stage and the analytic pass
  * run: the froxel_* and fog_pass keys), the sun turns (the fill is kept, the lighting and the
  * integration rerun), and nothing moves (the lit grid is kept; only apply runs). Medians of N
