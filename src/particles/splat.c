@@ -32,6 +32,9 @@
 
 #include <math.h>
 #include <string.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 
 /* Bricks of SLAB_LAYERS z layers x BRICK_ROWS rows: small, so that the cells a brick's
  * particles write stay in the core's cache (a slab of 16 whole layers of 128^2 is 1 MB); a
@@ -56,6 +59,8 @@ void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
     nc_free(ctx, g->weights);
     nc_free(ctx, g->woff);
     nc_free(ctx, g->level);
+    nc_free(ctx, g->fallback);
+    nc_free(ctx, g->bin_count);
     nc_free(ctx, g->coarse[0]);
     nc_free(ctx, g->coarse[1]);
     nc_free(ctx, g->dirty);
@@ -80,53 +85,66 @@ static inline int32_t lead(const float *data, int32_t x0)
     return (int32_t)(((uintptr_t)(data + x0) & 31u) / sizeof(float));
 }
 
-/* Kernel samples along one axis around centre c: lo..hi. A particle whose kernel misses every
- * sample centre (R under half a cell) takes the two samples around its centre instead. */
-static void axis_range(double c, double R, double origin, double h, int32_t n, int32_t *lo, int32_t *hi)
+/* Kernel samples along one axis around centre c: lo..hi; returns whether the particle takes
+ * the fallback: its kernel misses every sample centre (R under half a cell), so it takes the two
+ * samples around its centre instead. */
+static bool axis_range(double c, double R, double origin, double h, int32_t n, int32_t *lo, int32_t *hi)
 {
     double f = (c - origin) / h;
     int32_t a = (int32_t)ceil(f - R / h), b = (int32_t)floor(f + R / h);
     a = a < 0 ? 0 : a;
     b = b > n - 1 ? n - 1 : b;
-    if (a > b) {
+    const bool fallback = a > b;
+    if (fallback) {
         a = (int32_t)floor(f);
         a = a < 0 ? 0 : (a > n - 2 ? n - 2 : a);
         b = a + 1;
     }
     *lo = a;
     *hi = b;
+    return fallback;
 }
 
-/* The weights of samples lo..hi (axis_range of the same arguments) into w; returns their sum.
+/* Whole 8-lane vectors of weights an axis of m samples takes in the weights array. */
+static inline int32_t padded(int32_t m) { return (m + 7) / 8 * 8; }
+
+/* The weights of samples lo..hi (axis_range of the same arguments, which said whether this is
+ * the fallback) into w, 0 after them up to padded(hi - lo + 1); returns their sum. inv = 1 / R.
  * Linear weights for the fallback's two samples. */
-static float axis_weights(double c, double R, double origin, double h, int32_t n, int32_t lo, int32_t hi, float *w)
+static float axis_weights(double c, double inv, double origin, double h, bool fallback, int32_t lo, int32_t hi,
+                          float *w)
 {
-    double f = (c - origin) / h;
-    int32_t a = (int32_t)ceil(f - R / h), b = (int32_t)floor(f + R / h);
-    a = a < 0 ? 0 : a;
-    b = b > n - 1 ? n - 1 : b;
-    if (a > b) {
-        float fr = (float)(f - lo);
+    const int32_t m = hi - lo + 1;
+    if (fallback) {
+        float fr = (float)((c - origin) / h - lo);
         fr = fr < 0.0f ? 0.0f : (fr > 1.0f ? 1.0f : fr);
+        memset(w, 0, (size_t)padded(m) * sizeof(float));
         w[0] = 1.0f - fr;
         w[1] = fr;
         return 1.0f;
     }
-    const double inv = 1.0 / R;
-    const int32_t m = hi - lo + 1;
-    for (int32_t i = lo; i <= hi; i++)
-        w[i - lo] = (float)((origin + i * h - c) * inv);
-    /* nc_fast_exp 8 lanes at a time (the same steps), the tail in scalar form. */
-    int32_t q = 0;
-    for (; q + 8 <= m; q += 8) {
-        const nc_v8f t = nc_v8_load(w + q);
-        nc_v8_store(w + q, nc_billboard_exp8(nc_v8_splat(-NC_PARTICLE_KERNEL_A) * t * t));
-    }
-    for (; q < m; q++)
-        w[q] = nc_fast_exp(-NC_PARTICLE_KERNEL_A * w[q] * w[q]);
+    /* Each offset (in double, rounded to float) goes from registers into the 8-lane exponential:
+     * written to memory as the 4-lane halves the conversion gives and read back as 8 lanes, the
+     * load could not take them from the store buffer and waited for both stores. The steps and
+     * roundings are those of the scalar form, weight by weight. */
+    typedef double v4d __attribute__((vector_size(32)));
+    typedef float v4f __attribute__((vector_size(16)));
+    const v4d iota = {0.0, 1.0, 2.0, 3.0};
     float sum = 0.0f;
-    for (q = 0; q < m; q++)
-        sum += w[q];
+    for (int32_t q = 0; q < m; q += 8) {
+        const v4d i0 = (double)(lo + q) + iota, i1 = i0 + 4.0;
+        const v4f t0 = __builtin_convertvector((origin + i0 * h - c) * inv, v4f);
+        const v4f t1 = __builtin_convertvector((origin + i1 * h - c) * inv, v4f);
+        const nc_v8f t = __builtin_shufflevector(t0, t1, 0, 1, 2, 3, 4, 5, 6, 7);
+        nc_v8f e = nc_billboard_exp8(nc_v8_splat(-NC_PARTICLE_KERNEL_A) * t * t);
+        /* Lanes past the last sample are 0 (the splat's rows read them); the sum adds the
+         * samples in index order, so it stays the same bit for bit. */
+        const int32_t live = m - q < 8 ? m - q : 8;
+        e = nc_v8_sel(nc_v8_first((uint32_t)live), e, nc_v8_splat(0.0f));
+        for (int32_t k = 0; k < live; k++)
+            sum += e[k];
+        nc_v8_store(w + q, e);
+    }
     return sum;
 }
 
@@ -175,7 +193,7 @@ static void splat_brick(const nc_particle_grid *g, float *data, uint32_t res, ui
         const int32_t *rg = g->range + 6 * (size_t)i;
         const int32_t ld = lead(data, rg[0]), x0 = rg[0] - ld, xn = rg[1] - rg[0] + 1 + ld;
         const int32_t px = (xn + 7) / 8 * 8;
-        const float *wx = g->weights + g->woff[i], *wy = wx + px, *wz = wy + (rg[3] - rg[2] + 1);
+        const float *wx = g->weights + g->woff[i], *wy = wx + px, *wz = wy + padded(rg[3] - rg[2] + 1);
         const float sc = g->scale[i];
         const int32_t za = rg[4] > (int32_t)z0 ? rg[4] : (int32_t)z0;
         const int32_t zb = rg[5] < (int32_t)z1 - 1 ? rg[5] : (int32_t)z1 - 1;
@@ -331,6 +349,7 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     ok = ok && ensure(ctx, (void **)&g->range, &g->range_capacity, 6 * (size_t)n, sizeof(int32_t));
     ok = ok && ensure(ctx, (void **)&g->scale, &g->scale_capacity, n, sizeof(float));
     ok = ok && ensure(ctx, (void **)&g->level, &g->level_capacity, n, sizeof(uint8_t));
+    ok = ok && ensure(ctx, (void **)&g->fallback, &g->fallback_capacity, n, sizeof(uint8_t));
     ok = ok && ensure(ctx, (void **)&g->woff, &g->woff_capacity, (size_t)n + 1, sizeof(size_t));
     ok = ok && ensure(ctx, (void **)&g->bin_start, &g->bin_start_capacity, (size_t)nb + 2, sizeof(uint32_t));
     if (!ok)
@@ -338,11 +357,13 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     float *const data_l[LEVELS] = {g->data, level_ok[1] ? g->coarse[0] : NULL, level_ok[2] ? g->coarse[1] : NULL};
     const double hmax = fmax(fmax(g->spacing[0], g->spacing[1]), g->spacing[2]);
 
-    /* Per particle: its level, its sample range per axis there, and where its weights go: x
-     * padded with zeros to whole 8-lane vectors that start on the level's 32-byte boundaries
-     * (lead(x0) zeros first), then y, then z. */
+    /* Per particle: its level, its sample range per axis there, and where its weights go:
+     * x padded with zeros to whole 8-lane vectors that start on the level's 32-byte boundaries
+     * (lead(x0) zeros first), then y, then z, each padded to whole vectors (the weights are
+     * computed 8 at a time). Whether an axis takes the fallback is kept for the weights. */
+    size_t entries = 0; /* particle-brick pairs: the bins' length */
 #ifdef _OPENMP
-#pragma omp parallel for schedule(static) num_threads(threads)
+#pragma omp parallel for schedule(static) num_threads(threads) reduction(+ : entries)
 #endif
     for (uint32_t i = 0; i < n; i++) {
         const double c[3] = {s->x[i], s->y[i], s->z[i]};
@@ -352,16 +373,21 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
         while (l + 1 < LEVELS && level_ok[l + 1] && s->radius[i] >= coarse_r[l] * hmax)
             l++;
         g->level[i] = (uint8_t)l;
+        uint8_t fb = 0;
         for (int a = 0; a < 3; a++) {
-            axis_range(c[a], s->radius[i], g->origin[a], g->spacing[a] * (double)(1 << l), (int32_t)res_l[l],
-                       &rg[2 * a], &rg[2 * a + 1]);
+            fb |= (uint8_t)(axis_range(c[a], s->radius[i], g->origin[a], g->spacing[a] * (double)(1 << l),
+                                       (int32_t)res_l[l], &rg[2 * a], &rg[2 * a + 1])
+                            << a);
             if (l) {
                 rg[2 * a] = rg[2 * a] > (int32_t)c_lo ? rg[2 * a] : (int32_t)c_lo;
                 rg[2 * a + 1] = rg[2 * a + 1] < (int32_t)c_hi[l] ? rg[2 * a + 1] : (int32_t)c_hi[l];
             }
         }
+        g->fallback[i] = fb;
         g->woff[i + 1] = (size_t)((lead(data_l[l], rg[0]) + rg[1] - rg[0] + 8) / 8 * 8) +
-                         (size_t)(rg[3] - rg[2] + 1) + (size_t)(rg[5] - rg[4] + 1);
+                         (size_t)padded(rg[3] - rg[2] + 1) + (size_t)padded(rg[5] - rg[4] + 1);
+        entries += ((uint32_t)rg[5] / SLAB_LAYERS - (uint32_t)rg[4] / SLAB_LAYERS + 1) *
+                   ((uint32_t)rg[3] / BRICK_ROWS - (uint32_t)rg[2] / BRICK_ROWS + 1);
     }
     g->woff[0] = 0;
     /* The coarse samples in use (a box per level and axis), so that a coarse pass costs nothing
@@ -395,63 +421,81 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
         return r;
     if (!ensure(ctx, (void **)&g->weights, &g->weight_capacity, g->woff[n], sizeof(float)))
         return NACRE_ERROR_OUT_OF_MEMORY;
+    if (!ensure(ctx, (void **)&g->bins, &g->bin_capacity, entries + 1, sizeof(uint32_t)) ||
+        !ensure(ctx, (void **)&g->bin_count, &g->bin_count_capacity, (size_t)threads * nb, sizeof(uint32_t)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
 
     /* The weights, and the factor that makes a particle's samples sum to its mass: on level l
-     * each sample spreads over the grid's samples with weights summing to 2^l per axis. */
+     * each sample spreads over the grid's samples with weights summing to 2^l per axis. Then the
+     * particles binned by brick of their level (SLAB_LAYERS z layers x BRICK_ROWS rows), in
+     * index order (a counting sort; the fine bricks' lists first, then each coarse level's): each
+     * thread counts and then places a run of consecutive particles, its places in a brick's list
+     * after those of the runs before it, so the lists do not depend on the thread count. */
     const double V = (double)g->spacing[0] * g->spacing[1] * g->spacing[2];
-#ifdef _OPENMP
-#pragma omp parallel for schedule(static) num_threads(threads)
-#endif
-    for (uint32_t i = 0; i < n; i++) {
-        const double c[3] = {s->x[i], s->y[i], s->z[i]};
-        const int32_t *rg = g->range + 6 * (size_t)i;
-        const int l = g->level[i];
-        const double k = (double)(1 << l);
-        float *w = g->weights + g->woff[i];
-        const int32_t nx = rg[1] - rg[0] + 1, ld = lead(data_l[l], rg[0]), px = (ld + nx + 7) / 8 * 8;
-        for (int32_t q = 0; q < ld; q++)
-            w[q] = 0.0f;
-        double sum = axis_weights(c[0], s->radius[i], g->origin[0], g->spacing[0] * k, (int32_t)res_l[l], rg[0], rg[1],
-                                  w + ld);
-        for (int32_t q = ld + nx; q < px; q++)
-            w[q] = 0.0f;
-        w += px;
-        sum *= axis_weights(c[1], s->radius[i], g->origin[1], g->spacing[1] * k, (int32_t)res_l[l], rg[2], rg[3], w);
-        w += rg[3] - rg[2] + 1;
-        sum *= axis_weights(c[2], s->radius[i], g->origin[2], g->spacing[2] * k, (int32_t)res_l[l], rg[4], rg[5], w);
-        double kr = (double)NC_PARTICLE_KERNEL_K * s->radius[i];
-        double mass = (double)s->density[i] * kr * kr * kr;
-        g->scale[i] = (float)(mass / (sum * V * k * k * k));
-    }
-
-    /* Bin particles by brick of their level (SLAB_LAYERS z layers x BRICK_ROWS rows), in index
-     * order (counting sort): the fine bricks' lists first, then each coarse level's. */
     uint32_t *start = g->bin_start;
-    memset(start, 0, ((size_t)nb + 1) * sizeof(uint32_t));
-    for (int pass = 0; pass < 2; pass++) {
-        for (uint32_t i = 0; i < n; i++) {
+#ifdef _OPENMP
+#pragma omp parallel num_threads(threads)
+#endif
+    {
+        int tid = 0, team = 1;
+#ifdef _OPENMP
+        tid = omp_get_thread_num();
+        team = omp_get_num_threads();
+#endif
+        const uint32_t i0 = (uint32_t)((uint64_t)n * tid / team), i1 = (uint32_t)((uint64_t)n * (tid + 1) / team);
+        uint32_t *count = g->bin_count + (size_t)tid * nb;
+        memset(count, 0, nb * sizeof(uint32_t));
+        for (uint32_t i = i0; i < i1; i++) {
+            const double c[3] = {s->x[i], s->y[i], s->z[i]};
+            const int32_t *rg = g->range + 6 * (size_t)i;
+            const int l = g->level[i];
+            const double k = (double)(1 << l), inv = 1.0 / s->radius[i];
+            const uint8_t fb = g->fallback[i];
+            float *w = g->weights + g->woff[i];
+            const int32_t nx = rg[1] - rg[0] + 1, ld = lead(data_l[l], rg[0]), px = (ld + nx + 7) / 8 * 8;
+            for (int32_t q = 0; q < ld; q++)
+                w[q] = 0.0f;
+            /* x's last vector may run past px into y's place, written next. */
+            double sum = axis_weights(c[0], inv, g->origin[0], g->spacing[0] * k, fb & 1, rg[0], rg[1], w + ld);
+            for (int32_t q = ld + nx; q < px; q++)
+                w[q] = 0.0f;
+            w += px;
+            sum *= axis_weights(c[1], inv, g->origin[1], g->spacing[1] * k, fb & 2, rg[2], rg[3], w);
+            w += padded(rg[3] - rg[2] + 1);
+            sum *= axis_weights(c[2], inv, g->origin[2], g->spacing[2] * k, fb & 4, rg[4], rg[5], w);
+            double kr = (double)NC_PARTICLE_KERNEL_K * s->radius[i];
+            double mass = (double)s->density[i] * kr * kr * kr;
+            g->scale[i] = (float)(mass / (sum * V * k * k * k));
+            for (uint32_t bz = (uint32_t)rg[4] / SLAB_LAYERS; bz <= (uint32_t)rg[5] / SLAB_LAYERS; bz++)
+                for (uint32_t by = (uint32_t)rg[2] / BRICK_ROWS; by <= (uint32_t)rg[3] / BRICK_ROWS; by++)
+                    count[base[l] + bz * nby[l] + by]++;
+        }
+#ifdef _OPENMP
+#pragma omp barrier
+#pragma omp single
+#endif
+        {
+            /* count[t][b] becomes the place of run t's first particle in brick b's list. */
+            uint32_t at = 0;
+            for (uint32_t b = 0; b < nb; b++) {
+                start[b] = at;
+                for (int t = 0; t < team; t++) {
+                    uint32_t *ct = g->bin_count + (size_t)t * nb + b;
+                    const uint32_t c = *ct;
+                    *ct = at;
+                    at += c;
+                }
+            }
+            start[nb] = at;
+        }
+        for (uint32_t i = i0; i < i1; i++) {
             const int32_t *rg = g->range + 6 * (size_t)i;
             const int l = g->level[i];
             for (uint32_t bz = (uint32_t)rg[4] / SLAB_LAYERS; bz <= (uint32_t)rg[5] / SLAB_LAYERS; bz++)
-                for (uint32_t by = (uint32_t)rg[2] / BRICK_ROWS; by <= (uint32_t)rg[3] / BRICK_ROWS; by++) {
-                    const uint32_t b = base[l] + bz * nby[l] + by;
-                    if (pass == 0)
-                        start[b + 1]++;
-                    else
-                        g->bins[start[b]++] = i;
-                }
-        }
-        if (pass == 0) {
-            for (uint32_t b = 0; b < nb; b++)
-                start[b + 1] += start[b];
-            if (!ensure(ctx, (void **)&g->bins, &g->bin_capacity, start[nb] + 1, sizeof(uint32_t)))
-                return NACRE_ERROR_OUT_OF_MEMORY;
+                for (uint32_t by = (uint32_t)rg[2] / BRICK_ROWS; by <= (uint32_t)rg[3] / BRICK_ROWS; by++)
+                    g->bins[count[base[l] + bz * nby[l] + by]++] = i;
         }
     }
-    /* The second pass left each brick's start at the next brick's: shift back. */
-    for (uint32_t b = nb; b > 0; b--)
-        start[b] = start[b - 1];
-    start[0] = 0;
 
     /* The coarsest level first (its bricks zeroed, then their particles), then level 1 (the
      * same, plus level 2's trilinear values), then each fine brick: zeroed, its particles, level
