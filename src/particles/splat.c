@@ -78,11 +78,12 @@ static bool ensure(nacre_context *ctx, void **p, size_t *cap, size_t n, size_t e
     return *p != NULL;
 }
 
-/* Zeros in front of sample x0's weights so that the vectors of a row start at 32-byte
- * boundaries of the grid (of every row when res is a multiple of 8). */
-static inline int32_t lead(const float *data, int32_t x0)
+/* Zeros in front of sample x0's weights: none, unless the particle's whole vectors from x0
+ * would leave the row of res samples; then as many as move them back into it. */
+static inline int32_t lead(int32_t x0, int32_t nx, int32_t res)
 {
-    return (int32_t)(((uintptr_t)(data + x0) & 31u) / sizeof(float));
+    const int32_t e = res - (nx + 7) / 8 * 8;
+    return x0 <= e ? 0 : (e > 0 ? x0 - e : x0);
 }
 
 /* Kernel samples along one axis around centre c: lo..hi; returns whether the particle takes
@@ -191,7 +192,7 @@ static void splat_brick(const nc_particle_grid *g, float *data, uint32_t res, ui
     for (uint32_t e = start[b]; e < start[b + 1]; e++) {
         const uint32_t i = g->bins[e];
         const int32_t *rg = g->range + 6 * (size_t)i;
-        const int32_t ld = lead(data, rg[0]), x0 = rg[0] - ld, xn = rg[1] - rg[0] + 1 + ld;
+        const int32_t ld = lead(rg[0], rg[1] - rg[0] + 1, (int32_t)res), x0 = rg[0] - ld, xn = rg[1] - rg[0] + 1 + ld;
         const int32_t px = (xn + 7) / 8 * 8;
         const float *wx = g->weights + g->woff[i], *wy = wx + px, *wz = wy + padded(rg[3] - rg[2] + 1);
         const float sc = g->scale[i];
@@ -357,10 +358,12 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     float *const data_l[LEVELS] = {g->data, level_ok[1] ? g->coarse[0] : NULL, level_ok[2] ? g->coarse[1] : NULL};
     const double hmax = fmax(fmax(g->spacing[0], g->spacing[1]), g->spacing[2]);
 
-    /* Per particle: its level, its sample range per axis there, and where its weights go:
-     * x padded with zeros to whole 8-lane vectors that start on the level's 32-byte boundaries
-     * (lead(x0) zeros first), then y, then z, each padded to whole vectors (the weights are
-     * computed 8 at a time). Whether an axis takes the fallback is kept for the weights. */
+    /* Per particle: its level, its sample range per axis there, and where its weights go: x
+     * padded with zeros to whole 8-lane vectors (lead zeros first where they would leave the
+     * row), then y, then z, each padded to whole vectors (the weights are computed 8 at a time).
+     * The vectors start at the particle's first sample, not at 32-byte boundaries of the row: a
+     * row of 9 to 16 samples takes 2 vectors, not 2 or 3, and the unaligned loads and stores cost
+     * less than the third. Whether an axis takes the fallback is kept for the weights. */
     size_t entries = 0; /* particle-brick pairs: the bins' length */
 #ifdef _OPENMP
 #pragma omp parallel for schedule(static) num_threads(threads) reduction(+ : entries)
@@ -384,7 +387,7 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
             }
         }
         g->fallback[i] = fb;
-        g->woff[i + 1] = (size_t)((lead(data_l[l], rg[0]) + rg[1] - rg[0] + 8) / 8 * 8) +
+        g->woff[i + 1] = (size_t)((lead(rg[0], rg[1] - rg[0] + 1, (int32_t)res_l[l]) + rg[1] - rg[0] + 8) / 8 * 8) +
                          (size_t)padded(rg[3] - rg[2] + 1) + (size_t)padded(rg[5] - rg[4] + 1);
         entries += ((uint32_t)rg[5] / SLAB_LAYERS - (uint32_t)rg[4] / SLAB_LAYERS + 1) *
                    ((uint32_t)rg[3] / BRICK_ROWS - (uint32_t)rg[2] / BRICK_ROWS + 1);
@@ -452,7 +455,7 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
             const double k = (double)(1 << l), inv = 1.0 / s->radius[i];
             const uint8_t fb = g->fallback[i];
             float *w = g->weights + g->woff[i];
-            const int32_t nx = rg[1] - rg[0] + 1, ld = lead(data_l[l], rg[0]), px = (ld + nx + 7) / 8 * 8;
+            const int32_t nx = rg[1] - rg[0] + 1, ld = lead(rg[0], nx, (int32_t)res_l[l]), px = (ld + nx + 7) / 8 * 8;
             for (int32_t q = 0; q < ld; q++)
                 w[q] = 0.0f;
             /* x's last vector may run past px into y's place, written next. */
