@@ -36,12 +36,15 @@
 #include <omp.h>
 #endif
 
-/* Bricks of SLAB_LAYERS z layers x BRICK_ROWS rows: small, so that the cells a brick's
- * particles write stay in the core's cache (a slab of 16 whole layers of 128^2 is 1 MB); a
- * particle's weights are computed once, not per brick. The grid does not depend on the brick
- * size: every cell sums its particles in index order whatever the bricks. */
-#define SLAB_LAYERS 4u
-#define BRICK_ROWS 16u
+/* Bricks of SLAB_LAYERS z layers x BRICK_ROWS rows: a brick of the 128^3 grid is 256 kB, in
+ * the core's L2 cache with the weights it reads (a slab of 16 whole layers is 1 MB); a
+ * particle's weights are computed once, not per brick. Bricks of 4 x 16 (32 kB, in L1) made
+ * each particle visit 4 times as many bricks, and the set-up of a visit and of its short runs
+ * of rows cost more than the misses the smaller bricks saved (docs/performance.md). The grid
+ * does not depend on the brick size: every cell sums its particles in index order whatever the
+ * bricks. */
+#define SLAB_LAYERS 8u
+#define BRICK_ROWS 64u
 /* Particles of radius at least COARSE_RADIUS cells (the largest spacing) go to coarse level 1,
  * of at least 2 COARSE_RADIUS to level 2: the kernel's standard deviation R / 3 is then at least
  * one sample of the level (error against the all-fine splat: docs/accuracy.md). */
