@@ -45,12 +45,19 @@
  * bricks. */
 #define SLAB_LAYERS 8u
 #define BRICK_ROWS 64u
+/* Bricks of one level at most (a level's order of bricks is kept on the stack). */
+#define MAX_BRICKS                                                                                                     \
+    ((NACRE_PARTICLES_GRID_MAX + SLAB_LAYERS - 1) / SLAB_LAYERS *                                                      \
+     ((NACRE_PARTICLES_GRID_MAX + BRICK_ROWS - 1) / BRICK_ROWS))
 /* Particles of radius at least COARSE_RADIUS cells (the largest spacing) go to coarse level 1,
  * of at least 2 COARSE_RADIUS to level 2: the kernel's standard deviation R / 3 is then at least
  * one sample of the level (error against the all-fine splat: docs/accuracy.md). */
 #define COARSE_RADIUS 6.0
 #define COARSE2_RADIUS 12.0
 #define LEVELS 3
+/* Particles from which the bounds are found by all threads: 10k take ~25 us on one thread, as
+ * long as a parallel region's start and end with OMP_WAIT_POLICY=passive. */
+#define BOUNDS_PARALLEL 50000u
 
 void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
 {
@@ -234,6 +241,21 @@ static void splat_brick(const nc_particle_grid *g, float *data, uint32_t res, ui
     }
 }
 
+/* Bricks 0 .. nb - 1 in the order to splat them: the most particles first (ties by index), so
+ * that with dynamic scheduling the last bricks taken are short ones and the threads end
+ * together. The plume's bricks differ by 10 times; in index order a thread was left with one
+ * of the largest at the end. The order does not change the grid: each brick is one thread's. */
+static void brick_order(const uint32_t *start, uint32_t nb, uint32_t *order)
+{
+    for (uint32_t b = 0; b < nb; b++) {
+        const uint32_t cost = start[b + 1] - start[b];
+        uint32_t j = b;
+        for (; j > 0 && start[order[j - 1] + 1] - start[order[j - 1]] < cost; j--)
+            order[j] = order[j - 1];
+        order[j] = b;
+    }
+}
+
 /* Add to fine layers [z0, z1), rows [y0, y1) the trilinear interpolation of the coarse level
  * (sample I at fine sample 2I), whose samples outside the box cbox (first and last per axis,
  * within c_lo .. c_hi) are 0: an even fine index takes its coarse sample, an odd one the mean
@@ -298,9 +320,11 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     float lo0 = INFINITY, lo1 = INFINITY, lo2 = INFINITY, hi0 = -INFINITY, hi1 = -INFINITY, hi2 = -INFINITY;
     int bad = 0;
     /* min and max are exact, so the reduction's order does not matter. Comparisons rather than
-     * fminf (a libm call per value here): a NaN, which they would skip, is counted instead. */
+     * fminf (a libm call per value here): a NaN, which they would skip, is counted instead.
+     * Below BOUNDS_PARALLEL particles one thread does it: waking the others (passive waiting)
+     * takes longer than the loop. */
 #ifdef _OPENMP
-#pragma omp parallel for schedule(static) num_threads(nc_threads(ctx)) \
+#pragma omp parallel for schedule(static) num_threads(nc_threads(ctx)) if (n >= BOUNDS_PARALLEL) \
     reduction(min : lo0, lo1, lo2) reduction(max : hi0, hi1, hi2) reduction(+ : bad)
 #endif
     for (uint32_t i = 0; i < n; i++) {
@@ -515,14 +539,17 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     /* The coarsest level first (its bricks zeroed, then their particles), then level 1 (the
      * same, plus level 2's trilinear values), then each fine brick: zeroed, its particles, level
      * 1's trilinear values added, its maximum. */
+    uint32_t order[MAX_BRICKS];
     for (int l = LEVELS - 1; l >= 1; l--) {
         if (!used[l])
             continue;
         const bool add = l + 1 < LEVELS && used[l + 1];
+        brick_order(start + base[l], bricks[l], order);
 #ifdef _OPENMP
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
 #endif
-        for (uint32_t b = 0; b < bricks[l]; b++) {
+        for (uint32_t o = 0; o < bricks[l]; o++) {
+            const uint32_t b = order[o];
             splat_brick(g, data_l[l], res_l[l], nby[l], b, start + base[l]);
             if (add) {
                 uint32_t z0, z1, y0, y1;
@@ -536,10 +563,12 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     const int32_t fy0 = used[1] ? 2 * cbox[1][2] - 1 : 0, fy1 = used[1] ? 2 * cbox[1][3] + 1 : -1;
     const size_t nx = res, nxy = (size_t)res * res;
     float gmax = 0.0f;
+    brick_order(start, bricks[0], order);
 #ifdef _OPENMP
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads) reduction(max : gmax)
 #endif
-    for (uint32_t b = 0; b < bricks[0]; b++) {
+    for (uint32_t o = 0; o < bricks[0]; o++) {
+        const uint32_t b = order[o];
         uint32_t z0, z1, y0, y1;
         splat_brick_box(res, nby[0], b, &z0, &z1, &y0, &y1);
         const bool coarse_here = used[1] && (int32_t)z0 <= fz1 && (int32_t)z1 > fz0 && (int32_t)y0 <= fy1 &&
