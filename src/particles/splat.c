@@ -585,21 +585,28 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
         splat_brick(g, g->data, res, nby[0], b, start);
         if (coarse_here)
             add_coarse(g->data, res, g->coarse[0], res_l[1], cbox[1], z0, z1, y0, y1);
-        /* Eight running maxima in registers: one accumulator in memory (the reduction
-         * variable) kept this scan scalar, and it cost most of a sparse splat. */
-        float m8[8] = {0};
+        /* Running maxima in two 8-lane registers: one accumulator in memory (the reduction
+         * variable) kept this scan scalar, and eight scalar ones still took a compare per
+         * cell. The maximum is exact, so the lanes' order does not matter. */
+        nc_v8f m0 = nc_v8_splat(0.0f), m1 = m0;
+        float m = 0.0f;
         for (uint32_t z = z0; z < z1; z++) {
             const float *p = g->data + z * nxy + y0 * nx;
             const size_t count = (y1 - y0) * nx;
             size_t c = 0;
-            for (; c + 8 <= count; c += 8)
-                for (int k = 0; k < 8; k++)
-                    m8[k] = p[c + k] > m8[k] ? p[c + k] : m8[k];
+            for (; c + 16 <= count; c += 16) {
+                const nc_v8f v0 = nc_v8_load(p + c), v1 = nc_v8_load(p + c + 8);
+                m0 = nc_v8_sel(v0 > m0, v0, m0);
+                m1 = nc_v8_sel(v1 > m1, v1, m1);
+            }
             for (; c < count; c++)
-                m8[0] = p[c] > m8[0] ? p[c] : m8[0];
+                m = p[c] > m ? p[c] : m;
         }
-        for (int k = 0; k < 8; k++)
-            gmax = m8[k] > gmax ? m8[k] : gmax;
+        for (int k = 0; k < 8; k++) {
+            m = m0[k] > m ? m0[k] : m;
+            m = m1[k] > m ? m1[k] : m;
+        }
+        gmax = m > gmax ? m : gmax;
     }
     g->max_value = gmax;
     g->dirty_res = res;
