@@ -1,8 +1,9 @@
 /*
  * splat.c: voxelized particles (seed 003 §3.2.1). The seed rasterizes each particle into a 3D
- * texture with atomic integer adds; on the CPU the grid is cut into bricks (a few z layers by a
- * few rows), each brick written by one thread, and every brick adds its particles in index
- * order. No two threads write one cell and the order of the additions into a cell is fixed, so
+ * texture with atomic integer adds; on the CPU the grid is cut into bricks (8 z layers by 64
+ * rows), each brick written by one thread, and every brick adds its particles in index order
+ * (the lists are built by runs of particles in parallel, each run placed after the runs before
+ * it). No two threads write one cell and the order of the additions into a cell is fixed, so
  * the grid is the same bit for bit whatever the thread count, without atomics.
  *
  * Mass: a particle's kernel (nacre/particles.h) is sampled at the cell centres it covers and the
