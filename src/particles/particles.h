@@ -34,11 +34,13 @@ typedef struct nc_particle_grid {
     float *weights;              /* per particle from woff[i]: x (padded to 8), y, z kernel weights */
     size_t *woff;                /* n + 1 offsets into weights */
     uint8_t *level;              /* per particle: 0 the grid, l its coarse level l (spacing 2^l) */
+    uint8_t *fallback;           /* per particle: bit a set where axis a takes the linear fallback */
+    uint32_t *bin_count;         /* per thread and brick: the binning's counts, then its places */
     float *coarse[2];            /* coarse levels 1 and 2: (n - 1) / 2 + 1 samples per axis of the one below */
     uint8_t *dirty;              /* per brick of the grid: not all 0 after the last splat */
     uint32_t dirty_res;          /* the res `dirty` describes; 0: unknown (every brick dirty) */
     size_t range_capacity, scale_capacity, bin_start_capacity, bin_capacity, weight_capacity, woff_capacity;
-    size_t level_capacity, coarse_capacity[2], dirty_capacity;
+    size_t level_capacity, coarse_capacity[2], dirty_capacity, fallback_capacity, bin_count_capacity;
     bool fine_only;              /* set by the caller: every particle on the grid itself (tests) */
 } nc_particle_grid;
 

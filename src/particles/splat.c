@@ -1,8 +1,9 @@
 /*
  * splat.c: voxelized particles (seed 003 §3.2.1). The seed rasterizes each particle into a 3D
- * texture with atomic integer adds; on the CPU the grid is cut into bricks (a few z layers by a
- * few rows), each brick written by one thread, and every brick adds its particles in index
- * order. No two threads write one cell and the order of the additions into a cell is fixed, so
+ * texture with atomic integer adds; on the CPU the grid is cut into bricks (8 z layers by 64
+ * rows), each brick written by one thread, and every brick adds its particles in index order
+ * (the lists are built by runs of particles in parallel, each run placed after the runs before
+ * it). No two threads write one cell and the order of the additions into a cell is fixed, so
  * the grid is the same bit for bit whatever the thread count, without atomics.
  *
  * Mass: a particle's kernel (nacre/particles.h) is sampled at the cell centres it covers and the
@@ -32,19 +33,32 @@
 
 #include <math.h>
 #include <string.h>
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 
-/* Bricks of SLAB_LAYERS z layers x BRICK_ROWS rows: small, so that the cells a brick's
- * particles write stay in the core's cache (a slab of 16 whole layers of 128^2 is 1 MB); a
- * particle's weights are computed once, not per brick. The grid does not depend on the brick
- * size: every cell sums its particles in index order whatever the bricks. */
-#define SLAB_LAYERS 4u
-#define BRICK_ROWS 16u
+/* Bricks of SLAB_LAYERS z layers x BRICK_ROWS rows: a brick of the 128^3 grid is 256 kB, in
+ * the core's L2 cache with the weights it reads (a slab of 16 whole layers is 1 MB); a
+ * particle's weights are computed once, not per brick. Bricks of 4 x 16 (32 kB, in L1) made
+ * each particle visit 4 times as many bricks, and the set-up of a visit and of its short runs
+ * of rows cost more than the misses the smaller bricks saved (docs/performance.md). The grid
+ * does not depend on the brick size: every cell sums its particles in index order whatever the
+ * bricks. */
+#define SLAB_LAYERS 8u
+#define BRICK_ROWS 64u
+/* Bricks of one level at most (a level's order of bricks is kept on the stack). */
+#define MAX_BRICKS                                                                                                     \
+    ((NACRE_PARTICLES_GRID_MAX + SLAB_LAYERS - 1) / SLAB_LAYERS *                                                      \
+     ((NACRE_PARTICLES_GRID_MAX + BRICK_ROWS - 1) / BRICK_ROWS))
 /* Particles of radius at least COARSE_RADIUS cells (the largest spacing) go to coarse level 1,
  * of at least 2 COARSE_RADIUS to level 2: the kernel's standard deviation R / 3 is then at least
  * one sample of the level (error against the all-fine splat: docs/accuracy.md). */
 #define COARSE_RADIUS 6.0
 #define COARSE2_RADIUS 12.0
 #define LEVELS 3
+/* Particles from which the bounds are found by all threads: 10k take ~25 us on one thread, as
+ * long as a parallel region's start and end with OMP_WAIT_POLICY=passive. */
+#define BOUNDS_PARALLEL 50000u
 
 void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
 {
@@ -56,6 +70,8 @@ void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
     nc_free(ctx, g->weights);
     nc_free(ctx, g->woff);
     nc_free(ctx, g->level);
+    nc_free(ctx, g->fallback);
+    nc_free(ctx, g->bin_count);
     nc_free(ctx, g->coarse[0]);
     nc_free(ctx, g->coarse[1]);
     nc_free(ctx, g->dirty);
@@ -73,60 +89,74 @@ static bool ensure(nacre_context *ctx, void **p, size_t *cap, size_t n, size_t e
     return *p != NULL;
 }
 
-/* Zeros in front of sample x0's weights so that the vectors of a row start at 32-byte
- * boundaries of the grid (of every row when res is a multiple of 8). */
-static inline int32_t lead(const float *data, int32_t x0)
+/* Zeros in front of sample x0's weights: none, unless the particle's whole vectors from x0
+ * would leave the row of res samples; then as many as move them back into it. */
+static inline int32_t lead(int32_t x0, int32_t nx, int32_t res)
 {
-    return (int32_t)(((uintptr_t)(data + x0) & 31u) / sizeof(float));
+    const int32_t e = res - (nx + 7) / 8 * 8;
+    return x0 <= e ? 0 : (e > 0 ? x0 - e : x0);
 }
 
-/* Kernel samples along one axis around centre c: lo..hi. A particle whose kernel misses every
- * sample centre (R under half a cell) takes the two samples around its centre instead. */
-static void axis_range(double c, double R, double origin, double h, int32_t n, int32_t *lo, int32_t *hi)
+/* Kernel samples along one axis around centre c: lo..hi; returns whether the particle takes
+ * the fallback: its kernel misses every sample centre (R under half a cell), so it takes the two
+ * samples around its centre instead. */
+static bool axis_range(double c, double R, double origin, double h, int32_t n, int32_t *lo, int32_t *hi)
 {
     double f = (c - origin) / h;
     int32_t a = (int32_t)ceil(f - R / h), b = (int32_t)floor(f + R / h);
     a = a < 0 ? 0 : a;
     b = b > n - 1 ? n - 1 : b;
-    if (a > b) {
+    const bool fallback = a > b;
+    if (fallback) {
         a = (int32_t)floor(f);
         a = a < 0 ? 0 : (a > n - 2 ? n - 2 : a);
         b = a + 1;
     }
     *lo = a;
     *hi = b;
+    return fallback;
 }
 
-/* The weights of samples lo..hi (axis_range of the same arguments) into w; returns their sum.
+/* Whole 8-lane vectors of weights an axis of m samples takes in the weights array. */
+static inline int32_t padded(int32_t m) { return (m + 7) / 8 * 8; }
+
+/* The weights of samples lo..hi (axis_range of the same arguments, which said whether this is
+ * the fallback) into w, 0 after them up to padded(hi - lo + 1); returns their sum. inv = 1 / R.
  * Linear weights for the fallback's two samples. */
-static float axis_weights(double c, double R, double origin, double h, int32_t n, int32_t lo, int32_t hi, float *w)
+static float axis_weights(double c, double inv, double origin, double h, bool fallback, int32_t lo, int32_t hi,
+                          float *w)
 {
-    double f = (c - origin) / h;
-    int32_t a = (int32_t)ceil(f - R / h), b = (int32_t)floor(f + R / h);
-    a = a < 0 ? 0 : a;
-    b = b > n - 1 ? n - 1 : b;
-    if (a > b) {
-        float fr = (float)(f - lo);
+    const int32_t m = hi - lo + 1;
+    if (fallback) {
+        float fr = (float)((c - origin) / h - lo);
         fr = fr < 0.0f ? 0.0f : (fr > 1.0f ? 1.0f : fr);
+        memset(w, 0, (size_t)padded(m) * sizeof(float));
         w[0] = 1.0f - fr;
         w[1] = fr;
         return 1.0f;
     }
-    const double inv = 1.0 / R;
-    const int32_t m = hi - lo + 1;
-    for (int32_t i = lo; i <= hi; i++)
-        w[i - lo] = (float)((origin + i * h - c) * inv);
-    /* nc_fast_exp 8 lanes at a time (the same steps), the tail in scalar form. */
-    int32_t q = 0;
-    for (; q + 8 <= m; q += 8) {
-        const nc_v8f t = nc_v8_load(w + q);
-        nc_v8_store(w + q, nc_billboard_exp8(nc_v8_splat(-NC_PARTICLE_KERNEL_A) * t * t));
-    }
-    for (; q < m; q++)
-        w[q] = nc_fast_exp(-NC_PARTICLE_KERNEL_A * w[q] * w[q]);
+    /* Each offset (in double, rounded to float) goes from registers into the 8-lane exponential:
+     * written to memory as the 4-lane halves the conversion gives and read back as 8 lanes, the
+     * load could not take them from the store buffer and waited for both stores. The steps and
+     * roundings are those of the scalar form, weight by weight. */
+    typedef double v4d __attribute__((vector_size(32)));
+    typedef float v4f __attribute__((vector_size(16)));
+    const v4d iota = {0.0, 1.0, 2.0, 3.0};
     float sum = 0.0f;
-    for (q = 0; q < m; q++)
-        sum += w[q];
+    for (int32_t q = 0; q < m; q += 8) {
+        const v4d i0 = (double)(lo + q) + iota, i1 = i0 + 4.0;
+        const v4f t0 = __builtin_convertvector((origin + i0 * h - c) * inv, v4f);
+        const v4f t1 = __builtin_convertvector((origin + i1 * h - c) * inv, v4f);
+        const nc_v8f t = __builtin_shufflevector(t0, t1, 0, 1, 2, 3, 4, 5, 6, 7);
+        nc_v8f e = nc_billboard_exp8(nc_v8_splat(-NC_PARTICLE_KERNEL_A) * t * t);
+        /* Lanes past the last sample are 0 (the splat's rows read them); the sum adds the
+         * samples in index order, so it stays the same bit for bit. */
+        const int32_t live = m - q < 8 ? m - q : 8;
+        e = nc_v8_sel(nc_v8_first((uint32_t)live), e, nc_v8_splat(0.0f));
+        for (int32_t k = 0; k < live; k++)
+            sum += e[k];
+        nc_v8_store(w + q, e);
+    }
     return sum;
 }
 
@@ -173,9 +203,9 @@ static void splat_brick(const nc_particle_grid *g, float *data, uint32_t res, ui
     for (uint32_t e = start[b]; e < start[b + 1]; e++) {
         const uint32_t i = g->bins[e];
         const int32_t *rg = g->range + 6 * (size_t)i;
-        const int32_t ld = lead(data, rg[0]), x0 = rg[0] - ld, xn = rg[1] - rg[0] + 1 + ld;
+        const int32_t ld = lead(rg[0], rg[1] - rg[0] + 1, (int32_t)res), x0 = rg[0] - ld, xn = rg[1] - rg[0] + 1 + ld;
         const int32_t px = (xn + 7) / 8 * 8;
-        const float *wx = g->weights + g->woff[i], *wy = wx + px, *wz = wy + (rg[3] - rg[2] + 1);
+        const float *wx = g->weights + g->woff[i], *wy = wx + px, *wz = wy + padded(rg[3] - rg[2] + 1);
         const float sc = g->scale[i];
         const int32_t za = rg[4] > (int32_t)z0 ? rg[4] : (int32_t)z0;
         const int32_t zb = rg[5] < (int32_t)z1 - 1 ? rg[5] : (int32_t)z1 - 1;
@@ -212,6 +242,21 @@ static void splat_brick(const nc_particle_grid *g, float *data, uint32_t res, ui
     }
 }
 
+/* Bricks 0 .. nb - 1 in the order to splat them: the most particles first (ties by index), so
+ * that with dynamic scheduling the last bricks taken are short ones and the threads end
+ * together. The plume's bricks differ by 10 times; in index order a thread was left with one
+ * of the largest at the end. The order does not change the grid: each brick is one thread's. */
+static void brick_order(const uint32_t *start, uint32_t nb, uint32_t *order)
+{
+    for (uint32_t b = 0; b < nb; b++) {
+        const uint32_t cost = start[b + 1] - start[b];
+        uint32_t j = b;
+        for (; j > 0 && start[order[j - 1] + 1] - start[order[j - 1]] < cost; j--)
+            order[j] = order[j - 1];
+        order[j] = b;
+    }
+}
+
 /* Add to fine layers [z0, z1), rows [y0, y1) the trilinear interpolation of the coarse level
  * (sample I at fine sample 2I), whose samples outside the box cbox (first and last per axis,
  * within c_lo .. c_hi) are 0: an even fine index takes its coarse sample, an odd one the mean
@@ -221,11 +266,11 @@ static void add_coarse(float *data, uint32_t res, const float *coarse, uint32_t 
 {
     const size_t nx = res, nxy = (size_t)res * res, cx = rc, cxy = (size_t)rc * rc;
     /* Fine samples the coarse box reaches, per axis. */
-    const uint32_t fx0 = 2 * (uint32_t)cbox[0] - 1, fx1 = 2 * (uint32_t)cbox[1] + 1;
+    const uint32_t fx1 = 2 * (uint32_t)cbox[1] + 1;
     const uint32_t fy0 = 2 * (uint32_t)cbox[2] - 1, fy1 = 2 * (uint32_t)cbox[3] + 1;
     const uint32_t fz0 = 2 * (uint32_t)cbox[4] - 1, fz1 = 2 * (uint32_t)cbox[5] + 1;
     const uint32_t X0 = (uint32_t)cbox[0], X1 = (uint32_t)cbox[1];
-    float row[NACRE_PARTICLES_GRID_MAX / 2 + 2], ex[NACRE_PARTICLES_GRID_MAX + 4];
+    float row[NACRE_PARTICLES_GRID_MAX / 2 + 16];
     for (uint32_t z = z0 > fz0 ? z0 : fz0; z < z1 && z <= fz1; z++) {
         /* Outside the box the coarse samples are 0: the layer or row there reads as 0. */
         const float *pz0 = coarse + (size_t)(z / 2) * cxy, *pz1 = (z & 1) ? pz0 + cxy : pz0;
@@ -238,18 +283,27 @@ static void add_coarse(float *data, uint32_t res, const float *coarse, uint32_t 
                                               (nc_v8_load(c + X) + nc_v8_load(d + X))));
             for (; X <= X1; X++)
                 row[X] = 0.25f * ((a[X] + b[X]) + (c[X] + d[X]));
-            row[X0 - 1] = row[X1 + 1] = 0.0f;
-            /* The row at the fine spacing first, so that the sum below is one plain vector loop. */
-            for (int32_t q = (int32_t)X0 - 1; q <= (int32_t)X1; q++) {
-                ex[2 * q] = row[q];
-                ex[2 * q + 1] = 0.5f * (row[q] + row[q + 1]);
-            }
+            /* Zeros around the box's samples: the vectors below read up to 9 past X1. */
+            row[X0 - 1] = 0.0f;
+            for (uint32_t k = 1; k <= 9; k++)
+                row[X1 + k] = 0.0f;
+            /* Fine sample 2q takes coarse sample q, 2q + 1 the mean of q and q + 1: 8 coarse
+             * samples make 16 fine ones, interleaved in registers and added to the row. Fine
+             * sample 2 (X0 - 1) and those past fx1 add 0; the row's end goes sample by sample. */
             float *out = data + (size_t)z * nxy + (size_t)y * nx;
-            uint32_t x = fx0;
-            for (; x + 8 <= fx1 + 1; x += 8)
-                nc_v8_store(out + x, nc_v8_load(out + x) + nc_v8_load(ex + x));
-            for (; x <= fx1; x++)
-                out[x] += ex[x];
+            for (uint32_t q = X0 - 1; q <= X1; q += 8) {
+                const nc_v8f r = nc_v8_load(row + q), m = 0.5f * (r + nc_v8_load(row + q + 1));
+                const nc_v8f lo = __builtin_shufflevector(r, m, 0, 8, 1, 9, 2, 10, 3, 11);
+                const nc_v8f hi = __builtin_shufflevector(r, m, 4, 12, 5, 13, 6, 14, 7, 15);
+                float *o = out + 2 * q;
+                if (2 * q + 16 <= res) {
+                    nc_v8_store(o, nc_v8_load(o) + lo);
+                    nc_v8_store(o + 8, nc_v8_load(o + 8) + hi);
+                } else {
+                    for (uint32_t k = 0; k < 16 && 2 * q + k <= fx1; k++)
+                        o[k] += k < 8 ? lo[k] : hi[k - 8];
+                }
+            }
         }
     }
 }
@@ -267,9 +321,11 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     float lo0 = INFINITY, lo1 = INFINITY, lo2 = INFINITY, hi0 = -INFINITY, hi1 = -INFINITY, hi2 = -INFINITY;
     int bad = 0;
     /* min and max are exact, so the reduction's order does not matter. Comparisons rather than
-     * fminf (a libm call per value here): a NaN, which they would skip, is counted instead. */
+     * fminf (a libm call per value here): a NaN, which they would skip, is counted instead.
+     * Below BOUNDS_PARALLEL particles one thread does it: waking the others (passive waiting)
+     * takes longer than the loop. */
 #ifdef _OPENMP
-#pragma omp parallel for schedule(static) num_threads(nc_threads(ctx)) \
+#pragma omp parallel for schedule(static) num_threads(nc_threads(ctx)) if (n >= BOUNDS_PARALLEL) \
     reduction(min : lo0, lo1, lo2) reduction(max : hi0, hi1, hi2) reduction(+ : bad)
 #endif
     for (uint32_t i = 0; i < n; i++) {
@@ -331,6 +387,7 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     ok = ok && ensure(ctx, (void **)&g->range, &g->range_capacity, 6 * (size_t)n, sizeof(int32_t));
     ok = ok && ensure(ctx, (void **)&g->scale, &g->scale_capacity, n, sizeof(float));
     ok = ok && ensure(ctx, (void **)&g->level, &g->level_capacity, n, sizeof(uint8_t));
+    ok = ok && ensure(ctx, (void **)&g->fallback, &g->fallback_capacity, n, sizeof(uint8_t));
     ok = ok && ensure(ctx, (void **)&g->woff, &g->woff_capacity, (size_t)n + 1, sizeof(size_t));
     ok = ok && ensure(ctx, (void **)&g->bin_start, &g->bin_start_capacity, (size_t)nb + 2, sizeof(uint32_t));
     if (!ok)
@@ -339,10 +396,14 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     const double hmax = fmax(fmax(g->spacing[0], g->spacing[1]), g->spacing[2]);
 
     /* Per particle: its level, its sample range per axis there, and where its weights go: x
-     * padded with zeros to whole 8-lane vectors that start on the level's 32-byte boundaries
-     * (lead(x0) zeros first), then y, then z. */
+     * padded with zeros to whole 8-lane vectors (lead zeros first where they would leave the
+     * row), then y, then z, each padded to whole vectors (the weights are computed 8 at a time).
+     * The vectors start at the particle's first sample, not at 32-byte boundaries of the row: a
+     * row of 9 to 16 samples takes 2 vectors, not 2 or 3, and the unaligned loads and stores cost
+     * less than the third. Whether an axis takes the fallback is kept for the weights. */
+    size_t entries = 0; /* particle-brick pairs: the bins' length */
 #ifdef _OPENMP
-#pragma omp parallel for schedule(static) num_threads(threads)
+#pragma omp parallel for schedule(static) num_threads(threads) reduction(+ : entries)
 #endif
     for (uint32_t i = 0; i < n; i++) {
         const double c[3] = {s->x[i], s->y[i], s->z[i]};
@@ -352,16 +413,21 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
         while (l + 1 < LEVELS && level_ok[l + 1] && s->radius[i] >= coarse_r[l] * hmax)
             l++;
         g->level[i] = (uint8_t)l;
+        uint8_t fb = 0;
         for (int a = 0; a < 3; a++) {
-            axis_range(c[a], s->radius[i], g->origin[a], g->spacing[a] * (double)(1 << l), (int32_t)res_l[l],
-                       &rg[2 * a], &rg[2 * a + 1]);
+            fb |= (uint8_t)(axis_range(c[a], s->radius[i], g->origin[a], g->spacing[a] * (double)(1 << l),
+                                       (int32_t)res_l[l], &rg[2 * a], &rg[2 * a + 1])
+                            << a);
             if (l) {
                 rg[2 * a] = rg[2 * a] > (int32_t)c_lo ? rg[2 * a] : (int32_t)c_lo;
                 rg[2 * a + 1] = rg[2 * a + 1] < (int32_t)c_hi[l] ? rg[2 * a + 1] : (int32_t)c_hi[l];
             }
         }
-        g->woff[i + 1] = (size_t)((lead(data_l[l], rg[0]) + rg[1] - rg[0] + 8) / 8 * 8) +
-                         (size_t)(rg[3] - rg[2] + 1) + (size_t)(rg[5] - rg[4] + 1);
+        g->fallback[i] = fb;
+        g->woff[i + 1] = (size_t)((lead(rg[0], rg[1] - rg[0] + 1, (int32_t)res_l[l]) + rg[1] - rg[0] + 8) / 8 * 8) +
+                         (size_t)padded(rg[3] - rg[2] + 1) + (size_t)padded(rg[5] - rg[4] + 1);
+        entries += ((uint32_t)rg[5] / SLAB_LAYERS - (uint32_t)rg[4] / SLAB_LAYERS + 1) *
+                   ((uint32_t)rg[3] / BRICK_ROWS - (uint32_t)rg[2] / BRICK_ROWS + 1);
     }
     g->woff[0] = 0;
     /* The coarse samples in use (a box per level and axis), so that a coarse pass costs nothing
@@ -395,75 +461,96 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
         return r;
     if (!ensure(ctx, (void **)&g->weights, &g->weight_capacity, g->woff[n], sizeof(float)))
         return NACRE_ERROR_OUT_OF_MEMORY;
+    if (!ensure(ctx, (void **)&g->bins, &g->bin_capacity, entries + 1, sizeof(uint32_t)) ||
+        !ensure(ctx, (void **)&g->bin_count, &g->bin_count_capacity, (size_t)threads * nb, sizeof(uint32_t)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
 
     /* The weights, and the factor that makes a particle's samples sum to its mass: on level l
-     * each sample spreads over the grid's samples with weights summing to 2^l per axis. */
+     * each sample spreads over the grid's samples with weights summing to 2^l per axis. Then the
+     * particles binned by brick of their level (SLAB_LAYERS z layers x BRICK_ROWS rows), in
+     * index order (a counting sort; the fine bricks' lists first, then each coarse level's): each
+     * thread counts and then places a run of consecutive particles, its places in a brick's list
+     * after those of the runs before it, so the lists do not depend on the thread count. */
     const double V = (double)g->spacing[0] * g->spacing[1] * g->spacing[2];
-#ifdef _OPENMP
-#pragma omp parallel for schedule(static) num_threads(threads)
-#endif
-    for (uint32_t i = 0; i < n; i++) {
-        const double c[3] = {s->x[i], s->y[i], s->z[i]};
-        const int32_t *rg = g->range + 6 * (size_t)i;
-        const int l = g->level[i];
-        const double k = (double)(1 << l);
-        float *w = g->weights + g->woff[i];
-        const int32_t nx = rg[1] - rg[0] + 1, ld = lead(data_l[l], rg[0]), px = (ld + nx + 7) / 8 * 8;
-        for (int32_t q = 0; q < ld; q++)
-            w[q] = 0.0f;
-        double sum = axis_weights(c[0], s->radius[i], g->origin[0], g->spacing[0] * k, (int32_t)res_l[l], rg[0], rg[1],
-                                  w + ld);
-        for (int32_t q = ld + nx; q < px; q++)
-            w[q] = 0.0f;
-        w += px;
-        sum *= axis_weights(c[1], s->radius[i], g->origin[1], g->spacing[1] * k, (int32_t)res_l[l], rg[2], rg[3], w);
-        w += rg[3] - rg[2] + 1;
-        sum *= axis_weights(c[2], s->radius[i], g->origin[2], g->spacing[2] * k, (int32_t)res_l[l], rg[4], rg[5], w);
-        double kr = (double)NC_PARTICLE_KERNEL_K * s->radius[i];
-        double mass = (double)s->density[i] * kr * kr * kr;
-        g->scale[i] = (float)(mass / (sum * V * k * k * k));
-    }
-
-    /* Bin particles by brick of their level (SLAB_LAYERS z layers x BRICK_ROWS rows), in index
-     * order (counting sort): the fine bricks' lists first, then each coarse level's. */
     uint32_t *start = g->bin_start;
-    memset(start, 0, ((size_t)nb + 1) * sizeof(uint32_t));
-    for (int pass = 0; pass < 2; pass++) {
-        for (uint32_t i = 0; i < n; i++) {
+#ifdef _OPENMP
+#pragma omp parallel num_threads(threads)
+#endif
+    {
+        int tid = 0, team = 1;
+#ifdef _OPENMP
+        tid = omp_get_thread_num();
+        team = omp_get_num_threads();
+#endif
+        const uint32_t i0 = (uint32_t)((uint64_t)n * tid / team), i1 = (uint32_t)((uint64_t)n * (tid + 1) / team);
+        uint32_t *count = g->bin_count + (size_t)tid * nb;
+        memset(count, 0, nb * sizeof(uint32_t));
+        for (uint32_t i = i0; i < i1; i++) {
+            const double c[3] = {s->x[i], s->y[i], s->z[i]};
+            const int32_t *rg = g->range + 6 * (size_t)i;
+            const int l = g->level[i];
+            const double k = (double)(1 << l), inv = 1.0 / s->radius[i];
+            const uint8_t fb = g->fallback[i];
+            float *w = g->weights + g->woff[i];
+            const int32_t nx = rg[1] - rg[0] + 1, ld = lead(rg[0], nx, (int32_t)res_l[l]), px = (ld + nx + 7) / 8 * 8;
+            for (int32_t q = 0; q < ld; q++)
+                w[q] = 0.0f;
+            /* x's last vector may run past px into y's place, written next. */
+            double sum = axis_weights(c[0], inv, g->origin[0], g->spacing[0] * k, fb & 1, rg[0], rg[1], w + ld);
+            for (int32_t q = ld + nx; q < px; q++)
+                w[q] = 0.0f;
+            w += px;
+            sum *= axis_weights(c[1], inv, g->origin[1], g->spacing[1] * k, fb & 2, rg[2], rg[3], w);
+            w += padded(rg[3] - rg[2] + 1);
+            sum *= axis_weights(c[2], inv, g->origin[2], g->spacing[2] * k, fb & 4, rg[4], rg[5], w);
+            double kr = (double)NC_PARTICLE_KERNEL_K * s->radius[i];
+            double mass = (double)s->density[i] * kr * kr * kr;
+            g->scale[i] = (float)(mass / (sum * V * k * k * k));
+            for (uint32_t bz = (uint32_t)rg[4] / SLAB_LAYERS; bz <= (uint32_t)rg[5] / SLAB_LAYERS; bz++)
+                for (uint32_t by = (uint32_t)rg[2] / BRICK_ROWS; by <= (uint32_t)rg[3] / BRICK_ROWS; by++)
+                    count[base[l] + bz * nby[l] + by]++;
+        }
+#ifdef _OPENMP
+#pragma omp barrier
+#pragma omp single
+#endif
+        {
+            /* count[t][b] becomes the place of run t's first particle in brick b's list. */
+            uint32_t at = 0;
+            for (uint32_t b = 0; b < nb; b++) {
+                start[b] = at;
+                for (int t = 0; t < team; t++) {
+                    uint32_t *ct = g->bin_count + (size_t)t * nb + b;
+                    const uint32_t c = *ct;
+                    *ct = at;
+                    at += c;
+                }
+            }
+            start[nb] = at;
+        }
+        for (uint32_t i = i0; i < i1; i++) {
             const int32_t *rg = g->range + 6 * (size_t)i;
             const int l = g->level[i];
             for (uint32_t bz = (uint32_t)rg[4] / SLAB_LAYERS; bz <= (uint32_t)rg[5] / SLAB_LAYERS; bz++)
-                for (uint32_t by = (uint32_t)rg[2] / BRICK_ROWS; by <= (uint32_t)rg[3] / BRICK_ROWS; by++) {
-                    const uint32_t b = base[l] + bz * nby[l] + by;
-                    if (pass == 0)
-                        start[b + 1]++;
-                    else
-                        g->bins[start[b]++] = i;
-                }
-        }
-        if (pass == 0) {
-            for (uint32_t b = 0; b < nb; b++)
-                start[b + 1] += start[b];
-            if (!ensure(ctx, (void **)&g->bins, &g->bin_capacity, start[nb] + 1, sizeof(uint32_t)))
-                return NACRE_ERROR_OUT_OF_MEMORY;
+                for (uint32_t by = (uint32_t)rg[2] / BRICK_ROWS; by <= (uint32_t)rg[3] / BRICK_ROWS; by++)
+                    g->bins[count[base[l] + bz * nby[l] + by]++] = i;
         }
     }
-    /* The second pass left each brick's start at the next brick's: shift back. */
-    for (uint32_t b = nb; b > 0; b--)
-        start[b] = start[b - 1];
-    start[0] = 0;
 
     /* The coarsest level first (its bricks zeroed, then their particles), then level 1 (the
      * same, plus level 2's trilinear values), then each fine brick: zeroed, its particles, level
      * 1's trilinear values added, its maximum. */
+    uint32_t order[MAX_BRICKS];
     for (int l = LEVELS - 1; l >= 1; l--) {
         if (!used[l])
             continue;
         const bool add = l + 1 < LEVELS && used[l + 1];
+        brick_order(start + base[l], bricks[l], order);
 #ifdef _OPENMP
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
 #endif
-        for (uint32_t b = 0; b < bricks[l]; b++) {
+        for (uint32_t o = 0; o < bricks[l]; o++) {
+            const uint32_t b = order[o];
             splat_brick(g, data_l[l], res_l[l], nby[l], b, start + base[l]);
             if (add) {
                 uint32_t z0, z1, y0, y1;
@@ -477,10 +564,12 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     const int32_t fy0 = used[1] ? 2 * cbox[1][2] - 1 : 0, fy1 = used[1] ? 2 * cbox[1][3] + 1 : -1;
     const size_t nx = res, nxy = (size_t)res * res;
     float gmax = 0.0f;
+    brick_order(start, bricks[0], order);
 #ifdef _OPENMP
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads) reduction(max : gmax)
 #endif
-    for (uint32_t b = 0; b < bricks[0]; b++) {
+    for (uint32_t o = 0; o < bricks[0]; o++) {
+        const uint32_t b = order[o];
         uint32_t z0, z1, y0, y1;
         splat_brick_box(res, nby[0], b, &z0, &z1, &y0, &y1);
         const bool coarse_here = used[1] && (int32_t)z0 <= fz1 && (int32_t)z1 > fz0 && (int32_t)y0 <= fy1 &&
@@ -497,21 +586,28 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
         splat_brick(g, g->data, res, nby[0], b, start);
         if (coarse_here)
             add_coarse(g->data, res, g->coarse[0], res_l[1], cbox[1], z0, z1, y0, y1);
-        /* Eight running maxima in registers: one accumulator in memory (the reduction
-         * variable) kept this scan scalar, and it cost most of a sparse splat. */
-        float m8[8] = {0};
+        /* Running maxima in two 8-lane registers: one accumulator in memory (the reduction
+         * variable) kept this scan scalar, and eight scalar ones still took a compare per
+         * cell. The maximum is exact, so the lanes' order does not matter. */
+        nc_v8f m0 = nc_v8_splat(0.0f), m1 = m0;
+        float m = 0.0f;
         for (uint32_t z = z0; z < z1; z++) {
             const float *p = g->data + z * nxy + y0 * nx;
             const size_t count = (y1 - y0) * nx;
             size_t c = 0;
-            for (; c + 8 <= count; c += 8)
-                for (int k = 0; k < 8; k++)
-                    m8[k] = p[c + k] > m8[k] ? p[c + k] : m8[k];
+            for (; c + 16 <= count; c += 16) {
+                const nc_v8f v0 = nc_v8_load(p + c), v1 = nc_v8_load(p + c + 8);
+                m0 = nc_v8_sel(v0 > m0, v0, m0);
+                m1 = nc_v8_sel(v1 > m1, v1, m1);
+            }
             for (; c < count; c++)
-                m8[0] = p[c] > m8[0] ? p[c] : m8[0];
+                m = p[c] > m ? p[c] : m;
         }
-        for (int k = 0; k < 8; k++)
-            gmax = m8[k] > gmax ? m8[k] : gmax;
+        for (int k = 0; k < 8; k++) {
+            m = m0[k] > m ? m0[k] : m;
+            m = m1[k] > m ? m1[k] : m;
+        }
+        gmax = m > gmax ? m : gmax;
     }
     g->max_value = gmax;
     g->dirty_res = res;
