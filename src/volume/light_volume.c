@@ -71,7 +71,8 @@ void nc_light_volume_setup(nc_light_volume *v, const nc_fog_one *o, bool directi
 
 static inline float cap_tau(double t) { return t < NC_LIGHT_VOLUME_TAU_MAX ? (float)t : NC_LIGHT_VOLUME_TAU_MAX; }
 
-/* Directional: column (i, j) from where the light enters it, one step per node. */
+/* Directional: column (i, j) from where the light enters it, one step per node (its nodes are
+ * contiguous in tau: a column is written in one pass, not a cache line per node). */
 static void build_column(const nc_fog_field *f, nc_light_volume *v, uint32_t i, uint32_t j)
 {
     const nc_fog_one *o = v->fog;
@@ -84,8 +85,8 @@ static void build_column(const nc_fog_field *f, nc_light_volume *v, uint32_t i, 
     float local[3 * NC_LIGHT_VOLUME_MAX_RES], sa[3 * NC_LIGHT_VOLUME_MAX_RES], ss[3 * NC_LIGHT_VOLUME_MAX_RES];
     double G[NC_LIGHT_VOLUME_MAX_RES];
     uint32_t step_of[NC_LIGHT_VOLUME_MAX_RES];
-    float *out = v->tau + 3 * ((size_t)j * v->n[0] + i);
-    size_t stride = 3 * (size_t)v->n[0] * v->n[1];
+    float *out = v->tau + 3 * ((size_t)i * v->n[1] + j) * ns;
+    size_t stride = 3;
     double a = 0.0, b = (double)v->step[2] * (ns - 1);
     uint32_t m = 0;
     if (nc_fog_field_segment(o, p0, d, &a, &b)) {
@@ -135,7 +136,7 @@ static void build_node(const nc_fog_field *f, nc_light_volume *v, uint32_t i, ui
             w[c] /= dist;
         nc_fog_one_optical_depth(f, v->fog, x, w, dist, tau, scratch);
     }
-    float *out = v->tau + 3 * (((size_t)k * v->n[1] + j) * v->n[0] + i);
+    float *out = v->tau + 3 * (((size_t)i * v->n[1] + j) * v->n[2] + k);
     for (int c = 0; c < 3; c++)
         out[c] = cap_tau(tau[c]);
 }
@@ -150,12 +151,13 @@ void nc_light_volume_build(const nc_fog_field *f, nc_light_volume *v, int thread
             build_column(f, v, (uint32_t)(c % v->n[0]), (uint32_t)(c / v->n[0]));
         return;
     }
-    int64_t rows = (int64_t)v->n[1] * v->n[2];
+    /* Rows along z, whose nodes are contiguous. */
+    int64_t rows = (int64_t)v->n[0] * v->n[1];
 #pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
     for (int64_t r = 0; r < rows; r++) {
         float scratch[NC_FOG_TAU_SCRATCH(256)];
-        for (uint32_t i = 0; i < v->n[0]; i++)
-            build_node(f, v, i, (uint32_t)(r % v->n[1]), (uint32_t)(r / v->n[1]), scratch);
+        for (uint32_t k = 0; k < v->n[2]; k++)
+            build_node(f, v, (uint32_t)(r / v->n[1]), (uint32_t)(r % v->n[1]), k, scratch);
     }
 }
 
@@ -169,7 +171,7 @@ static void trilinear(const nc_light_volume *v, const float g[3], float tau[3])
         i0[k] = i + 1 < v->n[k] ? i : v->n[k] - 2;
         t[k] = g[k] - (float)i0[k];
     }
-    size_t sx = 3, sy = 3 * (size_t)v->n[0], sz = sy * v->n[1];
+    size_t sz = 3, sy = 3 * (size_t)v->n[2], sx = sy * v->n[1];
     const float *p = v->tau + i0[0] * sx + i0[1] * sy + i0[2] * sz;
     for (int c = 0; c < 3; c++) {
         const float *q = p + c;

@@ -44,7 +44,8 @@ typedef struct nc_light_volume {
     float light[3];    /* point: the light's position in the grid frame (the fog's) */
     float light_world[3];
     const nc_fog_one *fog;
-    float *tau;        /* 3 per node, x fastest then y then z (the caller's, nc_light_volume_nodes x 3) */
+    float *tau;        /* 3 per node, z fastest then y then x: a directional light's columns are
+                        * contiguous (the caller's, nc_light_volume_nodes x 3) */
 } nc_light_volume;
 
 /* Frame and nodes of fog o's grid for a directional light travelling along `dir` (unit), or a
