@@ -803,6 +803,16 @@ static inline bool scatters(const float *ss)
     return (b & 0x7fffffffu) != 0;
 }
 
+/* Whether any of the n froxels at ss scatters: one OR over the column's words (vectorizes), so
+ * that an empty column costs a read of its sigma_s. */
+static inline bool column_scatters(const float *ss, uint32_t n)
+{
+    uint32_t b = 0;
+    for (size_t i = 0; i < 3 * (size_t)n; i++)
+        b |= float_bits(ss[i]);
+    return (b & 0x7fffffffu) != 0;
+}
+
 /* Most depth slices a column can have (renderer.c's check of froxel_slices). */
 #define MAX_SLICES 1024u
 
@@ -1232,6 +1242,8 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
     for (int64_t col = 0; col < cols; col++) {
         uint32_t *span = st->col_span + 3 * col, n = lit_slices(st, st->col_depth[col]), a = 0, b = n;
         const float *ss = st->ss + 3 * (size_t)col * st->D;
+        if (!column_scatters(ss, n))
+            a = n;
         while (a < n && !scatters(ss + 3 * (size_t)a))
             a++;
         while (b > a && !scatters(ss + 3 * (size_t)(b - 1)))
