@@ -772,25 +772,45 @@ static nacre_result light_volumes_update(vol_state *st, const nc_post_input *in,
     return NACRE_OK;
 }
 
-/* Optical depth from x towards light l (direction w, distance dist) through the patterned fogs:
- * the bounded ones from their grids (light_volumes_update), the global ones marched. */
-static void patterned_tau(const vol_state *st, uint32_t l, const float x[3], const float w[3], float dist, double td[3],
-                          float *scratch)
+/* Optical depth towards light l through the patterned fogs at the 8 points X, Y, Z (lanes q <
+ * count; tau[3q + c], capped at TAU_MAX; 0 where light_at finds no light): the bounded fogs from
+ * their grids (light_volumes_update, 8 lookups at a time), the global ones marched. */
+static void patterned_tau8(const vol_state *st, uint32_t l, const float *X, const float *Y, const float *Z,
+                           uint32_t count, float *tau, float *scratch)
 {
-    td[0] = td[1] = td[2] = 0.0;
+    float w[8][3], dist[8];
+    bool lit[8];
+    double td[8][3];
+    for (uint32_t q = 0; q < count; q++) {
+        const float x[3] = {X[q], Y[q], Z[q]};
+        float wi[3] = {0, 0, 0}, sf;
+        lit[q] = light_at(&st->lights[l], x, wi, &dist[q], &sf);
+        for (int c = 0; c < 3; c++) {
+            w[q][c] = -wi[c];
+            td[q][c] = 0.0;
+        }
+    }
     for (uint32_t i = 0; i < st->field.count; i++) {
         const nc_fog_one *o = &st->field.fogs[i];
         if (!o->patterned)
             continue;
         if (!o->box) {
-            nc_fog_one_optical_depth(&st->field, o, x, w, dist, td, scratch);
+            for (uint32_t q = 0; q < count; q++) {
+                const float x[3] = {X[q], Y[q], Z[q]};
+                if (lit[q])
+                    nc_fog_one_optical_depth(&st->field, o, x, w[q], dist[q], td[q], scratch);
+            }
             continue;
         }
-        float t[3];
-        nc_light_volume_lookup(&st->lvols[(size_t)l * st->field.count + i].v, x, t);
-        for (int c = 0; c < 3; c++)
-            td[c] += t[c];
+        float t[24];
+        nc_light_volume_lookup8(&st->lvols[(size_t)l * st->field.count + i].v, X, Y, Z, t);
+        for (uint32_t q = 0; q < count; q++)
+            for (int c = 0; c < 3 && lit[q]; c++)
+                td[q][c] += t[8 * c + q];
     }
+    for (uint32_t q = 0; q < count; q++)
+        for (int c = 0; c < 3; c++)
+            tau[3 * q + c] = td[q][c] < TAU_MAX ? (float)td[q][c] : TAU_MAX;
 }
 
 /* A froxel that scatters nothing (sigma_s 0 in every channel) has no source whatever its light:
@@ -888,23 +908,23 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
             float *out = st->tau_grid + 3 * ((size_t)l * nodes + (size_t)cc * Dc);
             uint32_t *range = st->tau_range + 2 * ((size_t)l * cols_c + (size_t)cc), lo = Dc, hi = 0;
             memset(out, 0, 3 * (size_t)Dc * sizeof(float));
-            for (uint32_t c = first; c < used; c++) {
-                const float *x = p + 3 * (size_t)(2 * c);
-                float wi[3], dist, sf;
-                double td[3] = {0, 0, 0};
-                if (light_at(&st->lights[l], x, wi, &dist, &sf)) {
-                    float w[3] = {-wi[0], -wi[1], -wi[2]};
-                    patterned_tau(st, l, x, w, dist, td, tau);
+            for (uint32_t c0 = first; c0 < used; c0 += 8) {
+                /* 8 nodes at a time (the last repeated past used) */
+                uint32_t count = used - c0 < 8 ? used - c0 : 8;
+                float X[8], Y[8], Z[8], t[24];
+                for (uint32_t q = 0; q < 8; q++) {
+                    const float *x = p + 6 * (size_t)(c0 + (q < count ? q : count - 1));
+                    X[q] = x[0], Y[q] = x[1], Z[q] = x[2];
                 }
-                bool nonzero = false;
-                for (int ch = 0; ch < 3; ch++) {
-                    float t = td[ch] < TAU_MAX ? (float)td[ch] : TAU_MAX;
-                    out[(size_t)ch * Dc + c] = t;
-                    nonzero = nonzero || t != 0.0f;
-                }
-                if (nonzero) {
-                    lo = c < lo ? c : lo;
-                    hi = c + 1;
+                patterned_tau8(st, l, X, Y, Z, count, t, tau);
+                for (uint32_t q = 0; q < count; q++) {
+                    uint32_t c = c0 + q;
+                    for (int ch = 0; ch < 3; ch++)
+                        out[(size_t)ch * Dc + c] = t[3 * q + ch];
+                    if (t[3 * q] != 0.0f || t[3 * q + 1] != 0.0f || t[3 * q + 2] != 0.0f) {
+                        lo = c < lo ? c : lo;
+                        hi = c + 1;
+                    }
                 }
             }
             range[0] = lo;

@@ -62,4 +62,9 @@ void nc_light_volume_build(const nc_fog_field *f, nc_light_volume *v, int thread
 /* The optical depth per channel from world point x to the light through v's fog (see above). */
 void nc_light_volume_lookup(const nc_light_volume *v, const float x[3], float tau[3]);
 
+/* nc_light_volume_lookup at 8 points (px[l], py[l], pz[l]), equal bit for bit: channel c of point
+ * l in tau[8 c + l]. */
+void nc_light_volume_lookup8(const nc_light_volume *v, const float *px, const float *py, const float *pz,
+                             float *tau);
+
 #endif /* NACRE_VOLUME_LIGHT_VOLUME_H */
