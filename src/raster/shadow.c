@@ -766,13 +766,20 @@ void nc_shadow_lookup_volume8(const nc_shadow_map *sm, const float *px, const fl
     nc_v8f vx = m->m[0][0] * x + m->m[0][1] * y + m->m[0][2] * z + m->m[0][3];
     nc_v8f vy = m->m[1][0] * x + m->m[1][1] * y + m->m[1][2] * z + m->m[1][3];
     nc_v8f vz = m->m[2][0] * x + m->m[2][1] * y + m->m[2][2] * z + m->m[2][3];
-    nc_v8f d = -vz, w = v->orthographic ? one : d;
-    nc_v8f ndc_x = (pm->m[0][0] * vx + pm->m[0][2] * vz + pm->m[0][3]) / w;
-    nc_v8f ndc_y = (pm->m[1][1] * vy + pm->m[1][2] * vz + pm->m[1][3]) / w;
+    nc_v8f d = -vz;
+    nc_v8f ndc_x = pm->m[0][0] * vx + pm->m[0][2] * vz + pm->m[0][3];
+    nc_v8f ndc_y = pm->m[1][1] * vy + pm->m[1][2] * vz + pm->m[1][3];
     float size = (float)sm->size;
+    /* An orthographic map's w is 1: no division (a sun's map, the froxels' most lookups). */
+    nc_v8f texel = nc_v8_splat(2.0f / (pm->m[0][0] * size));
+    if (!v->orthographic) {
+        ndc_x /= d;
+        ndc_y /= d;
+        texel = 2.0f * d / (pm->m[0][0] * size);
+    }
     nc_v8f u = (ndc_x * 0.5f + 0.5f) * size - 0.5f, vv = (0.5f - ndc_y * 0.5f) * size - 0.5f;
     nc_v8i live = (d >= linear_depth(v, 0.0f)) & (u > -1.0f) & (u < size) & (vv > -1.0f) & (vv < size);
-    nc_v8f limit = d - fmax_fast(bias, 0.0f) * (2.0f * w / (pm->m[0][0] * size));
+    nc_v8f limit = d - fmax_fast(bias, 0.0f) * texel;
     /* The 2 x 2 texels of the live lanes (1, no caster, elsewhere). */
     const float *map = sm->depth;
     int n = sm->size;

@@ -24,6 +24,8 @@
  * evaluates this per point in double; the froxels in float, 8 froxels of a column at a time
  * (froxel_light_column: global fogs without pattern in closed form, patterned ones from a coarse
  * grid, boxes without pattern exactly, a fast exponential), which the tests hold to the march.
+ * Froxels whose sigma_s is 0 in every channel get no source (their emission aside) without
+ * being lit: most of a particle system's grid.
  * The coarse grid reads each patterned box or sphere's optical depth towards each light from a
  * grid of its own that does not move with the camera (volume/light_volume.h: light-aligned
  * columns for directional lights, nodes over the box for point and spot lights).
@@ -170,6 +172,10 @@ typedef struct vol_state {
     float *px_w;
     size_t px_capacity, px_wcapacity;
     float *col_depth;     /* per column: the farthest depth of the pixels that read it */
+    /* froxel_light's per column: the lit slices n, then [first, end) the lit ones that scatter
+     * (end 0: none) */
+    uint32_t *col_span;
+    size_t col_span_capacity;
     float *prev_col_depth; /* col_depth of the frame the lit grid was made for */
     float *row_depth;      /* column_depths' scratch: per image row and column */
     float *prev_depth;     /* the depth buffer of that frame */
@@ -194,11 +200,14 @@ typedef struct vol_state {
     float *boundf;                   /* bound in float (D + 1), then 1 / each slice's depth (D) */
     size_t boundf_capacity;
     size_t grid_capacity;
-    /* Optical depth towards each light at the froxels of even indices (Wc x Hc x Dc nodes,
-     * column-major in depth), x 3 channels, per light */
+    /* Optical depth towards each light at the froxels of even indices (Wc x Hc x Dc nodes), per
+     * light and node column 3 planes of Dc (one per channel: froxel_light_column interpolates a
+     * plane 8 nodes at a time); tau_range: per light and node column, the nodes [lo, hi) outside
+     * which all 3 planes are 0 (the froxels' rays that miss the fog's shadow skip it) */
     uint32_t Wc, Hc, Dc;
     float *tau_grid;
-    size_t tau_capacity;
+    uint32_t *tau_range;
+    size_t tau_capacity, tau_range_capacity;
     /* The lights each part of tau_grid was made for (tau_count of them), kept while the fill and
      * the depths are; redo: per light, whether this frame remakes it */
     tau_key *tau_keys;
@@ -253,12 +262,14 @@ static void vol_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->bound);
     nc_free(ctx, st->boundf);
     nc_free(ctx, st->tau_grid);
+    nc_free(ctx, st->tau_range);
     nc_free(ctx, st->tau_keys);
     nc_free(ctx, st->tau_redo);
     for (size_t i = 0; i < st->lvol_count; i++)
         nc_free(ctx, st->lvols[i].tau);
     nc_free(ctx, st->lvols);
     nc_free(ctx, st->col_depth);
+    nc_free(ctx, st->col_span);
     nc_free(ctx, st->scratch);
     nc_free(ctx, st->hist_st);
     nc_free(ctx, st->hist_src);
@@ -761,46 +772,93 @@ static nacre_result light_volumes_update(vol_state *st, const nc_post_input *in,
     return NACRE_OK;
 }
 
-/* Optical depth from x towards light l (direction w, distance dist) through the patterned fogs:
- * the bounded ones from their grids (light_volumes_update), the global ones marched. */
-static void patterned_tau(const vol_state *st, uint32_t l, const float x[3], const float w[3], float dist, double td[3],
-                          float *scratch)
+/* Optical depth towards light l through the patterned fogs at the 8 points X, Y, Z (lanes q <
+ * count; tau[3q + c], capped at TAU_MAX; 0 where light_at finds no light): the bounded fogs from
+ * their grids (light_volumes_update, 8 lookups at a time), the global ones marched. */
+static void patterned_tau8(const vol_state *st, uint32_t l, const float *X, const float *Y, const float *Z,
+                           uint32_t count, float *tau, float *scratch)
 {
-    td[0] = td[1] = td[2] = 0.0;
+    float w[8][3], dist[8];
+    bool lit[8];
+    double td[8][3];
+    for (uint32_t q = 0; q < count; q++) {
+        const float x[3] = {X[q], Y[q], Z[q]};
+        float wi[3] = {0, 0, 0}, sf;
+        lit[q] = light_at(&st->lights[l], x, wi, &dist[q], &sf);
+        for (int c = 0; c < 3; c++) {
+            w[q][c] = -wi[c];
+            td[q][c] = 0.0;
+        }
+    }
     for (uint32_t i = 0; i < st->field.count; i++) {
         const nc_fog_one *o = &st->field.fogs[i];
         if (!o->patterned)
             continue;
         if (!o->box) {
-            nc_fog_one_optical_depth(&st->field, o, x, w, dist, td, scratch);
+            for (uint32_t q = 0; q < count; q++) {
+                const float x[3] = {X[q], Y[q], Z[q]};
+                if (lit[q])
+                    nc_fog_one_optical_depth(&st->field, o, x, w[q], dist[q], td[q], scratch);
+            }
             continue;
         }
-        float t[3];
-        nc_light_volume_lookup(&st->lvols[(size_t)l * st->field.count + i].v, x, t);
-        for (int c = 0; c < 3; c++)
-            td[c] += t[c];
+        float t[24];
+        nc_light_volume_lookup8(&st->lvols[(size_t)l * st->field.count + i].v, X, Y, Z, t);
+        for (uint32_t q = 0; q < count; q++)
+            for (int c = 0; c < 3 && lit[q]; c++)
+                td[q][c] += t[8 * c + q];
     }
+    for (uint32_t q = 0; q < count; q++)
+        for (int c = 0; c < 3; c++)
+            tau[3 * q + c] = td[q][c] < TAU_MAX ? (float)td[q][c] : TAU_MAX;
 }
+
+/* A froxel that scatters nothing (sigma_s 0 in every channel) has no source whatever its light:
+ * the lighting skips it (in a particle system's grid most froxels are empty). */
+static inline bool scatters(const float *ss)
+{
+    /* On the bits (NaN counts as not 0): a branch-free test that the compaction loops can take
+     * per froxel. */
+    uint32_t b = float_bits(ss[0]) | float_bits(ss[1]) | float_bits(ss[2]);
+    return (b & 0x7fffffffu) != 0;
+}
+
+/* Whether any of the n froxels at ss scatters: one OR over the column's words (vectorizes), so
+ * that an empty column costs a read of its sigma_s. */
+static inline bool column_scatters(const float *ss, uint32_t n)
+{
+    uint32_t b = 0;
+    for (size_t i = 0; i < 3 * (size_t)n; i++)
+        b |= float_bits(ss[i]);
+    return (b & 0x7fffffffu) != 0;
+}
+
+/* Most depth slices a column can have (renderer.c's check of froxel_slices). */
+#define MAX_SLICES 1024u
 
 /* The coarse grid of the patterned fogs' optical depths towards the lights (nodes at the
  * froxels of even indices): their shadow on themselves varies slowly next to the opaque
  * shadows, so it is looked up (bounded fogs: their light grids) or marched (global ones) at 1/8
  * of the froxels and interpolated in optical depth. Fogs without pattern stay exact per
- * froxel (closed form, and a box's walls are sharp). With `keep` (the fill and the depths are the
- * previous frame's), the part of each light that did not move is kept. */
+ * froxel (closed form, and a box's walls are sharp). Only nodes that a lit froxel which scatters
+ * reads are made (the others hold 0). With `keep` (the fill and the depths are the previous
+ * frame's), the part of each light that did not move is kept. */
 static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads, uint32_t batch, bool keep)
 {
     st->Wc = (st->W + 1) / 2;
     st->Hc = (st->H + 1) / 2;
     st->Dc = (st->D + 1) / 2;
-    size_t nodes = (size_t)st->Wc * st->Hc * st->Dc, need = nodes * 3 * st->light_count;
+    size_t cols_c = (size_t)st->Wc * st->Hc, nodes = cols_c * st->Dc, need = nodes * 3 * st->light_count;
+    size_t caps[3] = {st->tau_capacity, st->tau_range_capacity, st->tau_key_capacity};
     if (!nc_reserve(ctx, &st->tau_grid, &st->tau_capacity, need, sizeof(float)) ||
+        !nc_reserve(ctx, &st->tau_range, &st->tau_range_capacity, 2 * cols_c * st->light_count, sizeof(uint32_t)) ||
         !nc_reserve(ctx, &st->tau_keys, &st->tau_key_capacity, st->light_count, sizeof(tau_key)) ||
         !nc_reserve(ctx, &st->tau_redo, &st->tau_redo_capacity, st->light_count, sizeof(bool))) {
         st->tau_count = 0;
         return NACRE_ERROR_OUT_OF_MEMORY;
     }
-    if (!keep)
+    /* A grown array holds nothing of the previous frame. */
+    if (!keep || caps[0] != st->tau_capacity || caps[1] != st->tau_range_capacity || caps[2] != st->tau_key_capacity)
         st->tau_count = 0;
     bool any = false;
     for (uint32_t l = 0; l < st->light_count; l++) {
@@ -819,38 +877,58 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
     st->tau_count = st->light_count;
     if (!any)
         return NACRE_OK;
-    int64_t cols = (int64_t)st->Wc * st->Hc;
+    int64_t cols = (int64_t)cols_c;
+    uint32_t Dc = st->Dc;
 #pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
     for (int64_t cc = 0; cc < cols; cc++) {
         float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
         float o[3], d[3];
         double scale, offset;
         uint32_t gi = (uint32_t)(cc % st->Wc), gj = (uint32_t)(cc / st->Wc);
-        /* Nodes that a lit froxel reads (froxel_light: froxels k < n of the columns 2g - 1 ..
-         * 2g + 1 read nodes up to n / 2); the others are never read, and set to 0. */
-        float depth = 0.0f;
+        /* Nodes that a lit froxel which scatters reads (froxel_light: froxels k of the columns
+         * 2g - 1 .. 2g + 1 read nodes k / 2 and (k + 1) / 2, within the columns' spans); the
+         * others are never read, and set to 0. */
+        uint32_t first = Dc, used = 0;
         for (uint32_t j = gj > 0 ? 2 * gj - 1 : 0; j <= 2 * gj + 1 && j < st->H; j++)
-            for (uint32_t i = gi > 0 ? 2 * gi - 1 : 0; i <= 2 * gi + 1 && i < st->W; i++)
-                depth = fmaxf(depth, st->col_depth[(size_t)j * st->W + i]);
-        uint32_t n = lit_slices(st, depth), used = n == 0 ? 0 : n / 2 + 1 < st->Dc ? n / 2 + 1 : st->Dc;
-        column_ray(st, 2 * gi, 2 * gj, o, d, &scale, &offset);
-        column_points(st, o, d, scale, offset, p);
+            for (uint32_t i = gi > 0 ? 2 * gi - 1 : 0; i <= 2 * gi + 1 && i < st->W; i++) {
+                const uint32_t *span = st->col_span + 3 * ((size_t)j * st->W + i);
+                if (span[2] == 0)
+                    continue;
+                uint32_t c0 = span[1] / 2, c1 = span[2] / 2 < Dc ? span[2] / 2 : Dc - 1;
+                first = c0 < first ? c0 : first;
+                used = c1 + 1 > used ? c1 + 1 : used;
+            }
+        if (used > 0) {
+            column_ray(st, 2 * gi, 2 * gj, o, d, &scale, &offset);
+            column_points(st, o, d, scale, offset, p);
+        }
         for (uint32_t l = 0; l < st->light_count; l++) {
             if (!st->tau_redo[l])
                 continue;
-            float *out = st->tau_grid + 3 * ((size_t)l * nodes + (size_t)cc * st->Dc);
-            memset(out + 3 * (size_t)used, 0, 3 * (size_t)(st->Dc - used) * sizeof(float));
-            for (uint32_t c = 0; c < used; c++) {
-                const float *x = p + 3 * (size_t)(2 * c);
-                float wi[3], dist, sf;
-                double td[3] = {0, 0, 0};
-                if (light_at(&st->lights[l], x, wi, &dist, &sf)) {
-                    float w[3] = {-wi[0], -wi[1], -wi[2]};
-                    patterned_tau(st, l, x, w, dist, td, tau);
+            float *out = st->tau_grid + 3 * ((size_t)l * nodes + (size_t)cc * Dc);
+            uint32_t *range = st->tau_range + 2 * ((size_t)l * cols_c + (size_t)cc), lo = Dc, hi = 0;
+            memset(out, 0, 3 * (size_t)Dc * sizeof(float));
+            for (uint32_t c0 = first; c0 < used; c0 += 8) {
+                /* 8 nodes at a time (the last repeated past used) */
+                uint32_t count = used - c0 < 8 ? used - c0 : 8;
+                float X[8], Y[8], Z[8], t[24];
+                for (uint32_t q = 0; q < 8; q++) {
+                    const float *x = p + 6 * (size_t)(c0 + (q < count ? q : count - 1));
+                    X[q] = x[0], Y[q] = x[1], Z[q] = x[2];
                 }
-                for (int ch = 0; ch < 3; ch++)
-                    out[3 * c + ch] = td[ch] < TAU_MAX ? (float)td[ch] : TAU_MAX;
+                patterned_tau8(st, l, X, Y, Z, count, t, tau);
+                for (uint32_t q = 0; q < count; q++) {
+                    uint32_t c = c0 + q;
+                    for (int ch = 0; ch < 3; ch++)
+                        out[(size_t)ch * Dc + c] = t[3 * q + ch];
+                    if (t[3 * q] != 0.0f || t[3 * q + 1] != 0.0f || t[3 * q + 2] != 0.0f) {
+                        lo = c < lo ? c : lo;
+                        hi = c + 1;
+                    }
+                }
             }
+            range[0] = lo;
+            range[1] = hi;
         }
     }
     return NACRE_OK;
@@ -977,25 +1055,38 @@ static inline nc_v8f v8_height_integral(const vfog *v, nc_v8f y, nc_v8f wy, nc_v
 
 /* The froxels' lighting of one column (light_points' sum, by light over groups of 8 froxels in
  * SoA arrays): n froxels at p (xyz each) seen along d, src[3k + c] from ss[3k + c] and g[k]; src
- * may alias ss. The optical depth towards a light is the sum of the patterned fogs' coarse grid
- * (interpolated; cn, cw: the grid's 4 columns around this one and their weights, cn NULL
- * without patterned fogs), the global fogs without pattern in closed form and the boxes without
- * pattern exactly (nc_fog_field_optical_depth, sharp walls); its exponential is
+ * may alias ss. Only the froxels in span[1] .. span[2] - 1 that scatter are lit, packed (the
+ * others' source is 0). The optical depth towards a light is the sum of the patterned fogs'
+ * coarse grid (interpolated; cn, cw: the grid's 4 columns around this one and their weights, cn
+ * NULL without patterned fogs), the global fogs without pattern in closed form and the boxes
+ * without pattern exactly (nc_fog_field_optical_depth, sharp walls); its exponential is
  * nc_vol_exp_fast's. The opaque shadow is looked up per froxel. */
-static void froxel_light_column(const vol_state *st, uint32_t n, const float *p, const float d[3], const float *ss,
-                                const float *g, float *src, const size_t cn[4], const float cw[4], float *ls,
-                                float *tau_scratch)
+static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t span[3], const float *p,
+                                const float d[3], const float *ss, const float *g, float *src, const size_t cn[4],
+                                const float cw[4], float *ls, float *tau_scratch)
 {
-    if (n == 0)
+    /* The froxels that scatter, in order. */
+    int32_t idx[MAX_SLICES];
+    uint32_t m = 0;
+    for (uint32_t k = span[1]; k < span[2]; k++) {
+        idx[m] = (int32_t)k;
+        m += scatters(ss + 3 * (size_t)k);
+    }
+    if (m == 0) {
+        memset(src, 0, 3 * (size_t)n * sizeof(float));
         return;
+    }
+    bool packed = m < n; /* else idx is 0 .. n - 1 */
     const size_t S = ((size_t)st->D + 7) & ~(size_t)7;
-    const uint32_t n8 = (n + 7) & ~7u;
+    const uint32_t m8 = (m + 7) & ~7u;
     float *X = ls, *Y = ls + S, *Z = ls + 2 * S, *Gp = ls + 3 * S, *F = ls + 4 * S;
     float *A[3] = {ls + 5 * S, ls + 6 * S, ls + 7 * S}, *T[3] = {ls + 8 * S, ls + 9 * S, ls + 10 * S};
     float *CG = ls + 11 * S, *HF = ls + 14 * S; /* CG: 3 x S, a node per 2 froxels plus padding */
-    /* Lanes past n repeat the last froxel (their results are not used). */
-    for (uint32_t k = 0; k < n8; k++) {
-        uint32_t q = k < n ? k : n - 1;
+    /* Lanes past m repeat the last froxel (their results are not used). */
+    for (uint32_t k = m; k < m8; k++)
+        idx[k] = idx[m - 1];
+    for (uint32_t k = 0; k < m8; k++) {
+        uint32_t q = (uint32_t)idx[k];
         X[k] = p[3 * q];
         Y[k] = p[3 * q + 1];
         Z[k] = p[3 * q + 2];
@@ -1006,49 +1097,69 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
     /* Each global fog's height factor at the froxels, shared by all lights. */
     for (uint32_t f = 0; f < st->gfog_count; f++) {
         const nc_fog_one *o = st->gfog[f].o;
-        for (uint32_t k = 0; k < n8; k += 8) {
+        for (uint32_t k = 0; k < m8; k += 8) {
             nc_v8f e = -o->hf_falloff * (nc_v8_load(Y + k) - o->hf_base);
             nc_v8f hf = o->height ? nc_vol_exp_fast8(nc_v8_sel(e < o->hf_cap, e, nc_v8_splat(o->hf_cap)))
                                   : nc_v8_splat(st->gfog[f].flat);
             nc_v8_store(HF + f * S + k, hf);
         }
     }
-    size_t nodes = (size_t)st->Wc * st->Hc * st->Dc;
+    const size_t cols_c = (size_t)st->Wc * st->Hc, nodes = cols_c * st->Dc;
     for (uint32_t l = 0; l < st->light_count; l++) {
         const vlight *li = &st->lights[l];
+        if (!(li->e[0] != 0.0f || li->e[1] != 0.0f || li->e[2] != 0.0f))
+            continue; /* it would add e F Tr = 0 */
         bool directional = li->type == NACRE_LIGHT_DIRECTIONAL;
-        if (cn) {
-            /* The 4 grid columns around this one (per channel, the last node repeated past the
-             * used ones), then linear in depth: even froxels on the nodes, odd ones halfway. */
+        /* The coarse grid's nodes where any of the 4 columns around this one is not 0. */
+        uint32_t used = n / 2 + 1 < st->Dc ? n / 2 + 1 : st->Dc, lo = used, hi = 0;
+        for (int q = 0; cn && q < 4; q++) {
+            const uint32_t *r = st->tau_range + 2 * ((size_t)l * cols_c + cn[q]);
+            lo = r[0] < lo ? r[0] : lo;
+            hi = r[1] > hi ? r[1] : hi;
+        }
+        hi = hi < used ? hi : used;
+        if (lo < hi) {
+            /* The 4 grid columns around this one (per channel; 0 outside [lo, hi), the last node
+             * repeated past the used ones), then linear in depth: even froxels on the nodes, odd
+             * ones halfway (x = 0.5 (x + x) exactly). */
             const float *grid = st->tau_grid + 3 * (size_t)l * nodes;
-            uint32_t used = n / 2 + 1 < st->Dc ? n / 2 + 1 : st->Dc, half = n8 / 2;
-            const float *g4[4] = {grid + 3 * cn[0] * st->Dc, grid + 3 * cn[1] * st->Dc, grid + 3 * cn[2] * st->Dc,
-                                  grid + 3 * cn[3] * st->Dc};
-            for (uint32_t kc = 0; kc < used; kc++)
-                for (int c = 0; c < 3; c++)
-                    CG[c * S + kc] = cw[0] * g4[0][3 * kc + c] + cw[1] * g4[1][3 * kc + c] +
-                                     cw[2] * g4[2][3 * kc + c] + cw[3] * g4[3][3 * kc + c];
+            uint32_t half = (n + 1) / 2;
             for (int c = 0; c < 3; c++) {
+                const float *g0 = grid + (3 * cn[0] + (size_t)c) * st->Dc, *g1 = grid + (3 * cn[1] + (size_t)c) * st->Dc,
+                            *g2 = grid + (3 * cn[2] + (size_t)c) * st->Dc, *g3 = grid + (3 * cn[3] + (size_t)c) * st->Dc;
                 float *cg = CG + c * S, *t = T[c];
+                for (uint32_t kc = 0; kc < lo; kc++)
+                    cg[kc] = 0.0f;
+                for (uint32_t kc = lo; kc < hi; kc++)
+                    cg[kc] = cw[0] * g0[kc] + cw[1] * g1[kc] + cw[2] * g2[kc] + cw[3] * g3[kc];
+                for (uint32_t kc = hi; kc < used; kc++)
+                    cg[kc] = 0.0f;
                 for (uint32_t kc = used; kc <= half; kc++)
                     cg[kc] = cg[used - 1];
-                for (uint32_t m = 0; m < half; m++) {
-                    t[2 * m] = cg[m];
-                    t[2 * m + 1] = 0.5f * (cg[m] + cg[m + 1]);
+                if (packed) {
+                    for (uint32_t q = 0; q < m8; q++)
+                        t[q] = 0.5f * (cg[idx[q] >> 1] + cg[(idx[q] + 1) >> 1]);
+                    continue;
                 }
+                for (uint32_t h = 0; h < half; h++) {
+                    t[2 * h] = cg[h];
+                    t[2 * h + 1] = 0.5f * (cg[h] + cg[h + 1]);
+                }
+                for (uint32_t k = 2 * half; k < m8; k++)
+                    t[k] = t[n - 1];
             }
         } else {
             for (int c = 0; c < 3; c++)
-                memset(T[c], 0, n8 * sizeof(float));
+                memset(T[c], 0, m8 * sizeof(float));
         }
         if (directional) {
             float cs = -(d[0] * li->dir[0] + d[1] * li->dir[1] + d[2] * li->dir[2]), wy = -li->dir[1];
-            for (uint32_t k = 0; k < n8; k += 8)
+            for (uint32_t k = 0; k < m8; k += 8)
                 nc_v8_store(F + k, v8_hg_phase(nc_v8_splat(cs), nc_v8_load(Gp + k)));
             for (uint32_t f = 0; f < st->gfog_count; f++) {
                 const vfog *v = &st->gfog[f];
                 float kf = v->o->hf_falloff;
-                for (uint32_t k = 0; k < n8; k += 8) {
+                for (uint32_t k = 0; k < m8; k += 8) {
                     nc_v8f hf = nc_v8_load(HF + f * S + k), y = nc_v8_load(Y + k), G;
                     if (!(kf > 0.0f) || wy < 0.0f) {
                         G = nc_v8_splat(INFINITY); /* constant or denser fog forever */
@@ -1074,7 +1185,8 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
                                   : st->gfog[f].flat;
             }
             const nc_v8f zero = {0};
-            for (uint32_t k = 0; k < n8; k += 8) {
+            const nc_v8i hard = (nc_v8i){0} - (int32_t)(li->ci <= li->co); /* nc_spot_falloff8's */
+            for (uint32_t k = 0; k < m8; k += 8) {
                 nc_v8f vx = nc_v8_load(X + k) - li->pos[0], vy = nc_v8_load(Y + k) - li->pos[1],
                        vz = nc_v8_load(Z + k) - li->pos[2];
                 nc_v8f d2 = vx * vx + vy * vy + vz * vz;
@@ -1083,9 +1195,8 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
                 nc_v8f wx = vx * inv, wyv = vy * inv, wz = vz * inv;
                 nc_v8f scale = 1.0f / d2;
                 if (li->type == NACRE_LIGHT_SPOT)
-                    for (int q = 0; q < 8; q++)
-                        scale[q] *= nc_spot_falloff(li->falloff, wx[q] * li->dir[0] + wyv[q] * li->dir[1] + wz[q] * li->dir[2],
-                                                    li->co, li->ci);
+                    scale *= nc_spot_falloff8(li->falloff, wx * li->dir[0] + wyv * li->dir[1] + wz * li->dir[2],
+                                              li->co, li->ci, hard);
                 nc_v8f cs = -(d[0] * wx + d[1] * wyv + d[2] * wz);
                 nc_v8_store(F + k, nc_v8_sel(valid, v8_hg_phase(cs, nc_v8_load(Gp + k)) * scale, zero));
                 for (uint32_t f = 0; f < st->gfog_count; f++) {
@@ -1103,15 +1214,15 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
         }
         /* The opaque shadow, then the boxes without pattern per froxel where light arrives. */
         if (li->shadow)
-            for (uint32_t k = 0; k < n8; k += 8) {
+            for (uint32_t k = 0; k < m8; k += 8) {
                 float vis[8];
                 nc_shadow_lookup_volume8(li->shadow, X + k, Y + k, Z + k, st->bias, vis);
                 nc_v8_store(F + k, nc_v8_load(F + k) * nc_v8_load(vis));
             }
-        for (uint32_t k = 0; st->analytic_boxes && k < n; k++) {
-            if (!(F[k] > 0.0f) || !(ss[3 * k] > 0.0f || ss[3 * k + 1] > 0.0f || ss[3 * k + 2] > 0.0f))
+        for (uint32_t k = 0; st->analytic_boxes && k < m; k++) {
+            if (!(F[k] > 0.0f))
                 continue;
-            const float *x = p + 3 * (size_t)k;
+            const float x[3] = {X[k], Y[k], Z[k]};
             float w[3], dist = INFINITY;
             if (directional) {
                 w[0] = -li->dir[0], w[1] = -li->dir[1], w[2] = -li->dir[2];
@@ -1125,24 +1236,46 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const float *p,
             for (int c = 0; c < 3; c++)
                 T[c][k] += td[c] < TAU_MAX ? (float)td[c] : TAU_MAX;
         }
-        for (uint32_t k = 0; k < n8; k += 8) {
+        for (uint32_t k = 0; k < m8; k += 8) {
             nc_v8f fk = nc_v8_load(F + k);
+            if (!nc_v8_bits(fk != 0.0f))
+                continue; /* in the shadow: e F Tr adds 0 */
             for (int c = 0; c < 3; c++)
                 nc_v8_store(A[c] + k, nc_v8_load(A[c] + k) + li->e[c] * fk * nc_vol_exp_fast8(-nc_v8_load(T[c] + k)));
         }
     }
-    for (uint32_t k = 0; k < n; k++)
+    uint32_t q = 0;
+    for (uint32_t k = 0; k < n; k++) {
+        bool lit = q < m && (uint32_t)idx[q] == k;
         for (int c = 0; c < 3; c++)
-            src[3 * k + c] = ss[3 * k + c] * A[c][k];
+            src[3 * k + c] = lit ? ss[3 * k + c] * A[c][q] : 0.0f;
+        q += lit;
+    }
 }
 
 static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads, uint32_t batch, bool keep)
 {
+    int64_t cols = (int64_t)st->W * st->H;
+    if (!nc_reserve(ctx, &st->col_span, &st->col_span_capacity, 3 * (size_t)cols, sizeof(uint32_t)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+#pragma omp parallel for schedule(static) num_threads(threads)
+    for (int64_t col = 0; col < cols; col++) {
+        uint32_t *span = st->col_span + 3 * col, n = lit_slices(st, st->col_depth[col]), a = 0, b = n;
+        const float *ss = st->ss + 3 * (size_t)col * st->D;
+        if (!column_scatters(ss, n))
+            a = n;
+        while (a < n && !scatters(ss + 3 * (size_t)a))
+            a++;
+        while (b > a && !scatters(ss + 3 * (size_t)(b - 1)))
+            b--;
+        span[0] = n;
+        span[1] = a < b ? a : 0;
+        span[2] = a < b ? b : 0;
+    }
     bool patterned = nc_fog_field_patterned(&st->field);
     nacre_result res = patterned ? tau_grid_fill(st, ctx, threads, batch, keep) : NACRE_OK;
     if (res != NACRE_OK)
         return res;
-    int64_t cols = (int64_t)st->W * st->H;
 #pragma omp parallel for schedule(dynamic, 16) num_threads(threads)
     for (int64_t col = 0; col < cols; col++) {
         float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
@@ -1157,14 +1290,18 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
         const size_t cn[4] = {(size_t)b0 * st->Wc + a0, (size_t)b0 * st->Wc + a1, (size_t)b1 * st->Wc + a0,
                               (size_t)b1 * st->Wc + a1};
         const float cw[4] = {(1 - wa) * (1 - wb), wa * (1 - wb), (1 - wa) * wb, wa * wb};
-        uint32_t n = lit_slices(st, st->col_depth[col]);
-        float o[3], d[3];
-        double scale, offset;
-        column_ray(st, i, j, o, d, &scale, &offset);
-        column_points(st, o, d, scale, offset, p);
+        const uint32_t *span = st->col_span + 3 * col, n = span[0];
         size_t base = (size_t)col * st->D;
-        froxel_light_column(st, n, p, d, st->ss + 3 * base, st->g + base, st->src + 3 * base, patterned ? cn : NULL,
-                            cw, ls, tau);
+        if (span[2] > 0) {
+            float o[3], d[3];
+            double scale, offset;
+            column_ray(st, i, j, o, d, &scale, &offset);
+            column_points(st, o, d, scale, offset, p);
+            froxel_light_column(st, n, span, p, d, st->ss + 3 * base, st->g + base, st->src + 3 * base,
+                                patterned ? cn : NULL, cw, ls, tau);
+        } else {
+            memset(st->src + 3 * base, 0, 3 * (size_t)n * sizeof(float));
+        }
         if (st->field.emissive) /* emission: a source term beside sigma_s L (§1.2.11) */
             for (size_t k = 3 * base; k < 3 * (base + n); k++)
                 st->src[k] += st->em[k];

@@ -4,6 +4,7 @@
  */
 #include "volume/light_volume.h"
 #include "core/math.h"
+#include "core/simd.h"
 
 #include "scene/medium.h"
 
@@ -71,7 +72,8 @@ void nc_light_volume_setup(nc_light_volume *v, const nc_fog_one *o, bool directi
 
 static inline float cap_tau(double t) { return t < NC_LIGHT_VOLUME_TAU_MAX ? (float)t : NC_LIGHT_VOLUME_TAU_MAX; }
 
-/* Directional: column (i, j) from where the light enters it, one step per node. */
+/* Directional: column (i, j) from where the light enters it, one step per node (its nodes are
+ * contiguous in tau: a column is written in one pass, not a cache line per node). */
 static void build_column(const nc_fog_field *f, nc_light_volume *v, uint32_t i, uint32_t j)
 {
     const nc_fog_one *o = v->fog;
@@ -84,8 +86,8 @@ static void build_column(const nc_fog_field *f, nc_light_volume *v, uint32_t i, 
     float local[3 * NC_LIGHT_VOLUME_MAX_RES], sa[3 * NC_LIGHT_VOLUME_MAX_RES], ss[3 * NC_LIGHT_VOLUME_MAX_RES];
     double G[NC_LIGHT_VOLUME_MAX_RES];
     uint32_t step_of[NC_LIGHT_VOLUME_MAX_RES];
-    float *out = v->tau + 3 * ((size_t)j * v->n[0] + i);
-    size_t stride = 3 * (size_t)v->n[0] * v->n[1];
+    float *out = v->tau + 3 * ((size_t)i * v->n[1] + j) * ns;
+    size_t stride = 3;
     double a = 0.0, b = (double)v->step[2] * (ns - 1);
     uint32_t m = 0;
     if (nc_fog_field_segment(o, p0, d, &a, &b)) {
@@ -135,7 +137,7 @@ static void build_node(const nc_fog_field *f, nc_light_volume *v, uint32_t i, ui
             w[c] /= dist;
         nc_fog_one_optical_depth(f, v->fog, x, w, dist, tau, scratch);
     }
-    float *out = v->tau + 3 * (((size_t)k * v->n[1] + j) * v->n[0] + i);
+    float *out = v->tau + 3 * (((size_t)i * v->n[1] + j) * v->n[2] + k);
     for (int c = 0; c < 3; c++)
         out[c] = cap_tau(tau[c]);
 }
@@ -150,12 +152,13 @@ void nc_light_volume_build(const nc_fog_field *f, nc_light_volume *v, int thread
             build_column(f, v, (uint32_t)(c % v->n[0]), (uint32_t)(c / v->n[0]));
         return;
     }
-    int64_t rows = (int64_t)v->n[1] * v->n[2];
+    /* Rows along z, whose nodes are contiguous. */
+    int64_t rows = (int64_t)v->n[0] * v->n[1];
 #pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
     for (int64_t r = 0; r < rows; r++) {
         float scratch[NC_FOG_TAU_SCRATCH(256)];
-        for (uint32_t i = 0; i < v->n[0]; i++)
-            build_node(f, v, i, (uint32_t)(r % v->n[1]), (uint32_t)(r / v->n[1]), scratch);
+        for (uint32_t k = 0; k < v->n[2]; k++)
+            build_node(f, v, (uint32_t)(r / v->n[1]), (uint32_t)(r % v->n[1]), k, scratch);
     }
 }
 
@@ -169,7 +172,7 @@ static void trilinear(const nc_light_volume *v, const float g[3], float tau[3])
         i0[k] = i + 1 < v->n[k] ? i : v->n[k] - 2;
         t[k] = g[k] - (float)i0[k];
     }
-    size_t sx = 3, sy = 3 * (size_t)v->n[0], sz = sy * v->n[1];
+    size_t sz = 3, sy = 3 * (size_t)v->n[2], sx = sy * v->n[1];
     const float *p = v->tau + i0[0] * sx + i0[1] * sy + i0[2] * sz;
     for (int c = 0; c < 3; c++) {
         const float *q = p + c;
@@ -217,4 +220,80 @@ void nc_light_volume_lookup(const nc_light_volume *v, const float x[3], float ta
         }
     }
     trilinear(v, g, tau);
+}
+
+/* nc_light_volume_lookup lane by lane, the same arithmetic (the results are equal bit for bit):
+ * the grid coordinates, a point light's slab test for the lanes outside the box, then trilinear
+ * over gathers of the 8 corners. */
+void nc_light_volume_lookup8(const nc_light_volume *v, const float *px, const float *py, const float *pz,
+                             float *tau)
+{
+    const nc_v8f x = nc_v8_load(px), y = nc_v8_load(py), z = nc_v8_load(pz), zero = {0};
+    nc_v8f g[3];
+    nc_v8i inside = (nc_v8i){0} == 0;
+    for (int k = 0; k < 3; k++) {
+        nc_v8f c = v->axes[k][0] * x + v->axes[k][1] * y + v->axes[k][2] * z + v->offset[k];
+        g[k] = (c - v->lo[k]) * v->inv_step[k];
+        float top = (float)(v->n[k] - 1);
+        inside &= (g[k] >= 0.0f) & (g[k] <= top);
+    }
+    nc_v8i live;
+    if (v->directional) {
+        live = (g[0] >= 0.0f) & (g[0] <= (float)(v->n[0] - 1)) & (g[1] >= 0.0f) & (g[1] <= (float)(v->n[1] - 1));
+        float top = (float)(v->n[2] - 1);
+        g[2] = nc_v8_sel(g[2] > 0.0f, nc_v8_sel(g[2] < top, g[2], nc_v8_splat(top)), zero);
+    } else {
+        live = inside;
+        if (nc_v8_bits(inside) != 0xffu) {
+            /* nc_ray_box from c along d over [0, 1], per lane */
+            nc_v8f c[3], d[3], a = zero, b = nc_v8_splat(1.0f);
+            nc_v8i ok = (nc_v8i){0} == 0;
+            for (int k = 0; k < 3; k++) {
+                c[k] = g[k] * v->step[k] + v->lo[k];
+                d[k] = v->light[k] - c[k];
+                float top = v->lo[k] + v->step[k] * (float)(v->n[k] - 1);
+                nc_v8i flat = d[k] == 0.0f;
+                ok &= ~(flat & ((c[k] < v->lo[k]) | (c[k] > top)));
+                nc_v8f inv = 1.0f / d[k];
+                nc_v8f ea = (v->lo[k] - c[k]) * inv, eb = (top - c[k]) * inv;
+                nc_v8i swap = ea > eb;
+                nc_v8f lo = nc_v8_sel(swap, eb, ea), hi = nc_v8_sel(swap, ea, eb);
+                a = nc_v8_sel(~flat & (lo > a), lo, a);
+                b = nc_v8_sel(~flat & (hi < b), hi, b);
+            }
+            nc_v8i enter = ~inside & ok & (a < b);
+            for (int k = 0; k < 3; k++) {
+                float top = (float)(v->n[k] - 1);
+                nc_v8f gk = (c[k] + a * d[k] - v->lo[k]) * v->inv_step[k];
+                gk = nc_v8_sel(gk > 0.0f, nc_v8_sel(gk < top, gk, nc_v8_splat(top)), zero);
+                g[k] = nc_v8_sel(enter, gk, g[k]);
+            }
+            live |= enter;
+        }
+    }
+    if (!nc_v8_bits(live)) {
+        memset(tau, 0, 24 * sizeof(float));
+        return;
+    }
+    /* trilinear; dead lanes read node 0 and give 0 */
+    nc_v8i i0[3];
+    nc_v8f t[3];
+    for (int k = 0; k < 3; k++) {
+        nc_v8i i = nc_v8i_sel(live, __builtin_convertvector(nc_v8_sel(live, g[k], zero), nc_v8i), (nc_v8i){0});
+        i0[k] = nc_v8i_sel(i + 1 < (int32_t)v->n[k], i, (nc_v8i){0} + (int32_t)(v->n[k] - 2));
+        t[k] = g[k] - __builtin_convertvector(i0[k], nc_v8f);
+    }
+    const int32_t sz = 3, sy = 3 * (int32_t)v->n[2], sx = sy * (int32_t)v->n[1];
+    const nc_v8i base = i0[0] * sx + i0[1] * sy + i0[2] * sz;
+    for (int ch = 0; ch < 3; ch++) {
+        const float *q = v->tau + ch;
+        nc_v8f q000 = nc_v8_gather(q, base), q100 = nc_v8_gather(q, base + sx);
+        nc_v8f q010 = nc_v8_gather(q, base + sy), q110 = nc_v8_gather(q, base + (sy + sx));
+        nc_v8f q001 = nc_v8_gather(q, base + sz), q101 = nc_v8_gather(q, base + (sz + sx));
+        nc_v8f q011 = nc_v8_gather(q, base + (sz + sy)), q111 = nc_v8_gather(q, base + (sz + sy + sx));
+        nc_v8f a = q000 + t[0] * (q100 - q000), b = q010 + t[0] * (q110 - q010);
+        nc_v8f e = q001 + t[0] * (q101 - q001), h = q011 + t[0] * (q111 - q011);
+        nc_v8f ab = a + t[1] * (b - a), eh = e + t[1] * (h - e);
+        nc_v8_store(tau + 8 * ch, nc_v8_sel(live, ab + t[2] * (eh - ab), zero));
+    }
 }

@@ -44,7 +44,8 @@ typedef struct nc_light_volume {
     float light[3];    /* point: the light's position in the grid frame (the fog's) */
     float light_world[3];
     const nc_fog_one *fog;
-    float *tau;        /* 3 per node, x fastest then y then z (the caller's, nc_light_volume_nodes x 3) */
+    float *tau;        /* 3 per node, z fastest then y then x: a directional light's columns are
+                        * contiguous (the caller's, nc_light_volume_nodes x 3) */
 } nc_light_volume;
 
 /* Frame and nodes of fog o's grid for a directional light travelling along `dir` (unit), or a
@@ -60,5 +61,10 @@ void nc_light_volume_build(const nc_fog_field *f, nc_light_volume *v, int thread
 
 /* The optical depth per channel from world point x to the light through v's fog (see above). */
 void nc_light_volume_lookup(const nc_light_volume *v, const float x[3], float tau[3]);
+
+/* nc_light_volume_lookup at 8 points (px[l], py[l], pz[l]), equal bit for bit: channel c of point
+ * l in tau[8 c + l]. */
+void nc_light_volume_lookup8(const nc_light_volume *v, const float *px, const float *py, const float *pz,
+                             float *tau);
 
 #endif /* NACRE_VOLUME_LIGHT_VOLUME_H */

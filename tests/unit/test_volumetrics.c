@@ -525,6 +525,25 @@ static void light_volume(void)
             if (!v.tau)
                 break;
             nc_light_volume_build(&f8, &v, 2);
+            /* The 8-lane lookup equals the scalar one bit for bit, inside, beside and beyond. */
+            bool same = true;
+            for (int b = 0; b < 64; b++) {
+                float X[8], Y[8], Z[8], t8[24];
+                for (int q8 = 0; q8 < 8; q8++) {
+                    int m = 8 * b + q8;
+                    X[q8] = -3.0f + 6.0f * (float)((m * 37) % 101) / 100.0f;
+                    Y[q8] = -2.5f + 5.0f * (float)((m * 53) % 97) / 96.0f;
+                    Z[q8] = -3.0f + 6.0f * (float)((m * 71) % 89) / 88.0f;
+                }
+                nc_light_volume_lookup8(&v, X, Y, Z, t8);
+                for (int q8 = 0; q8 < 8; q8++) {
+                    float x[3] = {X[q8], Y[q8], Z[q8]}, t1[3];
+                    nc_light_volume_lookup(&v, x, t1);
+                    for (int c = 0; c < 3; c++)
+                        same = same && memcmp(&t1[c], &t8[8 * c + q8], sizeof(float)) == 0;
+                }
+            }
+            CHECK(same);
             double rms, e = light_volume_error(q == 0 ? &f256 : &f8, &v, dir, pos, scratch, &rms);
             printf("  light volume, %s%s: |dT| largest %.4f, RMS %.4f (tolerances %.3f, %.4f)\n", what[q],
                    coarse ? ", 4 nodes an axis" : "", e, rms, tol_max[q], tol_rms[q]);
