@@ -161,9 +161,9 @@ typedef struct vol_state {
     float *em;           /* 3N: emission (fill), added to the source by light; only if some fog emits */
     size_t em_capacity;
     /* Radiance and transmittance from the eye to boundaries 0 (the eye) .. D and infinity of
-     * every column, slice-major, 8 floats each (L rgb, T rgb, 0, 0 at [b cols + col] x 8): a
-     * pixel's lookup reads one vector per column and boundary, and neighbouring pixels at similar
-     * depths read neighbouring ones. */
+     * every column, column-major, 8 floats each (L rgb, -, T rgb, - at [col (D + 2) + b] x 8):
+     * a pixel's lookup reads one vector per column and boundary, b and b + 1 side by side, and
+     * froxel_integrate writes each column as one stream. */
     float *acc;
     /* froxel_apply_pixels' bilinear weights: per image column and per row (pixel_columns) */
     int32_t *px_i;
@@ -191,6 +191,7 @@ typedef struct vol_state {
      * that depth_slot finds a pixel's slice without a logarithm; slice_table_n 0: not made. */
     uint16_t slice_table[SLICE_TABLE];
     uint32_t slice_table_n;
+    bool slice_one_step; /* no range holds two boundaries: one compare finds the slice */
     float *boundf;                   /* bound in float (D + 1), then 1 / each slice's depth (D) */
     size_t boundf_capacity;
     size_t grid_capacity;
@@ -635,6 +636,7 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
     for (uint32_t k = 0; k < D; k++)
         st->boundf[D + 1 + k] = (float)(1.0 / (st->bound[k + 1] - st->bound[k]));
     st->slice_table_n = 0;
+    st->slice_one_step = false;
     if (!cr->ortho && D > 1 && st->boundf[1] > 0.0f && st->boundf[D] > st->boundf[1]) {
         uint32_t b1 = float_bits(st->boundf[1]), n = ((float_bits(st->boundf[D]) - b1) >> SLICE_SHIFT) + 1;
         if (n <= SLICE_TABLE) {
@@ -648,6 +650,10 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
                 st->slice_table[i] = (uint16_t)k;
             }
             st->slice_table_n = n;
+            /* Boundaries between two ranges' starts (and after the last start, below bf[D]). */
+            st->slice_one_step = D - 1 - st->slice_table[n - 1] <= 1;
+            for (uint32_t i = 0; i + 1 < n; i++)
+                st->slice_one_step = st->slice_one_step && st->slice_table[i + 1] - st->slice_table[i] <= 1;
         }
     }
     return NACRE_OK;
@@ -1328,6 +1334,13 @@ static nacre_result temporal_end(vol_state *st, const nc_post_input *in, int thr
     return NACRE_OK;
 }
 
+/* Front to back along each column. The running sums L += T_before S, T *= T_slice of the three
+ * channels are one vector step per slice, in acc's layout: P = (L rgb, -, T rgb, -) becomes
+ * P x (1, 1, 1, 1, 0, 0, 0, 0) + M x (S rgb, -, T_slice rgb, -), M = (T rgb, -, T rgb, -), so that
+ * each boundary is one store and the chain of dependent steps is one multiply long (lanes 3 and
+ * 7 carry the next slice's first channel along: never read). The closed-form tail only where a
+ * pixel reads it: a column whose pixels all have finite depths never reads boundary D + 1
+ * (depth_slot), which then holds boundary D's values. */
 static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
 {
     int64_t cols = (int64_t)st->W * st->H;
@@ -1335,14 +1348,18 @@ static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
 #pragma omp parallel for schedule(static) num_threads(threads)
     for (int64_t col = 0; col < cols; col++) {
         float *sc = thread_scratch(st), *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
-        float *len3 = sc, *T3 = sc + D3, *S3 = sc + 2 * (size_t)D3;
+        /* T3 and S3 one word longer: the last slice's vectors read one word past them */
+        float *len3 = sc, *T3 = sc + D3 + 1, *S3 = sc + 2 * (size_t)D3 + 2;
         float o[3], d[3];
         double scale, offset;
         column_ray(st, (uint32_t)(col % st->W), (uint32_t)(col / st->W), o, d, &scale, &offset);
         size_t base = (size_t)col * D;
+        double t0 = ray_t(st->bound[0], scale, offset);
         for (uint32_t k = 0; k < D; k++) {
-            float len = (float)(ray_t(st->bound[k + 1], scale, offset) - ray_t(st->bound[k], scale, offset));
+            double t1 = ray_t(st->bound[k + 1], scale, offset);
+            float len = (float)(t1 - t0);
             len3[3 * k] = len3[3 * k + 1] = len3[3 * k + 2] = len;
+            t0 = t1;
         }
         /* nc_vol_march_step's segment integral in float, (1 - T) / sigma_t, each slice's
          * transmittance and source first (8 words at a time), then the running sums. */
@@ -1359,23 +1376,25 @@ static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
             T3[i] = T;
             S3[i] = src[i] * (x < 1e-3f ? len3[i] * (1.0f - 0.5f * x) : (1.0f - T) / sig[i]);
         }
-        float ml[3] = {0, 0, 0}, mt[3] = {1, 1, 1};
-        float *pa = st->acc + 8 * (size_t)col;
-        nc_v8_store(pa, (nc_v8f){0, 0, 0, 1, 1, 1, 0, 0});
+        T3[D3] = S3[D3] = 0.0f;
+        float *pa = st->acc + 8 * (size_t)col * (D + 2);
+        const nc_v8f keep_l = {1, 1, 1, 1, 0, 0, 0, 0};
+        nc_v8f P = {0, 0, 0, 0, 1, 1, 1, 1}, M = nc_v8_splat(1.0f);
+        nc_v8_store(pa, P);
         for (uint32_t k = 0; k < D; k++) {
-            pa = st->acc + 8 * ((size_t)(k + 1) * (size_t)cols + (size_t)col);
-            for (int c = 0; c < 3; c++) {
-                ml[c] += mt[c] * S3[3 * k + c];
-                mt[c] *= T3[3 * k + c];
-            }
-            nc_v8_store(pa, (nc_v8f){ml[0], ml[1], ml[2], mt[0], mt[1], mt[2], 0, 0});
+            nc_v8f Tk = nc_v8_load2(T3 + 3 * k, T3 + 3 * k);
+            P = P * keep_l + M * nc_v8_load2(S3 + 3 * k, T3 + 3 * k);
+            M = M * Tk;
+            nc_v8_store(pa + 8 * (k + 1), P);
         }
-        double L[3], T[3];
-        tail(st, o, d, ray_t(st->bound[D], scale, offset), L, T, tau);
-        pa = st->acc + 8 * ((size_t)(D + 1) * (size_t)cols + (size_t)col);
-        nc_v8_store(pa, (nc_v8f){(float)(ml[0] + mt[0] * L[0]), (float)(ml[1] + mt[1] * L[1]),
-                                 (float)(ml[2] + mt[2] * L[2]), (float)(mt[0] * T[0]), (float)(mt[1] * T[1]),
-                                 (float)(mt[2] * T[2]), 0, 0});
+        nc_v8f tl = P;
+        if (!isfinite(st->col_depth[col])) {
+            double L[3], T[3];
+            tail(st, o, d, ray_t(st->bound[D], scale, offset), L, T, tau);
+            tl = (nc_v8f){(float)(P[0] + P[4] * L[0]), (float)(P[1] + P[5] * L[1]), (float)(P[2] + P[6] * L[2]), 0,
+                          (float)(P[4] * T[0]), (float)(P[5] * T[1]), (float)(P[6] * T[2]), 0};
+        }
+        nc_v8_store(pa + 8 * (D + 1), tl);
     }
 }
 
@@ -1384,13 +1403,8 @@ static inline void depth_slot(const vol_state *st, float z, uint32_t *b0, float 
 {
     uint32_t D = st->D;
     const float *bf = st->boundf, *inv_w = st->boundf + D + 1;
-    if (isinf(z)) {
-        *b0 = D + 1;
-        *frac = 0.0f;
-        return;
-    }
-    if (!(z < bf[D])) {
-        *b0 = D;
+    if (!(z < bf[D]) || isinf(z)) {
+        *b0 = isinf(z) ? D + 1 : D;
         *frac = 0.0f;
         return;
     }
@@ -1405,6 +1419,15 @@ static inline void depth_slot(const vol_state *st, float z, uint32_t *b0, float 
          * the start of z's range (the steps below move up from there). */
         uint32_t i = (float_bits(z) - float_bits(bf[1])) >> SLICE_SHIFT;
         k = st->slice_table[i < st->slice_table_n ? i : st->slice_table_n - 1];
+        if (st->slice_one_step) {
+            /* At most one boundary ahead (bf[k + 1] <= bf[D] > z stops at the last slice):
+             * a compare, not a loop whose trip count the branch predictor cannot guess. */
+            k += z >= bf[k + 1];
+            float f = (z - bf[k]) * inv_w[k];
+            *b0 = k;
+            *frac = f < 0.0f ? 0.0f : f > 1.0f ? 1.0f : f;
+            return;
+        }
     } else {
         /* The steps below correct the rounding. */
         float u = 1.0f + logf(z * st->slice_inv_b1) * st->slice_scale;
@@ -1421,12 +1444,33 @@ static inline void depth_slot(const vol_state *st, float z, uint32_t *b0, float 
     *frac = f < 0.0f ? 0.0f : f > 1.0f ? 1.0f : f;
 }
 
-/* Each pixel reads boundaries b0 and b0 + 1 (depth_slot) of the 4 columns around it, one vector
- * of L and T each (see acc); tl (if not NULL) keeps them (6 floats a pixel). */
+/* A pixel's L and T from the 4 columns around it (weights wc) at boundaries b0 and b0 + 1
+ * (weight fz), each weight applied only where it is not 0 (0 x an infinite tail is not 0). */
+static inline nc_v8f apply_exact(const float *const a[4], const float wc[4], uint32_t b, float fz)
+{
+    nc_v8f v = {0};
+    for (int q = 0; q < 4; q++) {
+        if (wc[q] == 0.0f)
+            continue;
+        v += wc[q] * (1.0f - fz) * nc_v8_load(a[q] + 8 * (size_t)b);
+        if (fz > 0.0f)
+            v += wc[q] * fz * nc_v8_load(a[q] + 8 * (size_t)b + 8);
+    }
+    return v;
+}
+
+/* Each pixel reads boundaries b0 and b0 + 1 (depth_slot) of the 4 columns around it: trilinear
+ * in (x, y, slice). Neighbouring pixels of a row mostly read the same columns at the same
+ * boundaries (8 pixels a column in the default grid, a slice over several pixels of a
+ * surface): along such a run the rows' blend by wy is done once, and the blend in x and depth of
+ * the four results is A + wx Bx + fz (Bz + wx C) per pixel. A run whose values are not all
+ * finite (an infinite tail) takes apply_exact. tl (if not NULL) keeps L and T (6 floats a
+ * pixel). */
 static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_image *image, float *tl, int threads)
 {
     int32_t w = image->width, h = image->height;
-    size_t cols = (size_t)st->W * st->H;
+    uint32_t D = st->D, W = st->W;
+    size_t stride = 8 * ((size_t)D + 2);
     const int32_t *xi = st->px_i, *yi = st->px_i + 2 * (size_t)w;
     const float *xw = st->px_w, *yw = st->px_w + w;
     const float *acc = st->acc;
@@ -1436,29 +1480,53 @@ static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_i
         float wy = yw[y];
         float *row = image->pixels + (size_t)y * image->stride;
         const float *dr = depth + (size_t)y * (size_t)w;
+        const float *r0 = acc + (size_t)j0 * W * stride, *r1 = acc + (size_t)j1 * W * stride;
+        int32_t run_i = -1;
+        uint32_t run_b = 0;
+        bool finite = false;
+        nc_v8f A = {0}, Bx = {0}, Bz = {0}, C = {0};
         for (int32_t x = 0; x < w; x++) {
             int32_t i0 = xi[2 * x], i1 = xi[2 * x + 1];
             float wx = xw[x];
             uint32_t b;
             float fz;
             depth_slot(st, dr[x], &b, &fz);
-            size_t c4[4] = {(size_t)j0 * st->W + (size_t)i0, (size_t)j0 * st->W + (size_t)i1,
-                            (size_t)j1 * st->W + (size_t)i0, (size_t)j1 * st->W + (size_t)i1};
-            float wc[4] = {(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy};
-            const float *a0 = acc + 8 * (size_t)b * cols, *a1 = fz > 0.0f ? a0 + 8 * cols : a0;
-            nc_v8f v = {0};
-            for (int q = 0; q < 4; q++) {
-                if (wc[q] == 0.0f)
-                    continue;
-                v += wc[q] * (1.0f - fz) * nc_v8_load(a0 + 8 * c4[q]);
-                if (fz > 0.0f)
-                    v += wc[q] * fz * nc_v8_load(a1 + 8 * c4[q]);
+            if (i0 != run_i || b != run_b) {
+                run_i = i0;
+                run_b = b;
+                size_t o0 = 8 * (size_t)b, o1 = b < D ? o0 + 8 : o0; /* boundaries D, D + 1: fz = 0 */
+                const float *c00 = r0 + (size_t)i0 * stride, *c10 = r0 + (size_t)i1 * stride;
+                const float *c01 = r1 + (size_t)i0 * stride, *c11 = r1 + (size_t)i1 * stride;
+                nc_v8f V00 = (1.0f - wy) * nc_v8_load(c00 + o0) + wy * nc_v8_load(c01 + o0);
+                nc_v8f V10 = (1.0f - wy) * nc_v8_load(c10 + o0) + wy * nc_v8_load(c11 + o0);
+                nc_v8f V01 = (1.0f - wy) * nc_v8_load(c00 + o1) + wy * nc_v8_load(c01 + o1);
+                nc_v8f V11 = (1.0f - wy) * nc_v8_load(c10 + o1) + wy * nc_v8_load(c11 + o1);
+                A = V00;
+                Bx = V10 - V00;
+                Bz = V01 - V00;
+                C = (V11 - V10) - Bz;
+                /* lanes 0-2 and 4-6: x - x is 0 only for finite x */
+                finite = (nc_v8_bits((V00 + V10 + V01 + V11) * 0.0f == 0.0f) & 0x77) == 0x77;
+            }
+            nc_v8f v;
+            if (finite) {
+                v = A + wx * Bx + fz * (Bz + wx * C);
+            } else {
+                const float *a[4] = {r0 + (size_t)i0 * stride, r0 + (size_t)i1 * stride, r1 + (size_t)i0 * stride,
+                                     r1 + (size_t)i1 * stride};
+                float wc[4] = {(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy};
+                v = apply_exact(a, wc, b, fz);
             }
             float *px = row + 3 * (size_t)x;
             for (int c = 0; c < 3; c++)
-                px[c] = px[c] * v[3 + c] + v[c];
-            if (tl)
-                memcpy(tl + 6 * ((size_t)y * (size_t)w + (size_t)x), &v, 6 * sizeof(float));
+                px[c] = px[c] * v[4 + c] + v[c];
+            if (tl) {
+                float *t = tl + 6 * ((size_t)y * (size_t)w + (size_t)x);
+                for (int c = 0; c < 3; c++) {
+                    t[c] = v[c];
+                    t[3 + c] = v[4 + c];
+                }
+            }
         }
     }
 }
