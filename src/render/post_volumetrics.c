@@ -1373,10 +1373,9 @@ static nacre_result temporal_end(vol_state *st, const nc_post_input *in, int thr
     return NACRE_OK;
 }
 
-/* Front to back along each column. The running sums L += T_before S, T *= T_slice of the three
- * channels are one vector step per slice, in acc's layout: P = (L rgb, -, T rgb, -) becomes
- * P x (1, 1, 1, 1, 0, 0, 0, 0) + M x (S rgb, -, T_slice rgb, -), M = (T rgb, -, T rgb, -), so that
- * each boundary is one store and the chain of dependent steps is one multiply long (lanes 3 and
+/* Front to back along each column: the running sums L += T_before S, T *= T_slice of the three
+ * channels are two 4-lane steps per slice (one multiply-add, one multiply: the chain of dependent
+ * steps stays one operation long), stored side by side as the boundary's acc vector (lanes 3 and
  * 7 carry the next slice's first channel along: never read). The closed-form tail only where a
  * pixel reads it: a column whose pixels all have finite depths never reads boundary D + 1
  * (depth_slot), which then holds boundary D's values. */
@@ -1417,23 +1416,28 @@ static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
         }
         T3[D3] = S3[D3] = 0.0f;
         float *pa = st->acc + 8 * (size_t)col * (D + 2);
-        const nc_v8f keep_l = {1, 1, 1, 1, 0, 0, 0, 0};
-        nc_v8f P = {0, 0, 0, 0, 1, 1, 1, 1}, M = nc_v8_splat(1.0f);
-        nc_v8_store(pa, P);
+        v4f ml = {0, 0, 0, 0}, mt = {1, 1, 1, 1};
+        memcpy(pa, &ml, sizeof(ml));
+        memcpy(pa + 4, &mt, sizeof(mt));
         for (uint32_t k = 0; k < D; k++) {
-            nc_v8f Tk = nc_v8_load2(T3 + 3 * k, T3 + 3 * k);
-            P = P * keep_l + M * nc_v8_load2(S3 + 3 * k, T3 + 3 * k);
-            M = M * Tk;
-            nc_v8_store(pa + 8 * (k + 1), P);
+            v4f s4, t4;
+            memcpy(&s4, S3 + 3 * k, sizeof(s4));
+            memcpy(&t4, T3 + 3 * k, sizeof(t4));
+            ml += mt * s4;
+            mt *= t4;
+            memcpy(pa + 8 * (k + 1), &ml, sizeof(ml));
+            memcpy(pa + 8 * (k + 1) + 4, &mt, sizeof(mt));
         }
-        nc_v8f tl = P;
         if (!isfinite(st->col_depth[col])) {
             double L[3], T[3];
             tail(st, o, d, ray_t(st->bound[D], scale, offset), L, T, tau);
-            tl = (nc_v8f){(float)(P[0] + P[4] * L[0]), (float)(P[1] + P[5] * L[1]), (float)(P[2] + P[6] * L[2]), 0,
-                          (float)(P[4] * T[0]), (float)(P[5] * T[1]), (float)(P[6] * T[2]), 0};
+            for (int c = 0; c < 3; c++) {
+                ml[c] = (float)(ml[c] + mt[c] * L[c]);
+                mt[c] = (float)(mt[c] * T[c]);
+            }
         }
-        nc_v8_store(pa + 8 * (D + 1), tl);
+        memcpy(pa + 8 * (D + 1), &ml, sizeof(ml));
+        memcpy(pa + 8 * (D + 1) + 4, &mt, sizeof(mt));
     }
 }
 
