@@ -1508,8 +1508,9 @@ static inline nc_v8f apply_exact(const float *const a[4], const float wc[4], uin
  * surface): along such a run the rows' blend by wy is done once, and the blend in x and depth of
  * the four results is A + wx Bx + fz (Bz + wx C) per pixel. A run whose values are not all
  * finite (an infinite tail) takes apply_exact. tl (if not NULL) keeps L and T (6 floats a
- * pixel). */
-static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_image *image, float *tl, int threads)
+ * pixel); keep_depth (if not NULL) a copy of the depths, each row while it is in the cache. */
+static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_image *image, float *tl,
+                                float *keep_depth, int threads)
 {
     int32_t w = image->width, h = image->height;
     uint32_t D = st->D, W = st->W;
@@ -1571,6 +1572,8 @@ static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_i
                 }
             }
         }
+        if (keep_depth)
+            memcpy(keep_depth + (size_t)y * (size_t)w, dr, (size_t)w * sizeof(float));
     }
 }
 
@@ -1676,13 +1679,14 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
         t0 = nc_now_us();
     }
     /* Kept for the next frame only once the grid is complete (an error above leaves it stale). */
+    float *keep_depth = NULL;
     if (!temporal) {
         if (!nc_reserve(in->ctx, &st->prev_col_depth, &st->prev_col_capacity, cols, sizeof(float)) ||
             !nc_reserve(in->ctx, &st->prev_depth, &st->prev_depth_capacity, pixels, sizeof(float)))
             return NACRE_ERROR_OUT_OF_MEMORY;
         memcpy(st->prev_col_depth, st->col_depth, cols * sizeof(float));
         if (!same_buffer)
-            memcpy(st->prev_depth, in->depth, pixels * sizeof(float));
+            keep_depth = st->prev_depth; /* by froxel_apply_pixels, row by row as it reads them */
         st->fkey = fk;
         st->lkey = lk;
         st->fill_valid = st->light_valid = true;
@@ -1695,7 +1699,7 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
         float *tl = NULL;
         if (still && !temporal && nc_reserve(in->ctx, &st->px_tl, &st->px_tl_capacity, 6 * pixels, sizeof(float)))
             tl = st->px_tl;
-        froxel_apply_pixels(st, in->depth, image, tl, threads);
+        froxel_apply_pixels(st, in->depth, image, tl, keep_depth, threads);
         st->px_tl_valid = tl != NULL;
     }
     stage_done(stats, NACRE_STAGE_FROXEL_APPLY, t0);
