@@ -1695,6 +1695,7 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
     bool still = same_light && same_buffer;
     if (still && kept_tl) {
         froxel_apply_kept(st, image, threads);
+        st->px_tl_valid = true; /* still over the grid and depths they were made for */
     } else {
         float *tl = NULL;
         if (still && !temporal && nc_reserve(in->ctx, &st->px_tl, &st->px_tl_capacity, 6 * pixels, sizeof(float)))
