@@ -33,7 +33,7 @@
  * farther of the camera's far plane and the farthest corner of a box fog, z0 = max(near / 2,
  * zf / 1000): fine slices where the scene begins, as many as possible over it. Orthographic
  * cameras get D equal slices from the near plane to zf. Beyond zf (the background, at
- * infinite depth), each column ray's remaining fog is added in closed
+ * infinite depth), the remaining fog of each column ray that such a pixel reads is added in closed
  * form as in the analytic pass: the optical depth of every fog to infinity (height integral;
  * patterns at the segment's start), lit by the directional lights with the fog's transmittance
  * towards them at that start and by the environment, plus its emission (the pattern at that
