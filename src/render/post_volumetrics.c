@@ -667,23 +667,23 @@ static void column_ray(const vol_state *st, uint32_t i, uint32_t j, float o[3], 
     camera_ray(&st->cam, nx, ny, o, d, scale, offset);
 }
 
-/* 4 doubles, for the depths of column_points (GCC and Clang vector extensions, as core/simd.h) */
+/* 4 doubles and 4 floats, for the depths of column_points and froxel_integrate's running sums
+ * (GCC and Clang vector extensions, as core/simd.h) */
 typedef double v4d __attribute__((vector_size(32)));
 typedef float v4f __attribute__((vector_size(16)));
-typedef int64_t v4l __attribute__((vector_size(32)));
 
-static inline v4d v4d_load(const double *p)
+/* lo and hi as one vector, in registers (two halves stored and read back as one vector would
+ * stall on the stores) */
+static inline nc_v8f v8_halves(v4f lo, v4f hi)
 {
-    v4d v;
-    memcpy(&v, p, sizeof(v));
+#ifdef __AVX__
+    return (nc_v8f)_mm256_set_m128((__m128)hi, (__m128)lo);
+#else
+    nc_v8f v;
+    memcpy(&v, &lo, sizeof(lo));
+    memcpy((float *)&v + 4, &hi, sizeof(hi));
     return v;
-}
-
-/* ray_t of 4 depths, rounded to float */
-static inline v4f ray_t4(v4d z, double scale, double offset)
-{
-    v4d t = z * scale + offset;
-    return __builtin_convertvector((v4d)((v4l)(t > 0.0) & (v4l)t), v4f);
+#endif
 }
 
 /* The D froxel centres of a column ray (3 floats each), 8 at a time: each slice's depth in
@@ -696,13 +696,21 @@ static void column_points(const vol_state *st, const float o[3], const float d[3
     bool mid = st->jitter == 0.5f;
     uint32_t D = st->D, k0 = 0;
     for (; k0 + 8 <= D; k0 += 8) {
+        /* ray_t in double, 4 slices a half; clamped after rounding to float, which gives the
+         * same floats */
         v4f t[2];
         for (int h = 0; h < 2; h++) {
-            v4d b0 = v4d_load(b + k0 + 4 * h), b1 = v4d_load(b + k0 + 4 * h + 1);
-            t[h] = ray_t4(mid ? 0.5 * (b0 + b1) : b0 + jit * (b1 - b0), scale, offset);
+            v4d b0, b1, z;
+            memcpy(&b0, b + k0 + 4 * h, sizeof(b0));
+            memcpy(&b1, b + k0 + 4 * h + 1, sizeof(b1));
+            if (mid)
+                z = 0.5 * (b0 + b1);
+            else
+                z = b0 + jit * (b1 - b0);
+            t[h] = __builtin_convertvector(z * scale + offset, v4f);
         }
-        nc_v8f tv;
-        memcpy(&tv, t, sizeof(tv));
+        nc_v8f tv = v8_halves(t[0], t[1]);
+        tv = nc_v8_sel(tv > 0.0f, tv, (nc_v8f){0});
         nc_v8f x = o[0] + tv * d[0], y = o[1] + tv * d[1], z = o[2] + tv * d[2];
         nc_v8i a, bb, c;
         nc_v8_interleave3((nc_v8i)x, (nc_v8i)y, (nc_v8i)z, &a, &bb, &c);
