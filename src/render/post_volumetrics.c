@@ -1576,7 +1576,7 @@ static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_i
                 Bx = V10 - V00;
                 Bz = V01 - V00;
                 C = (V11 - V10) - Bz;
-                /* lanes 0-2 and 4-6: x - x is 0 only for finite x */
+                /* lanes 0-2 and 4-6: x times 0 is 0 only for finite x */
                 finite = (nc_v8_bits((V00 + V10 + V01 + V11) * 0.0f == 0.0f) & 0x77) == 0x77;
             }
             nc_v8f v;
