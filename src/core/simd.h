@@ -164,6 +164,31 @@ static inline void nc_v8_deinterleave3(nc_v8i a, nc_v8i b, nc_v8i c, nc_v8i *x, 
 #endif
 }
 
+/* nc_v8_deinterleave3 undone: three 8-lane vectors x, y, z as 8 consecutive triples in a, b, c. */
+static inline void nc_v8_interleave3(nc_v8i x, nc_v8i y, nc_v8i z, nc_v8i *a, nc_v8i *b, nc_v8i *c)
+{
+#ifdef __AVX2__
+    const __m256i vx = (__m256i)x, vy = (__m256i)y, vz = (__m256i)z;
+    /* a = x0 y0 z0 x1 y1 z1 x2 y2, b = z2 x3 y3 z3 x4 y4 z4 x5, c = y5 z5 x6 y6 z6 x7 y7 z7 */
+    __m256i px = _mm256_permutevar8x32_epi32(vx, _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5));
+    __m256i py = _mm256_permutevar8x32_epi32(vy, _mm256_setr_epi32(5, 0, 3, 6, 1, 4, 7, 2));
+    __m256i pz = _mm256_permutevar8x32_epi32(vz, _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7));
+    *a = (nc_v8i)_mm256_blend_epi32(_mm256_blend_epi32(px, py, 0x92), pz, 0x24);
+    *b = (nc_v8i)_mm256_blend_epi32(_mm256_blend_epi32(px, py, 0x24), pz, 0x49);
+    *c = (nc_v8i)_mm256_blend_epi32(_mm256_blend_epi32(px, py, 0x49), pz, 0x92);
+#else
+    int32_t w[24];
+    for (int k = 0; k < 8; k++) {
+        w[3 * k] = x[k];
+        w[3 * k + 1] = y[k];
+        w[3 * k + 2] = z[k];
+    }
+    *a = nc_v8i_load(w);
+    *b = nc_v8i_load(w + 8);
+    *c = nc_v8i_load(w + 16);
+#endif
+}
+
 /* The sum of the 8 lanes, in a fixed order: ((0 + 4) + (1 + 5)) + ((2 + 6) + (3 + 7)) */
 static inline float nc_v8_sum(nc_v8f x) { return ((x[0] + x[4]) + (x[1] + x[5])) + ((x[2] + x[6]) + (x[3] + x[7])); }
 

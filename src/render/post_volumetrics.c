@@ -35,7 +35,7 @@
  * farther of the camera's far plane and the farthest corner of a box fog, z0 = max(near / 2,
  * zf / 1000): fine slices where the scene begins, as many as possible over it. Orthographic
  * cameras get D equal slices from the near plane to zf. Beyond zf (the background, at
- * infinite depth), each column ray's remaining fog is added in closed
+ * infinite depth), the remaining fog of each column ray that such a pixel reads is added in closed
  * form as in the analytic pass: the optical depth of every fog to infinity (height integral;
  * patterns at the segment's start), lit by the directional lights with the fog's transmittance
  * towards them at that start and by the environment, plus its emission (the pattern at that
@@ -163,9 +163,9 @@ typedef struct vol_state {
     float *em;           /* 3N: emission (fill), added to the source by light; only if some fog emits */
     size_t em_capacity;
     /* Radiance and transmittance from the eye to boundaries 0 (the eye) .. D and infinity of
-     * every column, slice-major, 8 floats each (L rgb, T rgb, 0, 0 at [b cols + col] x 8): a
-     * pixel's lookup reads one vector per column and boundary, and neighbouring pixels at similar
-     * depths read neighbouring ones. */
+     * every column, column-major, 8 floats each (L rgb, -, T rgb, - at [col (D + 2) + b] x 8):
+     * a pixel's lookup reads one vector per column and boundary, b and b + 1 side by side, and
+     * froxel_integrate writes each column as one stream. */
     float *acc;
     /* froxel_apply_pixels' bilinear weights: per image column and per row (pixel_columns) */
     int32_t *px_i;
@@ -197,6 +197,7 @@ typedef struct vol_state {
      * that depth_slot finds a pixel's slice without a logarithm; slice_table_n 0: not made. */
     uint16_t slice_table[SLICE_TABLE];
     uint32_t slice_table_n;
+    bool slice_one_step; /* no range holds two boundaries: one compare finds the slice */
     float *boundf;                   /* bound in float (D + 1), then 1 / each slice's depth (D) */
     size_t boundf_capacity;
     size_t grid_capacity;
@@ -646,6 +647,7 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
     for (uint32_t k = 0; k < D; k++)
         st->boundf[D + 1 + k] = (float)(1.0 / (st->bound[k + 1] - st->bound[k]));
     st->slice_table_n = 0;
+    st->slice_one_step = false;
     if (!cr->ortho && D > 1 && st->boundf[1] > 0.0f && st->boundf[D] > st->boundf[1]) {
         uint32_t b1 = float_bits(st->boundf[1]), n = ((float_bits(st->boundf[D]) - b1) >> SLICE_SHIFT) + 1;
         if (n <= SLICE_TABLE) {
@@ -659,6 +661,10 @@ static nacre_result grid_setup(vol_state *st, nacre_context *ctx, const nacre_vo
                 st->slice_table[i] = (uint16_t)k;
             }
             st->slice_table_n = n;
+            /* Boundaries between two ranges' starts (and after the last start, below bf[D]). */
+            st->slice_one_step = D - 1 - st->slice_table[n - 1] <= 1;
+            for (uint32_t i = 0; i + 1 < n; i++)
+                st->slice_one_step = st->slice_one_step && st->slice_table[i + 1] - st->slice_table[i] <= 1;
         }
     }
     return NACRE_OK;
@@ -672,12 +678,60 @@ static void column_ray(const vol_state *st, uint32_t i, uint32_t j, float o[3], 
     camera_ray(&st->cam, nx, ny, o, d, scale, offset);
 }
 
+/* 4 doubles and 4 floats, for the depths of column_points and froxel_integrate's running sums
+ * (GCC and Clang vector extensions, as core/simd.h) */
+typedef double v4d __attribute__((vector_size(32)));
+typedef int64_t v4l __attribute__((vector_size(32)));
+typedef float v4f __attribute__((vector_size(16)));
+
+/* lo and hi as one vector, in registers (two halves stored and read back as one vector would
+ * stall on the stores) */
+static inline nc_v8f v8_halves(v4f lo, v4f hi)
+{
+#ifdef __AVX__
+    return (nc_v8f)_mm256_set_m128((__m128)hi, (__m128)lo);
+#else
+    nc_v8f v;
+    memcpy(&v, &lo, sizeof(lo));
+    memcpy((float *)&v + 4, &hi, sizeof(hi));
+    return v;
+#endif
+}
+
+/* The D froxel centres of a column ray (3 floats each), 8 at a time: each slice's depth in
+ * double as the ray distance was always taken, then the 8 points in float, stored as triples. */
 static void column_points(const vol_state *st, const float o[3], const float d[3], double scale, double offset,
                           float *p)
 {
-    for (uint32_t k = 0; k < st->D; k++) {
-        double z = st->jitter == 0.5f ? 0.5 * (st->bound[k] + st->bound[k + 1])
-                                      : st->bound[k] + st->jitter * (st->bound[k + 1] - st->bound[k]);
+    const double *b = st->bound;
+    double jit = st->jitter;
+    bool mid = st->jitter == 0.5f;
+    uint32_t D = st->D, k0 = 0;
+    for (; k0 + 8 <= D; k0 += 8) {
+        /* ray_t in double, 4 slices a half; clamped after rounding to float, which gives the
+         * same floats */
+        v4f t[2];
+        for (int h = 0; h < 2; h++) {
+            v4d b0, b1, z;
+            memcpy(&b0, b + k0 + 4 * h, sizeof(b0));
+            memcpy(&b1, b + k0 + 4 * h + 1, sizeof(b1));
+            if (mid)
+                z = 0.5 * (b0 + b1);
+            else
+                z = b0 + jit * (b1 - b0);
+            t[h] = __builtin_convertvector(z * scale + offset, v4f);
+        }
+        nc_v8f tv = v8_halves(t[0], t[1]);
+        tv = nc_v8_sel(tv > 0.0f, tv, (nc_v8f){0});
+        nc_v8f x = o[0] + tv * d[0], y = o[1] + tv * d[1], z = o[2] + tv * d[2];
+        nc_v8i a, bb, c;
+        nc_v8_interleave3((nc_v8i)x, (nc_v8i)y, (nc_v8i)z, &a, &bb, &c);
+        nc_v8i_store((int32_t *)(void *)(p + 3 * k0), a);
+        nc_v8i_store((int32_t *)(void *)(p + 3 * k0 + 8), bb);
+        nc_v8i_store((int32_t *)(void *)(p + 3 * k0 + 16), c);
+    }
+    for (uint32_t k = k0; k < D; k++) {
+        double z = mid ? 0.5 * (b[k] + b[k + 1]) : b[k] + jit * (b[k + 1] - b[k]);
         float t = (float)ray_t(z, scale, offset);
         for (int c = 0; c < 3; c++)
             p[3 * k + c] = o[c] + t * d[c];
@@ -1465,6 +1519,12 @@ static nacre_result temporal_end(vol_state *st, const nc_post_input *in, int thr
     return NACRE_OK;
 }
 
+/* Front to back along each column: the running sums L += T_before S, T *= T_slice of the three
+ * channels are two 4-lane steps per slice (one multiply-add, one multiply: the chain of dependent
+ * steps stays one operation long), stored side by side as the boundary's acc vector (lanes 3 and
+ * 7 carry the next slice's first channel along: never read). The closed-form tail only where a
+ * pixel reads it: a column whose pixels all have finite depths never reads boundary D + 1
+ * (depth_slot), which then holds boundary D's values. */
 static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
 {
     int64_t cols = (int64_t)st->W * st->H;
@@ -1472,12 +1532,34 @@ static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
 #pragma omp parallel for schedule(static) num_threads(threads)
     for (int64_t col = 0; col < cols; col++) {
         float *sc = thread_scratch(st), *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
-        float *len3 = sc, *T3 = sc + D3, *S3 = sc + 2 * (size_t)D3;
+        /* T3 and S3 one word longer: the last slice's vectors read one word past them */
+        float *len3 = sc, *T3 = sc + D3 + 1, *S3 = sc + 2 * (size_t)D3 + 2;
         float o[3], d[3];
         double scale, offset;
         column_ray(st, (uint32_t)(col % st->W), (uint32_t)(col / st->W), o, d, &scale, &offset);
         size_t base = (size_t)col * D;
-        for (uint32_t k = 0; k < D; k++) {
+        /* each slice's length along the ray, once per channel: 8 slices at a time as in
+         * column_points (the same double differences as one at a time) */
+        uint32_t k0 = 0;
+        for (; k0 + 8 <= D; k0 += 8) {
+            v4f h[2];
+            for (int q = 0; q < 2; q++) {
+                v4d b0, b1, t0, t1;
+                memcpy(&b0, st->bound + k0 + 4 * q, sizeof(b0));
+                memcpy(&b1, st->bound + k0 + 4 * q + 1, sizeof(b1));
+                t0 = b0 * scale + offset;
+                t1 = b1 * scale + offset;
+                t0 = (v4d)((v4l)(t0 > 0.0) & (v4l)t0); /* ray_t's clamp at 0 */
+                t1 = (v4d)((v4l)(t1 > 0.0) & (v4l)t1);
+                h[q] = __builtin_convertvector(t1 - t0, v4f);
+            }
+            nc_v8i l8 = (nc_v8i)v8_halves(h[0], h[1]), a, b, c;
+            nc_v8_interleave3(l8, l8, l8, &a, &b, &c);
+            nc_v8i_store((int32_t *)(void *)(len3 + 3 * k0), a);
+            nc_v8i_store((int32_t *)(void *)(len3 + 3 * k0 + 8), b);
+            nc_v8i_store((int32_t *)(void *)(len3 + 3 * k0 + 16), c);
+        }
+        for (uint32_t k = k0; k < D; k++) {
             float len = (float)(ray_t(st->bound[k + 1], scale, offset) - ray_t(st->bound[k], scale, offset));
             len3[3 * k] = len3[3 * k + 1] = len3[3 * k + 2] = len;
         }
@@ -1496,23 +1578,30 @@ static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
             T3[i] = T;
             S3[i] = src[i] * (x < 1e-3f ? len3[i] * (1.0f - 0.5f * x) : (1.0f - T) / sig[i]);
         }
-        float ml[3] = {0, 0, 0}, mt[3] = {1, 1, 1};
-        float *pa = st->acc + 8 * (size_t)col;
-        nc_v8_store(pa, (nc_v8f){0, 0, 0, 1, 1, 1, 0, 0});
+        T3[D3] = S3[D3] = 0.0f;
+        float *pa = st->acc + 8 * (size_t)col * (D + 2);
+        v4f ml = {0, 0, 0, 0}, mt = {1, 1, 1, 1};
+        memcpy(pa, &ml, sizeof(ml));
+        memcpy(pa + 4, &mt, sizeof(mt));
         for (uint32_t k = 0; k < D; k++) {
-            pa = st->acc + 8 * ((size_t)(k + 1) * (size_t)cols + (size_t)col);
-            for (int c = 0; c < 3; c++) {
-                ml[c] += mt[c] * S3[3 * k + c];
-                mt[c] *= T3[3 * k + c];
-            }
-            nc_v8_store(pa, (nc_v8f){ml[0], ml[1], ml[2], mt[0], mt[1], mt[2], 0, 0});
+            v4f s4, t4;
+            memcpy(&s4, S3 + 3 * k, sizeof(s4));
+            memcpy(&t4, T3 + 3 * k, sizeof(t4));
+            ml += mt * s4;
+            mt *= t4;
+            memcpy(pa + 8 * (k + 1), &ml, sizeof(ml));
+            memcpy(pa + 8 * (k + 1) + 4, &mt, sizeof(mt));
         }
-        double L[3], T[3];
-        tail(st, o, d, ray_t(st->bound[D], scale, offset), L, T, tau);
-        pa = st->acc + 8 * ((size_t)(D + 1) * (size_t)cols + (size_t)col);
-        nc_v8_store(pa, (nc_v8f){(float)(ml[0] + mt[0] * L[0]), (float)(ml[1] + mt[1] * L[1]),
-                                 (float)(ml[2] + mt[2] * L[2]), (float)(mt[0] * T[0]), (float)(mt[1] * T[1]),
-                                 (float)(mt[2] * T[2]), 0, 0});
+        if (!isfinite(st->col_depth[col])) {
+            double L[3], T[3];
+            tail(st, o, d, ray_t(st->bound[D], scale, offset), L, T, tau);
+            for (int c = 0; c < 3; c++) {
+                ml[c] = (float)(ml[c] + mt[c] * L[c]);
+                mt[c] = (float)(mt[c] * T[c]);
+            }
+        }
+        memcpy(pa + 8 * (D + 1), &ml, sizeof(ml));
+        memcpy(pa + 8 * (D + 1) + 4, &mt, sizeof(mt));
     }
 }
 
@@ -1521,13 +1610,8 @@ static inline void depth_slot(const vol_state *st, float z, uint32_t *b0, float 
 {
     uint32_t D = st->D;
     const float *bf = st->boundf, *inv_w = st->boundf + D + 1;
-    if (isinf(z)) {
-        *b0 = D + 1;
-        *frac = 0.0f;
-        return;
-    }
-    if (!(z < bf[D])) {
-        *b0 = D;
+    if (!(z < bf[D]) || isinf(z)) {
+        *b0 = isinf(z) ? D + 1 : D;
         *frac = 0.0f;
         return;
     }
@@ -1542,6 +1626,15 @@ static inline void depth_slot(const vol_state *st, float z, uint32_t *b0, float 
          * the start of z's range (the steps below move up from there). */
         uint32_t i = (float_bits(z) - float_bits(bf[1])) >> SLICE_SHIFT;
         k = st->slice_table[i < st->slice_table_n ? i : st->slice_table_n - 1];
+        if (st->slice_one_step) {
+            /* At most one boundary ahead (bf[k + 1] <= bf[D] > z stops at the last slice):
+             * a compare, not a loop whose trip count the branch predictor cannot guess. */
+            k += z >= bf[k + 1];
+            float f = (z - bf[k]) * inv_w[k];
+            *b0 = k;
+            *frac = f < 0.0f ? 0.0f : f > 1.0f ? 1.0f : f;
+            return;
+        }
     } else {
         /* The steps below correct the rounding. */
         float u = 1.0f + logf(z * st->slice_inv_b1) * st->slice_scale;
@@ -1558,12 +1651,34 @@ static inline void depth_slot(const vol_state *st, float z, uint32_t *b0, float 
     *frac = f < 0.0f ? 0.0f : f > 1.0f ? 1.0f : f;
 }
 
-/* Each pixel reads boundaries b0 and b0 + 1 (depth_slot) of the 4 columns around it, one vector
- * of L and T each (see acc); tl (if not NULL) keeps them (6 floats a pixel). */
-static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_image *image, float *tl, int threads)
+/* A pixel's L and T from the 4 columns around it (weights wc) at boundaries b0 and b0 + 1
+ * (weight fz), each weight applied only where it is not 0 (0 x an infinite tail is not 0). */
+static inline nc_v8f apply_exact(const float *const a[4], const float wc[4], uint32_t b, float fz)
+{
+    nc_v8f v = {0};
+    for (int q = 0; q < 4; q++) {
+        if (wc[q] == 0.0f)
+            continue;
+        v += wc[q] * (1.0f - fz) * nc_v8_load(a[q] + 8 * (size_t)b);
+        if (fz > 0.0f)
+            v += wc[q] * fz * nc_v8_load(a[q] + 8 * (size_t)b + 8);
+    }
+    return v;
+}
+
+/* Each pixel reads boundaries b0 and b0 + 1 (depth_slot) of the 4 columns around it: trilinear
+ * in (x, y, slice). Neighbouring pixels of a row mostly read the same columns at the same
+ * boundaries (8 pixels a column in the default grid, a slice over several pixels of a
+ * surface): along such a run the rows' blend by wy is done once, and the blend in x and depth of
+ * the four results is A + wx Bx + fz (Bz + wx C) per pixel. A run whose values are not all
+ * finite (an infinite tail) takes apply_exact. tl (if not NULL) keeps L and T (6 floats a
+ * pixel); keep_depth (if not NULL) a copy of the depths, each row while it is in the cache. */
+static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_image *image, float *tl,
+                                float *keep_depth, int threads)
 {
     int32_t w = image->width, h = image->height;
-    size_t cols = (size_t)st->W * st->H;
+    uint32_t D = st->D, W = st->W;
+    size_t stride = 8 * ((size_t)D + 2);
     const int32_t *xi = st->px_i, *yi = st->px_i + 2 * (size_t)w;
     const float *xw = st->px_w, *yw = st->px_w + w;
     const float *acc = st->acc;
@@ -1573,30 +1688,56 @@ static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_i
         float wy = yw[y];
         float *row = image->pixels + (size_t)y * image->stride;
         const float *dr = depth + (size_t)y * (size_t)w;
+        const float *r0 = acc + (size_t)j0 * W * stride, *r1 = acc + (size_t)j1 * W * stride;
+        int32_t run_i = -1;
+        uint32_t run_b = 0;
+        bool finite = false;
+        nc_v8f A = {0}, Bx = {0}, Bz = {0}, C = {0};
         for (int32_t x = 0; x < w; x++) {
             int32_t i0 = xi[2 * x], i1 = xi[2 * x + 1];
             float wx = xw[x];
             uint32_t b;
             float fz;
             depth_slot(st, dr[x], &b, &fz);
-            size_t c4[4] = {(size_t)j0 * st->W + (size_t)i0, (size_t)j0 * st->W + (size_t)i1,
-                            (size_t)j1 * st->W + (size_t)i0, (size_t)j1 * st->W + (size_t)i1};
-            float wc[4] = {(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy};
-            const float *a0 = acc + 8 * (size_t)b * cols, *a1 = fz > 0.0f ? a0 + 8 * cols : a0;
-            nc_v8f v = {0};
-            for (int q = 0; q < 4; q++) {
-                if (wc[q] == 0.0f)
-                    continue;
-                v += wc[q] * (1.0f - fz) * nc_v8_load(a0 + 8 * c4[q]);
-                if (fz > 0.0f)
-                    v += wc[q] * fz * nc_v8_load(a1 + 8 * c4[q]);
+            if (i0 != run_i || b != run_b) {
+                run_i = i0;
+                run_b = b;
+                size_t o0 = 8 * (size_t)b, o1 = b < D ? o0 + 8 : o0; /* boundaries D, D + 1: fz = 0 */
+                const float *c00 = r0 + (size_t)i0 * stride, *c10 = r0 + (size_t)i1 * stride;
+                const float *c01 = r1 + (size_t)i0 * stride, *c11 = r1 + (size_t)i1 * stride;
+                nc_v8f V00 = (1.0f - wy) * nc_v8_load(c00 + o0) + wy * nc_v8_load(c01 + o0);
+                nc_v8f V10 = (1.0f - wy) * nc_v8_load(c10 + o0) + wy * nc_v8_load(c11 + o0);
+                nc_v8f V01 = (1.0f - wy) * nc_v8_load(c00 + o1) + wy * nc_v8_load(c01 + o1);
+                nc_v8f V11 = (1.0f - wy) * nc_v8_load(c10 + o1) + wy * nc_v8_load(c11 + o1);
+                A = V00;
+                Bx = V10 - V00;
+                Bz = V01 - V00;
+                C = (V11 - V10) - Bz;
+                /* lanes 0-2 and 4-6: x times 0 is 0 only for finite x */
+                finite = (nc_v8_bits((V00 + V10 + V01 + V11) * 0.0f == 0.0f) & 0x77) == 0x77;
+            }
+            nc_v8f v;
+            if (finite) {
+                v = A + wx * Bx + fz * (Bz + wx * C);
+            } else {
+                const float *a[4] = {r0 + (size_t)i0 * stride, r0 + (size_t)i1 * stride, r1 + (size_t)i0 * stride,
+                                     r1 + (size_t)i1 * stride};
+                float wc[4] = {(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy};
+                v = apply_exact(a, wc, b, fz);
             }
             float *px = row + 3 * (size_t)x;
             for (int c = 0; c < 3; c++)
-                px[c] = px[c] * v[3 + c] + v[c];
-            if (tl)
-                memcpy(tl + 6 * ((size_t)y * (size_t)w + (size_t)x), &v, 6 * sizeof(float));
+                px[c] = px[c] * v[4 + c] + v[c];
+            if (tl) {
+                float *t = tl + 6 * ((size_t)y * (size_t)w + (size_t)x);
+                for (int c = 0; c < 3; c++) {
+                    t[c] = v[c];
+                    t[3 + c] = v[4 + c];
+                }
+            }
         }
+        if (keep_depth)
+            memcpy(keep_depth + (size_t)y * (size_t)w, dr, (size_t)w * sizeof(float));
     }
 }
 
@@ -1702,13 +1843,14 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
         t0 = nc_now_us();
     }
     /* Kept for the next frame only once the grid is complete (an error above leaves it stale). */
+    float *keep_depth = NULL;
     if (!temporal) {
         if (!nc_reserve(in->ctx, &st->prev_col_depth, &st->prev_col_capacity, cols, sizeof(float)) ||
             !nc_reserve(in->ctx, &st->prev_depth, &st->prev_depth_capacity, pixels, sizeof(float)))
             return NACRE_ERROR_OUT_OF_MEMORY;
         memcpy(st->prev_col_depth, st->col_depth, cols * sizeof(float));
         if (!same_buffer)
-            memcpy(st->prev_depth, in->depth, pixels * sizeof(float));
+            keep_depth = st->prev_depth; /* by froxel_apply_pixels, row by row as it reads them */
         st->fkey = fk;
         st->lkey = lk;
         st->fill_valid = st->light_valid = true;
@@ -1717,11 +1859,12 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
     bool still = same_light && same_buffer;
     if (still && kept_tl) {
         froxel_apply_kept(st, image, threads);
+        st->px_tl_valid = true; /* still over the grid and depths they were made for */
     } else {
         float *tl = NULL;
         if (still && !temporal && nc_reserve(in->ctx, &st->px_tl, &st->px_tl_capacity, 6 * pixels, sizeof(float)))
             tl = st->px_tl;
-        froxel_apply_pixels(st, in->depth, image, tl, threads);
+        froxel_apply_pixels(st, in->depth, image, tl, keep_depth, threads);
         st->px_tl_valid = tl != NULL;
     }
     stage_done(stats, NACRE_STAGE_FROXEL_APPLY, t0);

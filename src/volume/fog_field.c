@@ -59,95 +59,139 @@ static inline bool inside(const nc_fog_one *o, const float q[3])
     return nc_vol_shape_inside(o->ellipsoid, o->half, q);
 }
 
+/* 8 points at a time (core/simd.h), in structure of arrays inside (points, sums and local
+ * points one array per coordinate or channel, n rounded up to 8): every step over the points is
+ * a few vector operations. The pattern is evaluated only at the points inside a bounded fog
+ * (most froxels miss a small cloud), packed in front. The lane-wise operations are the scalar
+ * ones (nc_vol_exp_fast8, the same products and sums in fog order): results do not depend on
+ * how points are grouped. */
 void nc_fog_field_eval(const nc_fog_field *f, uint32_t n, const float *p, float *sigma_t, float *sigma_s, float *g,
                        float *scratch)
 {
-    float *local = scratch, *sa = scratch + 3 * (size_t)n, *ss = scratch + 6 * (size_t)n;
-    memset(sigma_t, 0, 3 * (size_t)n * sizeof(float));
-    memset(sigma_s, 0, 3 * (size_t)n * sizeof(float));
+    size_t nn = ((size_t)n + 7) & ~(size_t)7;
+    float *px = scratch, *py = px + nn, *pz = py + nn;
+    float *at = pz + nn, *as = at + 3 * nn, *ag = as + 3 * nn; /* sigma_t, sigma_s (channel c at c nn), g */
+    uint8_t *in = (uint8_t *)(ag + nn);                        /* per block of 8: the lanes inside */
+    float *local = ag + 2 * nn, *sa = local + 3 * nn, *ss = sa + 3 * nn; /* packed for nc_medium_eval */
+    size_t full = (size_t)n & ~(size_t)7;
+    for (size_t k = 0; k < full; k += 8) {
+        nc_v8i x, y, z;
+        nc_v8_deinterleave3(nc_v8i_load((const int32_t *)(const void *)(p + 3 * k)),
+                            nc_v8i_load((const int32_t *)(const void *)(p + 3 * k + 8)),
+                            nc_v8i_load((const int32_t *)(const void *)(p + 3 * k + 16)), &x, &y, &z);
+        nc_v8_store(px + k, (nc_v8f)x);
+        nc_v8_store(py + k, (nc_v8f)y);
+        nc_v8_store(pz + k, (nc_v8f)z);
+    }
+    for (size_t k = full; k < nn; k++) {
+        px[k] = k < n ? p[3 * k] : 0.0f;
+        py[k] = k < n ? p[3 * k + 1] : 0.0f;
+        pz[k] = k < n ? p[3 * k + 2] : 0.0f;
+    }
+    memset(at, 0, 7 * nn * sizeof(float));
     /* g accumulates sigma_s x g (channel mean) first, then is divided by the channel-mean sigma_s. */
-    memset(g, 0, (size_t)n * sizeof(float));
     for (uint32_t i = 0; i < f->count; i++) {
         const nc_fog_one *o = &f->fogs[i];
         if (!o->box && !o->patterned) {
             /* A global fog without pattern: its coefficients times the height factor, which
-             * nc_vol_exp_fast (relative error 1e-7) gives in a loop that vectorizes. */
-            float *hf = sa;
-            if (o->height) {
-                for (uint32_t k = 0; k < n; k++)
-                    hf[k] = nc_vol_exp_fast(fminf(o->hf_cap, -o->hf_falloff * (p[3 * (size_t)k + 1] - o->hf_base)));
-            } else {
-                float flat = nc_vol_height_factor(false, 0.0f, 0.0f, o->hf_cap, 0.0f);
-                for (uint32_t k = 0; k < n; k++)
-                    hf[k] = flat;
-            }
-            float ts[3], ms = o->sigma_s[0] + o->sigma_s[1] + o->sigma_s[2];
+             * nc_vol_exp_fast (relative error 1e-7) gives 8 lanes at a time. */
+            float flat = nc_vol_height_factor(false, 0.0f, 0.0f, o->hf_cap, 0.0f);
+            float ms = o->sigma_s[0] + o->sigma_s[1] + o->sigma_s[2], ts[3];
             for (int c = 0; c < 3; c++)
                 ts[c] = o->sigma_a[c] + o->sigma_s[c];
-            for (uint32_t k = 0; k < n; k++) {
-                for (int c = 0; c < 3; c++) {
-                    sigma_t[3 * k + c] += ts[c] * hf[k];
-                    sigma_s[3 * k + c] += o->sigma_s[c] * hf[k];
+            for (size_t k = 0; k < nn; k += 8) {
+                nc_v8f hf = nc_v8_splat(flat);
+                if (o->height) {
+                    nc_v8f e = -o->hf_falloff * (nc_v8_load(py + k) - o->hf_base);
+                    hf = nc_vol_exp_fast8(nc_v8_sel(e < o->hf_cap, e, nc_v8_splat(o->hf_cap))); /* fminf */
                 }
-                g[k] += ms * hf[k] * o->g;
+                for (int c = 0; c < 3; c++) {
+                    nc_v8_store(at + c * nn + k, nc_v8_load(at + c * nn + k) + ts[c] * hf);
+                    nc_v8_store(as + c * nn + k, nc_v8_load(as + c * nn + k) + o->sigma_s[c] * hf);
+                }
+                nc_v8_store(ag + k, nc_v8_load(ag + k) + ms * hf * o->g);
             }
             continue;
         }
-        for (uint32_t k = 0; k < n; k++)
-            to_local(o, p + 3 * (size_t)k, local + 3 * (size_t)k);
-        if (o->patterned && o->box) {
-            /* The pattern only where the box is: inside points packed in front, evaluated,
-             * then spread back (most froxels miss a small cloud). */
-            uint32_t m = 0;
-            for (uint32_t k = 0; k < n; k++)
-                if (inside(o, local + 3 * (size_t)k)) {
-                    memmove(local + 3 * (size_t)m, local + 3 * (size_t)k, 3 * sizeof(float));
-                    m++;
-                }
-            if (m == 0)
-                continue;
+        /* The local point (to_local) and, for bounded fogs, which lanes are inside
+         * (nc_vol_shape_inside), 8 points at a time; then the rest point by point. */
+        const float(*w)[4] = o->w2l;
+        const float *h = o->half;
+        uint32_t m = 0;
+        for (size_t k = 0; k < nn; k += 8) {
+            nc_v8f x = nc_v8_load(px + k), y = nc_v8_load(py + k), z = nc_v8_load(pz + k);
+            nc_v8f lx = w[0][0] * x + w[0][1] * y + w[0][2] * z + w[0][3];
+            nc_v8f ly = w[1][0] * x + w[1][1] * y + w[1][2] * z + w[1][3];
+            nc_v8f lz = w[2][0] * x + w[2][1] * y + w[2][2] * z + w[2][3];
+            nc_v8i inside = nc_v8_first((uint32_t)(n - k < 8 ? n - k : 8));
+            if (o->box && o->ellipsoid) {
+                nc_v8f ex = lx / h[0], ey = ly / h[1], ez = lz / h[2];
+                inside &= ex * ex + ey * ey + ez * ez <= 1.0f;
+            } else if (o->box) {
+                const nc_v8i abs_mask = (nc_v8i){0} + 0x7fffffff; /* fabsf: the sign bit cleared */
+                inside &= ((nc_v8f)((nc_v8i)lx & abs_mask) <= h[0]) & ((nc_v8f)((nc_v8i)ly & abs_mask) <= h[1]) &
+                          ((nc_v8f)((nc_v8i)lz & abs_mask) <= h[2]);
+            }
+            uint32_t bits = nc_v8_bits(inside);
+            in[k / 8] = (uint8_t)bits;
+            for (uint32_t b = bits; b; b &= b - 1) {
+                int l = __builtin_ctz(b);
+                local[3 * m] = lx[l];
+                local[3 * m + 1] = ly[l];
+                local[3 * m + 2] = lz[l];
+                m++;
+            }
+        }
+        if (m == 0)
+            continue;
+        if (o->patterned)
             nc_medium_eval(f->scene, o->medium, local, m, sa, ss);
-            for (uint32_t k = n; k-- > 0;) {
-                const float *pk = p + 3 * (size_t)k;
-                float q[3];
-                to_local(o, pk, q);
-                if (inside(o, q)) {
-                    m--;
-                    for (int c = 0; c < 3; c++) {
-                        sa[3 * k + c] = sa[3 * m + c];
-                        ss[3 * k + c] = ss[3 * m + c];
-                    }
-                    memcpy(local + 3 * (size_t)k, q, sizeof(q));
-                } else {
-                    local[3 * k] = 2.0f * o->half[0] + 1.0f; /* outside: skipped below */
-                }
-            }
-        } else if (o->patterned) {
-            nc_medium_eval(f->scene, o->medium, local, n, sa, ss);
-        } else {
-            for (uint32_t k = 0; k < n; k++)
+        /* Without falloff the height factor is one constant. */
+        float flat = o->height ? 0.0f : nc_vol_height_factor(false, o->hf_falloff, o->hf_base, o->hf_cap, 0.0f);
+        uint32_t j = 0;
+        for (size_t k = 0; k < nn; k += 8)
+            for (uint32_t b = in[k / 8]; b; b &= b - 1, j++) {
+                size_t q = k + (size_t)__builtin_ctz(b);
+                float hf = o->height ? nc_vol_height_factor(true, o->hf_falloff, o->hf_base, o->hf_cap, py[q]) : flat;
+                const float *a = o->patterned ? sa + 3 * (size_t)j : o->sigma_a;
+                const float *s = o->patterned ? ss + 3 * (size_t)j : o->sigma_s;
+                float msum = 0.0f;
                 for (int c = 0; c < 3; c++) {
-                    sa[3 * k + c] = o->sigma_a[c];
-                    ss[3 * k + c] = o->sigma_s[c];
+                    float av = a[c] * hf, sv = s[c] * hf;
+                    at[c * nn + q] += av + sv;
+                    as[c * nn + q] += sv;
+                    msum += sv;
                 }
-        }
-        for (uint32_t k = 0; k < n; k++) {
-            if (o->box && !inside(o, local + 3 * (size_t)k))
-                continue;
-            float hf = nc_vol_height_factor(o->height, o->hf_falloff, o->hf_base, o->hf_cap, p[3 * (size_t)k + 1]);
-            float m = 0.0f;
-            for (int c = 0; c < 3; c++) {
-                float a = sa[3 * k + c] * hf, s = ss[3 * k + c] * hf;
-                sigma_t[3 * k + c] += a + s;
-                sigma_s[3 * k + c] += s;
-                m += s;
+                ag[q] += msum * o->g;
             }
-            g[k] += m * o->g;
-        }
     }
-    for (uint32_t k = 0; k < n; k++) {
-        float m = sigma_s[3 * k] + sigma_s[3 * k + 1] + sigma_s[3 * k + 2];
-        g[k] = m > 0.0f ? g[k] / m : 0.0f;
+    for (size_t k = 0; k < nn; k += 8) {
+        nc_v8f m = nc_v8_load(as + k) + nc_v8_load(as + nn + k) + nc_v8_load(as + 2 * nn + k);
+        nc_v8f gk = nc_v8_sel(m > 0.0f, nc_v8_load(ag + k) / m, (nc_v8f){0});
+        if (k + 8 <= n) {
+            nc_v8_store(g + k, gk);
+            nc_v8i a, b, c;
+            nc_v8_interleave3(nc_v8i_load((const int32_t *)(const void *)(at + k)),
+                              nc_v8i_load((const int32_t *)(const void *)(at + nn + k)),
+                              nc_v8i_load((const int32_t *)(const void *)(at + 2 * nn + k)), &a, &b, &c);
+            nc_v8i_store((int32_t *)(void *)(sigma_t + 3 * k), a);
+            nc_v8i_store((int32_t *)(void *)(sigma_t + 3 * k + 8), b);
+            nc_v8i_store((int32_t *)(void *)(sigma_t + 3 * k + 16), c);
+            nc_v8_interleave3(nc_v8i_load((const int32_t *)(const void *)(as + k)),
+                              nc_v8i_load((const int32_t *)(const void *)(as + nn + k)),
+                              nc_v8i_load((const int32_t *)(const void *)(as + 2 * nn + k)), &a, &b, &c);
+            nc_v8i_store((int32_t *)(void *)(sigma_s + 3 * k), a);
+            nc_v8i_store((int32_t *)(void *)(sigma_s + 3 * k + 8), b);
+            nc_v8i_store((int32_t *)(void *)(sigma_s + 3 * k + 16), c);
+            continue;
+        }
+        for (size_t q = k; q < n; q++) {
+            g[q] = gk[q - k];
+            for (int c = 0; c < 3; c++) {
+                sigma_t[3 * q + c] = at[c * nn + q];
+                sigma_s[3 * q + c] = as[c * nn + q];
+            }
+        }
     }
 }
 

@@ -47,8 +47,9 @@ typedef struct nc_fog_field {
     bool emissive; /* some fog emits */
 } nc_fog_field;
 
-/* Floats of scratch that nc_fog_field_eval needs for n points, and nc_fog_field_optical_depth. */
-#define NC_FOG_EVAL_SCRATCH(n) (9u * (size_t)(n))
+/* Floats of scratch that nc_fog_field_eval needs for n points (arrays of n rounded up to 8,
+ * nc_fog_field_eval's), and nc_fog_field_optical_depth. */
+#define NC_FOG_EVAL_SCRATCH(n) (20u * (((size_t)(n) + 7) & ~(size_t)7))
 #define NC_FOG_TAU_SCRATCH(steps) (9u * (size_t)(steps))
 
 /* The scene's first `count` fogs (nc_post_fogs_drawn: particle grids may be left out). */
