@@ -176,6 +176,14 @@ typedef struct vol_state {
      * (end 0: none) */
     uint32_t *col_span;
     size_t col_span_capacity;
+    /* Per column: col_empty, no medium in any froxel (sigma_t and emission 0: froxel_fill,
+     * kept with the fill); col_clear, L 0 and T 1 at every boundary, the tail's included
+     * (froxel_integrate; never with the temporal blend, which brings in the history's medium).
+     * Pixels that read only clear columns are left as they are, and a clear column's boundaries
+     * are written only where a pixel also reads a column that is not clear: a fog that fills a
+     * part of the view (a box, a particle system) costs the columns it covers. */
+    uint8_t *col_empty, *col_clear;
+    size_t col_empty_capacity, col_clear_capacity;
     float *prev_col_depth; /* col_depth of the frame the lit grid was made for */
     float *row_depth;      /* column_depths' scratch: per image row and column */
     float *prev_depth;     /* the depth buffer of that frame */
@@ -271,6 +279,8 @@ static void vol_destroy(nacre_context *ctx, void *state)
     nc_free(ctx, st->lvols);
     nc_free(ctx, st->col_depth);
     nc_free(ctx, st->col_span);
+    nc_free(ctx, st->col_empty);
+    nc_free(ctx, st->col_clear);
     nc_free(ctx, st->scratch);
     nc_free(ctx, st->hist_st);
     nc_free(ctx, st->hist_src);
@@ -752,6 +762,14 @@ static void froxel_fill(vol_state *st, int threads)
         nc_fog_field_eval(&st->field, st->D, p, st->st + 3 * base, st->ss + 3 * base, st->g + base, ev);
         if (st->field.emissive)
             nc_fog_field_emission(&st->field, st->D, p, st->em + 3 * base, ev);
+        /* A NaN counts as medium: only a column surely empty is empty. */
+        int any = 0;
+        const float *sg = st->st + 3 * base, *em = st->field.emissive ? st->em + 3 * base : NULL;
+        for (size_t k = 0; k < 3 * (size_t)st->D; k++)
+            any |= sg[k] != 0.0f;
+        for (size_t k = 0; st->field.emissive && k < 3 * (size_t)st->D; k++)
+            any |= em[k] != 0.0f;
+        st->col_empty[col] = !any;
     }
 }
 
@@ -1525,12 +1543,43 @@ static nacre_result temporal_end(vol_state *st, const nc_post_input *in, int thr
  * 7 carry the next slice's first channel along: never read). The closed-form tail only where a
  * pixel reads it: a column whose pixels all have finite depths never reads boundary D + 1
  * (depth_slot), which then holds boundary D's values. */
-static void froxel_integrate(vol_state *st, int threads, uint32_t batch)
+static void froxel_integrate(vol_state *st, int threads, uint32_t batch, bool use_empty)
 {
     int64_t cols = (int64_t)st->W * st->H;
     uint32_t D = st->D, D3 = 3 * D;
+    /* Clear columns (vol_state.col_clear): empty, and where a pixel sees past the grid, a tail
+     * that adds nothing. */
 #pragma omp parallel for schedule(static) num_threads(threads)
     for (int64_t col = 0; col < cols; col++) {
+        bool clear = use_empty && st->col_empty[col];
+        if (clear && !isfinite(st->col_depth[col])) {
+            float *sc = thread_scratch(st), *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
+            float o[3], d[3];
+            double scale, offset, L[3], T[3];
+            column_ray(st, (uint32_t)(col % st->W), (uint32_t)(col / st->W), o, d, &scale, &offset);
+            tail(st, o, d, ray_t(st->bound[D], scale, offset), L, T, tau);
+            for (int c = 0; c < 3; c++)
+                clear = clear && L[c] == 0.0 && T[c] == 1.0;
+        }
+        st->col_clear[col] = clear;
+    }
+#pragma omp parallel for schedule(static) num_threads(threads)
+    for (int64_t col = 0; col < cols; col++) {
+        if (st->col_clear[col]) {
+            /* Written only for the pixels that also read a column that is not clear. */
+            int64_t i = col % st->W, j = col / st->W;
+            bool read = false;
+            for (int64_t jj = j > 0 ? j - 1 : 0; jj <= j + 1 && jj < (int64_t)st->H && !read; jj++)
+                for (int64_t ii = i > 0 ? i - 1 : 0; ii <= i + 1 && ii < (int64_t)st->W; ii++)
+                    read = read || !st->col_clear[jj * st->W + ii];
+            if (read) {
+                const nc_v8f none = {0, 0, 0, 0, 1, 1, 1, 1};
+                float *pa = st->acc + 8 * (size_t)col * (D + 2);
+                for (uint32_t b = 0; b < D + 2; b++)
+                    nc_v8_store(pa + 8 * b, none);
+            }
+            continue;
+        }
         float *sc = thread_scratch(st), *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
         /* T3 and S3 one word longer: the last slice's vectors read one word past them */
         float *len3 = sc, *T3 = sc + D3 + 1, *S3 = sc + 2 * (size_t)D3 + 2;
@@ -1693,8 +1742,17 @@ static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_i
         uint32_t run_b = 0;
         bool finite = false;
         nc_v8f A = {0}, Bx = {0}, Bz = {0}, C = {0};
+        const uint8_t *k0 = st->col_clear + (size_t)j0 * W, *k1 = st->col_clear + (size_t)j1 * W;
         for (int32_t x = 0; x < w; x++) {
             int32_t i0 = xi[2 * x], i1 = xi[2 * x + 1];
+            if (k0[i0] & k0[i1] & k1[i0] & k1[i1]) { /* L 0, T 1: the pixel stays */
+                if (tl) {
+                    float *t = tl + 6 * ((size_t)y * (size_t)w + (size_t)x);
+                    t[0] = t[1] = t[2] = 0.0f;
+                    t[3] = t[4] = t[5] = 1.0f;
+                }
+                continue;
+            }
             float wx = xw[x];
             uint32_t b;
             float fz;
@@ -1802,6 +1860,10 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
     nacre_result res = vol_setup(st, in, batch);
     if (res == NACRE_OK)
         res = grid_setup(st, in->ctx, vs);
+    size_t ncols = (size_t)vs->froxel_width * vs->froxel_height;
+    if (res == NACRE_OK && (!nc_reserve(in->ctx, &st->col_empty, &st->col_empty_capacity, ncols, 1) ||
+                            !nc_reserve(in->ctx, &st->col_clear, &st->col_clear_capacity, ncols, 1)))
+        res = NACRE_ERROR_OUT_OF_MEMORY;
     if (res != NACRE_OK)
         return res;
     int threads = in->ctx->threads;
@@ -1838,7 +1900,7 @@ static nacre_result froxel_apply(void *state, const nc_post_input *in, nacre_ima
             return res;
         stage_done(stats, NACRE_STAGE_FROXEL_LIGHT, t0);
         t0 = nc_now_us();
-        froxel_integrate(st, threads, batch);
+        froxel_integrate(st, threads, batch, !temporal);
         stage_done(stats, NACRE_STAGE_FROXEL_INTEGRATE, t0);
         t0 = nc_now_us();
     }
