@@ -751,14 +751,40 @@ static void column_points(const vol_state *st, const float o[3], const float d[3
 static void froxel_fill(vol_state *st, int threads)
 {
     int64_t cols = (int64_t)st->W * st->H;
+    /* Without a global fog, a column whose ray misses every fog holds no medium, and its
+     * froxels are 0 (as nc_fog_field_eval gives them outside the fogs) without being evaluated.
+     * The shapes are tested a little larger (1e-4 of their size, and 1e-4 units), so that no
+     * point that rounding puts inside a fog is missed. */
+    nc_fog_one padded[NACRE_MAX_FOGS];
+    bool bounded = st->field.count > 0;
+    for (uint32_t f = 0; f < st->field.count && bounded; f++) {
+        padded[f] = st->field.fogs[f];
+        bounded = padded[f].box;
+        for (int k = 0; k < 3; k++)
+            padded[f].half[k] = padded[f].half[k] * (1.0f + 1e-4f) + 1e-4f;
+    }
 #pragma omp parallel for schedule(static) num_threads(threads)
     for (int64_t col = 0; col < cols; col++) {
         float *sc = thread_scratch(st), *p = sc, *ev = sc + 13u * st->D;
         float o[3], d[3];
         double scale, offset;
         column_ray(st, (uint32_t)(col % st->W), (uint32_t)(col / st->W), o, d, &scale, &offset);
-        column_points(st, o, d, scale, offset, p);
         size_t base = (size_t)col * st->D;
+        bool hit = !bounded;
+        for (uint32_t f = 0; f < st->field.count && !hit; f++) {
+            double a = 0.0, b = ray_t(st->bound[st->D], scale, offset) * (1.0 + 1e-4) + 1e-4;
+            hit = nc_fog_field_segment(&padded[f], o, d, &a, &b);
+        }
+        if (!hit) {
+            memset(st->st + 3 * base, 0, 3 * (size_t)st->D * sizeof(float));
+            memset(st->ss + 3 * base, 0, 3 * (size_t)st->D * sizeof(float));
+            memset(st->g + base, 0, (size_t)st->D * sizeof(float));
+            if (st->field.emissive)
+                memset(st->em + 3 * base, 0, 3 * (size_t)st->D * sizeof(float));
+            st->col_empty[col] = 1;
+            continue;
+        }
+        column_points(st, o, d, scale, offset, p);
         nc_fog_field_eval(&st->field, st->D, p, st->st + 3 * base, st->ss + 3 * base, st->g + base, ev);
         if (st->field.emissive)
             nc_fog_field_emission(&st->field, st->D, p, st->em + 3 * base, ev);
