@@ -402,13 +402,16 @@ static void eval_volume(const nacre_material_desc *m, const nc_volume_rec *v, co
     if (!m->pattern.blackbody && volume_density8_ok(v)) {
         const float a0 = m->sigma_a[0], a1 = m->sigma_a[1], a2 = m->sigma_a[2];
         const float s0 = m->sigma_s[0], s1 = m->sigma_s[1], s2 = m->sigma_s[2];
-        for (; begin + 8 <= end; begin += 8) {
+        /* The last block takes the points left, its other lanes repeating the last one. */
+        for (; begin < end; begin += 8) {
             const float *p = xyz + 3 * begin;
+            int n = end - begin < 8 ? (int)(end - begin) : 8;
             nc_v8f x, y, z;
             for (int l = 0; l < 8; l++) {
-                x[l] = p[3 * l];
-                y[l] = p[3 * l + 1];
-                z[l] = p[3 * l + 2];
+                int q = l < n ? l : n - 1;
+                x[l] = p[3 * q];
+                y[l] = p[3 * q + 1];
+                z[l] = p[3 * q + 2];
             }
             /* x - x is 0 for finite x, NaN for inf and NaN: non-finite points keep density 1. */
             nc_v8i finite = ((x - x) == 0.0f) & ((y - y) == 0.0f) & ((z - z) == 0.0f);
@@ -417,7 +420,7 @@ static void eval_volume(const nacre_material_desc *m, const nc_volume_rec *v, co
                 z = nc_v8_sel(finite, z, (nc_v8f){0});
             nc_v8f dv = nc_v8_sel(finite, volume_density8(v, x, y, z), nc_v8_splat(1.0f));
             float *pa = sa + 3 * begin, *ps = ss + 3 * begin;
-            for (int l = 0; l < 8; l++) {
+            for (int l = 0; l < n; l++) {
                 float d = dv[l];
                 pa[3 * l] = d * a0, pa[3 * l + 1] = d * a1, pa[3 * l + 2] = d * a2;
                 ps[3 * l] = d * s0, ps[3 * l + 1] = d * s1, ps[3 * l + 2] = d * s2;
