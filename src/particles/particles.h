@@ -38,9 +38,15 @@ typedef struct nc_particle_grid {
     uint32_t *bin_count;         /* per thread and brick: the binning's counts, then its places */
     float *coarse[2];            /* coarse levels 1 and 2: (n - 1) / 2 + 1 samples per axis of the one below */
     uint8_t *dirty;              /* per brick of the grid: not all 0 after the last splat */
+    /* Per block of 8^3 samples (block_res per axis, x fastest; 0: not made), the largest sample
+     * of the block and of the blocks around it: 0 means that every trilinear lookup whose lower
+     * corner lies in the block reads zeros (the volume lookups skip such blocks). */
+    float *block_max, *block_raw; /* block_raw: the blocks' own maxima (scratch) */
+    uint32_t block_res;
     uint32_t dirty_res;          /* the res `dirty` describes; 0: unknown (every brick dirty) */
     size_t range_capacity, scale_capacity, bin_start_capacity, bin_capacity, weight_capacity, woff_capacity;
     size_t level_capacity, coarse_capacity[2], dirty_capacity, fallback_capacity, bin_count_capacity;
+    size_t block_max_capacity, block_raw_capacity;
     bool fine_only;              /* set by the caller: every particle on the grid itself (tests) */
 } nc_particle_grid;
 

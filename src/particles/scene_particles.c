@@ -227,6 +227,11 @@ nacre_result nc_scene_commit_particles(nacre_scene *s, double time)
             v->origin[a] = p->grid.origin[a] - f.center[a];
         }
         v->data = p->grid.data;
+        if (p->grid.block_res == (p->grid.dims[0] + 7) / 8 && p->grid.dims[0] == p->grid.dims[1] &&
+            p->grid.dims[0] == p->grid.dims[2]) {
+            v->block_max = p->grid.block_max;
+            v->block_res = p->grid.block_res;
+        }
         v->min_value = 0.0f;
         v->max_value = p->grid.max_value;
         v->source_scale = 1.0f;

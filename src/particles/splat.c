@@ -46,6 +46,7 @@
  * bricks. */
 #define SLAB_LAYERS 8u
 #define BRICK_ROWS 64u
+_Static_assert(SLAB_LAYERS == 8 && BRICK_ROWS % 8 == 0, "the block maxima take a brick as whole 8^3 blocks");
 /* Bricks of one level at most (a level's order of bricks is kept on the stack). */
 #define MAX_BRICKS                                                                                                     \
     ((NACRE_PARTICLES_GRID_MAX + SLAB_LAYERS - 1) / SLAB_LAYERS *                                                      \
@@ -75,6 +76,8 @@ void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
     nc_free(ctx, g->coarse[0]);
     nc_free(ctx, g->coarse[1]);
     nc_free(ctx, g->dirty);
+    nc_free(ctx, g->block_max);
+    nc_free(ctx, g->block_raw);
     memset(g, 0, sizeof(*g));
 }
 
@@ -379,7 +382,12 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     /* The bricks' state is known only for the same resolution and the same array. */
     const bool known = g->dirty_res == res && cells <= g->capacity && g->data && g->dirty;
     g->dirty_res = 0;
+    g->block_res = 0;
+    const uint32_t bres = (res + 7) / 8;
+    const size_t blocks = (size_t)bres * bres * bres;
     bool ok = ensure(ctx, (void **)&g->data, &g->capacity, cells, sizeof(float));
+    ok = ok && ensure(ctx, (void **)&g->block_max, &g->block_max_capacity, blocks, sizeof(float));
+    ok = ok && ensure(ctx, (void **)&g->block_raw, &g->block_raw_capacity, blocks, sizeof(float));
     for (int l = 1; l < LEVELS; l++)
         ok = ok && (!level_ok[l] ||
                     ensure(ctx, (void **)&g->coarse[l - 1], &g->coarse_capacity[l - 1], ccells[l], sizeof(float)));
@@ -574,42 +582,75 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
         splat_brick_box(res, nby[0], b, &z0, &z1, &y0, &y1);
         const bool coarse_here = used[1] && (int32_t)z0 <= fz1 && (int32_t)z1 > fz0 && (int32_t)y0 <= fy1 &&
                                  (int32_t)y1 > fy0;
+        /* The brick is one block deep (SLAB_LAYERS 8) and BRICK_ROWS / 8 blocks high. */
+        float *braw = g->block_raw + ((size_t)(z0 / 8) * bres + y0 / 8) * bres;
+        const uint32_t bys = (y1 - y0 + 7) / 8;
         if (start[b] == start[b + 1] && !coarse_here) {
             /* Nothing reaches the brick: it is 0, and its maximum too. */
             if (!known || g->dirty[b])
                 for (uint32_t z = z0; z < z1; z++)
                     memset(g->data + z * nxy + y0 * nx, 0, (y1 - y0) * nx * sizeof(float));
             g->dirty[b] = 0;
+            memset(braw, 0, (size_t)bys * bres * sizeof(float));
             continue;
         }
         g->dirty[b] = 1;
         splat_brick(g, g->data, res, nby[0], b, start);
         if (coarse_here)
             add_coarse(g->data, res, g->coarse[0], res_l[1], cbox[1], z0, z1, y0, y1);
-        /* Running maxima in two 8-lane registers: one accumulator in memory (the reduction
-         * variable) kept this scan scalar, and eight scalar ones still took a compare per
-         * cell. The maximum is exact, so the lanes' order does not matter. */
-        nc_v8f m0 = nc_v8_splat(0.0f), m1 = m0;
-        float m = 0.0f;
-        for (uint32_t z = z0; z < z1; z++) {
-            const float *p = g->data + z * nxy + y0 * nx;
-            const size_t count = (y1 - y0) * nx;
-            size_t c = 0;
-            for (; c + 16 <= count; c += 16) {
-                const nc_v8f v0 = nc_v8_load(p + c), v1 = nc_v8_load(p + c + 8);
-                m0 = nc_v8_sel(v0 > m0, v0, m0);
-                m1 = nc_v8_sel(v1 > m1, v1, m1);
+        /* The maxima of the brick's 8^3 blocks, lane by lane in 8-lane accumulators (a row's
+         * 8 samples of a block are one vector), reduced once per block; the grid's maximum is
+         * theirs. Maxima are exact, so the order does not matter. */
+        nc_v8f acc[BRICK_ROWS / 8][(NACRE_PARTICLES_GRID_MAX + 7) / 8];
+        const uint32_t full = res / 8;
+        for (uint32_t yb = 0; yb < bys; yb++)
+            for (uint32_t xb = 0; xb < bres; xb++)
+                acc[yb][xb] = nc_v8_splat(0.0f);
+        for (uint32_t z = z0; z < z1; z++)
+            for (uint32_t y = y0; y < y1; y++) {
+                const float *p = g->data + z * nxy + y * nx;
+                nc_v8f *a = acc[(y - y0) / 8];
+                for (uint32_t xb = 0; xb < full; xb++) {
+                    const nc_v8f v = nc_v8_load(p + 8 * xb);
+                    a[xb] = nc_v8_sel(v > a[xb], v, a[xb]);
+                }
+                for (uint32_t x = 8 * full; x < res; x++)
+                    a[full][x - 8 * full] = p[x] > a[full][x - 8 * full] ? p[x] : a[full][x - 8 * full];
             }
-            for (; c < count; c++)
-                m = p[c] > m ? p[c] : m;
-        }
-        for (int k = 0; k < 8; k++) {
-            m = m0[k] > m ? m0[k] : m;
-            m = m1[k] > m ? m1[k] : m;
-        }
+        float m = 0.0f;
+        for (uint32_t yb = 0; yb < bys; yb++)
+            for (uint32_t xb = 0; xb < bres; xb++) {
+                float bm = 0.0f;
+                for (int k = 0; k < 8; k++)
+                    bm = acc[yb][xb][k] > bm ? acc[yb][xb][k] : bm;
+                braw[(size_t)yb * bres + xb] = bm;
+                m = bm > m ? bm : m;
+            }
         gmax = m > gmax ? m : gmax;
     }
     g->max_value = gmax;
     g->dirty_res = res;
+    /* Each block's maximum with its neighbours' (a lookup's upper corner may lie in the next
+     * block), one axis at a time. */
+    float *raw = g->block_raw, *bm = g->block_max;
+    for (int axis = 0; axis < 3; axis++) {
+        const size_t step = axis == 0 ? 1 : (axis == 1 ? bres : (size_t)bres * bres);
+        for (size_t i = 0; i < blocks; i++) {
+            const uint32_t c = (uint32_t)(i / step % bres);
+            float v = raw[i];
+            if (c > 0 && raw[i - step] > v)
+                v = raw[i - step];
+            if (c + 1 < bres && raw[i + step] > v)
+                v = raw[i + step];
+            bm[i] = v;
+        }
+        float *t = raw;
+        raw = bm;
+        bm = t;
+    }
+    /* After three swaps the result is in raw's array. */
+    if (raw != g->block_max)
+        memcpy(g->block_max, raw, blocks * sizeof(float));
+    g->block_res = bres;
     return NACRE_OK;
 }

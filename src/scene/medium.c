@@ -379,6 +379,16 @@ static nc_v8f volume_density8(const nc_volume_rec *v, nc_v8f x, nc_v8f y, nc_v8f
     axis_lookup8(x, v->origin[0], v->spacing[0], v->dims[0], &ix, &fx);
     axis_lookup8(y, v->origin[1], v->spacing[1], v->dims[1], &iy, &fy);
     axis_lookup8(z, v->origin[2], v->spacing[2], v->dims[2], &iz, &fz);
+    nc_v8f lo = nc_v8_splat(v->min_value), hi = nc_v8_splat(v->max_value);
+    if (v->block_max) {
+        /* Lower corners in blocks of 0 around: the lookups read zeros, trilinear gives 0. */
+        const int32_t br = (int32_t)v->block_res;
+        nc_v8i b = (ix >> 3) + br * ((iy >> 3) + br * (iz >> 3));
+        if (nc_v8_bits(nc_v8_gather(v->block_max, b) > 0.0f) == 0) {
+            nc_v8f r = {0};
+            return nc_v8_sel(r < lo, lo, nc_v8_sel(r > hi, hi, r));
+        }
+    }
     const int32_t sy = (int32_t)v->dims[0], sz = (int32_t)(v->dims[0] * v->dims[1]);
     nc_v8i base = ix + sy * (iy + (int32_t)v->dims[1] * iz);
     const float *d = v->data;
@@ -392,7 +402,6 @@ static nc_v8f volume_density8(const nc_volume_rec *v, nc_v8f x, nc_v8f y, nc_v8f
     nc_v8f e = d011 + fx * (d111 - d011);
     nc_v8f ab = a + fy * (b - a), ce = c + fy * (e - c);
     nc_v8f r = ab + fz * (ce - ab);
-    nc_v8f lo = nc_v8_splat(v->min_value), hi = nc_v8_splat(v->max_value);
     return nc_v8_sel(r < lo, lo, nc_v8_sel(r > hi, hi, r));
 }
 

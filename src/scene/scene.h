@@ -39,6 +39,11 @@ typedef struct nc_volume_rec {
     float origin[3], spacing[3];
     float *data;          /* owned; dims[0] * dims[1] * dims[2] floats, x fastest */
     float min_value, max_value; /* over all samples: trilinear + clamp stays inside */
+    /* Optional (NULL: none), borrowed: per block of 8^3 samples (block_res per axis, x
+     * fastest) the largest sample of the block and of its neighbours, so that a lookup whose
+     * lower corner lies in a block of 0 is 0 without reading the samples (particle grids). */
+    const float *block_max;
+    uint32_t block_res;
     char *source_path;    /* owned, absolute: the NRRD file it was read from, or NULL */
     uint32_t source_channel; /* the file's channel that was read */
     float source_scale;   /* density_scale the file's samples were multiplied by */

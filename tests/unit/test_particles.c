@@ -98,6 +98,33 @@ static void test_motion(void)
 }
 
 /* The same state and grid, bit for bit, with 1 and 2 threads; mass conserved. */
+/* The grid's block maxima (nc_particle_grid.block_max): each block's value is the largest sample
+ * of the blocks around it (3^3, clipped), exactly. Returns the blocks of 0. */
+static uint32_t check_block_max(const nc_particle_grid *g, uint32_t res)
+{
+    uint32_t br = (res + 7) / 8, zeros = 0;
+    CHECK(g->block_res == br);
+    if (g->block_res != br)
+        return 0;
+    bool ok = true;
+    for (uint32_t bz = 0; bz < br; bz++)
+        for (uint32_t by = 0; by < br; by++)
+            for (uint32_t bx = 0; bx < br; bx++) {
+                float m = 0.0f;
+                for (uint32_t z = bz > 0 ? 8 * bz - 8 : 0; z < 8 * bz + 16 && z < res; z++)
+                    for (uint32_t y = by > 0 ? 8 * by - 8 : 0; y < 8 * by + 16 && y < res; y++)
+                        for (uint32_t x = bx > 0 ? 8 * bx - 8 : 0; x < 8 * bx + 16 && x < res; x++) {
+                            float v = g->data[((size_t)z * res + y) * res + x];
+                            m = v > m ? v : m;
+                        }
+                float b = g->block_max[((size_t)bz * br + by) * br + bx];
+                ok = ok && b == m;
+                zeros += b == 0.0f;
+            }
+    CHECK(ok);
+    return zeros;
+}
+
 static void test_splat(void)
 {
     nacre_context *c1 = make_ctx(1), *c2 = make_ctx(2);
@@ -141,7 +168,13 @@ static void test_splat(void)
                fabs(sum * V - m) / m);
         CHECK(fabs(sum * V - m) <= 1e-4 * m);
         CHECK(edge == 0.0);
+        uint32_t zeros = check_block_max(&g1, res);
+        printf("  block maxima: %u of %u blocks of 0 (with their neighbours)\n", zeros, ((res + 7) / 8) * ((res + 7) / 8) * ((res + 7) / 8));
+        CHECK(zeros > 0);
     }
+    /* A resolution that is not a multiple of 8 (partial blocks at the far sides). */
+    CHECK(nc_particles_splat(c2, &s1, 37, &g1) == NACRE_OK);
+    check_block_max(&g1, 37);
 
     /* Large particles go to the coarse level: the grid is the same with 1 and 2 threads, and
      * against every particle splatted on the grid itself (fine_only) it keeps the mass and
@@ -193,6 +226,7 @@ static void test_splat(void)
             CHECK(nc_particles_splat(c1, &sp, res, &fresh) == NACRE_OK);
             CHECK(memcmp(gm.data, fresh.data, n3 * sizeof(float)) == 0);
             CHECK(gm.max_value == fresh.max_value && gm.max_value > 0.0f);
+            check_block_max(&gm, res);
             CHECK(nc_particles_splat(c2, &s2, res, &gm) == NACRE_OK); /* dense again, then sparse */
             CHECK(memcmp(gm.data, gm1.data, n3 * sizeof(float)) == 0);
         }
@@ -244,6 +278,46 @@ static void test_fog_optical_depth(void)
     double expect = 0.3 * 2.0 * NC_PARTICLE_KERNEL_K * 8.0;
     printf("optical depth through one particle: %.6f, analytic %.6f\n", tau, expect);
     CHECK(fabs(tau - expect) <= 0.02 * expect);
+    /* Lookups 8 at a time skip the blocks of 0 (the grid's block maxima): two small particles far
+     * apart (most blocks of their grid empty), a batch of points half over the whole box and
+     * half around the particles equals the scalar lookup (which reads every sample) bit for bit. */
+    nacre_scene *two = NULL;
+    CHECK(nacre_scene_create(ctx, &two) == NACRE_OK);
+    float pos2[6] = {0.0f, 0.0f, 0.0f, 40.0f, 30.0f, -20.0f};
+    d.count = 2;
+    d.positions = pos2;
+    d.radius = 3.0f;
+    nacre_particles h2;
+    CHECK(nacre_scene_add_particles(two, &d, &h2) == NACRE_OK && nacre_scene_commit(two, 0.0) == NACRE_OK);
+    const nc_volume_rec *vr = nc_scene_particle_volume(two, 0);
+    CHECK(vr && vr->block_max && vr->block_res == (96 + 7) / 8);
+    const nc_fog_rec *f2 = &two->fogs[0];
+    enum { NB = 4003 };
+    static float bp[3 * NB], ba[3 * NB], bs[3 * NB];
+    uint32_t zero = 0, same = 0;
+    for (int i = 0; i < NB; i++) {
+        float u[3];
+        for (int k = 0; k < 3; k++)
+            u[k] = (float)(((i * 7919 + k * 104729) % 1000) / 1000.0 - 0.5);
+        nc_vec3 w = i % 2 ? nc_v3(-5 + 50 * (u[0] + 0.5f), -5 + 40 * (u[1] + 0.5f), -25 + 30 * (u[2] + 0.5f))
+                          : nc_v3(pos2[i % 4 == 0 ? 0 : 3] + 7 * u[0], pos2[i % 4 == 0 ? 1 : 4] + 7 * u[1],
+                                  pos2[i % 4 == 0 ? 2 : 5] + 7 * u[2]);
+        nc_vec3 q = nc_mat4_point(&f2->world_to_local, w);
+        bp[3 * i] = q.x, bp[3 * i + 1] = q.y, bp[3 * i + 2] = q.z;
+    }
+    nc_medium_eval(two, &f2->medium, bp, NB, ba, bs);
+    for (int i = 0; i < NB; i++) {
+        float dv = nc_volume_density(vr, bp + 3 * i); /* the scalar lookup: every sample read */
+        bool eq = true;
+        for (int c = 0; c < 3; c++)
+            eq = eq && ba[3 * i + c] == dv * f2->medium.sigma_a[c] && bs[3 * i + c] == dv * f2->medium.sigma_s[c];
+        same += eq;
+        zero += dv == 0.0f;
+    }
+    printf("batch lookups over two particles' box: %u of %d equal single lookups, %u of them 0\n", same, NB, zero);
+    CHECK(same == NB);
+    CHECK(zero > NB / 4 && zero < NB - NB / 4);
+    nacre_scene_destroy(two);
     /* A new fog keeps the user's fogs first; the particles' fog comes back at the next commit. */
     nacre_fog_desc fd = nacre_fog_desc_defaults(NACRE_FOG_GLOBAL);
     nacre_fog fh;
