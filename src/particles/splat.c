@@ -27,6 +27,10 @@
  * Empty bricks: a brick of the grid that no particle and no coarse sample reaches is left as it
  * is when the last splat left it all 0 (nc_particle_grid.dirty), so a sparse system (dust) pays
  * for the bricks it covers, not for the whole grid's clearing and maximum.
+ *
+ * Block maxima: the scan for the grid's maximum keeps each 8^3 block's, then each block takes
+ * its neighbours' (nc_particle_grid.block_max): the particle fog's volume lookups (medium.c)
+ * return 0 without reading the samples where 8 points all fall in blocks of 0.
  */
 #include "particles/billboard.h"
 #include "particles/particles.h"
