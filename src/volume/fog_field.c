@@ -65,6 +65,18 @@ static inline bool inside(const nc_fog_one *o, const float q[3])
  * (most froxels miss a small cloud), packed in front. The lane-wise operations are the scalar
  * ones (nc_vol_exp_fast8, the same products and sums in fog order): results do not depend on
  * how points are grouped. */
+/* 8 points' 3 channels from planes nn apart (planes[c nn + l]) to xyz order (out[3 l + c]). */
+static inline void interleave8(const float *planes, size_t nn, float *out)
+{
+    nc_v8i a, b, c;
+    nc_v8_interleave3(nc_v8i_load((const int32_t *)(const void *)planes),
+                      nc_v8i_load((const int32_t *)(const void *)(planes + nn)),
+                      nc_v8i_load((const int32_t *)(const void *)(planes + 2 * nn)), &a, &b, &c);
+    nc_v8i_store((int32_t *)(void *)out, a);
+    nc_v8i_store((int32_t *)(void *)(out + 8), b);
+    nc_v8i_store((int32_t *)(void *)(out + 16), c);
+}
+
 void nc_fog_field_eval(const nc_fog_field *f, uint32_t n, const float *p, float *sigma_t, float *sigma_s, float *g,
                        float *scratch)
 {
@@ -170,19 +182,8 @@ void nc_fog_field_eval(const nc_fog_field *f, uint32_t n, const float *p, float 
         nc_v8f gk = nc_v8_sel(m > 0.0f, nc_v8_load(ag + k) / m, (nc_v8f){0});
         if (k + 8 <= n) {
             nc_v8_store(g + k, gk);
-            nc_v8i a, b, c;
-            nc_v8_interleave3(nc_v8i_load((const int32_t *)(const void *)(at + k)),
-                              nc_v8i_load((const int32_t *)(const void *)(at + nn + k)),
-                              nc_v8i_load((const int32_t *)(const void *)(at + 2 * nn + k)), &a, &b, &c);
-            nc_v8i_store((int32_t *)(void *)(sigma_t + 3 * k), a);
-            nc_v8i_store((int32_t *)(void *)(sigma_t + 3 * k + 8), b);
-            nc_v8i_store((int32_t *)(void *)(sigma_t + 3 * k + 16), c);
-            nc_v8_interleave3(nc_v8i_load((const int32_t *)(const void *)(as + k)),
-                              nc_v8i_load((const int32_t *)(const void *)(as + nn + k)),
-                              nc_v8i_load((const int32_t *)(const void *)(as + 2 * nn + k)), &a, &b, &c);
-            nc_v8i_store((int32_t *)(void *)(sigma_s + 3 * k), a);
-            nc_v8i_store((int32_t *)(void *)(sigma_s + 3 * k + 8), b);
-            nc_v8i_store((int32_t *)(void *)(sigma_s + 3 * k + 16), c);
+            interleave8(at + k, nn, sigma_t + 3 * k);
+            interleave8(as + k, nn, sigma_s + 3 * k);
             continue;
         }
         for (size_t q = k; q < n; q++) {
