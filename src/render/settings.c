@@ -1,6 +1,7 @@
 /*
  * settings.c: render settings defaults and the names of their enumerations (solver, source,
- * stage). Method names live with the method table (methods.c).
+ * layered integration, volumetrics, single scattering, stage). Method names live with the
+ * method table (methods.c).
  */
 #include "scene/scene.h"
 
@@ -37,21 +38,6 @@ nacre_render_settings nacre_render_settings_defaults(void)
     return s;
 }
 
-static const char *const solver_names[] = {"multigrid", "seed"};
-static const char *const source_names[] = {"volume", "face"};
-static const char *const volumetrics_names[] = {"off", "froxel", "raymarch"};
-static const char *const single_names[] = {"off", "on", "auto"};
-
-const char *nacre_solver_name(nacre_diffusion_solver solver)
-{
-    return (unsigned)solver < 2 ? solver_names[solver] : "unknown";
-}
-
-const char *nacre_source_name(nacre_diffusion_source source)
-{
-    return (unsigned)source < 2 ? source_names[source] : "unknown";
-}
-
 static int name_index(const char *name, const char *const *names, int count)
 {
     for (int i = 0; name && i < count; i++)
@@ -60,62 +46,31 @@ static int name_index(const char *name, const char *const *names, int count)
     return -1;
 }
 
-bool nacre_solver_from_name(const char *name, nacre_diffusion_solver *out)
-{
-    int i = name_index(name, solver_names, 2);
-    if (i >= 0)
-        *out = (nacre_diffusion_solver)i;
-    return i >= 0;
-}
+/* The two functions of one enumeration whose values are 0 .. count - 1, named by `table` (its
+ * length gives the count): TYPE's name ("unknown" out of range) and TYPE from a name. */
+#define NAMED_ENUM(type, name_fn, from_fn, ...)                                                     \
+    static const char *const name_fn##_table[] = {__VA_ARGS__};                                     \
+    enum { name_fn##_count = (int)(sizeof(name_fn##_table) / sizeof(name_fn##_table[0])) };          \
+    const char *name_fn(type value)                                                                 \
+    {                                                                                               \
+        return (unsigned)value < (unsigned)name_fn##_count ? name_fn##_table[value] : "unknown";    \
+    }                                                                                               \
+    bool from_fn(const char *name, type *out)                                                       \
+    {                                                                                               \
+        int i = name_index(name, name_fn##_table, name_fn##_count);                                 \
+        if (i >= 0)                                                                                 \
+            *out = (type)i;                                                                         \
+        return i >= 0;                                                                              \
+    }
 
-bool nacre_source_from_name(const char *name, nacre_diffusion_source *out)
-{
-    int i = name_index(name, source_names, 2);
-    if (i >= 0)
-        *out = (nacre_diffusion_source)i;
-    return i >= 0;
-}
-
-static const char *const integration_names[] = {"analytic", "samples"};
-
-const char *nacre_layered_integration_name(nacre_layered_integration integration)
-{
-    return (unsigned)integration < 2 ? integration_names[integration] : "unknown";
-}
-
-bool nacre_layered_integration_from_name(const char *name, nacre_layered_integration *out)
-{
-    int i = name_index(name, integration_names, 2);
-    if (i >= 0)
-        *out = (nacre_layered_integration)i;
-    return i >= 0;
-}
-
-const char *nacre_volumetrics_name(nacre_volumetrics_mode mode)
-{
-    return (unsigned)mode < 3 ? volumetrics_names[mode] : "unknown";
-}
-
-bool nacre_volumetrics_from_name(const char *name, nacre_volumetrics_mode *out)
-{
-    int i = name_index(name, volumetrics_names, 3);
-    if (i >= 0)
-        *out = (nacre_volumetrics_mode)i;
-    return i >= 0;
-}
-
-const char *nacre_single_scattering_name(nacre_single_scattering mode)
-{
-    return (unsigned)mode < 3 ? single_names[mode] : "unknown";
-}
-
-bool nacre_single_scattering_from_name(const char *name, nacre_single_scattering *out)
-{
-    int i = name_index(name, single_names, 3);
-    if (i >= 0)
-        *out = (nacre_single_scattering)i;
-    return i >= 0;
-}
+NAMED_ENUM(nacre_diffusion_solver, nacre_solver_name, nacre_solver_from_name, "multigrid", "seed")
+NAMED_ENUM(nacre_diffusion_source, nacre_source_name, nacre_source_from_name, "volume", "face")
+NAMED_ENUM(nacre_layered_integration, nacre_layered_integration_name, nacre_layered_integration_from_name,
+           "analytic", "samples")
+NAMED_ENUM(nacre_volumetrics_mode, nacre_volumetrics_name, nacre_volumetrics_from_name, "off", "froxel",
+           "raymarch")
+NAMED_ENUM(nacre_single_scattering, nacre_single_scattering_name, nacre_single_scattering_from_name, "off", "on",
+           "auto")
 
 const char *nacre_stage_name(nacre_stage stage)
 {
