@@ -180,13 +180,8 @@ nacre_result nc_diff_solve_rgb(nc_diff_solver *s, const float *const source[3], 
     const bool same = opts->phi_unchanged && s->out_valid && memcmp(s->out_dims, s->dims, sizeof(s->dims)) == 0 &&
                       memcmp(s->out_phi, phi, sizeof(s->out_phi)) == 0;
     s->out_valid = false;
-    if (s->out_span_capacity < user_rows) {
-        nc_free(s->ctx, s->out_span);
-        s->out_span_capacity = 0;
-        if (!(s->out_span = nc_alloc(s->ctx, 2 * user_rows * sizeof(uint32_t))))
-            return nc_fail(s->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory");
-        s->out_span_capacity = user_rows;
-    }
+    if (!nc_reserve(s->ctx, &s->out_span, &s->out_span_capacity, user_rows, 2 * sizeof(uint32_t)))
+        return nc_fail(s->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory");
     uint32_t *ospan = s->out_span;
 #pragma omp parallel for num_threads(threads) schedule(static) if (l->cells > 32768)
     for (uint32_t zu = 0; zu < uz; zu++)

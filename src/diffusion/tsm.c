@@ -1196,13 +1196,8 @@ static nacre_result injection_spans(nc_diff_object *o, int threads)
         return NACRE_OK;
     const uint32_t nx = o->dims[0], ny = o->dims[1], nz = o->dims[2];
     const size_t rows = (size_t)ny * nz;
-    if (o->inj_span_capacity < rows) {
-        nc_free(o->ctx, o->inj_span);
-        o->inj_span_capacity = 0;
-        if (!(o->inj_span = nc_alloc(o->ctx, 2 * rows * sizeof(uint32_t))))
-            return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the injection spans");
-        o->inj_span_capacity = rows;
-    }
+    if (!nc_reserve(o->ctx, &o->inj_span, &o->inj_span_capacity, rows, 2 * sizeof(uint32_t)))
+        return nc_fail(o->ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for the injection spans");
 #pragma omp parallel for schedule(static) num_threads(threads) if (o->cells > 32768)
     for (int64_t r = 0; r < (int64_t)rows; r++) {
         const uint8_t *row = o->solid + (size_t)r * nx;
@@ -1322,20 +1317,10 @@ nacre_result nc_diff_inject_lights(nc_diff_object *o, nc_tsm_band *band, const n
         if (!band->mesh_capacity)
             return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
     }
-    if (have_mesh && band->tbox_capacity < mesh->triangle_count) {
-        nc_free(ctx, band->tbox);
-        band->tbox = nc_alloc(ctx, 4 * (size_t)mesh->triangle_count * sizeof(int32_t));
-        band->tbox_capacity = band->tbox ? mesh->triangle_count : 0;
-        if (!band->tbox)
-            return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
-    }
-    if (have_mesh && band->vproj_capacity < mesh->vertex_count) {
-        nc_free(ctx, band->vproj);
-        band->vproj = nc_alloc(ctx, 3 * (size_t)mesh->vertex_count * sizeof(float));
-        band->vproj_capacity = band->vproj ? mesh->vertex_count : 0;
-        if (!band->vproj)
-            return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
-    }
+    /* Per triangle its texel box (4 ints), per vertex its projection (3 floats). */
+    if (have_mesh && (!nc_reserve(ctx, &band->tbox, &band->tbox_capacity, mesh->triangle_count, 4 * sizeof(int32_t)) ||
+                      !nc_reserve(ctx, &band->vproj, &band->vproj_capacity, mesh->vertex_count, 3 * sizeof(float))))
+        return nc_fail(ctx, NACRE_ERROR_OUT_OF_MEMORY, "diffusion: out of memory for a translucent shadow map");
     if (o->single && (res = lmaps_reserve(o, nl, views, nviews)) != NACRE_OK)
         return res;
     const double scale = ldexp(1.0, 61) / bound, inv_scale = 1.0 / scale;
