@@ -85,17 +85,6 @@ void nc_particle_grid_free(nacre_context *ctx, nc_particle_grid *g)
     memset(g, 0, sizeof(*g));
 }
 
-/* Grow *p (elem bytes each) to hold n; keeps nothing. */
-static bool ensure(nacre_context *ctx, void **p, size_t *cap, size_t n, size_t elem)
-{
-    if (n <= *cap && *p)
-        return true;
-    nc_free(ctx, *p);
-    *p = nc_alloc(ctx, n * elem);
-    *cap = *p ? n : 0;
-    return *p != NULL;
-}
-
 /* Zeros in front of sample x0's weights: none, unless the particle's whole vectors from x0
  * would leave the row of res samples; then as many as move them back into it. */
 static inline int32_t lead(int32_t x0, int32_t nx, int32_t res)
@@ -389,19 +378,19 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     g->block_res = 0;
     const uint32_t bres = (res + 7) / 8;
     const size_t blocks = (size_t)bres * bres * bres;
-    bool ok = ensure(ctx, (void **)&g->data, &g->capacity, cells, sizeof(float));
-    ok = ok && ensure(ctx, (void **)&g->block_max, &g->block_max_capacity, blocks, sizeof(float));
-    ok = ok && ensure(ctx, (void **)&g->block_raw, &g->block_raw_capacity, blocks, sizeof(float));
+    bool ok = nc_reserve(ctx, &g->data, &g->capacity, cells, sizeof(float));
+    ok = ok && nc_reserve(ctx, &g->block_max, &g->block_max_capacity, blocks, sizeof(float));
+    ok = ok && nc_reserve(ctx, &g->block_raw, &g->block_raw_capacity, blocks, sizeof(float));
     for (int l = 1; l < LEVELS; l++)
         ok = ok && (!level_ok[l] ||
-                    ensure(ctx, (void **)&g->coarse[l - 1], &g->coarse_capacity[l - 1], ccells[l], sizeof(float)));
-    ok = ok && ensure(ctx, (void **)&g->dirty, &g->dirty_capacity, bricks[0], sizeof(uint8_t));
-    ok = ok && ensure(ctx, (void **)&g->range, &g->range_capacity, 6 * (size_t)n, sizeof(int32_t));
-    ok = ok && ensure(ctx, (void **)&g->scale, &g->scale_capacity, n, sizeof(float));
-    ok = ok && ensure(ctx, (void **)&g->level, &g->level_capacity, n, sizeof(uint8_t));
-    ok = ok && ensure(ctx, (void **)&g->fallback, &g->fallback_capacity, n, sizeof(uint8_t));
-    ok = ok && ensure(ctx, (void **)&g->woff, &g->woff_capacity, (size_t)n + 1, sizeof(size_t));
-    ok = ok && ensure(ctx, (void **)&g->bin_start, &g->bin_start_capacity, (size_t)nb + 2, sizeof(uint32_t));
+                    nc_reserve(ctx, &g->coarse[l - 1], &g->coarse_capacity[l - 1], ccells[l], sizeof(float)));
+    ok = ok && nc_reserve(ctx, &g->dirty, &g->dirty_capacity, bricks[0], sizeof(uint8_t));
+    ok = ok && nc_reserve(ctx, &g->range, &g->range_capacity, 6 * (size_t)n, sizeof(int32_t));
+    ok = ok && nc_reserve(ctx, &g->scale, &g->scale_capacity, n, sizeof(float));
+    ok = ok && nc_reserve(ctx, &g->level, &g->level_capacity, n, sizeof(uint8_t));
+    ok = ok && nc_reserve(ctx, &g->fallback, &g->fallback_capacity, n, sizeof(uint8_t));
+    ok = ok && nc_reserve(ctx, &g->woff, &g->woff_capacity, (size_t)n + 1, sizeof(size_t));
+    ok = ok && nc_reserve(ctx, &g->bin_start, &g->bin_start_capacity, (size_t)nb + 2, sizeof(uint32_t));
     if (!ok)
         return NACRE_ERROR_OUT_OF_MEMORY;
     float *const data_l[LEVELS] = {g->data, level_ok[1] ? g->coarse[0] : NULL, level_ok[2] ? g->coarse[1] : NULL};
@@ -471,10 +460,10 @@ nacre_result nc_particles_splat(nacre_context *ctx, const nc_particle_set *s, ui
     }
     if ((r = nc_memory_check(ctx, (uint64_t)g->woff[n] * sizeof(float), "particle splat weights")) != NACRE_OK)
         return r;
-    if (!ensure(ctx, (void **)&g->weights, &g->weight_capacity, g->woff[n], sizeof(float)))
+    if (!nc_reserve(ctx, &g->weights, &g->weight_capacity, g->woff[n], sizeof(float)))
         return NACRE_ERROR_OUT_OF_MEMORY;
-    if (!ensure(ctx, (void **)&g->bins, &g->bin_capacity, entries + 1, sizeof(uint32_t)) ||
-        !ensure(ctx, (void **)&g->bin_count, &g->bin_count_capacity, (size_t)threads * nb, sizeof(uint32_t)))
+    if (!nc_reserve(ctx, &g->bins, &g->bin_capacity, entries + 1, sizeof(uint32_t)) ||
+        !nc_reserve(ctx, &g->bin_count, &g->bin_count_capacity, (size_t)threads * nb, sizeof(uint32_t)))
         return NACRE_ERROR_OUT_OF_MEMORY;
 
     /* The weights, and the factor that makes a particle's samples sum to its mass: on level l
