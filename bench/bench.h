@@ -42,7 +42,8 @@ int nc_bench_load(bool json, int runs, const char *ply, const char *glb);
 int nc_bench_layered(bool json, int runs, const char *scene_path, const nc_bench_filter *filter);
 /* Particles: simulate, splat, billboards and sprites passes (bench/bench_particles.c). */
 int nc_bench_particles(bool json, int runs, const char *only);
-/* The froxel stages, the per-pixel march and the analytic fog pass (bench/bench_volumetrics.c). */
-int nc_bench_volumetrics(bool json, int runs, bool raymarch);
+/* The froxel stages, the per-pixel march and the analytic fog pass (bench/bench_volumetrics.c);
+ * froxel_only: the froxel stages of the camera-turning frames alone. */
+int nc_bench_volumetrics(bool json, int runs, bool raymarch, bool froxel_only);
 
 #endif /* NACRE_BENCH_H */

@@ -8,6 +8,8 @@
  * run: the froxel_* and fog_pass keys), the sun turns (the fill is kept, the lighting and the
  * integration rerun), and nothing moves (the lit grid is kept; only apply runs). Medians of N
  * frames per stage, in ms, and with --raymarch one frame of the per-pixel march (64 steps).
+ * `--only froxel` times the first sequence alone (its stages and total): a quicker measurement
+ * of the froxel pipeline for before/after comparisons.
  */
 #include "bench.h"
 
@@ -134,7 +136,7 @@ out:
     return rc;
 }
 
-int nc_bench_volumetrics(bool json, int runs, bool raymarch)
+int nc_bench_volumetrics(bool json, int runs, bool raymarch, bool froxel_only)
 {
     nacre_context *ctx = nc_tool_context(0);
     if (!ctx)
@@ -159,8 +161,25 @@ int nc_bench_volumetrics(bool json, int runs, bool raymarch)
     double froxel[NACRE_STAGE_COUNT + 1], sun_turns[NACRE_STAGE_COUNT + 1], still[NACRE_STAGE_COUNT + 1];
     double march[NACRE_STAGE_COUNT + 1] = {0}, off[NACRE_STAGE_COUNT + 1], off_still[NACRE_STAGE_COUNT + 1];
     rs.volumetrics.mode = NACRE_VOLUMETRICS_FROXEL;
-    if ((rc = time_frames(ctx, scene, &rs, runs, CAMERA_TURNS, sun, froxel)) != 0 ||
-        (rc = time_frames(ctx, scene, &rs, runs, SUN_TURNS, sun, sun_turns)) != 0 ||
+    if ((rc = time_frames(ctx, scene, &rs, runs, CAMERA_TURNS, sun, froxel)) != 0)
+        goto out;
+    if (froxel_only) {
+        double st[4] = {froxel[NACRE_STAGE_FROXEL_FILL], froxel[NACRE_STAGE_FROXEL_LIGHT],
+                        froxel[NACRE_STAGE_FROXEL_INTEGRATE], froxel[NACRE_STAGE_FROXEL_APPLY]};
+        double sum = st[0] + st[1] + st[2] + st[3];
+        if (json)
+            printf("{\"bench\":\"volumetrics\",\"only\":\"froxel\",\"threads\":%d,\"runs\":%d,\"froxel_fill_ms\":%.3f,"
+                   "\"froxel_light_ms\":%.3f,\"froxel_integrate_ms\":%.3f,\"froxel_apply_ms\":%.3f,"
+                   "\"froxel_total_ms\":%.3f}\n",
+                   nacre_context_threads(ctx), runs, st[0], st[1], st[2], st[3], sum);
+        else
+            printf("volumetrics, camera turning (median of %d runs, ms): froxel fill %.3f, light %.3f, integrate "
+                   "%.3f, apply %.3f, total %.3f\n",
+                   runs, st[0], st[1], st[2], st[3], sum);
+        rc = 0;
+        goto out;
+    }
+    if ((rc = time_frames(ctx, scene, &rs, runs, SUN_TURNS, sun, sun_turns)) != 0 ||
         (rc = time_frames(ctx, scene, &rs, runs, STILL, sun, still)) != 0)
         goto out;
     rs.volumetrics.mode = NACRE_VOLUMETRICS_OFF;

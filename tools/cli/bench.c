@@ -49,12 +49,13 @@ static const char bench_help[] =
     "           simulate, splat into 128^3, commit, the billboards and sprites passes and the\n"
     "           voxelized frame (froxel march) at 1280x720, median ms per stage\n"
     "           --only: the cases whose name contains it\n"
-    "usage: nacre bench volumetrics [--json] [--runs N] [--raymarch]\n"
+    "usage: nacre bench volumetrics [--json] [--runs N] [--raymarch] [--only froxel]\n"
     "  volumetrics  froxel stages (fill, light, integrate, apply at 160x90x64) and the analytic\n"
     "           fog pass over the demo at 1280x720 with a shadowed sun, four point lights, height\n"
     "           fog and a 128^3 cloud; frames where the camera turns, the sun turns, nothing moves\n"
     "           (bench/bench_volumetrics.c)\n"
-    "  --raymarch  also one frame of the per-pixel march (64 steps; tens of seconds)\n";
+    "  --raymarch  also one frame of the per-pixel march (64 steps; tens of seconds)\n"
+    "  --only froxel  only the froxel stages of the frames where the camera turns\n";
 
 
 
@@ -90,7 +91,8 @@ int nc_cli_bench(int argc, char **argv)
             json = true;
         else if (strcmp(argv[i], "--runs") == 0 && i + 1 < argc && nc_tool_parse_int(argv[i + 1], 1, 10000, &runs))
             i++;
-        else if ((voxelize || diffusion || layered || particles) && strcmp(argv[i], "--only") == 0 && i + 1 < argc)
+        else if ((voxelize || diffusion || layered || particles || volumetrics) && strcmp(argv[i], "--only") == 0 &&
+                 i + 1 < argc)
             filter.only = argv[++i];
         else if ((voxelize || diffusion) && strcmp(argv[i], "--res") == 0 && i + 1 < argc &&
                  nc_tool_parse_int(argv[i + 1], 1, 4096, &res_only))
@@ -135,8 +137,11 @@ int nc_cli_bench(int argc, char **argv)
                                  filter.only);
         return nc_bench_particles(json, (int)runs, filter.only);
     }
-    if (volumetrics)
-        return nc_bench_volumetrics(json, (int)runs, raymarch);
+    if (volumetrics) {
+        if (filter.only && strcmp(filter.only, "froxel") != 0)
+            return nc_tool_usage("bench", "--only '%s': volumetrics has one case, froxel", filter.only);
+        return nc_bench_volumetrics(json, (int)runs, raymarch, filter.only != NULL);
+    }
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
         return rc;
