@@ -137,6 +137,31 @@ static inline nc_v8f nc_v8_sqrt(nc_v8f x)
 #endif
 }
 
+/* 1 / sqrt(x) for x > 0: the processor's estimate refined by one Newton step (relative error
+ * about 2^-22), where a square root and a division would queue on the one divider; exact without
+ * AVX. The estimate is the processor's own, so the last bits may differ between processors: for
+ * kernels whose result is not compared bit for bit with a scalar form. */
+static inline nc_v8f nc_v8_rsqrt(nc_v8f x)
+{
+#ifdef __AVX__
+    nc_v8f r = (nc_v8f)_mm256_rsqrt_ps((__m256)x);
+    return r * (1.5f - 0.5f * x * r * r);
+#else
+    return 1.0f / nc_v8_sqrt(x);
+#endif
+}
+
+/* 1 / x for finite x != 0, as nc_v8_rsqrt: the estimate and one Newton step. */
+static inline nc_v8f nc_v8_rcp(nc_v8f x)
+{
+#ifdef __AVX__
+    nc_v8f r = (nc_v8f)_mm256_rcp_ps((__m256)x);
+    return r * (2.0f - x * r);
+#else
+    return 1.0f / x;
+#endif
+}
+
 /* 8 consecutive triples (x0 y0 z0 x1 ... z7, 24 words in a, b, c) as three 8-lane vectors x, y,
  * z (bit patterns: int32 or float words). With AVX2, two blends and one lane permutation each. */
 static inline void nc_v8_deinterleave3(nc_v8i a, nc_v8i b, nc_v8i c, nc_v8i *x, nc_v8i *y, nc_v8i *z)

@@ -370,7 +370,7 @@ static inline double ray_t(double z, double scale, double offset)
 }
 
 /* Floats of froxel_light_column's scratch for columns of up to d froxels. */
-#define LIGHT_SCRATCH(d) ((14u + NACRE_MAX_FOGS) * (((size_t)(d) + 7) & ~(size_t)7))
+#define LIGHT_SCRATCH(d) ((17u + NACRE_MAX_FOGS) * (((size_t)(d) + 7) & ~(size_t)7))
 
 /* Lights, fogs, environment and camera of the frame; per-thread scratch for batches of up to
  * `batch` points. */
@@ -708,10 +708,12 @@ static inline nc_v8f v8_halves(v4f lo, v4f hi)
 #endif
 }
 
-/* The D froxel centres of a column ray (3 floats each), 8 at a time: each slice's depth in
- * double as the ray distance was always taken, then the 8 points in float, stored as triples. */
+/* The D froxel centres of a column ray, 8 at a time: each slice's depth in double as the ray
+ * distance was always taken, then the 8 points in float, stored as triples in p, or with p NULL
+ * in the planes xyz[0..2] (the lighting's layout; each padded to a multiple of 8 with the last
+ * point). */
 static void column_points(const vol_state *st, const float o[3], const float d[3], double scale, double offset,
-                          float *p)
+                          float *p, float *const xyz[3])
 {
     const double *b = st->bound;
     double jit = st->jitter;
@@ -734,6 +736,12 @@ static void column_points(const vol_state *st, const float o[3], const float d[3
         nc_v8f tv = v8_halves(t[0], t[1]);
         tv = nc_v8_sel(tv > 0.0f, tv, (nc_v8f){0});
         nc_v8f x = o[0] + tv * d[0], y = o[1] + tv * d[1], z = o[2] + tv * d[2];
+        if (!p) {
+            nc_v8_store(xyz[0] + k0, x);
+            nc_v8_store(xyz[1] + k0, y);
+            nc_v8_store(xyz[2] + k0, z);
+            continue;
+        }
         nc_v8i a, bb, c;
         nc_v8_interleave3((nc_v8i)x, (nc_v8i)y, (nc_v8i)z, &a, &bb, &c);
         nc_v8i_store((int32_t *)(void *)(p + 3 * k0), a);
@@ -743,9 +751,16 @@ static void column_points(const vol_state *st, const float o[3], const float d[3
     for (uint32_t k = k0; k < D; k++) {
         double z = mid ? 0.5 * (b[k] + b[k + 1]) : b[k] + jit * (b[k + 1] - b[k]);
         float t = (float)ray_t(z, scale, offset);
-        for (int c = 0; c < 3; c++)
-            p[3 * k + c] = o[c] + t * d[c];
+        for (int c = 0; c < 3; c++) {
+            if (p)
+                p[3 * k + c] = o[c] + t * d[c];
+            else
+                xyz[c][k] = o[c] + t * d[c];
+        }
     }
+    for (uint32_t k = D; !p && k % 8 != 0; k++)
+        for (int c = 0; c < 3; c++)
+            xyz[c][k] = xyz[c][D - 1];
 }
 
 static void froxel_fill(vol_state *st, int threads)
@@ -784,7 +799,7 @@ static void froxel_fill(vol_state *st, int threads)
             st->col_empty[col] = 1;
             continue;
         }
-        column_points(st, o, d, scale, offset, p);
+        column_points(st, o, d, scale, offset, p, NULL);
         nc_fog_field_eval(&st->field, st->D, p, st->st + 3 * base, st->ss + 3 * base, st->g + base, ev);
         if (st->field.emissive)
             nc_fog_field_emission(&st->field, st->D, p, st->em + 3 * base, ev);
@@ -803,10 +818,16 @@ static void froxel_fill(vol_state *st, int threads)
  * at or before it. */
 static uint32_t lit_slices(const vol_state *st, float z)
 {
-    uint32_t n = 0;
-    while (n < st->D && st->bound[n] <= z)
-        n++;
-    return n;
+    /* bound rises: the count of bound[0 .. D - 1] <= z, by bisection */
+    uint32_t lo = 0, hi = st->D;
+    while (lo < hi) {
+        uint32_t mid = (lo + hi) / 2;
+        if (st->bound[mid] <= z)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo;
 }
 
 /* The optical-depth grid of every light through every bounded patterned fog (light_volume.h),
@@ -921,14 +942,48 @@ static inline bool scatters(const float *ss)
     return (b & 0x7fffffffu) != 0;
 }
 
-/* Whether any of the n froxels at ss scatters: one OR over the column's words (vectorizes), so
- * that an empty column costs a read of its sigma_s. */
-static inline bool column_scatters(const float *ss, uint32_t n)
+/* Bit k set where froxel k of the 8 at ss (3 words each) scatters: scatters() 8 at a time. */
+static inline uint32_t scatter_bits8(const float *ss)
 {
-    uint32_t b = 0;
-    for (size_t i = 0; i < 3 * (size_t)n; i++)
-        b |= float_bits(ss[i]);
-    return (b & 0x7fffffffu) != 0;
+    nc_v8i x, y, z;
+    nc_v8_deinterleave3(nc_v8i_load((const int32_t *)(const void *)ss),
+                        nc_v8i_load((const int32_t *)(const void *)(ss + 8)),
+                        nc_v8i_load((const int32_t *)(const void *)(ss + 16)), &x, &y, &z);
+    return nc_v8_bits(((x | y | z) & 0x7fffffff) != 0);
+}
+
+/* Whether every one of the n froxels at ss scatters. */
+static bool span_scatters(const float *ss, uint32_t n)
+{
+    uint32_t k = 0;
+    for (; k + 8 <= n; k += 8)
+        if (scatter_bits8(ss + 3 * (size_t)k) != 0xffu)
+            return false;
+    for (; k < n; k++)
+        if (!scatters(ss + 3 * (size_t)k))
+            return false;
+    return true;
+}
+
+/* The first froxel of the n at ss that scatters (*a) and one past the last (*b); a = b = 0 if
+ * none does. */
+static void scatter_span(const float *ss, uint32_t n, uint32_t *a, uint32_t *b)
+{
+    uint32_t lo = n, hi = 0, k = 0;
+    for (; k + 8 <= n; k += 8) {
+        uint32_t bits = scatter_bits8(ss + 3 * (size_t)k);
+        if (!bits)
+            continue;
+        lo = lo < n ? lo : k + (uint32_t)__builtin_ctz(bits);
+        hi = k + 32u - (uint32_t)__builtin_clz(bits);
+    }
+    for (; k < n; k++)
+        if (scatters(ss + 3 * (size_t)k)) {
+            lo = lo < n ? lo : k;
+            hi = k + 1;
+        }
+    *a = lo < hi ? lo : 0;
+    *b = lo < hi ? hi : 0;
 }
 
 /* Most depth slices a column can have (renderer.c's check of froxel_slices). */
@@ -998,7 +1053,7 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
             }
         if (used > 0) {
             column_ray(st, 2 * gi, 2 * gj, o, d, &scale, &offset);
-            column_points(st, o, d, scale, offset, p);
+            column_points(st, o, d, scale, offset, p, NULL);
         }
         for (uint32_t l = 0; l < st->light_count; l++) {
             if (!st->tau_redo[l])
@@ -1116,81 +1171,103 @@ static nacre_result column_depths(vol_state *st, nacre_context *ctx, const float
 
 /* ---- the froxels' lighting, 8 froxels of a column at a time (core/simd.h) ------------------- */
 
-/* nc_vol_exp_ratio_fast lane by lane (x >= 0, finite where selected). */
-static inline nc_v8f v8_exp_ratio_fast(nc_v8f x)
+/* The Henyey-Greenstein phase of the froxels lane by lane from their constants (froxel_light_column:
+ * pa = 1 + g^2, pb = -2 g, pc = (1 - g^2) / 4 pi): pc x^-3/2 with x = pa + pb cs, by nc_v8_rsqrt
+ * (x >= (1 - |g|)^2 > 0). */
+static inline nc_v8f v8_hg_phase_c(nc_v8f cs, nc_v8f pa, nc_v8f pb, nc_v8f pc)
 {
-    nc_v8f series = 1.0f - x * (0.5f - x * (1.0f / 6.0f - x * (1.0f / 24.0f - x * (1.0f / 120.0f))));
-    return nc_v8_sel(x < 0.1f, series, (1.0f - nc_vol_exp_fast8(-x)) / x);
-}
-
-/* hg_phase lane by lane. */
-static inline nc_v8f v8_hg_phase(nc_v8f cs, nc_v8f g)
-{
-    nc_v8f x = 1.0f + g * g - 2.0f * g * cs;
-    return (1.0f - g * g) / (4.0f * (float)NC_PI * x * nc_v8_sqrt(x));
+    nc_v8f r = nc_v8_rsqrt(pa + pb * cs);
+    return pc * (r * r * r);
 }
 
 /* nc_vol_height_integral of global fog v (with a falloff) in float along rays from heights y
  * with direction y components wy over [0, len] (finite; a point light at height y_end, where the
- * height factor is f_end), given the factors f_y at y. The case of a directional light (len
+ * height factor is f_end), given the factors f_y at y. Where the segment rises by h (after its
+ * capped stretch below yc), the integral of e^(-k y) is (f_lo - f_hi) / (k s): the factors at
+ * both ends are known, so no exponential is taken; below k s rest = 0.1 the difference cancels,
+ * and the series of rest f_lo (1 - e^-x) / x is used. The case of a directional light (len
  * infinite) is froxel_light_column's. */
 static inline nc_v8f v8_height_integral(const vfog *v, nc_v8f y, nc_v8f wy, nc_v8f len, nc_v8f f_y, float y_end,
                                         float f_end)
 {
-    const nc_v8f zero = {0};
     float k = v->o->hf_falloff;
     nc_v8f s = nc_v8_sel(wy >= 0.0f, wy, -wy);
     nc_v8i here = wy >= 0.0f; /* the point is the lower end */
     nc_v8f y_lo = nc_v8_sel(here, y, nc_v8_splat(y_end)), f_lo = nc_v8_sel(here, f_y, nc_v8_splat(f_end));
+    nc_v8f f_hi = nc_v8_sel(here, nc_v8_splat(f_end), f_y);
     nc_v8i below = y_lo < v->yc;
-    nc_v8f to_cap = (v->yc - y_lo) / s;
-    nc_v8f capped = nc_v8_sel(below, nc_v8_sel(to_cap < len, to_cap, len), zero);
+    nc_v8f ks = k * s, inv_ks = nc_v8_rcp(ks); /* s = 0: level, taken at the end */
+    nc_v8f to_cap = (v->yc - y_lo) * (k * inv_ks);
+    nc_v8f capped = nc_v8_sel(below, nc_v8_sel(to_cap < len, to_cap, len), (nc_v8f){0});
     f_lo = nc_v8_sel(below, nc_v8_splat(v->fcap), f_lo);
-    nc_v8f rest = len - capped;
-    nc_v8f total = capped * f_lo + nc_v8_sel(rest > 0.0f, rest * f_lo * v8_exp_ratio_fast(k * s * rest), zero);
+    nc_v8f rest = len - capped, x = ks * rest;
+    nc_v8f series = rest * f_lo * (1.0f - x * (0.5f - x * (1.0f / 6.0f - x * (1.0f / 24.0f - x * (1.0f / 120.0f)))));
+    nc_v8f total = capped * f_lo + nc_v8_sel(x < 0.1f, series, (f_lo - f_hi) * inv_ks);
     return nc_v8_sel(s == 0.0f, len * f_lo, total); /* level: constant density */
 }
 
 /* The froxels' lighting of one column (light_points' sum, by light over groups of 8 froxels in
- * SoA arrays): n froxels at p (xyz each) seen along d, src[3k + c] from ss[3k + c] and g[k]; src
+ * SoA arrays): n froxels, whose centres column_points put in the first 3 planes of ls, seen along d, src[3k + c] from ss[3k + c] and g[k]; src
  * may alias ss. Only the froxels in span[1] .. span[2] - 1 that scatter are lit, packed (the
  * others' source is 0). The optical depth towards a light is the sum of the patterned fogs'
  * coarse grid (interpolated; cn, cw: the grid's 4 columns around this one and their weights, cn
- * NULL without patterned fogs), the global fogs without pattern in closed form and the boxes
- * without pattern exactly (nc_fog_field_optical_depth, sharp walls); its exponential is
- * nc_vol_exp_fast's. The opaque shadow is looked up per froxel. */
-static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t span[3], const float *p,
-                                const float d[3], const float *ss, const float *g, float *src, const size_t cn[4],
+ * NULL without patterned fogs; once for all channels where st->tau_gray), the global fogs
+ * without pattern in closed form and the boxes without pattern exactly
+ * (nc_fog_field_optical_depth, sharp walls); its exponential is nc_vol_transmittance8's. The
+ * opaque shadow is looked up per froxel. Square roots and divisions are nc_v8_rsqrt's and
+ * nc_v8_rcp's (relative 2^-22), which keep them off the divider. */
+static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t span[3], const float d[3], const float *ss, const float *g, float *src, const size_t cn[4],
                                 const float cw[4], float *ls, float *tau_scratch)
 {
-    /* The froxels that scatter, in order. */
+    /* The froxels that scatter, in order (span_bits: all of them, the common case, when the
+     * span is the whole column). */
     int32_t idx[MAX_SLICES];
     uint32_t m = 0;
-    for (uint32_t k = span[1]; k < span[2]; k++) {
-        idx[m] = (int32_t)k;
-        m += scatters(ss + 3 * (size_t)k);
+    bool all = span[1] == 0 && span[2] == n && span_scatters(ss, n);
+    if (all) {
+        m = n;
+    } else {
+        for (uint32_t k = span[1]; k < span[2]; k++) {
+            idx[m] = (int32_t)k;
+            m += scatters(ss + 3 * (size_t)k);
+        }
     }
     if (m == 0) {
         memset(src, 0, 3 * (size_t)n * sizeof(float));
         return;
     }
-    bool packed = m < n; /* else idx is 0 .. n - 1 */
+    bool packed = !all; /* else idx is 0 .. n - 1 */
     const size_t S = ((size_t)st->D + 7) & ~(size_t)7;
     const uint32_t m8 = (m + 7) & ~7u;
-    float *X = ls, *Y = ls + S, *Z = ls + 2 * S, *Gp = ls + 3 * S, *F = ls + 4 * S;
+    /* X, Y, Z: the froxel centres (column_points' planes, padded to 8 with the last one) */
+    float *X = ls, *Y = ls + S, *Z = ls + 2 * S, *PA = ls + 3 * S, *F = ls + 4 * S;
     float *A[3] = {ls + 5 * S, ls + 6 * S, ls + 7 * S}, *T[3] = {ls + 8 * S, ls + 9 * S, ls + 10 * S};
     float *CG = ls + 11 * S, *HF = ls + 14 * S; /* CG: 3 x S, a node per 2 froxels plus padding */
-    /* Lanes past m repeat the last froxel (their results are not used). */
-    for (uint32_t k = m; k < m8; k++)
-        idx[k] = idx[m - 1];
-    for (uint32_t k = 0; k < m8; k++) {
-        uint32_t q = (uint32_t)idx[k];
-        X[k] = p[3 * q];
-        Y[k] = p[3 * q + 1];
-        Z[k] = p[3 * q + 2];
-        Gp[k] = g[q];
+    float *PB = HF + NACRE_MAX_FOGS * S, *PC = PB + S; /* PA, PB, PC: the phase's constants */
+    if (packed) {
+        /* Lanes past m repeat the last froxel (their results are not used); idx[k] >= k, so the
+         * planes compact in place. */
+        for (uint32_t k = m; k < m8; k++)
+            idx[k] = idx[m - 1];
+        for (uint32_t k = 0; k < m8; k++) {
+            uint32_t q = (uint32_t)idx[k];
+            X[k] = X[q];
+            Y[k] = Y[q];
+            Z[k] = Z[q];
+            F[k] = g[q];
+        }
+    } else {
+        memcpy(F, g, n * sizeof(float));
+        for (uint32_t k = n; k < m8; k++)
+            F[k] = g[n - 1];
+    }
+    for (uint32_t k = 0; k < m8; k += 8) {
+        nc_v8f gk = nc_v8_load(F + k), g2 = gk * gk;
+        nc_v8_store(PA + k, 1.0f + g2);
+        nc_v8_store(PB + k, -2.0f * gk);
+        nc_v8_store(PC + k, (1.0f - g2) * (float)(1.0 / (4.0 * NC_PI)));
         for (int c = 0; c < 3; c++)
-            A[c][k] = st->env[c];
+            nc_v8_store(A[c] + k, nc_v8_splat(st->env[c]));
     }
     /* Each global fog's height factor at the froxels, shared by all lights. */
     for (uint32_t f = 0; f < st->gfog_count; f++) {
@@ -1203,6 +1280,7 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t 
         }
     }
     const size_t cols_c = (size_t)st->Wc * st->Hc, nodes = cols_c * st->Dc;
+    const int channels = 3; /* of the coarse grid that differ */
     for (uint32_t l = 0; l < st->light_count; l++) {
         const vlight *li = &st->lights[l];
         if (!(li->e[0] != 0.0f || li->e[1] != 0.0f || li->e[2] != 0.0f))
@@ -1222,7 +1300,7 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t 
              * ones halfway (x = 0.5 (x + x) exactly). */
             const float *grid = st->tau_grid + 3 * (size_t)l * nodes;
             uint32_t half = (n + 1) / 2;
-            for (int c = 0; c < 3; c++) {
+            for (int c = 0; c < channels; c++) {
                 const float *g0 = grid + (3 * cn[0] + (size_t)c) * st->Dc, *g1 = grid + (3 * cn[1] + (size_t)c) * st->Dc,
                             *g2 = grid + (3 * cn[2] + (size_t)c) * st->Dc, *g3 = grid + (3 * cn[3] + (size_t)c) * st->Dc;
                 float *cg = CG + c * S, *t = T[c];
@@ -1246,17 +1324,20 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t 
                 for (uint32_t k = 2 * half; k < m8; k++)
                     t[k] = t[n - 1];
             }
+            for (int c = channels; c < 3; c++)
+                memcpy(T[c], T[0], m8 * sizeof(float));
         } else {
             for (int c = 0; c < 3; c++)
                 memset(T[c], 0, m8 * sizeof(float));
         }
         if (directional) {
-            float cs = -(d[0] * li->dir[0] + d[1] * li->dir[1] + d[2] * li->dir[2]), wy = -li->dir[1];
+            nc_v8f cs = nc_v8_splat(-(d[0] * li->dir[0] + d[1] * li->dir[1] + d[2] * li->dir[2]));
+            float wy = -li->dir[1], inv_wy = 1.0f / wy;
             for (uint32_t k = 0; k < m8; k += 8)
-                nc_v8_store(F + k, v8_hg_phase(nc_v8_splat(cs), nc_v8_load(Gp + k)));
+                nc_v8_store(F + k, v8_hg_phase_c(cs, nc_v8_load(PA + k), nc_v8_load(PB + k), nc_v8_load(PC + k)));
             for (uint32_t f = 0; f < st->gfog_count; f++) {
                 const vfog *v = &st->gfog[f];
-                float kf = v->o->hf_falloff;
+                float kf = v->o->hf_falloff, tail = 1.0f / (kf * wy);
                 for (uint32_t k = 0; k < m8; k += 8) {
                     nc_v8f hf = nc_v8_load(HF + f * S + k), y = nc_v8_load(Y + k), G;
                     if (!(kf > 0.0f) || wy < 0.0f) {
@@ -1267,8 +1348,8 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t 
                         /* Rising forever: the capped stretch below yc, then the integral of e^(-k wy t). */
                         nc_v8i below = y < v->yc;
                         nc_v8f f_lo = nc_v8_sel(below, nc_v8_splat(v->fcap), hf);
-                        nc_v8f capped = nc_v8_sel(below, (v->yc - y) / wy, (nc_v8f){0});
-                        G = capped * f_lo + f_lo / (kf * wy);
+                        nc_v8f capped = nc_v8_sel(below, (v->yc - y) * inv_wy, (nc_v8f){0});
+                        G = capped * f_lo + f_lo * tail;
                     }
                     for (int c = 0; c < 3; c++)
                         if (v->sig_t[c] > 0.0f)
@@ -1289,14 +1370,15 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t 
                        vz = nc_v8_load(Z + k) - li->pos[2];
                 nc_v8f d2 = vx * vx + vy * vy + vz * vz;
                 nc_v8i valid = d2 > 0.0f;
-                nc_v8f dist = nc_v8_sqrt(d2), inv = 1.0f / dist;
+                nc_v8f inv = nc_v8_rsqrt(d2), dist = d2 * inv;
                 nc_v8f wx = vx * inv, wyv = vy * inv, wz = vz * inv;
-                nc_v8f scale = 1.0f / d2;
+                nc_v8f scale = inv * inv;
                 if (li->type == NACRE_LIGHT_SPOT)
                     scale *= nc_spot_falloff8(li->falloff, wx * li->dir[0] + wyv * li->dir[1] + wz * li->dir[2],
                                               li->co, li->ci, hard);
                 nc_v8f cs = -(d[0] * wx + d[1] * wyv + d[2] * wz);
-                nc_v8_store(F + k, nc_v8_sel(valid, v8_hg_phase(cs, nc_v8_load(Gp + k)) * scale, zero));
+                nc_v8f ph = v8_hg_phase_c(cs, nc_v8_load(PA + k), nc_v8_load(PB + k), nc_v8_load(PC + k));
+                nc_v8_store(F + k, nc_v8_sel(valid, ph * scale, zero));
                 for (uint32_t f = 0; f < st->gfog_count; f++) {
                     const vfog *v = &st->gfog[f];
                     nc_v8f G = v->o->hf_falloff > 0.0f
@@ -1339,8 +1421,24 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t 
             if (!nc_v8_bits(fk != 0.0f))
                 continue; /* in the shadow: e F Tr adds 0 */
             for (int c = 0; c < 3; c++)
-                nc_v8_store(A[c] + k, nc_v8_load(A[c] + k) + li->e[c] * fk * nc_vol_exp_fast8(-nc_v8_load(T[c] + k)));
+                nc_v8_store(A[c] + k, nc_v8_load(A[c] + k) + li->e[c] * fk * nc_vol_transmittance8(nc_v8_load(T[c] + k)));
         }
+    }
+    if (!packed) {
+        uint32_t k = 0;
+        for (; k + 8 <= n; k += 8) {
+            nc_v8i a, b, c;
+            nc_v8_interleave3((nc_v8i)nc_v8_load(A[0] + k), (nc_v8i)nc_v8_load(A[1] + k), (nc_v8i)nc_v8_load(A[2] + k),
+                              &a, &b, &c);
+            const float *s3 = ss + 3 * (size_t)k;
+            nc_v8_store(src + 3 * (size_t)k, nc_v8_load(s3) * (nc_v8f)a);
+            nc_v8_store(src + 3 * (size_t)k + 8, nc_v8_load(s3 + 8) * (nc_v8f)b);
+            nc_v8_store(src + 3 * (size_t)k + 16, nc_v8_load(s3 + 16) * (nc_v8f)c);
+        }
+        for (; k < n; k++)
+            for (int c = 0; c < 3; c++)
+                src[3 * k + c] = ss[3 * k + c] * A[c][k];
+        return;
     }
     uint32_t q = 0;
     for (uint32_t k = 0; k < n; k++) {
@@ -1358,17 +1456,9 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
         return NACRE_ERROR_OUT_OF_MEMORY;
 #pragma omp parallel for schedule(static) num_threads(threads)
     for (int64_t col = 0; col < cols; col++) {
-        uint32_t *span = st->col_span + 3 * col, n = lit_slices(st, st->col_depth[col]), a = 0, b = n;
-        const float *ss = st->ss + 3 * (size_t)col * st->D;
-        if (!column_scatters(ss, n))
-            a = n;
-        while (a < n && !scatters(ss + 3 * (size_t)a))
-            a++;
-        while (b > a && !scatters(ss + 3 * (size_t)(b - 1)))
-            b--;
+        uint32_t *span = st->col_span + 3 * col, n = lit_slices(st, st->col_depth[col]);
         span[0] = n;
-        span[1] = a < b ? a : 0;
-        span[2] = a < b ? b : 0;
+        scatter_span(st->ss + 3 * (size_t)col * st->D, n, &span[1], &span[2]);
     }
     bool patterned = nc_fog_field_patterned(&st->field);
     nacre_result res = patterned ? tau_grid_fill(st, ctx, threads, batch, keep) : NACRE_OK;
@@ -1376,8 +1466,9 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
         return res;
 #pragma omp parallel for schedule(dynamic, 16) num_threads(threads)
     for (int64_t col = 0; col < cols; col++) {
-        float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
+        float *sc = thread_scratch(st), *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
         float *ls = tau + NC_FOG_TAU_SCRATCH(st->field.shadow_steps);
+        const size_t S = ((size_t)st->D + 7) & ~(size_t)7;
         uint32_t i = (uint32_t)(col % st->W), j = (uint32_t)(col / st->W);
         uint32_t a0 = 0, a1 = 0, b0 = 0, b1 = 0;
         float wa = 0.0f, wb = 0.0f;
@@ -1394,8 +1485,9 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
             float o[3], d[3];
             double scale, offset;
             column_ray(st, i, j, o, d, &scale, &offset);
-            column_points(st, o, d, scale, offset, p);
-            froxel_light_column(st, n, span, p, d, st->ss + 3 * base, st->g + base, st->src + 3 * base,
+            float *const xyz[3] = {ls, ls + S, ls + 2 * S};
+            column_points(st, o, d, scale, offset, NULL, xyz);
+            froxel_light_column(st, n, span, d, st->ss + 3 * base, st->g + base, st->src + 3 * base,
                                 patterned ? cn : NULL, cw, ls, tau);
         } else {
             memset(st->src + 3 * base, 0, 3 * (size_t)n * sizeof(float));
@@ -1529,7 +1621,7 @@ static nacre_result temporal_end(vol_state *st, const nc_post_input *in, int thr
             float *p = thread_scratch(st), o[3], d[3];
             double scale, offset;
             column_ray(st, (uint32_t)(col % st->W), (uint32_t)(col / st->W), o, d, &scale, &offset);
-            column_points(st, o, d, scale, offset, p);
+            column_points(st, o, d, scale, offset, p, NULL);
             temporal_blend_column(st, a, (size_t)col, p);
         }
     }

@@ -645,6 +645,40 @@ static void fast_exp(void)
         r = fmax(r, fabs(nc_vol_exp_ratio_fast((float)x) - nc_vol_exp_ratio((float)x)) / nc_vol_exp_ratio((float)x));
     printf("  nc_vol_exp_ratio_fast: largest relative error %.2e\n", r);
     CHECK(r < 2e-6);
+    /* The froxels' transmittance: e^-tau over [0, 87.3] 8 at a time, and e^-87.3 (never
+     * 0, never more) beyond. */
+    double tw = 0;
+    for (double t0 = 0; t0 + 8e-3 <= 87.3; t0 += 8e-3) {
+        nc_v8f tau, e;
+        for (int l = 0; l < 8; l++)
+            tau[l] = (float)(t0 + l * 1e-3);
+        e = nc_vol_transmittance8(tau);
+        for (int l = 0; l < 8; l++) {
+            double x = exp(-(double)tau[l]);
+            tw = fmax(tw, fabs(e[l] - x) / x);
+        }
+    }
+    printf("  nc_vol_transmittance8: largest relative error %.2e\n", tw);
+    CHECK(tw < 1e-7);
+    nc_v8f far = {87.3f, 88.0f, 100.0f, 1e30f, INFINITY, 0.0f, 1e-30f, 80.0f}, ef = nc_vol_transmittance8(far);
+    for (int l = 0; l < 5; l++)
+        CHECK(ef[l] > 0.0f && ef[l] <= 1.3e-38f);
+    CHECK(ef[5] == 1.0f && ef[6] == 1.0f && fabs(ef[7] / exp(-80.0) - 1) < 1e-7);
+    /* nc_v8_rsqrt and nc_v8_rcp: relative 2^-21 over many octaves */
+    double rs = 0, rc = 0;
+    for (double x = 1e-20; x < 1e20; x *= 1.37) {
+        nc_v8f v, a, b;
+        for (int l = 0; l < 8; l++)
+            v[l] = (float)(x * (1 + 0.11 * l));
+        a = nc_v8_rsqrt(v);
+        b = nc_v8_rcp(v);
+        for (int l = 0; l < 8; l++) {
+            rs = fmax(rs, fabs(a[l] * sqrt((double)v[l]) - 1));
+            rc = fmax(rc, fabs(b[l] * (double)v[l] - 1));
+        }
+    }
+    printf("  nc_v8_rsqrt, nc_v8_rcp: largest relative errors %.2e, %.2e\n", rs, rc);
+    CHECK(rs < 5e-7 && rc < 5e-7);
 }
 
 /* ---- a global height fog, lit ------------------------------------------------------------- */
