@@ -1837,8 +1837,9 @@ static inline nc_v8f apply_exact(const float *const a[4], const float wc[4], uin
  * in (x, y, slice). Neighbouring pixels of a row mostly read the same columns at the same
  * boundaries (8 pixels a column in the default grid, a slice over several pixels of a
  * surface): along such a run the rows' blend by wy is done once, and the blend in x and depth of
- * the four results is A + wx Bx + fz (Bz + wx C) per pixel. A run whose values are not all
- * finite (an infinite tail) takes apply_exact. tl (if not NULL) keeps L and T (6 floats a
+ * the four results is A + wx Bx + fz (Bz + wx C) per pixel; 8 pixels of a run at one slot (most
+ * of a surface) are blended together, a channel per vector over the 8. A run whose values are
+ * not all finite (an infinite tail) takes apply_exact. tl (if not NULL) keeps L and T (6 floats a
  * pixel); keep_depth (if not NULL) a copy of the depths, each row while it is in the cache. */
 static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_image *image, float *tl,
                                 float *keep_depth, int threads)
@@ -1861,55 +1862,91 @@ static void froxel_apply_pixels(const vol_state *st, const float *depth, nacre_i
         bool finite = false;
         nc_v8f A = {0}, Bx = {0}, Bz = {0}, C = {0};
         const uint8_t *k0 = st->col_clear + (size_t)j0 * W, *k1 = st->col_clear + (size_t)j1 * W;
-        for (int32_t x = 0; x < w; x++) {
-            int32_t i0 = xi[2 * x], i1 = xi[2 * x + 1];
-            if (k0[i0] & k0[i1] & k1[i0] & k1[i1]) { /* L 0, T 1: the pixel stays */
-                if (tl) {
+        for (int32_t x = 0; x < w;) {
+            /* A run of pixels between the same columns (i1 follows from i0: pixel_columns) */
+            int32_t i0 = xi[2 * x], i1 = xi[2 * x + 1], xe = x + 1;
+            while (xe < w && xi[2 * xe] == i0)
+                xe++;
+            if (k0[i0] & k0[i1] & k1[i0] & k1[i1]) { /* L 0, T 1: the pixels stay */
+                for (; tl && x < xe; x++) {
                     float *t = tl + 6 * ((size_t)y * (size_t)w + (size_t)x);
                     t[0] = t[1] = t[2] = 0.0f;
                     t[3] = t[4] = t[5] = 1.0f;
                 }
+                x = xe;
                 continue;
             }
-            float wx = xw[x];
-            uint32_t b;
-            float fz;
-            depth_slot(st, dr[x], &b, &fz);
-            if (i0 != run_i || b != run_b) {
-                run_i = i0;
-                run_b = b;
-                size_t o0 = 8 * (size_t)b, o1 = b < D ? o0 + 8 : o0; /* boundaries D, D + 1: fz = 0 */
-                const float *c00 = r0 + (size_t)i0 * stride, *c10 = r0 + (size_t)i1 * stride;
-                const float *c01 = r1 + (size_t)i0 * stride, *c11 = r1 + (size_t)i1 * stride;
-                nc_v8f V00 = (1.0f - wy) * nc_v8_load(c00 + o0) + wy * nc_v8_load(c01 + o0);
-                nc_v8f V10 = (1.0f - wy) * nc_v8_load(c10 + o0) + wy * nc_v8_load(c11 + o0);
-                nc_v8f V01 = (1.0f - wy) * nc_v8_load(c00 + o1) + wy * nc_v8_load(c01 + o1);
-                nc_v8f V11 = (1.0f - wy) * nc_v8_load(c10 + o1) + wy * nc_v8_load(c11 + o1);
-                A = V00;
-                Bx = V10 - V00;
-                Bz = V01 - V00;
-                C = (V11 - V10) - Bz;
-                /* lanes 0-2 and 4-6: x times 0 is 0 only for finite x */
-                finite = (nc_v8_bits((V00 + V10 + V01 + V11) * 0.0f == 0.0f) & 0x77) == 0x77;
-            }
-            nc_v8f v;
-            if (finite) {
-                v = A + wx * Bx + fz * (Bz + wx * C);
-            } else {
-                const float *a[4] = {r0 + (size_t)i0 * stride, r0 + (size_t)i1 * stride, r1 + (size_t)i0 * stride,
-                                     r1 + (size_t)i1 * stride};
-                float wc[4] = {(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy};
-                v = apply_exact(a, wc, b, fz);
-            }
-            float *px = row + 3 * (size_t)x;
-            for (int c = 0; c < 3; c++)
-                px[c] = px[c] * v[4 + c] + v[c];
-            if (tl) {
-                float *t = tl + 6 * ((size_t)y * (size_t)w + (size_t)x);
-                for (int c = 0; c < 3; c++) {
-                    t[c] = v[c];
-                    t[3 + c] = v[4 + c];
+            const float *c00 = r0 + (size_t)i0 * stride, *c10 = r0 + (size_t)i1 * stride;
+            const float *c01 = r1 + (size_t)i0 * stride, *c11 = r1 + (size_t)i1 * stride;
+            while (x < xe) {
+                int32_t cnt = xe - x < 8 ? xe - x : 8;
+                uint32_t bs[8];
+                float fs[8];
+                /* The frame that keeps L and T takes the per-pixel form (the 8-pixel one is
+                 * checked against it: test_volumetrics' frame reuse). */
+                bool same = cnt == 8 && !tl;
+                for (int32_t q = 0; q < cnt; q++) {
+                    depth_slot(st, dr[x + q], &bs[q], &fs[q]);
+                    same = same && bs[q] == bs[0];
                 }
+                for (int32_t q = 0; q < cnt; q++) {
+                    uint32_t b = bs[q];
+                    if (i0 != run_i || b != run_b) {
+                        run_i = i0;
+                        run_b = b;
+                        size_t o0 = 8 * (size_t)b, o1 = b < D ? o0 + 8 : o0; /* boundaries D, D + 1: fz = 0 */
+                        nc_v8f V00 = (1.0f - wy) * nc_v8_load(c00 + o0) + wy * nc_v8_load(c01 + o0);
+                        nc_v8f V10 = (1.0f - wy) * nc_v8_load(c10 + o0) + wy * nc_v8_load(c11 + o0);
+                        nc_v8f V01 = (1.0f - wy) * nc_v8_load(c00 + o1) + wy * nc_v8_load(c01 + o1);
+                        nc_v8f V11 = (1.0f - wy) * nc_v8_load(c10 + o1) + wy * nc_v8_load(c11 + o1);
+                        A = V00;
+                        Bx = V10 - V00;
+                        Bz = V01 - V00;
+                        C = (V11 - V10) - Bz;
+                        /* lanes 0-2 and 4-6: x times 0 is 0 only for finite x */
+                        finite = (nc_v8_bits((V00 + V10 + V01 + V11) * 0.0f == 0.0f) & 0x77) == 0x77;
+                    }
+                    if (same && finite) {
+                        /* 8 pixels of one slot: the same blend per channel, the pixels in the
+                         * lanes (rgb deinterleaved), as A + wx Bx + fz (Bz + wx C) lane by lane */
+                        nc_v8f wx = nc_v8_load(xw + x), fz = nc_v8_load(fs), ch[6];
+                        for (int c = 0; c < 6; c++) {
+                            int l = c < 3 ? c : c + 1;
+                            ch[c] = A[l] + wx * Bx[l] + fz * (Bz[l] + wx * C[l]);
+                        }
+                        float *px = row + 3 * (size_t)x;
+                        nc_v8i pr, pg, pb, oa, ob, oc;
+                        nc_v8_deinterleave3(nc_v8i_load((const int32_t *)(const void *)px),
+                                            nc_v8i_load((const int32_t *)(const void *)(px + 8)),
+                                            nc_v8i_load((const int32_t *)(const void *)(px + 16)), &pr, &pg, &pb);
+                        nc_v8_interleave3((nc_v8i)((nc_v8f)pr * ch[3] + ch[0]), (nc_v8i)((nc_v8f)pg * ch[4] + ch[1]),
+                                          (nc_v8i)((nc_v8f)pb * ch[5] + ch[2]), &oa, &ob, &oc);
+                        nc_v8i_store((int32_t *)(void *)px, oa);
+                        nc_v8i_store((int32_t *)(void *)(px + 8), ob);
+                        nc_v8i_store((int32_t *)(void *)(px + 16), oc);
+                        break;
+                    }
+                    float wx = xw[x + q], fz = fs[q];
+                    nc_v8f v;
+                    if (finite) {
+                        v = A + wx * Bx + fz * (Bz + wx * C);
+                    } else {
+                        const float *a[4] = {c00, c10, c01, c11};
+                        float wc[4] = {(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy};
+                        v = apply_exact(a, wc, b, fz);
+                    }
+                    float *px = row + 3 * (size_t)(x + q);
+                    for (int c = 0; c < 3; c++)
+                        px[c] = px[c] * v[4 + c] + v[c];
+                    if (tl) {
+                        float *t = tl + 6 * ((size_t)y * (size_t)w + (size_t)(x + q));
+                        for (int c = 0; c < 3; c++) {
+                            t[c] = v[c];
+                            t[3 + c] = v[4 + c];
+                        }
+                    }
+                }
+                x += cnt;
             }
         }
         if (keep_depth)

@@ -365,11 +365,14 @@ static void reuse_check(nacre_renderer *r, nacre_scene *s, const nacre_render_se
 static void frame_reuse(void)
 {
     const char *json = SPOT_SUN_SCENE(",{\"shape\": \"global\", \"sigma_s\": 0.02, \"height_falloff\": 0.5}");
-    for (int mode = NACRE_VOLUMETRICS_OFF; mode <= NACRE_VOLUMETRICS_FROXEL; mode++) {
+    /* Twice for the froxels: 2 pixels a column, and 8 (froxel_apply_pixels' 8-pixel path, whose
+     * result the second frame's per-pixel path must match bit for bit). */
+    for (int pass = 0; pass < 3; pass++) {
+        int mode = pass < 2 ? pass + NACRE_VOLUMETRICS_OFF : NACRE_VOLUMETRICS_FROXEL, wide = pass == 2 ? 4 : 1;
         nacre_scene *s = media_load(ctx, json, NULL);
         if (!s)
             return;
-        nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, (nacre_volumetrics_mode)mode, 40, 30);
+        nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, (nacre_volumetrics_mode)mode, 40 * wide, 30);
         rs.volumetrics.froxel_width = 20;
         rs.volumetrics.froxel_height = 15;
         rs.volumetrics.froxel_slices = 24;
