@@ -1735,8 +1735,8 @@ static void froxel_integrate(vol_state *st, int threads, uint32_t batch, bool us
         const float *sig = st->st + 3 * base, *src = st->src + 3 * base;
         uint32_t i = 0;
         for (; i + 8 <= D3; i += 8) {
-            nc_v8f sg = nc_v8_load(sig + i), len = nc_v8_load(len3 + i), x = sg * len, T = nc_vol_exp_fast8(-x);
-            nc_v8f w = nc_v8_sel(x < 1e-3f, len * (1.0f - 0.5f * x), (1.0f - T) / sg);
+            nc_v8f sg = nc_v8_load(sig + i), len = nc_v8_load(len3 + i), x = sg * len, T = nc_vol_transmittance8(x);
+            nc_v8f w = nc_v8_sel(x < 1e-3f, len * (1.0f - 0.5f * x), (1.0f - T) * nc_v8_rcp(sg));
             nc_v8_store(T3 + i, T);
             nc_v8_store(S3 + i, nc_v8_load(src + i) * w);
         }
