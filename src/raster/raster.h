@@ -155,7 +155,8 @@ float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_
 float nc_shadow_lookup_volume(const nc_shadow_map *sm, nc_vec3 p, float pcf_radius, float bias);
 /* nc_shadow_lookup_volume for 8 points (px, py, pz: 8 floats each) into out[0 .. 8): the set-up
  * and the comparisons 8 lanes at a time (core/simd.h), the texels read lane by lane; equal to it
- * up to float rounding of the set-up (cube maps: the same calls). */
+ * up to float rounding of the set-up and, for an orthographic map, of the comparison, made on
+ * the stored depths (cube maps: the same calls). */
 void nc_shadow_lookup_volume8(const nc_shadow_map *sm, const float *px, const float *py, const float *pz, float bias,
                               float *out);
 /* nc_shadow_lookup for n points (positions p, normals n as SoA arrays) into out[0 .. n), with the

@@ -823,11 +823,25 @@ void nc_shadow_lookup_volume8(const nc_shadow_map *sm, const float *px, const fl
         fy = nc_v8_load(fys);
     }
 #endif
-    for (int k = 0; k < 4; k++) {
-        nc_v8f t = tz[k];
-        nc_v8f lin = v->orthographic ? (pm->m[2][3] - t) / pm->m[2][2] : pm->m[2][3] / (t + pm->m[2][2]);
-        nc_v8f wt = ((k & 1) ? fx : 1.0f - fx) * ((k >> 1) ? fy : 1.0f - fy);
-        lit += nc_v8_sel((t >= 1.0f) | (lin >= limit), wt, zero);
+    if (v->orthographic) {
+        /* An orthographic map's linear depth (m23 - t) / m22 is monotonic in t: the test moves to
+         * the stored depths, one multiply-add per lane instead of a division per texel (the
+         * texels within a rounding of the limit may flip). */
+        float m22 = pm->m[2][2], m23 = pm->m[2][3];
+        nc_v8f tl = m23 - m22 * limit;
+        for (int k = 0; k < 4; k++) {
+            nc_v8f t = tz[k];
+            nc_v8f wt = ((k & 1) ? fx : 1.0f - fx) * ((k >> 1) ? fy : 1.0f - fy);
+            nc_v8i behind = m22 < 0.0f ? t >= tl : t <= tl;
+            lit += nc_v8_sel((t >= 1.0f) | behind, wt, zero);
+        }
+    } else {
+        for (int k = 0; k < 4; k++) {
+            nc_v8f t = tz[k];
+            nc_v8f lin = pm->m[2][3] / (t + pm->m[2][2]);
+            nc_v8f wt = ((k & 1) ? fx : 1.0f - fx) * ((k >> 1) ? fy : 1.0f - fy);
+            lit += nc_v8_sel((t >= 1.0f) | (lin >= limit), wt, zero);
+        }
     }
     nc_v8_store(out, nc_v8_sel(live, lit, one));
 }
