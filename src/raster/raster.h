@@ -128,6 +128,9 @@ typedef struct nc_shadow_map {
     float texel_world[6];       /* approximate world size of one texel at unit distance (persp.) or absolute (ortho) */
     float light_pos[3];         /* point/spot */
     float light_dir[3];         /* directional/spot: direction of travel */
+    /* Set anew by every nc_shadow_render, from a counter of the context (unique within it, so
+     * that a map re-rendered, or another map at the same address, is told apart); 0: none */
+    uint64_t generation;
 } nc_shadow_map;
 
 /* Build (allocate if needed) and render the shadow map of one light. Scene bounds are the world

@@ -190,6 +190,8 @@ nacre_result nc_shadow_render(nc_rasterizer *r, nacre_context *ctx, const nacre_
             set_face(sm, f, view, proj, false, 2.0f * tan_half / (float)size);
         }
     }
+    /* New depths from here on: what was derived from the old ones (nc_shadow_minmax) is stale. */
+    sm->generation = atomic_fetch_add_explicit(&ctx->shadow_serial, 1, memory_order_relaxed) + 1;
     size_t face_texels = (size_t)size * (size_t)size;
     for (int f = 0; f < faces; f++) {
         nacre_result res = nc_raster_depth(r, &sm->views[f], casters, caster_count, false,
