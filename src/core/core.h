@@ -40,6 +40,9 @@ struct nacre_context {
     uint64_t scene_serial; /* identifies scenes for renderer caches (addresses get reused) */
     uint64_t memory_limit; /* resolved: never 0 */
     _Atomic uint64_t memory_used, memory_peak; /* bytes held through nc_alloc (headers included) */
+    /* The last shadow map generation given (nc_shadow_render): atomic, renderers sharing the
+     * context may render at once */
+    _Atomic uint64_t shadow_serial;
 };
 
 /* Record a failure and return its code. printf-style message. */

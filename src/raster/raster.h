@@ -128,6 +128,9 @@ typedef struct nc_shadow_map {
     float texel_world[6];       /* approximate world size of one texel at unit distance (persp.) or absolute (ortho) */
     float light_pos[3];         /* point/spot */
     float light_dir[3];         /* directional/spot: direction of travel */
+    /* Set anew by every nc_shadow_render, from a counter of the context (unique within it, so
+     * that a map re-rendered, or another map at the same address, is told apart); 0: none */
+    uint64_t generation;
 } nc_shadow_map;
 
 /* Build (allocate if needed) and render the shadow map of one light. Scene bounds are the world
@@ -155,9 +158,41 @@ float nc_shadow_lookup(const nc_shadow_map *sm, nc_vec3 p, nc_vec3 n, float pcf_
 float nc_shadow_lookup_volume(const nc_shadow_map *sm, nc_vec3 p, float pcf_radius, float bias);
 /* nc_shadow_lookup_volume for 8 points (px, py, pz: 8 floats each) into out[0 .. 8): the set-up
  * and the comparisons 8 lanes at a time (core/simd.h), the texels read lane by lane; equal to it
- * up to float rounding of the set-up (cube maps: the same calls). */
+ * up to float rounding of the set-up and, for an orthographic map, of the comparison, made on
+ * the stored depths (cube maps: the same calls). */
 void nc_shadow_lookup_volume8(const nc_shadow_map *sm, const float *px, const float *py, const float *pz, float bias,
                               float *out);
+/* Least and greatest stored depth (NDC) around the texels of a single-face shadow map, for
+ * nc_shadow_lookup_volume_n: block (bx, by) covers texels bx 2^shift - 1 .. (bx + 1) 2^shift - 1
+ * by the same rows (those in the map), so that the 2 x 2 texels of a lookup whose first texel is
+ * (x0, y0) all lie in block ((x0 + 1) >> shift, (y0 + 1) >> shift). (min, max) pairs row by row
+ * (NaN, NaN where the block holds a NaN or an infinite depth; max +inf on the table's border).
+ * Owned by the caller: zero-initialise, then nc_shadow_minmax_update before the lookups. */
+typedef struct nc_shadow_minmax {
+    uint64_t generation; /* the map's when made; 0: not made */
+    int32_t size;        /* the map's */
+    int32_t shift;       /* blocks of 2^shift texels (plus one), the least with dim <= NC_SHADOW_MM_DIM */
+    int32_t dim;         /* blocks a side: (size >> shift) + 1 */
+    float *data;
+    size_t capacity;
+} nc_shadow_minmax;
+/* 257^2 pairs: 516 KiB a map, 8 x 8 texel blocks for the default 2048^2 */
+#define NC_SHADOW_MM_DIM 257
+
+/* Make mm the table of sm unless it already is (the same generation: a map that is not
+ * re-rendered costs a comparison). Cube maps get none (their lookups do not use it). `threads`
+ * make it (OpenMP), reading the map once. */
+nacre_result nc_shadow_minmax_update(nacre_context *ctx, const nc_shadow_map *sm, nc_shadow_minmax *mm, int threads);
+void nc_shadow_minmax_free(nacre_context *ctx, nc_shadow_minmax *mm);
+/* nc_shadow_lookup_volume8 for n points (n a multiple of 8) with the same values, bit for bit,
+ * deciding points from the table mm (NULL, or not made for sm's generation: none decided): a
+ * point whose block lies wholly on the lit side of its comparison depth (or holds only cleared
+ * texels) has all 4 taps lit, and its value is the sum of its bilinear weights as the taps sum
+ * them; one whose block lies wholly behind has none, 0. Only the others read their texels,
+ * fetched for a column's worth of points at once (they are few, scattered over the map and
+ * seldom in the cache). Returns how many points read texels. */
+uint32_t nc_shadow_lookup_volume_n(const nc_shadow_map *sm, const nc_shadow_minmax *mm, uint32_t n, const float *px,
+                                   const float *py, const float *pz, float bias, float *out);
 /* nc_shadow_lookup for n points (positions p, normals n as SoA arrays) into out[0 .. n), with the
  * next lookups' texels prefetched. An orthographic map (directional light) does the per-point
  * set-up of many points at once in vectorized loops; the values are nc_shadow_lookup's up to

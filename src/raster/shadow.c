@@ -24,6 +24,15 @@
  * lookup (callgrind), the shading pass of the bench's Armadillo from 3.08 to 2.76 ms (medians of
  * 5 alternating runs). Prefetching every window of a batch at once, or each window when its pixel
  * is found (lookups deferred to the end of the row), did not measurably help.
+ *
+ * Fog lookups (nc_shadow_lookup_volume_n, the froxels'): far more points than pixels, spread
+ * through the volume, and their 2 x 2 texels are scattered over a map larger than the caches, so
+ * gathering them was most of the cost. Nearly all points are far from a shadow's edge: a table of
+ * each 8 x 8 block's least and greatest depth (nc_shadow_minmax, made once per map) decides them
+ * exactly (lit or shadowed for every texel of the block), and only the rest (~3% of the bench's
+ * groups of 8) read texels, fetched a column at a time. A pyramid deciding a group of 8 at once
+ * decided fewer (a column's points span hundreds of texels), and gathers of single floats, or
+ * loads lane by lane, were slower than two gathers of (min, max) pairs.
  */
 #include "raster/raster.h"
 #include "core/simd.h"
@@ -190,6 +199,8 @@ nacre_result nc_shadow_render(nc_rasterizer *r, nacre_context *ctx, const nacre_
             set_face(sm, f, view, proj, false, 2.0f * tan_half / (float)size);
         }
     }
+    /* New depths from here on: what was derived from the old ones (nc_shadow_minmax) is stale. */
+    sm->generation = atomic_fetch_add_explicit(&ctx->shadow_serial, 1, memory_order_relaxed) + 1;
     size_t face_texels = (size_t)size * (size_t)size;
     for (int f = 0; f < faces; f++) {
         nacre_result res = nc_raster_depth(r, &sm->views[f], casters, caster_count, false,
@@ -752,17 +763,122 @@ float nc_shadow_lookup_volume(const nc_shadow_map *sm, nc_vec3 p, float pcf_radi
     return lit;
 }
 
-void nc_shadow_lookup_volume8(const nc_shadow_map *sm, const float *px, const float *py, const float *pz, float bias,
-                              float *out)
+/* ---- min-max table (nc_shadow_minmax) ----------------------------------------------------- */
+
+void nc_shadow_minmax_free(nacre_context *ctx, nc_shadow_minmax *mm)
 {
-    if (!sm || !sm->depth || sm->size < 1 || sm->kind == NC_SHADOW_CUBE) {
-        for (int l = 0; l < 8; l++)
-            out[l] = nc_shadow_lookup_volume(sm, nc_v3(px[l], py[l], pz[l]), 0.5f, bias);
+    if (!mm)
         return;
+    nc_free(ctx, mm->data);
+    memset(mm, 0, sizeof(*mm));
+}
+
+/* Texels folded at once into a block row's blocks (a multiple of every block width). */
+#define MM_STRIP 256
+
+/* Block row by of the table: its texel rows by B - 1 .. (by + 1) B - 1 folded column by column
+ * (a NaN as -inf for the min, +inf for the max), a strip at a time, then each block's columns
+ * bx B - 1 .. (bx + 1) B - 1. The pair stored is NaN (no comparison passes) where an end is
+ * infinite, and the max +inf on the table's border, whose lanes may have taps outside the map
+ * (lit): so the lookups need no test but the block's. */
+static void mm_block_row(const float *map, int32_t n, int32_t shift, int32_t dim, int32_t by, float *row)
+{
+    const int32_t B = 1 << shift, per = MM_STRIP >> shift;
+    const int32_t y0 = by * B - 1 > 0 ? by * B - 1 : 0, y1 = (by + 1) * B - 1 < n - 1 ? (by + 1) * B - 1 : n - 1;
+    for (int32_t bx0 = 0; bx0 < dim; bx0 += per) {
+        const int32_t bx1 = bx0 + per < dim ? bx0 + per : dim;
+        const int32_t x0 = bx0 * B - 1 > 0 ? bx0 * B - 1 : 0, x1 = bx1 * B - 1 < n - 1 ? bx1 * B - 1 : n - 1;
+        const int32_t w = x1 - x0 + 1; /* at most MM_STRIP + 1 */
+        float lo[MM_STRIP + 1], hi[MM_STRIP + 1];
+        for (int32_t i = 0; i < w; i++) {
+            lo[i] = INFINITY;
+            hi[i] = -INFINITY;
+        }
+        for (int32_t y = y0; y <= y1; y++) {
+            const float *r = map + (size_t)y * (size_t)n + x0;
+            int32_t i = 0;
+            for (; i + 8 <= w; i += 8) {
+                const nc_v8f t = nc_v8_load(r + i);
+                const nc_v8i num = t == t;
+                nc_v8_store(lo + i, min8(nc_v8_load(lo + i), nc_v8_sel(num, t, nc_v8_splat(-INFINITY))));
+                nc_v8_store(hi + i, max8(nc_v8_load(hi + i), nc_v8_sel(num, t, nc_v8_splat(INFINITY))));
+            }
+            for (; i < w; i++) {
+                const float t = r[i];
+                lo[i] = fmin_fast(lo[i], t == t ? t : -INFINITY);
+                hi[i] = fmax_fast(hi[i], t == t ? t : INFINITY);
+            }
+        }
+        for (int32_t bx = bx0; bx < bx1; bx++) {
+            const int32_t a = (bx * B - 1 > 0 ? bx * B - 1 : 0) - x0;
+            const int32_t b = (bx * B + B - 1 < n - 1 ? bx * B + B - 1 : n - 1) - x0;
+            float l = INFINITY, h = -INFINITY;
+            for (int32_t i = a; i <= b; i++) {
+                l = fmin_fast(l, lo[i]);
+                h = fmax_fast(h, hi[i]);
+            }
+            if (!(l > -INFINITY && h < INFINITY))
+                l = h = NAN; /* a NaN texel (or an infinite depth): no comparison decides */
+            else if (bx == 0 || by == 0 || bx == dim - 1 || by == dim - 1)
+                h = INFINITY; /* the taps of its lanes may be outside the map: never all shadowed */
+            row[2 * bx] = l;
+            row[2 * bx + 1] = h;
+        }
     }
+}
+
+nacre_result nc_shadow_minmax_update(nacre_context *ctx, const nc_shadow_map *sm, nc_shadow_minmax *mm, int threads)
+{
+    if (!mm)
+        return NACRE_OK;
+    if (!sm || !sm->depth || sm->size < 1 || sm->kind == NC_SHADOW_CUBE || sm->generation == 0) {
+        mm->generation = 0;
+        return NACRE_OK;
+    }
+    if (mm->generation == sm->generation && mm->size == sm->size)
+        return NACRE_OK;
+    mm->generation = 0;
+    const int32_t n = sm->size;
+    int32_t shift = 0;
+    while ((n >> shift) + 1 > NC_SHADOW_MM_DIM)
+        shift++;
+    if (shift > 8)
+        return NACRE_OK; /* blocks wider than a strip (maps of 2^16 texels a side): none */
+    const int32_t dim = (n >> shift) + 1;
+    if (!nc_reserve(ctx, &mm->data, &mm->capacity, 2 * (size_t)dim * (size_t)dim, sizeof(float)))
+        return NACRE_ERROR_OUT_OF_MEMORY;
+    mm->size = n;
+    mm->shift = shift;
+    mm->dim = dim;
+    if (threads < 1)
+        threads = 1;
+#pragma omp parallel for schedule(static) num_threads(threads)
+    for (int32_t by = 0; by < dim; by++)
+        mm_block_row(sm->depth, n, shift, dim, by, mm->data + 2 * (size_t)by * (size_t)dim);
+    mm->generation = sm->generation;
+    return NACRE_OK;
+}
+
+/* One group of 8 lookups between vol8_setup and vol8_finish: per lane whether it is live, its
+ * first texel (x0, y0), bilinear fractions, comparison depths, and whether the table decided it
+ * (lit: all 4 taps lit; the other live lanes not in todo: all shadowed). */
+typedef struct vol8 {
+    nc_v8f fx, fy, tl, limit;
+    nc_v8i live, lit, todo, x0, y0;
+} vol8;
+
+static inline bool mm_valid(const nc_shadow_map *sm, const nc_shadow_minmax *mm)
+{
+    return mm && mm->generation != 0 && mm->generation == sm->generation && mm->size == sm->size;
+}
+
+/* The set-up of 8 lookups in a single-face map, and the table's decisions (mm: valid or NULL). */
+static inline void vol8_setup(const nc_shadow_map *sm, const nc_shadow_minmax *mm, const float *px, const float *py,
+                              const float *pz, float bias, vol8 *g)
+{
     const nc_raster_view *v = &sm->views[0];
     const nc_mat4 *m = &v->view, *pm = &v->proj;
-    const nc_v8f x = nc_v8_load(px), y = nc_v8_load(py), z = nc_v8_load(pz), zero = {0}, one = nc_v8_splat(1.0f);
+    const nc_v8f x = nc_v8_load(px), y = nc_v8_load(py), z = nc_v8_load(pz), zero = {0};
     nc_v8f vx = m->m[0][0] * x + m->m[0][1] * y + m->m[0][2] * z + m->m[0][3];
     nc_v8f vy = m->m[1][0] * x + m->m[1][1] * y + m->m[1][2] * z + m->m[1][3];
     nc_v8f vz = m->m[2][0] * x + m->m[2][1] * y + m->m[2][2] * z + m->m[2][3];
@@ -778,56 +894,165 @@ void nc_shadow_lookup_volume8(const nc_shadow_map *sm, const float *px, const fl
         texel = 2.0f * d / (pm->m[0][0] * size);
     }
     nc_v8f u = (ndc_x * 0.5f + 0.5f) * size - 0.5f, vv = (0.5f - ndc_y * 0.5f) * size - 0.5f;
-    nc_v8i live = (d >= linear_depth(v, 0.0f)) & (u > -1.0f) & (u < size) & (vv > -1.0f) & (vv < size);
-    nc_v8f limit = d - fmax_fast(bias, 0.0f) * texel;
-    /* The 2 x 2 texels of the live lanes (1, no caster, elsewhere). */
-    const float *map = sm->depth;
-    int n = sm->size;
-    nc_v8f tz[4], fx, fy, lit = zero;
+    const nc_v8i live = (d >= linear_depth(v, 0.0f)) & (u > -1.0f) & (u < size) & (vv > -1.0f) & (vv < size);
+    g->live = live;
+    g->lit = (nc_v8i){0};
+    g->todo = live;
+    g->limit = d - fmax_fast(bias, 0.0f) * texel;
+    /* An orthographic map's linear depth (m23 - t) / m22 is monotonic in t: the test moves to
+     * the stored depths, one multiply-add per lane instead of a division per texel (the texels
+     * within a rounding of the limit may flip). */
+    const float m22 = pm->m[2][2], m23 = pm->m[2][3];
+    g->tl = m23 - m22 * g->limit;
+    /* The live lanes' first texels and bilinear fractions (dead lanes: texel 0, never read). */
+    const nc_v8f fu = nc_v8_sel(live, nc_v8_floor(u), zero), fv = nc_v8_sel(live, nc_v8_floor(vv), zero);
+    g->fx = nc_v8_sel(live, u - fu, zero);
+    g->fy = nc_v8_sel(live, vv - fv, zero);
+    g->x0 = __builtin_convertvector(fu, nc_v8i);
+    g->y0 = __builtin_convertvector(fv, nc_v8i);
+    if (!mm)
+        return;
+    /* The table's block [lo, hi] holds every texel of a lane's taps that is in the map (those
+     * outside are lit). An orthographic map's test is t >= 1 or a comparison of t with tl, which
+     * the block's ends decide for all its texels; a perspective map's linear depth
+     * m23 / (t + m22) is monotonic in t over [lo, hi] when t + m22 keeps its sign there (float
+     * addition and division round monotonically), so its ends bound it. A NaN pair decides
+     * nothing, an infinite max no shadow (nc_shadow_minmax); NaN and infinite limits compare as
+     * the taps would. */
+    const nc_v8i idx = ((g->y0 + 1) >> mm->shift) * mm->dim + ((g->x0 + 1) >> mm->shift);
+    nc_v8f lo, hi;
 #ifdef __AVX2__
     {
-        __m256 fu = _mm256_floor_ps((__m256)u), fv = _mm256_floor_ps((__m256)vv);
-        fx = nc_v8_sel(live, u - (nc_v8f)fu, zero);
-        fy = nc_v8_sel(live, vv - (nc_v8f)fv, zero);
-        /* Dead lanes may hold any value: their indices are masked off. */
-        nc_v8i x0 = nc_v8i_sel(live, (nc_v8i)_mm256_cvttps_epi32(fu), (nc_v8i){0});
-        nc_v8i y0 = nc_v8i_sel(live, (nc_v8i)_mm256_cvttps_epi32(fv), (nc_v8i){0});
-        for (int k = 0; k < 4; k++) {
-            nc_v8i tx = x0 + (k & 1), ty = y0 + (k >> 1);
-            nc_v8i in = live & (tx >= 0) & (ty >= 0) & (tx < n) & (ty < n);
-            tz[k] = (nc_v8f)_mm256_mask_i32gather_ps((__m256)one, map, (__m256i)(ty * n + tx), (__m256)in, 4);
-        }
+        /* (min, max) pairs as doubles' bits: 4 lanes a gather */
+        const __m256 p0 = _mm256_castpd_ps(_mm256_i32gather_pd((const double *)mm->data, _mm256_castsi256_si128((__m256i)idx), 8));
+        const __m256 p1 = _mm256_castpd_ps(_mm256_i32gather_pd((const double *)mm->data, _mm256_extracti128_si256((__m256i)idx, 1), 8));
+        lo = (nc_v8f)_mm256_castpd_ps(_mm256_permute4x64_pd(_mm256_castps_pd(_mm256_shuffle_ps(p0, p1, 0x88)), 0xd8));
+        hi = (nc_v8f)_mm256_castpd_ps(_mm256_permute4x64_pd(_mm256_castps_pd(_mm256_shuffle_ps(p0, p1, 0xdd)), 0xd8));
     }
 #else
-    {
-        float t[4][8], fxs[8], fys[8];
-        uint32_t bits = nc_v8_bits(live);
-        for (int l = 0; l < 8; l++) {
-            fxs[l] = fys[l] = 0.0f;
-            t[0][l] = t[1][l] = t[2][l] = t[3][l] = 1.0f;
-            if (!(bits >> l & 1u))
-                continue;
-            float fu = floorf(u[l]), fv = floorf(vv[l]);
-            int x0 = (int)fu, y0 = (int)fv;
-            fxs[l] = u[l] - fu;
-            fys[l] = vv[l] - fv;
-            for (int k = 0; k < 4; k++) {
-                int tx = x0 + (k & 1), ty = y0 + (k >> 1);
-                if (tx >= 0 && ty >= 0 && tx < n && ty < n)
-                    t[k][l] = map[(size_t)ty * (size_t)n + (size_t)tx];
-            }
-        }
-        for (int k = 0; k < 4; k++)
-            tz[k] = nc_v8_load(t[k]);
-        fx = nc_v8_load(fxs);
-        fy = nc_v8_load(fys);
+    for (int l = 0; l < 8; l++) {
+        lo[l] = mm->data[2 * (size_t)idx[l]];
+        hi[l] = mm->data[2 * (size_t)idx[l] + 1];
     }
 #endif
-    for (int k = 0; k < 4; k++) {
-        nc_v8f t = tz[k];
-        nc_v8f lin = v->orthographic ? (pm->m[2][3] - t) / pm->m[2][2] : pm->m[2][3] / (t + pm->m[2][2]);
-        nc_v8f wt = ((k & 1) ? fx : 1.0f - fx) * ((k >> 1) ? fy : 1.0f - fy);
-        lit += nc_v8_sel((t >= 1.0f) | (lin >= limit), wt, zero);
+    const nc_v8f cmp = v->orthographic ? g->tl : g->limit;
+    nc_v8i all_lit, all_dark;
+    if (v->orthographic) {
+        if (m22 < 0.0f) {
+            all_lit = (lo >= 1.0f) | (lo >= cmp);
+            all_dark = (hi < 1.0f) & (hi < cmp);
+        } else {
+            all_lit = (lo >= 1.0f) | (hi <= cmp);
+            all_dark = (hi < 1.0f) & (lo > cmp);
+        }
+    } else {
+        const nc_v8f den_lo = lo + m22, den_hi = hi + m22;
+        const nc_v8i mono = ((den_lo > 0.0f) & (den_hi > 0.0f)) | ((den_lo < 0.0f) & (den_hi < 0.0f));
+        const nc_v8f a = m23 / den_lo, b = m23 / den_hi;
+        all_lit = (lo >= 1.0f) | (mono & (min8(a, b) >= cmp));
+        all_dark = (hi < 1.0f) & mono & (max8(a, b) < cmp);
     }
-    nc_v8_store(out, nc_v8_sel(live, lit, one));
+    g->lit = live & all_lit;
+    g->todo = live & ~(all_lit | all_dark);
+}
+
+/* The texels of the lanes the table left (todo), their comparisons and the bilinear sums. */
+static inline void vol8_finish(const nc_shadow_map *sm, const vol8 *g, float *out)
+{
+    const nc_raster_view *v = &sm->views[0];
+    const float m22 = v->proj.m[2][2], m23 = v->proj.m[2][3];
+    const nc_v8f zero = {0}, one = nc_v8_splat(1.0f);
+    /* Per tap, the lanes it lights: the decided lit ones, and the others' comparisons of their
+     * texels (1, no caster, outside the map). */
+    nc_v8i lit_k[4] = {g->lit, g->lit, g->lit, g->lit};
+    const uint32_t todo_bits = nc_v8_bits(g->todo);
+    if (todo_bits) {
+        const float *map = sm->depth;
+        const int n = sm->size;
+        for (int k = 0; k < 4; k++) {
+            nc_v8f t;
+#ifdef __AVX2__
+            nc_v8i tx = g->x0 + (k & 1), ty = g->y0 + (k >> 1);
+            nc_v8i in = g->todo & (tx >= 0) & (ty >= 0) & (tx < n) & (ty < n);
+            t = (nc_v8f)_mm256_mask_i32gather_ps((__m256)one, map, (__m256i)(ty * n + tx), (__m256)in, 4);
+#else
+            float ts[8];
+            for (int l = 0; l < 8; l++) {
+                int tx = g->x0[l] + (k & 1), ty = g->y0[l] + (k >> 1);
+                bool in = (todo_bits >> l & 1u) && tx >= 0 && ty >= 0 && tx < n && ty < n;
+                ts[l] = in ? map[(size_t)ty * (size_t)n + (size_t)tx] : 1.0f;
+            }
+            t = nc_v8_load(ts);
+#endif
+            nc_v8i behind;
+            if (v->orthographic)
+                behind = m22 < 0.0f ? t >= g->tl : t <= g->tl;
+            else
+                behind = m23 / (t + m22) >= g->limit;
+            lit_k[k] = g->lit | (g->todo & ((t >= 1.0f) | behind));
+        }
+    }
+    /* The weights as the taps sum them, whoever decided (a lit lane's sum need not be 1). */
+    nc_v8f sum = zero;
+    for (int k = 0; k < 4; k++) {
+        nc_v8f wt = ((k & 1) ? g->fx : 1.0f - g->fx) * ((k >> 1) ? g->fy : 1.0f - g->fy);
+        sum += nc_v8_sel(lit_k[k], wt, zero);
+    }
+    nc_v8_store(out, nc_v8_sel(g->live, sum, one));
+}
+
+/* Fetch the rows of the texels that the undecided lanes will read. */
+static inline void vol8_prefetch(const nc_shadow_map *sm, const vol8 *g)
+{
+    const int n = sm->size;
+    for (uint32_t bits = nc_v8_bits(g->todo); bits; bits &= bits - 1) {
+        const int l = __builtin_ctz(bits), x = g->x0[l] > 0 ? g->x0[l] : 0, y = g->y0[l];
+        if (y >= 0)
+            __builtin_prefetch(sm->depth + (size_t)y * (size_t)n + (size_t)x);
+        if (y + 1 < n)
+            __builtin_prefetch(sm->depth + (size_t)(y + 1) * (size_t)n + (size_t)x);
+    }
+}
+
+void nc_shadow_lookup_volume8(const nc_shadow_map *sm, const float *px, const float *py, const float *pz, float bias,
+                              float *out)
+{
+    if (!sm || !sm->depth || sm->size < 1 || sm->kind == NC_SHADOW_CUBE) {
+        for (int l = 0; l < 8; l++)
+            out[l] = nc_shadow_lookup_volume(sm, nc_v3(px[l], py[l], pz[l]), 0.5f, bias);
+        return;
+    }
+    vol8 g;
+    vol8_setup(sm, NULL, px, py, pz, bias, &g);
+    vol8_finish(sm, &g, out);
+}
+
+/* Groups set up (and their texels fetched) before the first is finished: a column's worth. */
+#define VOL_CHUNK 8
+
+uint32_t nc_shadow_lookup_volume_n(const nc_shadow_map *sm, const nc_shadow_minmax *mm, uint32_t n, const float *px,
+                                   const float *py, const float *pz, float bias, float *out)
+{
+    uint32_t read = 0;
+    if (!sm || !sm->depth || sm->size < 1 || sm->kind == NC_SHADOW_CUBE) {
+        for (uint32_t i = 0; i < n; i += 8)
+            nc_shadow_lookup_volume8(sm, px + i, py + i, pz + i, bias, out + i);
+        return n;
+    }
+    if (!mm_valid(sm, mm))
+        mm = NULL;
+    vol8 g[VOL_CHUNK];
+    for (uint32_t c0 = 0; c0 < n; c0 += 8 * VOL_CHUNK) {
+        const uint32_t cn = (n - c0) / 8 < VOL_CHUNK ? (n - c0) / 8 : VOL_CHUNK;
+        for (uint32_t q = 0; q < cn; q++) {
+            const uint32_t i = c0 + 8 * q;
+            vol8_setup(sm, mm, px + i, py + i, pz + i, bias, &g[q]);
+            vol8_prefetch(sm, &g[q]);
+        }
+        for (uint32_t q = 0; q < cn; q++) {
+            read += (uint32_t)__builtin_popcount(nc_v8_bits(g[q].todo));
+            vol8_finish(sm, &g[q], out + c0 + 8 * q);
+        }
+    }
+    return read;
 }

@@ -154,6 +154,10 @@ typedef struct vol_state {
     bool analytic_boxes; /* any box fog without pattern (exact per froxel, nc_fog_field_optical_depth) */
     vlight *lights;
     uint32_t light_capacity, light_count;
+    /* Per light, the min-max table of its shadow map, which decides most of froxel_light's
+     * lookups without their texels (made again when the map is re-rendered) */
+    nc_shadow_minmax *shadow_mm;
+    size_t shadow_mm_count;
     float env[3];
     float pcf, bias;
     camera_rays cam;
@@ -256,6 +260,9 @@ static void vol_destroy(nacre_context *ctx, void *state)
     if (!st)
         return;
     nc_free(ctx, st->lights);
+    for (size_t i = 0; i < st->shadow_mm_count; i++)
+        nc_shadow_minmax_free(ctx, &st->shadow_mm[i]);
+    nc_free(ctx, st->shadow_mm);
     nc_free(ctx, st->st);
     nc_free(ctx, st->ss);
     nc_free(ctx, st->src);
@@ -1393,12 +1400,12 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t 
             }
         }
         /* The opaque shadow, then the boxes without pattern per froxel where light arrives. */
-        if (li->shadow)
-            for (uint32_t k = 0; k < m8; k += 8) {
-                float vis[8];
-                nc_shadow_lookup_volume8(li->shadow, X + k, Y + k, Z + k, st->bias, vis);
-                nc_v8_store(F + k, nc_v8_load(F + k) * nc_v8_load(vis));
-            }
+        if (li->shadow) {
+            float vis[MAX_SLICES];
+            nc_shadow_lookup_volume_n(li->shadow, &st->shadow_mm[l], m8, X, Y, Z, st->bias, vis);
+            for (uint32_t k = 0; k < m8; k += 8)
+                nc_v8_store(F + k, nc_v8_load(F + k) * nc_v8_load(vis + k));
+        }
         for (uint32_t k = 0; st->analytic_boxes && k < m; k++) {
             if (!(F[k] > 0.0f))
                 continue;
@@ -1454,6 +1461,20 @@ static nacre_result froxel_light(vol_state *st, nacre_context *ctx, int threads,
     int64_t cols = (int64_t)st->W * st->H;
     if (!nc_reserve(ctx, &st->col_span, &st->col_span_capacity, 3 * (size_t)cols, sizeof(uint32_t)))
         return NACRE_ERROR_OUT_OF_MEMORY;
+    if (st->light_count > st->shadow_mm_count) {
+        nc_shadow_minmax *grown = nc_realloc(ctx, st->shadow_mm, st->shadow_mm_count * sizeof(*grown),
+                                             st->light_count * sizeof(*grown));
+        if (!grown)
+            return NACRE_ERROR_OUT_OF_MEMORY;
+        memset(grown + st->shadow_mm_count, 0, (st->light_count - st->shadow_mm_count) * sizeof(*grown));
+        st->shadow_mm = grown;
+        st->shadow_mm_count = st->light_count;
+    }
+    for (uint32_t l = 0; l < st->light_count; l++) {
+        nacre_result r = nc_shadow_minmax_update(ctx, st->lights[l].shadow, &st->shadow_mm[l], threads);
+        if (r != NACRE_OK)
+            return r;
+    }
 #pragma omp parallel for schedule(static) num_threads(threads)
     for (int64_t col = 0; col < cols; col++) {
         uint32_t *span = st->col_span + 3 * col, n = lit_slices(st, st->col_depth[col]);

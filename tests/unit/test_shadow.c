@@ -541,11 +541,367 @@ static void test_acne(void)
     nacre_context_destroy(ctx);
 }
 
+/* ---- fog lookups with the min-max table (nc_shadow_lookup_volume_n) ---------------------- */
+
+static float rnd01(uint32_t *state)
+{
+    *state = *state * 1664525u + 1013904223u;
+    return (float)(*state >> 8) / 16777216.0f;
+}
+
+/* What a scene for the table's tests holds: the casters' bounds, the light, and a caster's
+ * square outline (centre cx, cz at height h, half-width half) for points across its shadow. */
+typedef struct vol_scene {
+    float lo[3], hi[3];
+    const nacre_light_desc *ld;
+    double cx, h, cz, half;
+} vol_scene;
+
+/* The way light travels to p (unit). */
+static void light_way(const vol_scene *vs, const double p[3], double w[3])
+{
+    double l = 0.0;
+    for (int k = 0; k < 3; k++) {
+        w[k] = vs->ld->type == NACRE_LIGHT_DIRECTIONAL ? vs->ld->direction[k] : p[k] - vs->ld->position[k];
+        l += w[k] * w[k];
+    }
+    for (int k = 0; k < 3; k++)
+        w[k] /= sqrt(l);
+}
+
+/* 8 points of one kind into px, py, pz (8 each): 0, anywhere in and around the bounds (some
+ * outside the map, in front of the near plane or behind the light); 1, a froxel column's run
+ * from an eye outside the bounds, at depths growing by a factor per lane, near the eye or far;
+ * 2, across the shadow of the square's outline, beside the light's rays through its edge;
+ * 3, a cluster within about a texel (the same few texels). */
+static void vol_points(const vol_scene *vs, int kind, double texel, uint32_t *st, float *px, float *py, float *pz)
+{
+    double ext[3], mid[3];
+    for (int k = 0; k < 3; k++) {
+        ext[k] = vs->hi[k] - vs->lo[k] + 1.0;
+        mid[k] = 0.5 * (vs->hi[k] + vs->lo[k]);
+    }
+    double p[3], d[3];
+    if (kind == 0) {
+        for (int l = 0; l < 8; l++) {
+            px[l] = (float)(mid[0] + (rnd01(st) - 0.5) * 1.8 * ext[0]);
+            py[l] = (float)(mid[1] + (rnd01(st) - 0.5) * 1.8 * ext[1]);
+            pz[l] = (float)(mid[2] + (rnd01(st) - 0.5) * 1.8 * ext[2]);
+        }
+        return;
+    }
+    if (kind == 1) {
+        double ang = 6.283185307179586 * rnd01(st), r = 0.6 * (ext[0] + ext[2]);
+        double eye[3] = {mid[0] + r * cos(ang), vs->lo[1] + (0.2 + 2.0 * rnd01(st)) * ext[1], mid[2] + r * sin(ang)};
+        double tgt[3] = {mid[0] + (rnd01(st) - 0.5) * ext[0], vs->lo[1], mid[2] + (rnd01(st) - 0.5) * ext[2]};
+        double dl = 0.0;
+        for (int k = 0; k < 3; k++) {
+            d[k] = tgt[k] - eye[k];
+            dl += d[k] * d[k];
+        }
+        dl = sqrt(dl);
+        double t = rnd01(st) < 0.5 ? 0.05 * dl * (1.0 + rnd01(st)) : dl * (0.3 + rnd01(st));
+        double q = 1.02 + 0.3 * rnd01(st);
+        for (int l = 0; l < 8; l++, t *= q) {
+            px[l] = (float)(eye[0] + t * d[0] / dl);
+            py[l] = (float)(eye[1] + t * d[1] / dl);
+            pz[l] = (float)(eye[2] + t * d[2] / dl);
+        }
+        return;
+    }
+    /* A point on the outline (or, for clusters, anywhere over the ground) */
+    double e = 2.0 * rnd01(st) - 1.0;
+    int side = (int)(4.0f * rnd01(st)) & 3;
+    p[0] = vs->cx + (side < 2 ? (side ? 1 : -1) * vs->half : e * vs->half);
+    p[1] = vs->h;
+    p[2] = vs->cz + (side >= 2 ? (side & 1 ? 1 : -1) * vs->half : e * vs->half);
+    if (kind == 3)
+        for (int k = 0; k < 3; k++)
+            p[k] = mid[k] + (rnd01(st) - 0.5) * ext[k];
+    light_way(vs, p, d);
+    double along = kind == 2 ? (0.2 + 0.75 * rnd01(st)) * vs->h / -d[1] : 0.0;
+    for (int l = 0; l < 8; l++) {
+        double s = kind == 2 ? along * (0.7 + 0.6 * rnd01(st)) : 0.0, j = kind == 2 ? 3.0 : 0.7;
+        px[l] = (float)(p[0] + s * d[0] + (rnd01(st) - 0.5) * j * texel);
+        py[l] = (float)(p[1] + s * d[1] + (rnd01(st) - 0.5) * j * texel);
+        pz[l] = (float)(p[2] + s * d[2] + (rnd01(st) - 0.5) * j * texel);
+    }
+}
+
+typedef struct vol_stats {
+    int groups, bad, live, read, dark, lit, partial;
+} vol_stats;
+
+/* Groups of every kind, looked up in batches of 1 to 12 groups with the table and compared bit
+ * for bit with nc_shadow_lookup_volume8, one group at a time. */
+static void vol_compare(const nc_shadow_map *sm, const nc_shadow_minmax *mm, const vol_scene *vs, float bias,
+                        int groups, uint32_t seed, vol_stats *t)
+{
+    enum { MAXG = 12 };
+    float px[8 * MAXG], py[8 * MAXG], pz[8 * MAXG], got[8 * MAXG], want[8];
+    double texel = (vs->hi[0] - vs->lo[0] + vs->hi[2] - vs->lo[2]) / sm->size;
+    uint32_t st = seed;
+    for (int done = 0; done < groups;) {
+        int ng = 1 + (int)(rnd01(&st) * MAXG) % MAXG;
+        for (int q = 0; q < ng; q++)
+            vol_points(vs, (done + q) % 4, texel, &st, px + 8 * q, py + 8 * q, pz + 8 * q);
+        t->read += (int)nc_shadow_lookup_volume_n(sm, mm, 8u * (uint32_t)ng, px, py, pz, bias, got);
+        for (int q = 0; q < ng; q++) {
+            nc_shadow_lookup_volume8(sm, px + 8 * q, py + 8 * q, pz + 8 * q, bias, want);
+            t->bad += memcmp(want, got + 8 * q, sizeof(want)) != 0;
+            for (int l = 0; l < 8; l++) {
+                /* live: what the plain lookup did not leave at 1 for being outside (approx.) */
+                float w = want[l];
+                t->dark += w == 0.0f;
+                t->lit += w >= 0.999f;
+                t->partial += w > 0.0f && w < 0.999f;
+            }
+        }
+        t->groups += ng;
+        done += ng;
+    }
+}
+
+/* A batch whose every point the table must decide (read nothing) and whose values are `want`
+ * (0: deep shadow, 1: well lit), bit for bit the plain lookups'. */
+static void vol_decided(const nc_shadow_map *sm, const nc_shadow_minmax *mm, const float *px, const float *py,
+                        const float *pz, uint32_t n, float want)
+{
+    float got[64], ref[8];
+    CHECK(n <= 64 && n % 8 == 0);
+    CHECK(nc_shadow_lookup_volume_n(sm, mm, n, px, py, pz, BIAS, got) == 0);
+    int bad = 0, off = 0;
+    for (uint32_t i = 0; i < n; i += 8) {
+        nc_shadow_lookup_volume8(sm, px + i, py + i, pz + i, BIAS, ref);
+        bad += memcmp(ref, got + i, sizeof(ref)) != 0;
+        for (int l = 0; l < 8; l++)
+            off += !(fabsf(got[i + l] - want) <= 1e-6f);
+    }
+    CHECK(bad == 0);
+    CHECK(off == 0);
+}
+
+/* Points straight under (or over) the square's middle, between fractions a and b of the way
+ * from the ground to it along the light (b > 1: above it, towards the light). */
+static void vol_column(const vol_scene *vs, double a, double b, float *px, float *py, float *pz, uint32_t n)
+{
+    double p[3] = {vs->cx, vs->h, vs->cz}, d[3];
+    light_way(vs, p, d);
+    double full = vs->h / -d[1];
+    for (uint32_t i = 0; i < n; i++) {
+        double s = full * (1.0 - (a + (b - a) * (i + 0.5) / n));
+        double j = 0.3 * vs->half * ((i * 7 % 5) / 4.0 - 0.5);
+        px[i] = (float)(p[0] + s * d[0] + j);
+        py[i] = (float)(p[1] + s * d[1]);
+        pz[i] = (float)(p[2] + s * d[2] - j);
+    }
+}
+
+static void vol_case(nc_rasterizer *r, nacre_context *ctx, const nacre_light_desc *ld, int size, const char *name)
+{
+    /* Ground, the square over it, a box and a sphere standing on it */
+    geo g[4] = {make_square(0, 0, 0, 10, 8), make_square(0.5, 2, -0.4, 1.5, 2), make_box(-5.5, 0, 4.5, -4.5, 1, 5.5),
+                make_sphere(4.0, 1.0, -4.0, 1.0, 32, 16)};
+    nc_raster_mesh m[4] = {as_mesh(&g[0], 0), as_mesh(&g[1], 1), as_mesh(&g[2], 2), as_mesh(&g[3], 3)};
+    vol_scene vs = {.ld = ld, .cx = 0.5, .h = 2.0, .cz = -0.4, .half = 1.5};
+    bounds_of(g, 4, vs.lo, vs.hi);
+    nc_shadow_map sm;
+    memset(&sm, 0, sizeof(sm));
+    CHECK(nc_shadow_render(r, ctx, ld, vs.lo, vs.hi, size, m, 4, &sm) == NACRE_OK);
+    nc_shadow_minmax mm;
+    memset(&mm, 0, sizeof(mm));
+    CHECK(nc_shadow_minmax_update(ctx, &sm, &mm, 2) == NACRE_OK);
+    CHECK(mm.generation == sm.generation && mm.generation != 0);
+    CHECK(mm.dim == (size >> mm.shift) + 1 && mm.dim <= NC_SHADOW_MM_DIM);
+
+    vol_stats t = {0};
+    vol_compare(&sm, &mm, &vs, BIAS, 6000, 777u + (uint32_t)size, &t);
+    vol_compare(&sm, &mm, &vs, 0.0f, 1000, 31u, &t);
+    vol_compare(&sm, &mm, &vs, 50.0f, 1000, 32u, &t);
+    vol_compare(&sm, &mm, &vs, INFINITY, 200, 33u, &t);
+    CHECK(t.bad == 0);
+    CHECK(t.dark > 2000 && t.lit > 2000 && t.partial > 300);
+    /* Most points are decided by the table, not all (the edges' are read) */
+    int lanes = 8 * t.groups;
+    CHECK(t.read > 0 && t.read < lanes / 2);
+    if (t.bad || !(t.read > 0 && t.read < lanes / 2) || t.dark <= 2000 || t.partial <= 300)
+        printf("  %s: %d of %d groups differ; %d of %d points read texels; %d dark, %d lit, %d partial\n", name,
+               t.bad, t.groups, t.read, lanes, t.dark, t.lit, t.partial);
+
+    /* Deep in the square's shadow, and between it and the light */
+    float px[64], py[64], pz[64];
+    vol_column(&vs, 0.3, 0.8, px, py, pz, 64);
+    vol_decided(&sm, &mm, px, py, pz, 64, 0.0f);
+    vol_column(&vs, 1.15, 1.6, px, py, pz, 64);
+    vol_decided(&sm, &mm, px, py, pz, 64, 1.0f);
+
+    /* Depths that no comparison decides (NaN) or that are infinite, in patches of a copy of the
+     * map (a new generation: the table is made again) */
+    nc_shadow_map bad = sm;
+    size_t texels = (size_t)size * (size_t)size;
+    bad.depth = malloc(texels * sizeof(float));
+    memcpy(bad.depth, sm.depth, texels * sizeof(float));
+    bad.generation = sm.generation + 1000000u;
+    const float odd[4] = {NAN, INFINITY, -INFINITY, -0.5f};
+    for (int pch = 0; pch < 12; pch++) {
+        int x0 = (int)((pch % 4) * size / 4 + size / 16), y0 = (int)((pch / 4) * size / 3 + size / 12);
+        for (int y = y0; y < y0 + size / 10 && y < size; y++)
+            for (int x = x0; x < x0 + size / 10 && x < size; x++)
+                if ((x + y) % 3 == 0)
+                    bad.depth[(size_t)y * (size_t)size + (size_t)x] = odd[pch % 4];
+    }
+    /* ... and one texel, at a texel's spacing from the last row and column */
+    bad.depth[(size_t)(size - 1) * (size_t)size + (size_t)(size / 2)] = NAN;
+    bad.depth[(size_t)(size / 2) * (size_t)size + (size_t)(size - 1)] = NAN;
+    CHECK(nc_shadow_minmax_update(ctx, &bad, &mm, 2) == NACRE_OK);
+    CHECK(mm.generation == bad.generation);
+    vol_stats tb = {0};
+    vol_compare(&bad, &mm, &vs, BIAS, 3000, 99u, &tb);
+    vol_compare(&bad, &mm, &vs, INFINITY, 300, 98u, &tb);
+    vol_compare(&bad, &mm, &vs, -INFINITY, 300, 97u, &tb);
+    CHECK(tb.bad == 0);
+    if (tb.bad)
+        printf("  %s, odd depths: %d of %d groups differ\n", name, tb.bad, tb.groups);
+    free(bad.depth);
+
+    nc_shadow_minmax_free(ctx, &mm);
+    nc_shadow_free(ctx, &sm);
+    for (int i = 0; i < 4; i++)
+        geo_free(&g[i]);
+}
+
+static void test_volume_table(void)
+{
+    nacre_context *ctx = make_ctx(2);
+    nc_rasterizer *r = NULL;
+    CHECK(nc_rasterizer_create(ctx, &r) == NACRE_OK);
+    nacre_light_desc dl = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
+    double d[3] = {0.4, -1.0, 0.3}, n = sqrt(0.16 + 1 + 0.09);
+    for (int k = 0; k < 3; k++)
+        dl.direction[k] = (float)(d[k] / n);
+    /* Sizes: blocks of 1 texel (dim = size + 1), of 2 and 8 (the default map), sizes that are
+     * not powers of two (clipped blocks at the far border) */
+    vol_case(r, ctx, &dl, 200, "directional 200");
+    vol_case(r, ctx, &dl, 300, "directional 300");
+    vol_case(r, ctx, &dl, 2048, "directional 2048");
+    nacre_light_desc sl = nacre_light_desc_defaults(NACRE_LIGHT_SPOT);
+    double L[3] = {1.5, 7.0, -1.0}, sd[3] = {-0.1, -1.0, 0.08}, sn = sqrt(0.01 + 1 + 0.0064);
+    for (int k = 0; k < 3; k++) {
+        sl.position[k] = (float)L[k];
+        sl.direction[k] = (float)(sd[k] / sn);
+    }
+    sl.outer_angle = 55.0f;
+    sl.inner_angle = 45.0f;
+    vol_case(r, ctx, &sl, 257, "spot 257");
+    vol_case(r, ctx, &sl, 700, "spot 700");
+
+    /* A cube map gets no table: the lookups are the plain ones, every point reading texels */
+    nacre_light_desc pl = nacre_light_desc_defaults(NACRE_LIGHT_POINT);
+    pl.position[0] = 0.3f, pl.position[1] = 5.0f, pl.position[2] = 0.2f;
+    geo g[2] = {make_square(0, 0, 0, 10, 8), make_square(0.5, 2, -0.4, 1.5, 2)};
+    nc_raster_mesh m[2] = {as_mesh(&g[0], 0), as_mesh(&g[1], 1)};
+    vol_scene vs = {.ld = &pl, .cx = 0.5, .h = 2.0, .cz = -0.4, .half = 1.5};
+    bounds_of(g, 2, vs.lo, vs.hi);
+    nc_shadow_map sm;
+    memset(&sm, 0, sizeof(sm));
+    CHECK(nc_shadow_render(r, ctx, &pl, vs.lo, vs.hi, 64, m, 2, &sm) == NACRE_OK);
+    nc_shadow_minmax mm;
+    memset(&mm, 0, sizeof(mm));
+    CHECK(nc_shadow_minmax_update(ctx, &sm, &mm, 2) == NACRE_OK);
+    CHECK(mm.generation == 0);
+    vol_stats t = {0};
+    vol_compare(&sm, &mm, &vs, BIAS, 300, 5u, &t);
+    CHECK(t.bad == 0 && t.read == 8 * t.groups);
+    nc_shadow_minmax_free(ctx, &mm);
+    nc_shadow_free(ctx, &sm);
+    geo_free(&g[0]);
+    geo_free(&g[1]);
+    nc_rasterizer_destroy(r);
+    nacre_context_destroy(ctx);
+}
+
+/* The table is made again when its map is re-rendered (the light moved), and only then; a table
+ * left from before the map changed decides nothing. */
+static void test_volume_table_update(void)
+{
+    nacre_context *ctx = make_ctx(2);
+    nc_rasterizer *r = NULL;
+    CHECK(nc_rasterizer_create(ctx, &r) == NACRE_OK);
+    geo g[2] = {make_square(0, 0, 0, 10, 8), make_square(0.5, 2, -0.4, 1.5, 2)};
+    nc_raster_mesh m[2] = {as_mesh(&g[0], 0), as_mesh(&g[1], 1)};
+    nacre_light_desc ld = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
+    ld.direction[0] = 0.0f, ld.direction[1] = -1.0f, ld.direction[2] = 0.0f;
+    vol_scene vs = {.ld = &ld, .cx = 0.5, .h = 2.0, .cz = -0.4, .half = 1.5};
+    bounds_of(g, 2, vs.lo, vs.hi);
+    nc_shadow_map sm, other;
+    memset(&sm, 0, sizeof(sm));
+    memset(&other, 0, sizeof(other));
+    CHECK(nc_shadow_render(r, ctx, &ld, vs.lo, vs.hi, 512, m, 2, &sm) == NACRE_OK);
+    CHECK(nc_shadow_render(r, ctx, &ld, vs.lo, vs.hi, 512, m, 2, &other) == NACRE_OK);
+    CHECK(sm.generation != 0 && other.generation != 0 && sm.generation != other.generation);
+    nc_shadow_minmax mm;
+    memset(&mm, 0, sizeof(mm));
+    CHECK(nc_shadow_minmax_update(ctx, &sm, &mm, 2) == NACRE_OK);
+    uint64_t first = mm.generation;
+    CHECK(first == sm.generation);
+    /* Not re-rendered: kept (a mark in the table survives) */
+    const float mark = 12345.0f;
+    float saved = mm.data[0];
+    mm.data[0] = mark;
+    CHECK(nc_shadow_minmax_update(ctx, &sm, &mm, 2) == NACRE_OK);
+    CHECK(mm.generation == first && mm.data[0] == mark);
+    mm.data[0] = saved;
+    /* Another map of the same size: made for it */
+    mm.data[0] = mark;
+    CHECK(nc_shadow_minmax_update(ctx, &other, &mm, 2) == NACRE_OK);
+    CHECK(mm.generation == other.generation && mm.data[0] != mark);
+    CHECK(nc_shadow_minmax_update(ctx, &sm, &mm, 2) == NACRE_OK);
+    CHECK(mm.generation == sm.generation);
+
+    /* The light turns: the map is re-rendered, the table is stale until updated */
+    float px[64], py[64], pz[64], got[64], want[8];
+    vol_column(&vs, 0.3, 0.8, px, py, pz, 64);
+    CHECK(nc_shadow_lookup_volume_n(&sm, &mm, 64, px, py, pz, BIAS, got) == 0);
+    ld.direction[0] = 0.6f, ld.direction[1] = -0.8f;
+    CHECK(nc_shadow_render(r, ctx, &ld, vs.lo, vs.hi, 512, m, 2, &sm) == NACRE_OK);
+    CHECK(sm.generation != first && sm.generation != other.generation);
+    CHECK(mm.generation == first);
+    uint32_t read = nc_shadow_lookup_volume_n(&sm, &mm, 64, px, py, pz, BIAS, got);
+    int bad = 0, live = 0;
+    for (int i = 0; i < 64; i += 8) {
+        nc_shadow_lookup_volume8(&sm, px + i, py + i, pz + i, BIAS, want);
+        bad += memcmp(want, got + i, sizeof(want)) != 0;
+    }
+    for (int i = 0; i < 64; i++)
+        live += got[i] != 1.0f; /* inside the map and shadowed at least in part */
+    CHECK(bad == 0);
+    CHECK((int)read >= live && live > 0);
+    mm.data[0] = mark;
+    CHECK(nc_shadow_minmax_update(ctx, &sm, &mm, 2) == NACRE_OK);
+    CHECK(mm.generation == sm.generation && mm.data[0] != mark);
+    vol_stats t = {0};
+    vol_compare(&sm, &mm, &vs, BIAS, 2000, 4242u, &t);
+    CHECK(t.bad == 0 && t.read < 8 * t.groups / 2);
+    /* A map freed and made again at the same address gets a new generation */
+    nc_shadow_free(ctx, &sm);
+    CHECK(nc_shadow_render(r, ctx, &ld, vs.lo, vs.hi, 512, m, 2, &sm) == NACRE_OK);
+    CHECK(sm.generation != mm.generation);
+    nc_shadow_minmax_free(ctx, &mm);
+    nc_shadow_free(ctx, &sm);
+    nc_shadow_free(ctx, &other);
+    geo_free(&g[0]);
+    geo_free(&g[1]);
+    nc_rasterizer_destroy(r);
+    nacre_context_destroy(ctx);
+}
+
 int main(void)
 {
     test_directional();
     test_spot();
     test_point();
     test_acne();
+    test_volume_table();
+    test_volume_table_update();
     return TEST_MAIN_END();
 }
