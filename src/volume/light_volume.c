@@ -19,6 +19,25 @@ static void local_to_world(const nc_fog_one *o, const float q[3], float x[3])
         x[c] = o->w2l[0][c] * d[0] + o->w2l[1][c] * d[1] + o->w2l[2][c] * d[2];
 }
 
+static bool same3(const float a[3])
+{
+    return memcmp(a, a + 1, sizeof(float)) == 0 && memcmp(a, a + 2, sizeof(float)) == 0;
+}
+
+bool nc_light_volume_fog_gray(const nc_fog_one *o)
+{
+    /* Equal bits, not equal values: 0 and -0 (or two NaNs) could round apart further on. An
+     * emission grid's blackbody scales the channels apart (fogs' absorption never has it). */
+    const nacre_material_desc *m = o->medium;
+    if (!same3(o->sigma_a) || !same3(o->sigma_s) || !m || m->pattern.blackbody || !same3(m->sigma_a) ||
+        !same3(m->sigma_s))
+        return false;
+    /* A volume scales medium 1 (medium 2 unused); the other patterns pick or blend medium 2. */
+    if (m->pattern.type == NACRE_PATTERN_NONE || m->pattern.type == NACRE_PATTERN_VOLUME)
+        return true;
+    return same3(m->pattern.sigma_a2) && same3(m->pattern.sigma_s2);
+}
+
 void nc_light_volume_setup(nc_light_volume *v, const nc_fog_one *o, bool directional, const float dir[3],
                            const float pos[3], uint32_t res)
 {
@@ -26,6 +45,7 @@ void nc_light_volume_setup(nc_light_volume *v, const nc_fog_one *o, bool directi
     res = res < 2 ? 2 : res > NC_LIGHT_VOLUME_MAX_RES ? NC_LIGHT_VOLUME_MAX_RES : res;
     v->directional = directional;
     v->fog = o;
+    v->gray = nc_light_volume_fog_gray(o);
     v->n[0] = v->n[1] = v->n[2] = res;
     float hi[3];
     if (directional) {
@@ -86,8 +106,9 @@ static void build_column(const nc_fog_field *f, nc_light_volume *v, uint32_t i, 
     float local[3 * NC_LIGHT_VOLUME_MAX_RES], sa[3 * NC_LIGHT_VOLUME_MAX_RES], ss[3 * NC_LIGHT_VOLUME_MAX_RES];
     double G[NC_LIGHT_VOLUME_MAX_RES];
     uint32_t step_of[NC_LIGHT_VOLUME_MAX_RES];
-    float *out = v->tau + 3 * ((size_t)i * v->n[1] + j) * ns;
-    size_t stride = 3;
+    const size_t stride = v->gray ? 1 : 3;
+    const int channels = (int)stride;
+    float *out = v->tau + stride * ((size_t)i * v->n[1] + j) * ns;
     double a = 0.0, b = (double)v->step[2] * (ns - 1);
     uint32_t m = 0;
     if (nc_fog_field_segment(o, p0, d, &a, &b)) {
@@ -109,10 +130,10 @@ static void build_column(const nc_fog_field *f, nc_light_volume *v, uint32_t i, 
     double tau[3] = {0, 0, 0};
     uint32_t q = 0;
     for (uint32_t k = 0; k < ns; k++) {
-        for (int c = 0; c < 3; c++)
+        for (int c = 0; c < channels; c++)
             out[k * stride + c] = cap_tau(tau[c]);
         if (q < m && step_of[q] == k) {
-            for (int c = 0; c < 3; c++) {
+            for (int c = 0; c < channels; c++) {
                 double st = (double)sa[3 * q + c] + ss[3 * q + c];
                 if (st > 0.0 && G[q] > 0.0)
                     tau[c] += st * G[q];
@@ -137,8 +158,9 @@ static void build_node(const nc_fog_field *f, nc_light_volume *v, uint32_t i, ui
             w[c] /= dist;
         nc_fog_one_optical_depth(f, v->fog, x, w, dist, tau, scratch);
     }
-    float *out = v->tau + 3 * (((size_t)i * v->n[1] + j) * v->n[2] + k);
-    for (int c = 0; c < 3; c++)
+    const size_t stride = v->gray ? 1 : 3;
+    float *out = v->tau + stride * (((size_t)i * v->n[1] + j) * v->n[2] + k);
+    for (size_t c = 0; c < stride; c++)
         out[c] = cap_tau(tau[c]);
 }
 
@@ -172,15 +194,18 @@ static void trilinear(const nc_light_volume *v, const float g[3], float tau[3])
         i0[k] = i + 1 < v->n[k] ? i : v->n[k] - 2;
         t[k] = g[k] - (float)i0[k];
     }
-    size_t sz = 3, sy = 3 * (size_t)v->n[2], sx = sy * v->n[1];
+    const size_t sz = v->gray ? 1 : 3, sy = sz * v->n[2], sx = sy * v->n[1];
+    const int channels = (int)sz;
     const float *p = v->tau + i0[0] * sx + i0[1] * sy + i0[2] * sz;
-    for (int c = 0; c < 3; c++) {
+    for (int c = 0; c < channels; c++) {
         const float *q = p + c;
         float a = q[0] + t[0] * (q[sx] - q[0]), b = q[sy] + t[0] * (q[sy + sx] - q[sy]);
         float e = q[sz] + t[0] * (q[sz + sx] - q[sz]), h = q[sz + sy] + t[0] * (q[sz + sy + sx] - q[sz + sy]);
         float ab = a + t[1] * (b - a), eh = e + t[1] * (h - e);
         tau[c] = ab + t[2] * (eh - ab);
     }
+    if (v->gray)
+        tau[1] = tau[2] = tau[0];
 }
 
 void nc_light_volume_lookup(const nc_light_volume *v, const float x[3], float tau[3])
@@ -283,9 +308,9 @@ void nc_light_volume_lookup8(const nc_light_volume *v, const float *px, const fl
         i0[k] = nc_v8i_sel(i + 1 < (int32_t)v->n[k], i, (nc_v8i){0} + (int32_t)(v->n[k] - 2));
         t[k] = g[k] - __builtin_convertvector(i0[k], nc_v8f);
     }
-    const int32_t sz = 3, sy = 3 * (int32_t)v->n[2], sx = sy * (int32_t)v->n[1];
+    const int32_t sz = v->gray ? 1 : 3, sy = sz * (int32_t)v->n[2], sx = sy * (int32_t)v->n[1];
     const nc_v8i base = i0[0] * sx + i0[1] * sy + i0[2] * sz;
-    for (int ch = 0; ch < 3; ch++) {
+    for (int ch = 0; ch < sz; ch++) {
         const float *q = v->tau + ch;
         nc_v8f q000 = nc_v8_gather(q, base), q100 = nc_v8_gather(q, base + sx);
         nc_v8f q010 = nc_v8_gather(q, base + sy), q110 = nc_v8_gather(q, base + (sy + sx));
@@ -295,5 +320,9 @@ void nc_light_volume_lookup8(const nc_light_volume *v, const float *px, const fl
         nc_v8f e = q001 + t[0] * (q101 - q001), h = q011 + t[0] * (q111 - q011);
         nc_v8f ab = a + t[1] * (b - a), eh = e + t[1] * (h - e);
         nc_v8_store(tau + 8 * ch, nc_v8_sel(live, ab + t[2] * (eh - ab), zero));
+    }
+    if (v->gray) {
+        memcpy(tau + 8, tau, 8 * sizeof(float));
+        memcpy(tau + 16, tau, 8 * sizeof(float));
     }
 }

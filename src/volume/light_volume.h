@@ -18,6 +18,11 @@
  * where its ray to the light enters the box (no fog of this one before that), 0 if it misses.
  * The grid is rebuilt only when its light or the fog change, never when the camera moves.
  *
+ * A gray fog (nc_light_volume_fog_gray: the same sigma_t in every channel at every point, the
+ * common white cloud) has one optical depth for all channels: its grid stores and interpolates
+ * channel 0 alone, and the lookups copy it (the other channels' arithmetic was channel 0's, so
+ * the results are those of the three-channel grid bit for bit, at a third of the gathers).
+ *
  * Units: world scene units; optical depth per channel (dimensionless), capped at
  * NC_LIGHT_VOLUME_TAU_MAX so that the interpolation stays finite.
  */
@@ -44,17 +49,30 @@ typedef struct nc_light_volume {
     float light[3];    /* point: the light's position in the grid frame (the fog's) */
     float light_world[3];
     const nc_fog_one *fog;
-    float *tau;        /* 3 per node, z fastest then y then x: a directional light's columns are
-                        * contiguous (the caller's, nc_light_volume_nodes x 3) */
+    bool gray;         /* nc_light_volume_fog_gray(fog): tau holds channel 0 alone */
+    float *tau;        /* 3 per node (gray: 1), z fastest then y then x: a directional light's
+                        * columns are contiguous (the caller's, nc_light_volume_floats of them) */
 } nc_light_volume;
 
+/* Whether fog o's sigma_t is the same in every channel at every point, so that one channel's
+ * optical depth is every channel's bit for bit: the coefficients that its optical depth reads
+ * (its own, and its medium's and medium 2's where its pattern picks or blends them) have equal
+ * bits in all three channels, and its pattern scales them all alike (scene/medium.c). */
+bool nc_light_volume_fog_gray(const nc_fog_one *o);
+
 /* Frame and nodes of fog o's grid for a directional light travelling along `dir` (unit), or a
- * point light at `pos`, res nodes per axis (2 .. NC_LIGHT_VOLUME_MAX_RES); tau is not set. */
+ * point light at `pos`, res nodes per axis (2 .. NC_LIGHT_VOLUME_MAX_RES), and whether it is
+ * gray; tau is not set. */
 void nc_light_volume_setup(nc_light_volume *v, const nc_fog_one *o, bool directional, const float dir[3],
                            const float pos[3], uint32_t res);
 
-/* Nodes of v (3 floats of tau each). */
+/* Nodes of v (3 floats of tau each, 1 if gray). */
 static inline size_t nc_light_volume_nodes(const nc_light_volume *v) { return (size_t)v->n[0] * v->n[1] * v->n[2]; }
+/* Floats of v->tau (at most 3 x nc_light_volume_nodes). */
+static inline size_t nc_light_volume_floats(const nc_light_volume *v)
+{
+    return (v->gray ? 1u : 3u) * nc_light_volume_nodes(v);
+}
 
 /* Fill v->tau (threads: OpenMP threads; the result does not depend on them). */
 void nc_light_volume_build(const nc_fog_field *f, nc_light_volume *v, int threads);
