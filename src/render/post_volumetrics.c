@@ -953,24 +953,32 @@ static nc_v8i lit8(const vlight *li, const float *X, const float *Y, const float
  * light grids), 8 lanes at once: tau[8c + q] (channel planes). The same sums in the same order
  * as patterned_tau8's (in double, fog after fog, then rounded to float and capped, 0 where the
  * light does not reach), so the results are equal bit for bit; gray: every such fog is gray
- * (light_volume.h), and channel 0 is every channel. */
-static void box_tau8(const vol_state *st, uint32_t l, const float *X, const float *Y, const float *Z, bool gray,
+ * (light_volume.h), and channel 0 is every channel. False, with tau not written, where every
+ * lane is 0: outside every grid's reach (most of the frame, for a small cloud), or unlit. */
+static bool box_tau8(const vol_state *st, uint32_t l, const float *X, const float *Y, const float *Z, bool gray,
                      float *tau)
 {
     typedef double v8d __attribute__((vector_size(64)));
     const nc_v8f zero = {0};
-    const nc_v8i lit = lit8(&st->lights[l], X, Y, Z);
-    if (!nc_v8_bits(lit)) {
-        memset(tau, 0, 24 * sizeof(float));
-        return;
+    const lvol *grids = st->lvols + (size_t)l * st->field.count;
+    uint32_t reached = 0, fog_reach[NACRE_MAX_FOGS];
+    for (uint32_t i = 0; i < st->field.count; i++) {
+        fog_reach[i] = st->field.fogs[i].patterned ? nc_light_volume_reach8(&grids[i].v, X, Y, Z) : 0;
+        reached |= fog_reach[i];
     }
+    if (!reached)
+        return false;
+    const nc_v8i lit = lit8(&st->lights[l], X, Y, Z);
+    if (!nc_v8_bits(lit))
+        return false;
     const int channels = gray ? 1 : 3;
     v8d acc[3] = {{0}, {0}, {0}};
     for (uint32_t i = 0; i < st->field.count; i++) {
-        if (!st->field.fogs[i].patterned)
+        /* A grid that reaches none of the lanes adds +0 (its lookups are >= +0), as before. */
+        if (!fog_reach[i])
             continue;
         float t[24];
-        nc_light_volume_lookup8(&st->lvols[(size_t)l * st->field.count + i].v, X, Y, Z, t);
+        nc_light_volume_lookup8(&grids[i].v, X, Y, Z, t);
         for (int c = 0; c < channels; c++)
             acc[c] += __builtin_convertvector(nc_v8_load(t + 8 * c), v8d);
     }
@@ -983,6 +991,7 @@ static void box_tau8(const vol_state *st, uint32_t l, const float *X, const floa
         memcpy(tau + 8, tau, 8 * sizeof(float));
         memcpy(tau + 16, tau, 8 * sizeof(float));
     }
+    return true;
 }
 
 /* A froxel that scatters nothing (sigma_s 0 in every channel) has no source whatever its light:
@@ -1063,6 +1072,9 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
 #pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
     for (int64_t cc = 0; cc < cols; cc++) {
         float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
+        /* The nodes' points, one array per coordinate, the last used one repeated to a multiple
+         * of 8: each light reads them 8 at a time. */
+        float NX[MAX_SLICES / 2 + 8], NY[MAX_SLICES / 2 + 8], NZ[MAX_SLICES / 2 + 8];
         float o[3], d[3];
         double scale, offset;
         uint32_t gi = (uint32_t)(cc % st->Wc), gj = (uint32_t)(cc / st->Wc);
@@ -1082,6 +1094,10 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
         if (used > 0) {
             column_ray(st, 2 * gi, 2 * gj, o, d, &scale, &offset);
             column_points(st, o, d, scale, offset, p);
+            for (uint32_t c = first, end = first + ((used - first + 7) & ~7u); c < end; c++) {
+                const float *x = p + 6 * (size_t)(c < used ? c : used - 1);
+                NX[c] = x[0], NY[c] = x[1], NZ[c] = x[2];
+            }
         }
         for (uint32_t l = 0; l < st->light_count; l++) {
             if (!st->tau_redo[l])
@@ -1092,15 +1108,13 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
             for (uint32_t c0 = first; c0 < used; c0 += 8) {
                 /* 8 nodes at a time (the last repeated past used) */
                 uint32_t count = used - c0 < 8 ? used - c0 : 8;
-                float X[8], Y[8], Z[8], t[24];
-                for (uint32_t q = 0; q < 8; q++) {
-                    const float *x = p + 6 * (size_t)(c0 + (q < count ? q : count - 1));
-                    X[q] = x[0], Y[q] = x[1], Z[q] = x[2];
+                float t[24];
+                if (boxes) {
+                    if (!box_tau8(st, l, NX + c0, NY + c0, NZ + c0, gray, t))
+                        continue; /* 0, as written */
+                } else {
+                    patterned_tau8(st, l, NX + c0, NY + c0, NZ + c0, count, t, tau);
                 }
-                if (boxes)
-                    box_tau8(st, l, X, Y, Z, gray, t);
-                else
-                    patterned_tau8(st, l, X, Y, Z, count, t, tau);
                 for (int ch = 0; ch < 3; ch++)
                     memcpy(out + (size_t)ch * Dc + c0, t + 8 * ch, count * sizeof(float));
                 nc_v8i nonzero = (nc_v8_load(t) != 0.0f) | (nc_v8_load(t + 8) != 0.0f) | (nc_v8_load(t + 16) != 0.0f);

@@ -38,6 +38,10 @@
 #define NC_LIGHT_VOLUME_POINT_RES 24u
 /* Largest node count per axis (stack scratch of a column's march). */
 #define NC_LIGHT_VOLUME_MAX_RES 256u
+/* Most planes bounding where a grid's lookups may be other than 0: a point light's cone over the
+ * box (a plane through it and each of the box's 12 edges, at most 6 of which bound it) and the
+ * box's 3 faces that it sees. */
+#define NC_LIGHT_VOLUME_PLANES 15u
 
 typedef struct nc_light_volume {
     bool directional;
@@ -50,6 +54,14 @@ typedef struct nc_light_volume {
     float light_world[3];
     const nc_fog_one *fog;
     bool gray;         /* nc_light_volume_fog_gray(fog): tau holds channel 0 alone */
+    /* Where the lookups may be other than 0 (nc_light_volume_reach8): n x + d >= 0 for the
+     * planes (n, d) (world, unit n), up to a margin; the first reach_faces of them are a
+     * directional grid's sides or a point light's faces of the box, the others pass through
+     * the point light. reach_planes 0: anywhere. */
+    uint32_t reach_planes, reach_faces;
+    float reach[NC_LIGHT_VOLUME_PLANES][4];
+    float reach_scale; /* 1 + the magnitudes of the grid's coordinates (the margins' scale) */
+    float reach_inv_r; /* point light: 1 / its distance to the box */
     float *tau;        /* 3 per node (gray: 1), z fastest then y then x: a directional light's
                         * columns are contiguous (the caller's, nc_light_volume_floats of them) */
 } nc_light_volume;
@@ -79,6 +91,14 @@ void nc_light_volume_build(const nc_fog_field *f, nc_light_volume *v, int thread
 
 /* The optical depth per channel from world point x to the light through v's fog (see above). */
 void nc_light_volume_lookup(const nc_light_volume *v, const float x[3], float tau[3]);
+
+/* Which of the 8 points (px[l], py[l], pz[l]) lookups of v may give other than 0 (bit l): a clear
+ * bit means that nc_light_volume_lookup and nc_light_volume_lookup8 give 0 in every channel
+ * there. Outside one of v's planes by more than a margin of 1e-4 of the coordinates' magnitudes
+ * (for a plane through a point light, 1e-4 of the angle, times the distance from the light over
+ * that to the box: the lookups' rounding, which decides near the cone over the box, shifts it by
+ * under 1e-6 of those); points with a coordinate infinite or NaN are never excluded. */
+uint32_t nc_light_volume_reach8(const nc_light_volume *v, const float *px, const float *py, const float *pz);
 
 /* nc_light_volume_lookup at 8 points (px[l], py[l], pz[l]), equal bit for bit: channel c of point
  * l in tau[8 c + l]. */

@@ -28,7 +28,10 @@
  *     transmittance against a direct march from points in and around the box (a sun's
  *     light-aligned grid against a 256-step march, a point light's grid against the same 8-step
  *     march its nodes use): largest |dT| under 0.1 (sun) and 0.03 (point), RMS under 0.008 and
- *     0.006, and the same checks failing on a grid of 4 nodes an axis; a gray fog's grids (one
+ *     0.006, and the same checks failing on a grid of 4 nodes an axis; where their lookups may be
+ *     other than 0 (nc_light_volume_reach8) contains every point whose lookup is not (a lattice
+ *     and points nudged across the edges of the box's shadow) and leaves out over a quarter of it
+ *     for the sun and the point light outside; a gray fog's grids (one
  *     channel stored) equal its three-channel grids bit for bit, and only gray fogs are found gray;
  *   - bounded patterned fogs alone (the coarse optical depths 8 lanes at a time) give the frame
  *     that the general path (a global patterned fog of zero density added) gives, bit for bit;
@@ -624,6 +627,64 @@ static double light_volume_error(const nc_fog_field *ref, const nc_light_volume 
     return worst;
 }
 
+/* nc_light_volume_reach8 on v: at points of a lattice around the box and at points just inside
+ * and outside the edges of the box's shadow (along rays from the light past each corner of the
+ * box, nudged by 1e-3 .. 1e-6 of a unit), every point it excludes has lookups 0 (scalar and 8
+ * lanes, every channel; *sound); *culled of *total lattice points are excluded. */
+static void reach_check(const nc_light_volume *v, const nc_fog_one *o, const float dir[3], const float pos[3],
+                        bool *sound, int *culled, int *total)
+{
+    enum { MAXP = 11 * 9 * 10 + 8 * 6 * 8 * 6 };
+    static float P[3][MAXP + 8];
+    int n = 0;
+    for (int i = 0; i < 11; i++)
+        for (int j = 0; j < 9; j++)
+            for (int k = 0; k < 10; k++, n++) {
+                P[0][n] = -4.1f + 0.82f * i;
+                P[1][n] = -3.4f + 0.85f * j;
+                P[2][n] = -3.85f + 0.85f * k;
+            }
+    int lattice = n;
+    const float nudge[6] = {1e-3f, -1e-3f, 1e-5f, -1e-5f, 1e-6f, -1e-6f};
+    for (int c = 0; c < 8; c++) {
+        /* the corner in the world (w2l is a rotation and a translation) */
+        float q[3] = {c & 1 ? o->half[0] : -o->half[0], c & 2 ? o->half[1] : -o->half[1],
+                      c & 4 ? o->half[2] : -o->half[2]},
+              b[3];
+        for (int a = 0; a < 3; a++)
+            b[a] = o->w2l[0][a] * (q[0] - o->w2l[0][3]) + o->w2l[1][a] * (q[1] - o->w2l[1][3]) +
+                   o->w2l[2][a] * (q[2] - o->w2l[2][3]);
+        const float far[6] = {0.0f, 0.01f, 0.5f, 1.0f, 3.0f, 10.0f};
+        for (int e = 0; e < 6; e++)
+            for (int a = 0; a < 8; a++)
+                for (int f = 0; f < 6; f++, n++) {
+                    float bb[3] = {b[0] + (a & 1 ? nudge[e] : -nudge[e]), b[1] + (a & 2 ? nudge[e] : -nudge[e]),
+                                   b[2] + (a & 4 ? nudge[e] : -nudge[e])};
+                    for (int m = 0; m < 3; m++)
+                        P[m][n] = v->directional ? bb[m] + far[f] * dir[m] : bb[m] + far[f] * (bb[m] - pos[m]);
+                }
+    }
+    for (int m = 0; m < 3; m++)
+        for (int k = n; k < MAXP + 8; k++)
+            P[m][k] = P[m][n - 1];
+    *culled = 0;
+    *total = lattice;
+    for (int b = 0; b < n; b += 8) {
+        float t8[24];
+        uint32_t bits = nc_light_volume_reach8(v, P[0] + b, P[1] + b, P[2] + b);
+        nc_light_volume_lookup8(v, P[0] + b, P[1] + b, P[2] + b, t8);
+        for (int l = 0; l < 8 && b + l < n; l++) {
+            if (bits >> l & 1)
+                continue;
+            float x[3] = {P[0][b + l], P[1][b + l], P[2][b + l]}, t1[3];
+            nc_light_volume_lookup(v, x, t1);
+            for (int c = 0; c < 3; c++)
+                *sound = *sound && t1[c] == 0.0f && t8[8 * c + l] == 0.0f;
+            *culled += b + l < lattice;
+        }
+    }
+}
+
 /* The optical-depth grids towards a light through a bounded patterned fog (light_volume.h)
  * against a direct march from each point: a sun's light-aligned grid against a march of 256
  * steps, a point light's grid (nodes marched with the renderer's 8 steps) against the same
@@ -686,6 +747,15 @@ static void light_volume(void)
             printf("  light volume, %s%s: |dT| largest %.4f, RMS %.4f (tolerances %.3f, %.4f)\n", what[q],
                    coarse ? ", 4 nodes an axis" : "", e, rms, tol_max[q], tol_rms[q]);
             CHECK(coarse ? e > tol_max[q] && rms > tol_rms[q] : e < tol_max[q] && rms < tol_rms[q]);
+            /* Where the lookups may be other than 0: never a point whose lookup is not 0, and
+             * away from the grid's shadow (none for the light inside the box) most points. */
+            bool sound = true;
+            int culled, total;
+            reach_check(&v, &f8.fogs[0], dir, pos, &sound, &culled, &total);
+            printf("  light volume, %s%s: %d of %d lattice points outside its reach\n", what[q],
+                   coarse ? ", 4 nodes an axis" : "", culled, total);
+            CHECK(sound);
+            CHECK(q == 2 ? culled == 0 : culled > total / 4);
             free(v.tau);
         }
     }
