@@ -899,8 +899,9 @@ static nacre_result light_volumes_update(vol_state *st, const nc_post_input *in,
 }
 
 /* Optical depth towards light l through the patterned fogs at the 8 points X, Y, Z (lanes q <
- * count; tau[3q + c], capped at TAU_MAX; 0 where light_at finds no light): the bounded fogs from
- * their grids (light_volumes_update, 8 lookups at a time), the global ones marched. */
+ * count, the others 0; tau[8c + q], capped at TAU_MAX; 0 where light_at finds no light): the
+ * bounded fogs from their grids (light_volumes_update, 8 lookups at a time), the global ones
+ * marched (box_tau8 is the form without global ones). */
 static void patterned_tau8(const vol_state *st, uint32_t l, const float *X, const float *Y, const float *Z,
                            uint32_t count, float *tau, float *scratch)
 {
@@ -934,9 +935,91 @@ static void patterned_tau8(const vol_state *st, uint32_t l, const float *X, cons
             for (int c = 0; c < 3 && lit[q]; c++)
                 td[q][c] += t[8 * c + q];
     }
-    for (uint32_t q = 0; q < count; q++)
+    for (uint32_t q = 0; q < 8; q++)
         for (int c = 0; c < 3; c++)
-            tau[3 * q + c] = td[q][c] < TAU_MAX ? (float)td[q][c] : TAU_MAX;
+            tau[8 * c + q] = q >= count ? 0.0f : td[q][c] < TAU_MAX ? (float)td[q][c] : TAU_MAX;
+}
+
+/* Which of the 8 points X, Y, Z light l reaches, as light_at answers lane by lane: a directional
+ * light every point; a point light those at a distance d with 0 < d^2 < inf (1 / d^2 > 0); a
+ * spot those with the cosine c to its axis inside its outer cone (nc_spot_falloff > 0) besides.
+ * The arithmetic here is not light_at's (another order, other fused products), so the lanes
+ * where that could decide take light_at itself: d^2 beyond 1e30 (near overflow, or 1 / d^2 x a
+ * small falloff near underflow), and for a spot d^2 below 1e-30 (subnormal squares) or c within
+ * 1e-4 of the cone's cosine or, for the Cycles falloff (c x a step), of 0. Elsewhere the falloff
+ * is above 1e-12 or 0 and both cosines are within a few ulps of each other. */
+static nc_v8i lit8(const vlight *li, const float *X, const float *Y, const float *Z)
+{
+    if (li->type == NACRE_LIGHT_DIRECTIONAL)
+        return (nc_v8i){0} == 0;
+    nc_v8f vx = nc_v8_load(X) - li->pos[0], vy = nc_v8_load(Y) - li->pos[1], vz = nc_v8_load(Z) - li->pos[2];
+    nc_v8f d2 = vx * vx + vy * vy + vz * vz;
+    /* Fused or not, a sum of squares is 0 only if each square rounds to 0: d2 > 0 as light_at's. */
+    nc_v8i positive = d2 > 0.0f, unsure = positive & ~(d2 < 1e30f), lit = positive & ~unsure;
+    if (li->type == NACRE_LIGHT_SPOT && nc_v8_bits(lit)) {
+        const nc_v8i abs_mask = (nc_v8i){0} + 0x7fffffff; /* fabsf: the sign bit cleared */
+        nc_v8f c = (vx * li->dir[0] + vy * li->dir[1] + vz * li->dir[2]) / nc_v8_sqrt(nc_v8_sel(lit, d2, nc_v8_splat(1.0f)));
+        nc_v8i odd = ~(d2 >= 1e-30f) | ~((nc_v8f)((nc_v8i)(c - li->co) & abs_mask) > 1e-4f);
+        nc_v8i inside = c > li->co;
+        if (li->falloff == NACRE_SPOT_FALLOFF_CYCLES) {
+            odd |= ~((nc_v8f)((nc_v8i)c & abs_mask) > 1e-4f);
+            inside &= c > 0.0f;
+        }
+        unsure |= lit & odd;
+        lit &= ~odd & inside;
+    }
+    for (uint32_t b = nc_v8_bits(unsure); b; b &= b - 1) {
+        int q = __builtin_ctz(b);
+        const float x[3] = {X[q], Y[q], Z[q]};
+        float wi[3], dist, scale;
+        lit[q] = light_at(li, x, wi, &dist, &scale) ? -1 : 0;
+    }
+    return lit;
+}
+
+/* patterned_tau8 when every patterned fog is bounded (their optical depths all come from their
+ * light grids), 8 lanes at once: tau[8c + q] (channel planes). The same sums in the same order
+ * as patterned_tau8's (in double, fog after fog, then rounded to float and capped, 0 where the
+ * light does not reach), so the results are equal bit for bit; gray: every such fog is gray
+ * (light_volume.h), and channel 0 is every channel. False, with tau not written, where every
+ * lane is 0: outside every grid's reach (most of the frame, for a small cloud), or unlit. */
+static bool box_tau8(const vol_state *st, uint32_t l, const float *X, const float *Y, const float *Z, bool gray,
+                     float *tau)
+{
+    typedef double v8d __attribute__((vector_size(64)));
+    const nc_v8f zero = {0};
+    const lvol *grids = st->lvols + (size_t)l * st->field.count;
+    uint32_t reached = 0, fog_reach[NACRE_MAX_FOGS];
+    for (uint32_t i = 0; i < st->field.count; i++) {
+        fog_reach[i] = st->field.fogs[i].patterned ? nc_light_volume_reach8(&grids[i].v, X, Y, Z) : 0;
+        reached |= fog_reach[i];
+    }
+    if (!reached)
+        return false;
+    const nc_v8i lit = lit8(&st->lights[l], X, Y, Z);
+    if (!nc_v8_bits(lit))
+        return false;
+    const int channels = gray ? 1 : 3;
+    v8d acc[3] = {{0}, {0}, {0}};
+    for (uint32_t i = 0; i < st->field.count; i++) {
+        /* A grid that reaches none of the lanes adds +0 (its lookups are >= +0), as before. */
+        if (!fog_reach[i])
+            continue;
+        float t[24];
+        nc_light_volume_lookup8(&grids[i].v, X, Y, Z, t);
+        for (int c = 0; c < channels; c++)
+            acc[c] += __builtin_convertvector(nc_v8_load(t + 8 * c), v8d);
+    }
+    for (int c = 0; c < channels; c++) {
+        /* Capped after the rounding: a sum below TAU_MAX that rounds to it is TAU_MAX either way. */
+        nc_v8f r = __builtin_convertvector(acc[c], nc_v8f);
+        nc_v8_store(tau + 8 * c, nc_v8_sel(lit, nc_v8_sel(r < TAU_MAX, r, nc_v8_splat(TAU_MAX)), zero));
+    }
+    if (gray) {
+        memcpy(tau + 8, tau, 8 * sizeof(float));
+        memcpy(tau + 16, tau, 8 * sizeof(float));
+    }
+    return true;
 }
 
 /* A froxel that scatters nothing (sigma_s 0 in every channel) has no source whatever its light:
@@ -1037,11 +1120,23 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
     st->tau_count = st->light_count;
     if (!any)
         return NACRE_OK;
+    /* Every patterned fog bounded: box_tau8 (gray: and all of them gray). */
+    bool boxes = true, gray = true;
+    for (uint32_t i = 0; i < st->field.count; i++) {
+        const nc_fog_one *o = &st->field.fogs[i];
+        if (o->patterned) {
+            boxes = boxes && o->box;
+            gray = gray && nc_light_volume_fog_gray(o);
+        }
+    }
     int64_t cols = (int64_t)cols_c;
     uint32_t Dc = st->Dc;
 #pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
     for (int64_t cc = 0; cc < cols; cc++) {
         float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
+        /* The nodes' points, one array per coordinate, the last used one repeated to a multiple
+         * of 8: each light reads them 8 at a time. */
+        float NX[MAX_SLICES / 2 + 8], NY[MAX_SLICES / 2 + 8], NZ[MAX_SLICES / 2 + 8];
         float o[3], d[3];
         double scale, offset;
         uint32_t gi = (uint32_t)(cc % st->Wc), gj = (uint32_t)(cc / st->Wc);
@@ -1061,6 +1156,10 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
         if (used > 0) {
             column_ray(st, 2 * gi, 2 * gj, o, d, &scale, &offset);
             column_points(st, o, d, scale, offset, p, NULL);
+            for (uint32_t c = first, end = first + ((used - first + 7) & ~7u); c < end; c++) {
+                const float *x = p + 6 * (size_t)(c < used ? c : used - 1);
+                NX[c] = x[0], NY[c] = x[1], NZ[c] = x[2];
+            }
         }
         for (uint32_t l = 0; l < st->light_count; l++) {
             if (!st->tau_redo[l])
@@ -1071,20 +1170,21 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
             for (uint32_t c0 = first; c0 < used; c0 += 8) {
                 /* 8 nodes at a time (the last repeated past used) */
                 uint32_t count = used - c0 < 8 ? used - c0 : 8;
-                float X[8], Y[8], Z[8], t[24];
-                for (uint32_t q = 0; q < 8; q++) {
-                    const float *x = p + 6 * (size_t)(c0 + (q < count ? q : count - 1));
-                    X[q] = x[0], Y[q] = x[1], Z[q] = x[2];
+                float t[24];
+                if (boxes) {
+                    if (!box_tau8(st, l, NX + c0, NY + c0, NZ + c0, gray, t))
+                        continue; /* 0, as written */
+                } else {
+                    patterned_tau8(st, l, NX + c0, NY + c0, NZ + c0, count, t, tau);
                 }
-                patterned_tau8(st, l, X, Y, Z, count, t, tau);
-                for (uint32_t q = 0; q < count; q++) {
-                    uint32_t c = c0 + q;
-                    for (int ch = 0; ch < 3; ch++)
-                        out[(size_t)ch * Dc + c] = t[3 * q + ch];
-                    if (t[3 * q] != 0.0f || t[3 * q + 1] != 0.0f || t[3 * q + 2] != 0.0f) {
-                        lo = c < lo ? c : lo;
-                        hi = c + 1;
-                    }
+                for (int ch = 0; ch < 3; ch++)
+                    memcpy(out + (size_t)ch * Dc + c0, t + 8 * ch, count * sizeof(float));
+                nc_v8i nonzero = (nc_v8_load(t) != 0.0f) | (nc_v8_load(t + 8) != 0.0f) | (nc_v8_load(t + 16) != 0.0f);
+                uint32_t bits = nc_v8_bits(nonzero & nc_v8_first(count));
+                if (bits) {
+                    uint32_t a = c0 + (uint32_t)__builtin_ctz(bits);
+                    lo = a < lo ? a : lo;
+                    hi = c0 + 32 - (uint32_t)__builtin_clz(bits);
                 }
             }
             range[0] = lo;

@@ -28,7 +28,13 @@
  *     transmittance against a direct march from points in and around the box (a sun's
  *     light-aligned grid against a 256-step march, a point light's grid against the same 8-step
  *     march its nodes use): largest |dT| under 0.1 (sun) and 0.03 (point), RMS under 0.008 and
- *     0.006, and the same checks failing on a grid of 4 nodes an axis;
+ *     0.006, and the same checks failing on a grid of 4 nodes an axis; where their lookups may be
+ *     other than 0 (nc_light_volume_reach8) contains every point whose lookup is not (a lattice
+ *     and points nudged across the edges of the box's shadow) and leaves out over a quarter of it
+ *     for the sun and the point light outside; a gray fog's grids (one
+ *     channel stored) equal its three-channel grids bit for bit, and only gray fogs are found gray;
+ *   - bounded patterned fogs alone (the coarse optical depths 8 lanes at a time) give the frame
+ *     that the general path (a global patterned fog of zero density added) gives, bit for bit;
  *   - frames kept between renders (froxel grid, its fill, each light's coarse optical depths and
  *     grids; the analytic pass's per-pixel T and L): a renderer's second, unchanged frame and its frames
  *     after moving a sun, a spot, the camera or editing the fog equal a new renderer's frame of
@@ -341,6 +347,66 @@ static void thread_count(void)
     }
 }
 
+/* Bounded patterned fogs only (a colored box, a gray ellipsoid) under a spot whose cone edge
+ * crosses them, a sun and a point light inside the box: the froxels' coarse optical depths come
+ * from box_tau8 (8 lanes, which lanes each light reaches in vector form); with a global patterned
+ * fog of zero density added they come from the general path (marched and summed point by point).
+ * Both frames are equal bit for bit. */
+#define BOXES_SCENE(MORE_FOG)                                                                       \
+    "{\"camera\": {\"position\": [0, 3, 6], \"target\": [0, 0, 0]}, \"environment\": 0.1,"              \
+    "\"materials\": {\"m\": {\"type\": \"opaque\"}},"                                                 \
+    "\"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"},"                          \
+    "{\"shape\": {\"type\": \"plane\", \"size\": [8, 8]}, \"material\": \"m\","                      \
+    "\"transform\": {\"translate\": [0, -1, 0]}}],"                                                   \
+    "\"lights\": [{\"type\": \"spot\", \"position\": [0.5, 3, 0], \"direction\": [-0.2, -1, 0.1],"      \
+    "\"intensity\": 20, \"outer_angle\": 30, \"inner_angle\": 20},"                                  \
+    "{\"type\": \"directional\", \"direction\": [1, -1, 0], \"irradiance\": 1},"                     \
+    "{\"type\": \"point\", \"position\": [2, 0.5, 1], \"intensity\": 10}],"                          \
+    "\"fog\": [{\"shape\": \"box\", \"size\": [6, 4, 6], \"rotate\": [0, 20, 0],"                     \
+    "\"sigma_s\": [0.3, 0.5, 0.7], \"height_falloff\": 0.3,"                                        \
+    "\"pattern\": {\"type\": \"noise\", \"cell_size\": 0.5, \"sigma_a2\": 0, \"sigma_s2\": 0}},"      \
+    "{\"shape\": \"sphere\", \"center\": [-1, 0.5, 0], \"size\": [2, 2, 3], \"sigma_a\": 0.2,"        \
+    "\"sigma_s\": 1.5, \"pattern\": {\"type\": \"checker\", \"cell_size\": 0.4, \"sigma_a2\": 0,"      \
+    "\"sigma_s2\": 0.5}}" MORE_FOG "]}"
+
+/* The lanes whose light box_tau8 leaves to light_at: an orthographic camera (SUN_SCENE's) whose
+ * nodes of one slice lie in the plane of a spot pointing along x with a 45 degree cone, so that
+ * the nodes on the diagonal of the odd-sized grid (x = y) lie on the cone's edge. */
+#define CONE_EDGE_SCENE(MORE_FOG)                                                                   \
+    "{\"camera\": {\"type\": \"orthographic\", \"position\": [0, 0, 5], \"target\": [0, 0, 0], "    \
+    "\"height\": 4, \"near\": 1, \"far\": 9}, \"environment\": 0,"                                  \
+    "\"materials\": {\"black\": {\"type\": \"opaque\", \"diffuse\": 0, \"specular\": 0}},"          \
+    "\"objects\": [{\"shape\": {\"type\": \"sphere\", \"radius\": 0.1}, \"material\": \"black\","    \
+    "\"transform\": {\"translate\": [0, 0, 20]}, \"shadows\": false}],"                             \
+    "\"lights\": [{\"type\": \"spot\", \"position\": [0, 0, 2.875], \"direction\": [1, 0, 0],"       \
+    "\"intensity\": 20, \"outer_angle\": 45, \"inner_angle\": 30}],"                                \
+    "\"fog\": [{\"shape\": \"box\", \"center\": [1, 0, 2], \"size\": [2.5, 4, 4], \"sigma_s\": 2,"     \
+    "\"pattern\": {\"type\": \"noise\", \"cell_size\": 0.3, \"sigma_a2\": 0, \"sigma_s2\": 0}}" MORE_FOG "]}"
+
+#define ZERO_GLOBAL_FOG                                                                             \
+    ",{\"shape\": \"global\", \"sigma_s\": 0, \"pattern\": {\"type\": \"noise\", \"cell_size\": 1,"   \
+    "\"sigma_a2\": 0, \"sigma_s2\": 0}}"
+
+static void box_fogs(void)
+{
+    const char *json[2][2] = {{BOXES_SCENE(""), BOXES_SCENE(ZERO_GLOBAL_FOG)},
+                              {CONE_EDGE_SCENE(""), CONE_EDGE_SCENE(ZERO_GLOBAL_FOG)}};
+    for (int q = 0; q < 2; q++) {
+        nacre_image img[2] = {{0}, {0}};
+        int w = q ? 66 : 96, h = q ? 66 : 72;
+        nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_FROXEL, w, h);
+        rs.volumetrics.froxel_width = w / 2;
+        rs.volumetrics.froxel_height = h / 2;
+        rs.volumetrics.froxel_slices = 32;
+        for (int k = 0; k < 2; k++)
+            CHECK(media_render(ctx, json[q][k], &rs, &img[k], NULL));
+        CHECK(img[0].pixels && img[1].pixels &&
+              memcmp(img[0].pixels, img[1].pixels, (size_t)w * h * 3 * sizeof(float)) == 0);
+        nacre_image_free(ctx, &img[0]);
+        nacre_image_free(ctx, &img[1]);
+    }
+}
+
 /* ---- frames kept between renders ------------------------------------------------------------ */
 
 /* A frame of s by renderer r, then by a new renderer: equal bit for bit. */
@@ -564,6 +630,64 @@ static double light_volume_error(const nc_fog_field *ref, const nc_light_volume 
     return worst;
 }
 
+/* nc_light_volume_reach8 on v: at points of a lattice around the box and at points just inside
+ * and outside the edges of the box's shadow (along rays from the light past each corner of the
+ * box, nudged by 1e-3 .. 1e-6 of a unit), every point it excludes has lookups 0 (scalar and 8
+ * lanes, every channel; *sound); *culled of *total lattice points are excluded. */
+static void reach_check(const nc_light_volume *v, const nc_fog_one *o, const float dir[3], const float pos[3],
+                        bool *sound, int *culled, int *total)
+{
+    enum { MAXP = 11 * 9 * 10 + 8 * 6 * 8 * 6 };
+    static float P[3][MAXP + 8];
+    int n = 0;
+    for (int i = 0; i < 11; i++)
+        for (int j = 0; j < 9; j++)
+            for (int k = 0; k < 10; k++, n++) {
+                P[0][n] = -4.1f + 0.82f * i;
+                P[1][n] = -3.4f + 0.85f * j;
+                P[2][n] = -3.85f + 0.85f * k;
+            }
+    int lattice = n;
+    const float nudge[6] = {1e-3f, -1e-3f, 1e-5f, -1e-5f, 1e-6f, -1e-6f};
+    for (int c = 0; c < 8; c++) {
+        /* the corner in the world (w2l is a rotation and a translation) */
+        float q[3] = {c & 1 ? o->half[0] : -o->half[0], c & 2 ? o->half[1] : -o->half[1],
+                      c & 4 ? o->half[2] : -o->half[2]},
+              b[3];
+        for (int a = 0; a < 3; a++)
+            b[a] = o->w2l[0][a] * (q[0] - o->w2l[0][3]) + o->w2l[1][a] * (q[1] - o->w2l[1][3]) +
+                   o->w2l[2][a] * (q[2] - o->w2l[2][3]);
+        const float far[6] = {0.0f, 0.01f, 0.5f, 1.0f, 3.0f, 10.0f};
+        for (int e = 0; e < 6; e++)
+            for (int a = 0; a < 8; a++)
+                for (int f = 0; f < 6; f++, n++) {
+                    float bb[3] = {b[0] + (a & 1 ? nudge[e] : -nudge[e]), b[1] + (a & 2 ? nudge[e] : -nudge[e]),
+                                   b[2] + (a & 4 ? nudge[e] : -nudge[e])};
+                    for (int m = 0; m < 3; m++)
+                        P[m][n] = v->directional ? bb[m] + far[f] * dir[m] : bb[m] + far[f] * (bb[m] - pos[m]);
+                }
+    }
+    for (int m = 0; m < 3; m++)
+        for (int k = n; k < MAXP + 8; k++)
+            P[m][k] = P[m][n - 1];
+    *culled = 0;
+    *total = lattice;
+    for (int b = 0; b < n; b += 8) {
+        float t8[24];
+        uint32_t bits = nc_light_volume_reach8(v, P[0] + b, P[1] + b, P[2] + b);
+        nc_light_volume_lookup8(v, P[0] + b, P[1] + b, P[2] + b, t8);
+        for (int l = 0; l < 8 && b + l < n; l++) {
+            if (bits >> l & 1)
+                continue;
+            float x[3] = {P[0][b + l], P[1][b + l], P[2][b + l]}, t1[3];
+            nc_light_volume_lookup(v, x, t1);
+            for (int c = 0; c < 3; c++)
+                *sound = *sound && t1[c] == 0.0f && t8[8 * c + l] == 0.0f;
+            *culled += b + l < lattice;
+        }
+    }
+}
+
 /* The optical-depth grids towards a light through a bounded patterned fog (light_volume.h)
  * against a direct march from each point: a sun's light-aligned grid against a march of 256
  * steps, a point light's grid (nodes marched with the renderer's 8 steps) against the same
@@ -626,8 +750,92 @@ static void light_volume(void)
             printf("  light volume, %s%s: |dT| largest %.4f, RMS %.4f (tolerances %.3f, %.4f)\n", what[q],
                    coarse ? ", 4 nodes an axis" : "", e, rms, tol_max[q], tol_rms[q]);
             CHECK(coarse ? e > tol_max[q] && rms > tol_rms[q] : e < tol_max[q] && rms < tol_rms[q]);
+            /* Where the lookups may be other than 0: never a point whose lookup is not 0, and
+             * away from the grid's shadow (none for the light inside the box) most points. */
+            bool sound = true;
+            int culled, total;
+            reach_check(&v, &f8.fogs[0], dir, pos, &sound, &culled, &total);
+            printf("  light volume, %s%s: %d of %d lattice points outside its reach\n", what[q],
+                   coarse ? ", 4 nodes an axis" : "", culled, total);
+            CHECK(sound);
+            CHECK(q == 2 ? culled == 0 : culled > total / 4);
             free(v.tau);
         }
+    }
+    nacre_scene_destroy(s);
+}
+
+/* Gray fogs' grids (light_volume.h): one channel stored, copied to the others. Which fogs are
+ * gray (equal coefficients in every channel, medium 2's too where the pattern uses it); a gray
+ * fog's grids, for a sun and for point lights outside and inside it, equal the three-channel
+ * grids of the same fog bit for bit in every channel, by both lookups, at points inside, beside
+ * and beyond the box (a gray grid read with the wrong stride or channel fails). */
+static void light_volume_gray(void)
+{
+    const char *json = "{\"materials\": {\"m\": {\"type\": \"opaque\"}},"
+                       "\"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"}],"
+                       "\"fog\": [{\"shape\": \"box\", \"center\": [0.2, 0.1, -0.1], \"size\": [4, 2, 3],"
+                       "\"rotate\": [10, 35, 0], \"sigma_a\": 0.1, \"sigma_s\": 0.9, \"height_falloff\": 0.5,"
+                       "\"pattern\": {\"type\": \"noise\", \"cell_size\": 0.5, \"sigma_a2\": 0, \"sigma_s2\": 0}},"
+                       "{\"shape\": \"box\", \"size\": [1, 1, 1], \"sigma_s\": [0.4, 0.8, 1.2],"
+                       "\"pattern\": {\"type\": \"noise\", \"cell_size\": 0.5, \"sigma_a2\": 0, \"sigma_s2\": 0}},"
+                       "{\"shape\": \"box\", \"size\": [1, 1, 1], \"sigma_s\": 0.5,"
+                       "\"pattern\": {\"type\": \"checker\", \"cell_size\": 0.5, \"sigma_a2\": 0,"
+                       "\"sigma_s2\": [0.1, 0.2, 0.3]}},"
+                       "{\"shape\": \"sphere\", \"size\": [1, 1, 1], \"sigma_a\": [0.1, 0.1, 0.2], \"sigma_s\": 0.5}]}";
+    nacre_scene *s = media_load(ctx, json, NULL);
+    if (!s)
+        return;
+    nc_fog_field f;
+    nc_fog_field_init(&f, s, 4, 8);
+    CHECK(nc_light_volume_fog_gray(&f.fogs[0]));
+    CHECK(!nc_light_volume_fog_gray(&f.fogs[1]));
+    CHECK(!nc_light_volume_fog_gray(&f.fogs[2]));
+    CHECK(!nc_light_volume_fog_gray(&f.fogs[3]));
+    float dir[3] = {0.3f, -1.0f, 0.2f}, out[3] = {1.5f, 2.5f, 0.5f}, in[3] = {0.3f, 0.0f, 0.1f};
+    float l = sqrtf(dir[0] * dir[0] + dir[1] * dir[1] + dir[2] * dir[2]);
+    for (int c = 0; c < 3; c++)
+        dir[c] /= l;
+    for (int q = 0; q < 3; q++) {
+        const float *pos = q == 1 ? out : in;
+        uint32_t res = q == 0 ? 16u : 12u;
+        nc_light_volume gray, rgb;
+        nc_light_volume_setup(&gray, &f.fogs[0], q == 0, dir, pos, res);
+        nc_light_volume_setup(&rgb, &f.fogs[0], q == 0, dir, pos, res);
+        CHECK(gray.gray);
+        rgb.gray = false;
+        CHECK(nc_light_volume_floats(&gray) == nc_light_volume_nodes(&gray) &&
+              nc_light_volume_floats(&rgb) == 3 * nc_light_volume_nodes(&rgb));
+        gray.tau = malloc(nc_light_volume_floats(&gray) * sizeof(float));
+        rgb.tau = malloc(nc_light_volume_floats(&rgb) * sizeof(float));
+        CHECK(gray.tau && rgb.tau);
+        if (gray.tau && rgb.tau) {
+            nc_light_volume_build(&f, &gray, 2);
+            nc_light_volume_build(&f, &rgb, 2);
+            bool same = true, shaded = false;
+            for (int b = 0; b < 64; b++) {
+                float X[8], Y[8], Z[8], t8[24], r8[24];
+                for (int q8 = 0; q8 < 8; q8++) {
+                    int m = 8 * b + q8;
+                    X[q8] = -3.0f + 6.0f * (float)((m * 37) % 101) / 100.0f;
+                    Y[q8] = -2.5f + 5.0f * (float)((m * 53) % 97) / 96.0f;
+                    Z[q8] = -3.0f + 6.0f * (float)((m * 71) % 89) / 88.0f;
+                }
+                nc_light_volume_lookup8(&gray, X, Y, Z, t8);
+                nc_light_volume_lookup8(&rgb, X, Y, Z, r8);
+                same = same && memcmp(t8, r8, sizeof(t8)) == 0;
+                for (int q8 = 0; q8 < 8; q8++) {
+                    float x[3] = {X[q8], Y[q8], Z[q8]}, t1[3], r1[3];
+                    nc_light_volume_lookup(&gray, x, t1);
+                    nc_light_volume_lookup(&rgb, x, r1);
+                    same = same && memcmp(t1, r1, sizeof(t1)) == 0;
+                    shaded = shaded || r1[0] > 0.1f;
+                }
+            }
+            CHECK(same && shaded);
+        }
+        free(gray.tau);
+        free(rgb.tau);
     }
     nacre_scene_destroy(s);
 }
@@ -915,10 +1123,12 @@ int main(void)
     CHECK(nacre_context_create(NULL, &ctx) == NACRE_OK);
     field_transmittance();
     light_volume();
+    light_volume_gray();
     fast_exp();
     bad_settings();
     constant_source();
     thread_count();
+    box_fogs();
     frame_reuse();
     clear_columns();
     sun_closed_form();
