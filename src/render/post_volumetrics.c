@@ -152,6 +152,7 @@ typedef struct vol_state {
     vfog gfog[NACRE_MAX_FOGS];
     uint32_t gfog_count;
     bool analytic_boxes; /* any box fog without pattern (exact per froxel, nc_fog_field_optical_depth) */
+    bool tau_gray;       /* tau_grid's three channels are equal (tau_grid_fill) */
     vlight *lights;
     uint32_t light_capacity, light_count;
     /* Per light, the min-max table of its shadow map, which decides most of froxel_light's
@@ -1116,11 +1117,8 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
         st->tau_keys[l] = k;
         any = any || st->tau_redo[l];
     }
-    /* Valid once the loop below has run (it cannot fail). */
-    st->tau_count = st->light_count;
-    if (!any)
-        return NACRE_OK;
-    /* Every patterned fog bounded: box_tau8 (gray: and all of them gray). */
+    /* Every patterned fog bounded: box_tau8 (gray: and all of them gray, so that the grid's
+     * three channels are equal). */
     bool boxes = true, gray = true;
     for (uint32_t i = 0; i < st->field.count; i++) {
         const nc_fog_one *o = &st->field.fogs[i];
@@ -1129,6 +1127,11 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
             gray = gray && nc_light_volume_fog_gray(o);
         }
     }
+    st->tau_gray = boxes && gray;
+    /* Valid once the loop below has run (it cannot fail). */
+    st->tau_count = st->light_count;
+    if (!any)
+        return NACRE_OK;
     int64_t cols = (int64_t)cols_c;
     uint32_t Dc = st->Dc;
 #pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
@@ -1387,7 +1390,7 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t 
         }
     }
     const size_t cols_c = (size_t)st->Wc * st->Hc, nodes = cols_c * st->Dc;
-    const int channels = 3; /* of the coarse grid that differ */
+    const int channels = st->tau_gray ? 1 : 3; /* of the coarse grid that differ */
     for (uint32_t l = 0; l < st->light_count; l++) {
         const vlight *li = &st->lights[l];
         if (!(li->e[0] != 0.0f || li->e[1] != 0.0f || li->e[2] != 0.0f))

@@ -34,7 +34,8 @@
  *     for the sun and the point light outside; a gray fog's grids (one
  *     channel stored) equal its three-channel grids bit for bit, and only gray fogs are found gray;
  *   - bounded patterned fogs alone (the coarse optical depths 8 lanes at a time) give the frame
- *     that the general path (a global patterned fog of zero density added) gives, bit for bit;
+ *     that the general path (a global patterned fog of zero density added) gives, bit for bit,
+ *     and a colored box with its channels reversed swaps the frame's red and blue;
  *   - frames kept between renders (froxel grid, its fill, each light's coarse optical depths and
  *     grids; the analytic pass's per-pixel T and L): a renderer's second, unchanged frame and its frames
  *     after moving a sun, a spot, the camera or editing the fog equal a new renderer's frame of
@@ -352,7 +353,7 @@ static void thread_count(void)
  * from box_tau8 (8 lanes, which lanes each light reaches in vector form); with a global patterned
  * fog of zero density added they come from the general path (marched and summed point by point).
  * Both frames are equal bit for bit. */
-#define BOXES_SCENE(MORE_FOG)                                                                       \
+#define BOXES_SCENE(SIGMA_S, MORE_FOG)                                                                     \
     "{\"camera\": {\"position\": [0, 3, 6], \"target\": [0, 0, 0]}, \"environment\": 0.1,"              \
     "\"materials\": {\"m\": {\"type\": \"opaque\"}},"                                                 \
     "\"objects\": [{\"shape\": {\"type\": \"sphere\"}, \"material\": \"m\"},"                          \
@@ -363,7 +364,7 @@ static void thread_count(void)
     "{\"type\": \"directional\", \"direction\": [1, -1, 0], \"irradiance\": 1},"                     \
     "{\"type\": \"point\", \"position\": [2, 0.5, 1], \"intensity\": 10}],"                          \
     "\"fog\": [{\"shape\": \"box\", \"size\": [6, 4, 6], \"rotate\": [0, 20, 0],"                     \
-    "\"sigma_s\": [0.3, 0.5, 0.7], \"height_falloff\": 0.3,"                                        \
+    "\"sigma_s\": " SIGMA_S ", \"height_falloff\": 0.3,"                                        \
     "\"pattern\": {\"type\": \"noise\", \"cell_size\": 0.5, \"sigma_a2\": 0, \"sigma_s2\": 0}},"      \
     "{\"shape\": \"sphere\", \"center\": [-1, 0.5, 0], \"size\": [2, 2, 3], \"sigma_a\": 0.2,"        \
     "\"sigma_s\": 1.5, \"pattern\": {\"type\": \"checker\", \"cell_size\": 0.4, \"sigma_a2\": 0,"      \
@@ -389,7 +390,7 @@ static void thread_count(void)
 
 static void box_fogs(void)
 {
-    const char *json[2][2] = {{BOXES_SCENE(""), BOXES_SCENE(ZERO_GLOBAL_FOG)},
+    const char *json[2][2] = {{BOXES_SCENE("[0.3, 0.5, 0.7]", ""), BOXES_SCENE("[0.3, 0.5, 0.7]", ZERO_GLOBAL_FOG)},
                               {CONE_EDGE_SCENE(""), CONE_EDGE_SCENE(ZERO_GLOBAL_FOG)}};
     for (int q = 0; q < 2; q++) {
         nacre_image img[2] = {{0}, {0}};
@@ -405,6 +406,28 @@ static void box_fogs(void)
         nacre_image_free(ctx, &img[0]);
         nacre_image_free(ctx, &img[1]);
     }
+    /* The colored box's channels reversed (everything else in the scene is gray): the frame's red
+     * and blue swap. Its coarse optical depths differ by channel (not gray, three channels
+     * interpolated); one channel's depths taken for all three would break the swap. */
+    nacre_image img[2] = {{0}, {0}};
+    nacre_render_settings rs = media_settings(NACRE_METHOD_PHONG, NACRE_VOLUMETRICS_FROXEL, 96, 72);
+    rs.volumetrics.froxel_width = 48;
+    rs.volumetrics.froxel_height = 36;
+    rs.volumetrics.froxel_slices = 32;
+    CHECK(media_render(ctx, BOXES_SCENE("[0.3, 0.5, 0.7]", ""), &rs, &img[0], NULL));
+    CHECK(media_render(ctx, BOXES_SCENE("[0.7, 0.5, 0.3]", ""), &rs, &img[1], NULL));
+    double worst = 0, top = 0;
+    for (int y = 0; img[0].pixels && img[1].pixels && y < 72; y++)
+        for (int x = 0; x < 96; x++)
+            for (int c = 0; c < 3; c++) {
+                double a = media_px(&img[0], x, y, c), b = media_px(&img[1], x, y, 2 - c);
+                top = fmax(top, a);
+                worst = fmax(worst, fabs(a - b));
+            }
+    printf("  colored patterned box, channels reversed: largest difference %.2e of %.3f\n", worst, top);
+    CHECK(top > 0 && worst <= 1e-6 * top);
+    nacre_image_free(ctx, &img[0]);
+    nacre_image_free(ctx, &img[1]);
 }
 
 /* ---- frames kept between renders ------------------------------------------------------------ */
