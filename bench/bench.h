@@ -44,6 +44,6 @@ int nc_bench_layered(bool json, int runs, const char *scene_path, const nc_bench
 int nc_bench_particles(bool json, int runs, const char *only);
 /* The froxel stages, the per-pixel march and the analytic fog pass (bench/bench_volumetrics.c);
  * froxel_only: the froxel stages of the camera-turning frames alone. */
-int nc_bench_volumetrics(bool json, int runs, bool raymarch, bool froxel_only);
+int nc_bench_volumetrics(bool json, int runs, bool raymarch, bool froxel_only, const uint32_t froxels[3]);
 
 #endif /* NACRE_BENCH_H */

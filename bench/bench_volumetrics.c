@@ -146,7 +146,7 @@ out:
     return rc;
 }
 
-int nc_bench_volumetrics(bool json, int runs, bool raymarch, bool froxel_only)
+int nc_bench_volumetrics(bool json, int runs, bool raymarch, bool froxel_only, const uint32_t froxels[3])
 {
     nacre_context *ctx = nc_tool_context(0);
     if (!ctx)
@@ -171,6 +171,9 @@ int nc_bench_volumetrics(bool json, int runs, bool raymarch, bool froxel_only)
     double froxel[NACRE_STAGE_COUNT + 1], sun_turns[NACRE_STAGE_COUNT + 1], still[NACRE_STAGE_COUNT + 1];
     double march[NACRE_STAGE_COUNT + 1] = {0}, off[NACRE_STAGE_COUNT + 1], off_still[NACRE_STAGE_COUNT + 1];
     rs.volumetrics.mode = NACRE_VOLUMETRICS_FROXEL;
+    rs.volumetrics.froxel_width = froxels[0];
+    rs.volumetrics.froxel_height = froxels[1];
+    rs.volumetrics.froxel_slices = froxels[2];
     if ((rc = time_frames(ctx, scene, &rs, runs, CAMERA_TURNS, sun, froxel)) != 0)
         goto out;
     if (froxel_only) {
@@ -178,14 +181,15 @@ int nc_bench_volumetrics(bool json, int runs, bool raymarch, bool froxel_only)
                         froxel[NACRE_STAGE_FROXEL_INTEGRATE], froxel[NACRE_STAGE_FROXEL_APPLY]};
         double sum = st[0] + st[1] + st[2] + st[3];
         if (json)
-            printf("{\"bench\":\"volumetrics\",\"only\":\"froxel\",\"threads\":%d,\"runs\":%d,\"froxel_fill_ms\":%.3f,"
+            printf("{\"bench\":\"volumetrics\",\"only\":\"froxel\",\"froxels\":[%u,%u,%u],\"threads\":%d,\"runs\":%d,"
+                   "\"froxel_fill_ms\":%.3f,"
                    "\"froxel_light_ms\":%.3f,\"froxel_integrate_ms\":%.3f,\"froxel_apply_ms\":%.3f,"
                    "\"froxel_total_ms\":%.3f}\n",
-                   nacre_context_threads(ctx), runs, st[0], st[1], st[2], st[3], sum);
+                   froxels[0], froxels[1], froxels[2], nacre_context_threads(ctx), runs, st[0], st[1], st[2], st[3], sum);
         else
-            printf("volumetrics, camera turning (median of %d runs, ms): froxel fill %.3f, light %.3f, integrate "
-                   "%.3f, apply %.3f, total %.3f\n",
-                   runs, st[0], st[1], st[2], st[3], sum);
+            printf("volumetrics, camera turning, %ux%ux%u froxels (median of %d runs, ms): froxel fill %.3f, light "
+                   "%.3f, integrate %.3f, apply %.3f, total %.3f\n",
+                   froxels[0], froxels[1], froxels[2], runs, st[0], st[1], st[2], st[3], sum);
         rc = 0;
         goto out;
     }
@@ -217,13 +221,14 @@ int nc_bench_volumetrics(bool json, int runs, bool raymarch, bool froxel_only)
         snprintf(march_ms, sizeof(march_ms), "%.3f", march[NACRE_STAGE_RAYMARCH]);
     if (json) {
         printf("{\"bench\":\"volumetrics\",\"scene\":\"demo+fog\",\"method\":\"phong\",\"width\":1280,\"height\":720,"
-               "\"froxels\":[160,90,64],\"lights\":%u,\"fogs\":%u,\"threads\":%d,\"runs\":%d,"
+               "\"froxels\":[%u,%u,%u],\"lights\":%u,\"fogs\":%u,\"threads\":%d,\"runs\":%d,"
                "\"froxel_fill_ms\":%.3f,\"froxel_light_ms\":%.3f,\"froxel_integrate_ms\":%.3f,"
                "\"froxel_apply_ms\":%.3f,\"froxel_total_ms\":%.3f,\"raymarch_ms\":%s,\"raymarch_runs\":%d,"
                "\"fog_pass_ms\":%.3f,\"sun_turns\":{\"froxel_light_ms\":%.3f,\"froxel_integrate_ms\":%.3f,"
                "\"froxel_apply_ms\":%.3f,\"froxel_total_ms\":%.3f},\"still\":{\"froxel_apply_ms\":%.3f,"
                "\"froxel_total_ms\":%.3f,\"fog_pass_ms\":%.3f}}\n",
-               nacre_scene_light_count(scene), nacre_scene_fog_count(scene), threads, runs, fill, light, integ, apply,
+               froxels[0], froxels[1], froxels[2], nacre_scene_light_count(scene), nacre_scene_fog_count(scene), threads,
+               runs, fill, light, integ, apply,
                total, march_ms, march_runs, off[NACRE_STAGE_FOG], sun_turns[NACRE_STAGE_FROXEL_LIGHT],
                sun_turns[NACRE_STAGE_FROXEL_INTEGRATE], sun_turns[NACRE_STAGE_FROXEL_APPLY], sun_total,
                still[NACRE_STAGE_FROXEL_APPLY], still_total, off_still[NACRE_STAGE_FOG]);
@@ -231,7 +236,7 @@ int nc_bench_volumetrics(bool json, int runs, bool raymarch, bool froxel_only)
         printf("volumetrics: demo scene + %u lights, %u fogs (height fog, 128^3 cloud), phong, 1280x720,\n"
                "%d threads, median of %d runs (ms):\n",
                nacre_scene_light_count(scene), nacre_scene_fog_count(scene), threads, runs);
-        printf("  froxel 160x90x64  fill %8.3f\n", fill);
+        printf("  froxel %ux%ux%u  fill %8.3f\n", froxels[0], froxels[1], froxels[2], fill);
         printf("                    light %7.3f\n", light);
         printf("                integrate %7.3f\n", integ);
         printf("                    apply %7.3f\n", apply);

@@ -49,13 +49,14 @@ static const char bench_help[] =
     "           simulate, splat into 128^3, commit, the billboards and sprites passes and the\n"
     "           voxelized frame (froxel march) at 1280x720, median ms per stage\n"
     "           --only: the cases whose name contains it\n"
-    "usage: nacre bench volumetrics [--json] [--runs N] [--raymarch] [--only froxel]\n"
+    "usage: nacre bench volumetrics [--json] [--runs N] [--raymarch] [--only froxel] [--froxels WxHxD]\n"
     "  volumetrics  froxel stages (fill, light, integrate, apply at 160x90x64) and the analytic\n"
     "           fog pass over the demo at 1280x720 with a shadowed sun, four point lights, height\n"
     "           fog and a 128^3 cloud; frames where the camera turns, the sun turns, nothing moves\n"
     "           (bench/bench_volumetrics.c)\n"
     "  --raymarch  also one frame of the per-pixel march (64 steps; tens of seconds)\n"
-    "  --only froxel  only the froxel stages of the frames where the camera turns\n";
+    "  --only froxel  only the froxel stages of the frames where the camera turns\n"
+    "  --froxels WxHxD  the froxel grid (default 160x90x64): its cost against its size\n";
 
 
 
@@ -84,6 +85,7 @@ int nc_cli_bench(int argc, char **argv)
     long runs = pathtrace ? 1 : 15, res_only = 0;
     nc_bench_filter filter = {NULL, 0};
     bool repaint = false, raymarch = false;
+    long froxels[3] = {160, 90, 64};
     for (int i = 1; i < argc; i++) {
         if (nc_tool_common_flag("bench", argv[i], bench_help, &code))
             return code;
@@ -101,6 +103,21 @@ int nc_cli_bench(int argc, char **argv)
             repaint = true;
         else if (volumetrics && strcmp(argv[i], "--raymarch") == 0)
             raymarch = true;
+        else if (volumetrics && strcmp(argv[i], "--froxels") == 0 && i + 1 < argc) {
+            /* W, H, D: integers in 1..4096 between two x's (the renderer checks the rest) */
+            const char *v = argv[++i], *x1 = strchr(v, 'x'), *x2 = x1 ? strchr(x1 + 1, 'x') : NULL;
+            char part[3][16] = {{0}};
+            bool ok = x1 && x2 && x1 - v < 16 && x2 - x1 - 1 < 16 && strlen(x2 + 1) < 16;
+            if (ok) {
+                memcpy(part[0], v, (size_t)(x1 - v));
+                memcpy(part[1], x1 + 1, (size_t)(x2 - x1 - 1));
+                memcpy(part[2], x2 + 1, strlen(x2 + 1));
+            }
+            for (int k = 0; ok && k < 3; k++)
+                ok = nc_tool_parse_int(part[k], 1, 4096, &froxels[k]);
+            if (!ok)
+                return nc_tool_usage("bench", "--froxels '%s': expected WxHxD, integers in 1..4096, e.g. 160x90x64", v);
+        }
         else if (load && strcmp(argv[i], "--mesh") == 0 && i + 1 < argc)
             load_ply = argv[++i];
         else if (load && strcmp(argv[i], "--glb") == 0 && i + 1 < argc)
@@ -140,7 +157,8 @@ int nc_cli_bench(int argc, char **argv)
     if (volumetrics) {
         if (filter.only && strcmp(filter.only, "froxel") != 0)
             return nc_tool_usage("bench", "--only '%s': volumetrics has one case, froxel", filter.only);
-        return nc_bench_volumetrics(json, (int)runs, raymarch, filter.only != NULL);
+        const uint32_t grid[3] = {(uint32_t)froxels[0], (uint32_t)froxels[1], (uint32_t)froxels[2]};
+        return nc_bench_volumetrics(json, (int)runs, raymarch, filter.only != NULL, grid);
     }
     int rc = nc_bench_raster(argc - 1, argv + 1);
     if (rc != 0)
