@@ -32,6 +32,16 @@ static void geo_free(geo *g)
 }
 
 /* Horizontal square (normal +y) centred at (cx, h, cz), `cells` x `cells` quads. */
+/* The end of a test: its map, its n meshes, the rasterizer and the context. */
+static void finish(nacre_context *ctx, nc_rasterizer *r, nc_shadow_map *sm, geo *g, int n)
+{
+    nc_shadow_free(ctx, sm);
+    for (int i = 0; i < n; i++)
+        geo_free(&g[i]);
+    nc_rasterizer_destroy(r);
+    nacre_context_destroy(ctx);
+}
+
 static geo make_square(double cx, double h, double cz, double half, int cells)
 {
     geo g;
@@ -384,11 +394,7 @@ static void test_spot(void)
     /* Behind the light: outside the map, lit. */
     CHECK(nc_shadow_lookup(&sm, nc_v3(0.4f, 8, -0.3f), nc_v3(0, 1, 0), PCF, BIAS) == 1.0f);
     check_batch(&sm, 10.0, 2.5);
-    nc_shadow_free(ctx, &sm);
-    geo_free(&g[0]);
-    geo_free(&g[1]);
-    nc_rasterizer_destroy(r);
-    nacre_context_destroy(ctx);
+    finish(ctx, r, &sm, g, 2);
 }
 
 static void test_point(void)
@@ -444,11 +450,7 @@ static void test_point(void)
     CHECK(shadow_faces[0] > 50 && shadow_faces[1] > 50 && shadow_faces[3] > 50 &&
           shadow_faces[5] > 50);
     check_batch(&sm, 10.0, 4.0);
-    nc_shadow_free(ctx, &sm);
-    for (int i = 0; i < 5; i++)
-        geo_free(&g[i]);
-    nc_rasterizer_destroy(r);
-    nacre_context_destroy(ctx);
+    finish(ctx, r, &sm, g, 5);
 }
 
 /* Points on the facets of a sphere lit by `ld`: everything facing the light must be lit. */
@@ -509,15 +511,22 @@ static void acne_case(nc_rasterizer *r, nacre_context *ctx, const nacre_light_de
     geo_free(&g[1]);
 }
 
+/* A sun along (0.4, -1, 0.3), normalised: oblique to the test squares. */
+static nacre_light_desc tilted_sun(void)
+{
+    nacre_light_desc dl = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
+    double d[3] = {0.4, -1.0, 0.3}, n = sqrt(0.16 + 1 + 0.09);
+    for (int k = 0; k < 3; k++)
+        dl.direction[k] = (float)(d[k] / n);
+    return dl;
+}
+
 static void test_acne(void)
 {
     nacre_context *ctx = make_ctx(2);
     nc_rasterizer *r = NULL;
     CHECK(nc_rasterizer_create(ctx, &r) == NACRE_OK);
-    nacre_light_desc dl = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
-    double d[3] = {0.4, -1.0, 0.3}, n = sqrt(0.16 + 1 + 0.09);
-    for (int k = 0; k < 3; k++)
-        dl.direction[k] = (float)(d[k] / n);
+    nacre_light_desc dl = tilted_sun();
     acne_case(r, ctx, &dl, 1024, "directional");
     nacre_light_desc sl = nacre_light_desc_defaults(NACRE_LIGHT_SPOT);
     float sp[3] = {3.0f, 5.0f, 2.0f}, st[3] = {0.2f, 1.3f, -0.1f};
@@ -775,10 +784,7 @@ static void test_volume_table(void)
     nacre_context *ctx = make_ctx(2);
     nc_rasterizer *r = NULL;
     CHECK(nc_rasterizer_create(ctx, &r) == NACRE_OK);
-    nacre_light_desc dl = nacre_light_desc_defaults(NACRE_LIGHT_DIRECTIONAL);
-    double d[3] = {0.4, -1.0, 0.3}, n = sqrt(0.16 + 1 + 0.09);
-    for (int k = 0; k < 3; k++)
-        dl.direction[k] = (float)(d[k] / n);
+    nacre_light_desc dl = tilted_sun();
     /* Sizes: blocks of 1 texel (dim = size + 1), of 2 and 8 (the default map), sizes that are
      * not powers of two (clipped blocks at the far border) */
     vol_case(r, ctx, &dl, 200, "directional 200");
@@ -813,11 +819,7 @@ static void test_volume_table(void)
     vol_compare(&sm, &mm, &vs, BIAS, 300, 5u, &t);
     CHECK(t.bad == 0 && t.read == 8 * t.groups);
     nc_shadow_minmax_free(ctx, &mm);
-    nc_shadow_free(ctx, &sm);
-    geo_free(&g[0]);
-    geo_free(&g[1]);
-    nc_rasterizer_destroy(r);
-    nacre_context_destroy(ctx);
+    finish(ctx, r, &sm, g, 2);
 }
 
 /* The table is made again when its map is re-rendered (the light moved), and only then; a table
@@ -888,11 +890,7 @@ static void test_volume_table_update(void)
     CHECK(sm.generation != mm.generation);
     nc_shadow_minmax_free(ctx, &mm);
     nc_shadow_free(ctx, &sm);
-    nc_shadow_free(ctx, &other);
-    geo_free(&g[0]);
-    geo_free(&g[1]);
-    nc_rasterizer_destroy(r);
-    nacre_context_destroy(ctx);
+    finish(ctx, r, &other, g, 2);
 }
 
 int main(void)
