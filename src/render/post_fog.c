@@ -318,11 +318,12 @@ static void camera_rays8(const camera_rays *cr, int32_t x0, int32_t y, const flo
     nc_v8_store(tmax, nc_v8_sel(t > 0.0f, t, zero));
 }
 
-/* T and L along 8 rays (see the top of the file) at once, in float: every case of the closed
- * forms lane by lane (box, ellipsoid, level, capped, rising to infinity, diverging). Rays: origins O, unit directions D (3 planes of 8), ends
- * tmax (+inf over the background); tl: 6 floats per lane (T rgb, L rgb). Float keeps the
- * closed forms within a few 1e-7 relative of the double ones (the height factor's exponential
- * is nc_vol_exp_fast8's, the phase's power a refined reciprocal square root). */
+/* T and L along 8 rays (see the top of the file) at once, in float: every case of the closed forms
+ * lane by lane (box, ellipsoid, level, capped, rising to infinity, diverging). Rays: origins O,
+ * unit directions D (3 planes of 8), ends tmax (+inf over the background); tl: 6 floats per lane
+ * (T rgb, L rgb). Float keeps the closed forms within a few 1e-7 relative of the double ones (the
+ * height factor's exponential is nc_vol_exp_fast8's, the phase's power a refined reciprocal square
+ * root). */
 static void fog_pixels8(const fog_state *st, const float O[3][8], const float D[3][8], const float *tmax, float *tl)
 {
     const nc_v8f zero = {0}, inf = zero + INFINITY;
