@@ -60,6 +60,9 @@ typedef struct fog_const {
     double w2l[3][4]; /* box: world -> local rows (rotation and translation) */
     double half[3];   /* box: half edge lengths (ellipsoid: semi-axes) */
     nc_vol_height h;
+    /* The pixels' float forms of the above (fog_pixels8) */
+    float w2lf[3][4], halff[3], inv_halff[3];
+    nc_vol_height8 h8;
     double sigma_t[3], sigma_s[3]; /* where the height factor is 1 (patterns: their mean) */
     double emission[3];            /* likewise */
     double g;
@@ -234,6 +237,13 @@ static nacre_result fog_setup(fog_state *st, nacre_context *ctx, const nacre_sce
         f->h = (nc_vol_height){.falloff = height ? rec->desc.height_falloff : 0.0,
                                .base = rec->desc.height_base,
                                .cap = nc_vol_height_exp_cap(height, fmaxf(mx[0], fmaxf(mx[1], mx[2])))};
+        f->h8 = nc_vol_height8_make(&f->h);
+        for (int r = 0; r < 3; r++) {
+            for (int c = 0; c < 4; c++)
+                f->w2lf[r][c] = (float)f->w2l[r][c];
+            f->halff[r] = (float)f->half[r];
+            f->inv_halff[r] = (float)(1.0 / f->half[r]);
+        }
         for (int c = 0; c < 3; c++) {
             f->sigma_s[c] = st->mean_ss[i][c];
             f->sigma_t[c] = (double)st->mean_sa[i][c] + st->mean_ss[i][c];
@@ -326,7 +336,7 @@ static void camera_rays8(const camera_rays *cr, int32_t x0, int32_t y, const flo
  * root). */
 static void fog_pixels8(const fog_state *st, const float O[3][8], const float D[3][8], const float *tmax, float *tl)
 {
-    const nc_v8f zero = {0}, inf = zero + INFINITY;
+    const nc_v8f zero = {0};
     nc_v8f o[3], d[3];
     for (int k = 0; k < 3; k++) {
         o[k] = nc_v8_load(O[k]);
@@ -342,15 +352,14 @@ static void fog_pixels8(const fog_state *st, const float O[3][8], const float D[
         if (f->box) {
             nc_v8f ol[3], dl[3];
             for (int k = 0; k < 3; k++) {
-                const double *m = f->w2l[k];
-                ol[k] = (float)m[0] * o[0] + (float)m[1] * o[1] + (float)m[2] * o[2] + (float)m[3];
-                dl[k] = (float)m[0] * d[0] + (float)m[1] * d[1] + (float)m[2] * d[2];
+                const float *m = f->w2lf[k];
+                ol[k] = m[0] * o[0] + m[1] * o[1] + m[2] * o[2] + m[3];
+                dl[k] = m[0] * d[0] + m[1] * d[1] + m[2] * d[2];
             }
             if (f->ellipsoid) {
                 nc_v8f A = zero, B = zero, C = zero - 1.0f;
                 for (int k = 0; k < 3; k++) {
-                    float inv = (float)(1.0 / f->half[k]);
-                    nc_v8f ok = ol[k] * inv, dk = dl[k] * inv;
+                    nc_v8f ok = ol[k] * f->inv_halff[k], dk = dl[k] * f->inv_halff[k];
                     A += dk * dk;
                     B += ok * dk;
                     C += ok * ok;
@@ -369,7 +378,7 @@ static void fog_pixels8(const fog_state *st, const float O[3][8], const float D[
                     /* A direction of 0 along the axis: +-inf from outside the slab (a miss),
                      * -inf and +inf (or NaN, on its faces) from inside (no limit), as the
                      * scalar test answers. */
-                    float h = (float)f->half[k];
+                    float h = f->halff[k];
                     nc_v8f ta = (-h - ol[k]) / dl[k], tb = (h - ol[k]) / dl[k];
                     nc_v8i swap = ta > tb;
                     nc_v8f lo = nc_v8_sel(swap, tb, ta), hi = nc_v8_sel(swap, ta, tb);
@@ -382,32 +391,7 @@ static void fog_pixels8(const fog_state *st, const float O[3][8], const float D[
         hit &= t1 > t0;
         if (!nc_v8_bits(hit))
             continue;
-        /* nc_vol_height_integral over [t0, t1] */
-        nc_v8f len = t1 - t0, G;
-        const nc_vol_height *h = &f->h;
-        if (!(h->falloff > 0.0)) {
-            G = h->cap >= 0.0 ? len : len * (float)exp(h->cap);
-        } else {
-            float k = (float)h->falloff, cap = (float)h->cap, base = (float)h->base;
-            nc_v8f s = nc_v8_sel(d[1] >= 0.0f, d[1], -d[1]);
-            nc_v8f y_lo = o[1] + d[1] * nc_v8_sel(d[1] >= 0.0f, t0, t1);
-            nc_v8f e = -k * (y_lo - base);
-            nc_v8f f_lo = nc_vol_exp_fast8(nc_v8_sel(e < cap, e, zero + cap));
-            nc_v8f level = nc_v8_sel(f_lo > 0.0f, len * f_lo, zero);
-            float yc = (float)(h->base - h->cap / h->falloff);
-            nc_v8i below = y_lo < yc;
-            nc_v8f sh = nc_v8_sel(s > 0.0f, s, zero + 1.0f);
-            nc_v8f to_cap = (yc - y_lo) / sh;
-            nc_v8f capped = nc_v8_sel(below, nc_v8_sel(to_cap < len, to_cap, len), zero);
-            f_lo = nc_v8_sel(below, zero + (float)exp(h->cap), f_lo);
-            nc_v8f rest = len - capped, ks = k * sh, x = ks * rest;
-            nc_v8f series = 1.0f - x * (0.5f - x * (1.0f / 6.0f - x * (1.0f / 24.0f - x * (1.0f / 120.0f))));
-            nc_v8f ratio = nc_v8_sel(x < 0.1f, series, (1.0f - nc_vol_exp_fast8(-x)) / nc_v8_sel(x < 0.1f, zero + 1.0f, x));
-            nc_v8f more = nc_v8_sel(rest == INFINITY, f_lo / ks, rest * f_lo * ratio);
-            G = capped * f_lo + nc_v8_sel(rest > 0.0f, more, zero);
-            G = nc_v8_sel(s == 0.0f, level, G);
-            G = nc_v8_sel((len == INFINITY) & (d[1] < 0.0f), inf, G);
-        }
+        nc_v8f G = nc_vol_height_integral8(&f->h8, o[1], d[1], t0, t1);
         hit &= G > 0.0f;
         if (!nc_v8_bits(hit))
             continue;
@@ -418,7 +402,7 @@ static void fog_pixels8(const fog_state *st, const float O[3][8], const float D[
         for (uint32_t l = 0; l < st->sun_count; l++) {
             const sun *sn = &st->suns[l];
             nc_v8f cs = -((float)sn->dir[0] * d[0] + (float)sn->dir[1] * d[1] + (float)sn->dir[2] * d[2]);
-            nc_v8f r = nc_v8_rsqrt(pa + pb * cs), p = pc * (r * r * r);
+            nc_v8f p = nc_vol_hg_phase8(cs, zero + pa, zero + pb, zero + pc);
             for (int c = 0; c < 3; c++)
                 S[c] += (float)sn->e[c] * p;
         }
@@ -438,9 +422,7 @@ static void fog_pixels8(const fog_state *st, const float O[3][8], const float D[
         }
     }
     for (int c = 0; c < 3; c++) {
-        nc_v8f T = nc_vol_transmittance8(tau[c]), x = tau[c];
-        nc_v8f series = 1.0f - x * (0.5f - x * (1.0f / 6.0f - x * (1.0f / 24.0f - x * (1.0f / 120.0f))));
-        nc_v8f ratio = nc_v8_sel(x < 0.1f, series, (1.0f - T) / nc_v8_sel(x < 0.1f, zero + 1.0f, x));
+        nc_v8f T = nc_vol_transmittance8(tau[c]), ratio = nc_vol_exp_ratio8(tau[c], T);
         nc_v8i div = tau_inf[c] > 0.0f;
         nc_v8f Tc = nc_v8_sel(div, zero, T);
         nc_v8f Lc = nc_v8_sel(div, acc_inf[c] / nc_v8_sel(div, tau_inf[c], zero + 1.0f), acc[c] * ratio);

@@ -1281,15 +1281,6 @@ static nacre_result column_depths(vol_state *st, nacre_context *ctx, const float
 
 /* ---- the froxels' lighting, 8 froxels of a column at a time (core/simd.h) ------------------- */
 
-/* The Henyey-Greenstein phase of the froxels lane by lane from their constants (froxel_light_column:
- * pa = 1 + g^2, pb = -2 g, pc = (1 - g^2) / 4 pi): pc x^-3/2 with x = pa + pb cs, by nc_v8_rsqrt
- * (x >= (1 - |g|)^2 > 0). */
-static inline nc_v8f v8_hg_phase_c(nc_v8f cs, nc_v8f pa, nc_v8f pb, nc_v8f pc)
-{
-    nc_v8f r = nc_v8_rsqrt(pa + pb * cs);
-    return pc * (r * r * r);
-}
-
 /* nc_vol_height_integral of global fog v (with a falloff) in float along rays from heights y
  * with direction y components wy over [0, len] (finite; a point light at height y_end, where the
  * height factor is f_end), given the factors f_y at y. Where the segment rises by h (after its
@@ -1311,7 +1302,7 @@ static inline nc_v8f v8_height_integral(const vfog *v, nc_v8f y, nc_v8f wy, nc_v
     nc_v8f capped = nc_v8_sel(below, nc_v8_sel(to_cap < len, to_cap, len), (nc_v8f){0});
     f_lo = nc_v8_sel(below, nc_v8_splat(v->fcap), f_lo);
     nc_v8f rest = len - capped, x = ks * rest;
-    nc_v8f series = rest * f_lo * (1.0f - x * (0.5f - x * (1.0f / 6.0f - x * (1.0f / 24.0f - x * (1.0f / 120.0f)))));
+    nc_v8f series = rest * f_lo * nc_vol_exp_ratio_series8(x);
     nc_v8f total = capped * f_lo + nc_v8_sel(x < 0.1f, series, (f_lo - f_hi) * inv_ks);
     return nc_v8_sel(s == 0.0f, len * f_lo, total); /* level: constant density */
 }
@@ -1444,7 +1435,7 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t 
             nc_v8f cs = nc_v8_splat(-(d[0] * li->dir[0] + d[1] * li->dir[1] + d[2] * li->dir[2]));
             float wy = -li->dir[1], inv_wy = 1.0f / wy;
             for (uint32_t k = 0; k < m8; k += 8)
-                nc_v8_store(F + k, v8_hg_phase_c(cs, nc_v8_load(PA + k), nc_v8_load(PB + k), nc_v8_load(PC + k)));
+                nc_v8_store(F + k, nc_vol_hg_phase8(cs, nc_v8_load(PA + k), nc_v8_load(PB + k), nc_v8_load(PC + k)));
             for (uint32_t f = 0; f < st->gfog_count; f++) {
                 const vfog *v = &st->gfog[f];
                 float kf = v->o->hf_falloff, tail = 1.0f / (kf * wy);
@@ -1487,7 +1478,7 @@ static void froxel_light_column(const vol_state *st, uint32_t n, const uint32_t 
                     scale *= nc_spot_falloff8(li->falloff, wx * li->dir[0] + wyv * li->dir[1] + wz * li->dir[2],
                                               li->co, li->ci, hard);
                 nc_v8f cs = -(d[0] * wx + d[1] * wyv + d[2] * wz);
-                nc_v8f ph = v8_hg_phase_c(cs, nc_v8_load(PA + k), nc_v8_load(PB + k), nc_v8_load(PC + k));
+                nc_v8f ph = nc_vol_hg_phase8(cs, nc_v8_load(PA + k), nc_v8_load(PB + k), nc_v8_load(PC + k));
                 nc_v8_store(F + k, nc_v8_sel(valid, ph * scale, zero));
                 for (uint32_t f = 0; f < st->gfog_count; f++) {
                     const vfog *v = &st->gfog[f];

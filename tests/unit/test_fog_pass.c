@@ -3,7 +3,8 @@
  * post pass (src/render/post_fog.c), against closed forms, quadrature and the path tracer:
  *   - height-fog optical depth against Simpson quadrature (relative 1e-5): oblique, exactly
  *     horizontal, exactly vertical (up and down) rays, huge and tiny falloffs, segments that
- *     cross the exponent cap, rays rising to infinity, and the divergent cases;
+ *     cross the exponent cap, rays rising to infinity, and the divergent cases; its 8-lane
+ *     float form (the fog pass's) against it in each case (relative 1e-5);
  *   - transmittance in [0, 1] (single segments and products of steps); the segment integral of
  *     in-scattering and emission against fine numerical integration, its sigma_t -> 0 limit and
  *     infinite segments; front-to-back marching independent of the number of steps;
@@ -46,6 +47,20 @@ static double height_quadrature(const nc_vol_height *h, double y0, double dir_y,
     return sum * step / 3.0;
 }
 
+/* nc_vol_height_integral8 (float, 8 lanes) with the same ray in every lane: lane 0, the others
+ * checked equal to it. */
+static double height8(const nc_vol_height *h, double y0, double dir_y, double t0, double t1)
+{
+    nc_vol_height8 hf = nc_vol_height8_make(h);
+    const nc_v8f zero = {0};
+    nc_v8f G = nc_vol_height_integral8(&hf, zero + (float)y0, zero + (float)dir_y, zero + (float)t0, zero + (float)t1);
+    bool same = true;
+    for (int l = 1; l < 8; l++)
+        same = same && memcmp(&G[l], &G[0], sizeof(float)) == 0;
+    CHECK(same);
+    return G[0];
+}
+
 static void check_height(const char *what, nc_vol_height h, double y0, double dir_y, double t0, double t1)
 {
     double exact = nc_vol_height_integral(&h, y0, dir_y, t0, t1);
@@ -54,6 +69,11 @@ static void check_height(const char *what, nc_vol_height h, double y0, double di
     if (!(rel <= 1e-5))
         printf("  height integral %s: %.12g vs quadrature %.12g (rel %.3g)\n", what, exact, quad, rel);
     CHECK(rel <= 1e-5);
+    /* The fog pass's float form: within 1e-5 of the double one. */
+    double rel8 = fabs(height8(&h, y0, dir_y, t0, t1) - exact) / fabs(exact);
+    if (!(rel8 <= 1e-5))
+        printf("  height integral %s, 8 lanes in float: rel %.3g\n", what, rel8);
+    CHECK(rel8 <= 1e-5);
 }
 
 static void height_integral(void)
@@ -102,6 +122,11 @@ static void height_integral(void)
     CHECK(isinf(nc_vol_height_integral(&h, 0.5, -0.1, 0.0, INFINITY)));
     CHECK(isinf(nc_vol_height_integral(&none, 0.5, 0.6, 0.0, INFINITY)));
     CHECK(nc_vol_height_integral(&h, 0.5, 0.6, 3.0, 3.0) == 0.0);
+    CHECK_NEAR(height8(&h, 0.5, 0.6, 0.0, INFINITY) / inf_up, 1.0, 1e-5);
+    CHECK_NEAR(height8(&capped, -50.0, 0.5, 0.0, INFINITY) / inf_capped, 1.0, 1e-5);
+    CHECK(isinf(height8(&h, 0.5, 0.0, 0.0, INFINITY)) && isinf(height8(&h, 0.5, -0.1, 0.0, INFINITY)) &&
+          isinf(height8(&none, 0.5, 0.6, 0.0, INFINITY)));
+    CHECK_NEAR(height8(&dense, 5.0, 0.3, 1.0, 4.0), 3.0 * exp(-2.0), 1e-6);
     /* The float factor the path tracer tracks agrees with the double profile. */
     CHECK_NEAR(nc_vol_height_factor(true, 0.3f, 1.0f, 60.0f, 4.0f), height_density(&h, 4.0), 1e-6);
     CHECK(nc_vol_height_exp_cap(true, 1e-20f) == 60.0f);
