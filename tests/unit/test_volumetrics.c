@@ -574,6 +574,16 @@ static void clear_columns(void)
     nacre_scene_destroy(s);
 }
 
+/* The scene of json and the fog field of its first `count` fogs (0: all) with shadow_steps
+ * steps; NULL (f not set) if the scene does not load. */
+static nacre_scene *load_field(const char *json, uint32_t count, uint32_t steps, nc_fog_field *f)
+{
+    nacre_scene *s = media_load(ctx, json, NULL);
+    if (s)
+        nc_fog_field_init(f, s, count ? count : s->fog_count, steps);
+    return s;
+}
+
 /* Transmittance towards lights from the fog field: in [0, 1], and the closed form for a
  * homogeneous box and for height fog (against the march through the same fog as a pattern). */
 static void field_transmittance(void)
@@ -583,11 +593,10 @@ static void field_transmittance(void)
                        "\"fog\": [{\"shape\": \"box\", \"size\": [4, 2, 4], \"sigma_a\": 0.1, \"sigma_s\": [0.5, 1, 2],"
                        "\"height_falloff\": 0.7, \"height_base\": -1},"
                        "{\"shape\": \"global\", \"sigma_s\": 0.01, \"height_falloff\": 2}]}";
-    nacre_scene *s = media_load(ctx, json, NULL);
+    nc_fog_field f;
+    nacre_scene *s = load_field(json, 0, 8, &f);
     if (!s)
         return;
-    nc_fog_field f;
-    nc_fog_field_init(&f, s, s->fog_count, 8);
     float scratch[NC_FOG_TAU_SCRATCH(8)];
     bool in_range = true;
     for (int i = 0; i < 200; i++) {
@@ -725,11 +734,10 @@ static void light_volume(void)
                        "\"rotate\": [10, 35, 0], \"sigma_a\": 0.1, \"sigma_s\": [0.4, 0.8, 1.2],"
                        "\"height_falloff\": 0.5, \"pattern\": {\"type\": \"noise\", \"cell_size\": 0.5,"
                        "\"sigma_a2\": 0, \"sigma_s2\": 0}}]}";
-    nacre_scene *s = media_load(ctx, json, NULL);
+    nc_fog_field f8, f256;
+    nacre_scene *s = load_field(json, 1, 8, &f8);
     if (!s)
         return;
-    nc_fog_field f8, f256;
-    nc_fog_field_init(&f8, s, 1, 8);
     nc_fog_field_init(&f256, s, 1, 256);
     static float scratch[NC_FOG_TAU_SCRATCH(256)];
     float dir[3] = {0.3f, -1.0f, 0.2f}, out[3] = {1.5f, 2.5f, 0.5f}, in[3] = {0.3f, 0.0f, 0.1f};
@@ -806,11 +814,10 @@ static void light_volume_gray(void)
                        "\"pattern\": {\"type\": \"checker\", \"cell_size\": 0.5, \"sigma_a2\": 0,"
                        "\"sigma_s2\": [0.1, 0.2, 0.3]}},"
                        "{\"shape\": \"sphere\", \"size\": [1, 1, 1], \"sigma_a\": [0.1, 0.1, 0.2], \"sigma_s\": 0.5}]}";
-    nacre_scene *s = media_load(ctx, json, NULL);
+    nc_fog_field f;
+    nacre_scene *s = load_field(json, 4, 8, &f);
     if (!s)
         return;
-    nc_fog_field f;
-    nc_fog_field_init(&f, s, 4, 8);
     CHECK(nc_light_volume_fog_gray(&f.fogs[0]));
     CHECK(!nc_light_volume_fog_gray(&f.fogs[1]));
     CHECK(!nc_light_volume_fog_gray(&f.fogs[2]));
