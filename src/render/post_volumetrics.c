@@ -152,7 +152,7 @@ typedef struct vol_state {
     vfog gfog[NACRE_MAX_FOGS];
     uint32_t gfog_count;
     bool analytic_boxes; /* any box fog without pattern (exact per froxel, nc_fog_field_optical_depth) */
-    bool tau_gray;       /* tau_grid's three channels are equal (tau_grid_fill) */
+    bool tau_gray;       /* tau_grid's channels are equal: its first plane is all of them */
     vlight *lights;
     uint32_t light_capacity, light_count;
     /* Per light, the min-max table of its shadow map, which decides most of froxel_light's
@@ -216,7 +216,7 @@ typedef struct vol_state {
     size_t grid_capacity;
     /* Optical depth towards each light at the froxels of even indices (Wc x Hc x Dc nodes), per
      * light and node column 3 planes of Dc (one per channel: froxel_light_column interpolates a
-     * plane 8 nodes at a time); tau_range: per light and node column, the nodes [lo, hi) outside
+     * plane 8 nodes at a time; with tau_gray only the first is written and read); tau_range: per light and node column, the nodes [lo, hi) outside
      * which all 3 planes are 0 (the froxels' rays that miss the fog's shadow skip it) */
     uint32_t Wc, Hc, Dc;
     float *tau_grid;
@@ -1134,6 +1134,7 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
         return NACRE_OK;
     int64_t cols = (int64_t)cols_c;
     uint32_t Dc = st->Dc;
+    const int planes = st->tau_gray ? 1 : 3; /* the ones froxel_light_column reads */
 #pragma omp parallel for schedule(dynamic, 4) num_threads(threads)
     for (int64_t cc = 0; cc < cols; cc++) {
         float *sc = thread_scratch(st), *p = sc, *tau = sc + 13u * batch + NC_FOG_EVAL_SCRATCH(batch);
@@ -1169,7 +1170,7 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
                 continue;
             float *out = st->tau_grid + 3 * ((size_t)l * nodes + (size_t)cc * Dc);
             uint32_t *range = st->tau_range + 2 * ((size_t)l * cols_c + (size_t)cc), lo = Dc, hi = 0;
-            memset(out, 0, 3 * (size_t)Dc * sizeof(float));
+            memset(out, 0, (size_t)planes * Dc * sizeof(float));
             for (uint32_t c0 = first; c0 < used; c0 += 8) {
                 /* 8 nodes at a time (the last repeated past used) */
                 uint32_t count = used - c0 < 8 ? used - c0 : 8;
@@ -1180,7 +1181,7 @@ static nacre_result tau_grid_fill(vol_state *st, nacre_context *ctx, int threads
                 } else {
                     patterned_tau8(st, l, NX + c0, NY + c0, NZ + c0, count, t, tau);
                 }
-                for (int ch = 0; ch < 3; ch++)
+                for (int ch = 0; ch < planes; ch++)
                     memcpy(out + (size_t)ch * Dc + c0, t + 8 * ch, count * sizeof(float));
                 nc_v8i nonzero = (nc_v8_load(t) != 0.0f) | (nc_v8_load(t + 8) != 0.0f) | (nc_v8_load(t + 16) != 0.0f);
                 uint32_t bits = nc_v8_bits(nonzero & nc_v8_first(count));
