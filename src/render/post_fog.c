@@ -386,7 +386,6 @@ static void fog_pixels8(const fog_state *st, const float O[3][8], const float D[
                     t1 = nc_v8_sel(hi < t1, hi, t1);
                 }
             }
-            hit &= t0 < t1;
         }
         hit &= t1 > t0;
         if (!nc_v8_bits(hit))
